@@ -1,0 +1,113 @@
+"""Command line: ``sqpmpc run SCENARIO --scheme centralized|decentralized [--out DIR]``.
+
+Exit status: 0 when the run completed (whatever the metrics say), 2 for bad
+input (scenario file, options), 1 when the run stopped midway (what it had is
+written), 130 on Ctrl-C (likewise).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+from .errors import ProblemError, ScenarioError
+from .metrics import write_run
+from .qp import OSQPSettings
+from .rti import SolverSettings
+from .scenario import builtin_scenario_names, load_scenario
+from .simulation import ClosedLoopSimulation, SimulationOptions
+
+__all__ = ["build_parser", "main"]
+
+log = logging.getLogger("sqpmpc")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``sqpmpc`` command."""
+    parser = argparse.ArgumentParser(prog="sqpmpc", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a closed loop in one process")
+    run.add_argument("scenario", help=f"TOML file or built-in name ({', '.join(builtin_scenario_names())})")
+    run.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
+    run.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<new>)")
+    run.add_argument("--decentralized-mode", choices=("shared", "paper"), default="shared",
+                     help="shared-responsibility hyperplanes (default) or the paper's literal scheme")
+    run.add_argument("--iteration", choices=("rti", "sqp"), default="rti",
+                     help="one QP per sample (rti, default) or SQP to convergence")
+    run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
+    run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
+    run.add_argument("--keep-right-angle", type=float, default=None,
+                     help="symmetry-breaking rotation of collision normals, rad")
+    run.add_argument("--message-drop", type=float, default=0.0,
+                     help="decentralized: probability that a plan message is lost")
+    run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    run.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    sub.add_parser("list", help="list the built-in scenarios")
+    return parser
+
+
+def _summary(metrics: dict) -> str:
+    st = metrics["solve_time"]
+    rms = metrics["rms_tracking_error"]
+    return (
+        f"{metrics['scenario']} / {metrics['scheme']}: steps {metrics['steps']}, "
+        f"min clearance {metrics['min_clearance']}, collisions {metrics['collisions']}, "
+        f"input bound violations {metrics['input_bound_violations']}, "
+        f"solver failures {metrics['solver_failures']}, closed-loop cost "
+        f"{metrics['closed_loop_cost']:.4g}, RMS error "
+        f"{', '.join(f'{k}: {v:.3f}' for k, v in rms.items())} m, "
+        f"controller time median {st['median_ms']:.3f} ms, total {st['total_s']:.3f} s"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status."""
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    args = build_parser().parse_args(argv)
+    if args.command == "list":
+        print("\n".join(builtin_scenario_names()))
+        return 0
+    try:
+        scenario = load_scenario(args.scenario)
+        base = SolverSettings()
+        settings = SolverSettings(
+            iteration_scheme=args.iteration,
+            hessian=args.hessian,
+            discretization=args.discretization,
+            keep_right_angle=base.keep_right_angle if args.keep_right_angle is None
+            else args.keep_right_angle,
+            osqp=OSQPSettings(),
+        )
+        options = SimulationOptions(decentralized_mode=args.decentralized_mode,
+                                    message_drop_probability=args.message_drop,
+                                    progress=not args.quiet)
+        sim = ClosedLoopSimulation(scenario, args.scheme, settings, options)
+    except (ScenarioError, ProblemError) as exc:
+        print(f"sqpmpc: error: {exc}", file=sys.stderr)
+        return 2
+    out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{time.strftime('%Y%m%d-%H%M%S')}"
+    status = 0
+    try:
+        sim.run()
+    except KeyboardInterrupt:
+        print("sqpmpc: interrupted; writing what was simulated", file=sys.stderr)
+        status = 130
+    except Exception as exc:  # the run stopped midway: keep what it had, then report
+        print(f"sqpmpc: the run stopped at sample {sim.k}: {exc!r}; writing what was simulated",
+              file=sys.stderr)
+        status = 1
+    metrics = write_run(out, sim.record(), plots=not args.no_plots)
+    if not args.quiet:
+        print(_summary(metrics))
+        print(f"wrote {out}")
+    else:
+        print(json.dumps({"out": str(out)}))
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,249 @@
+r"""Pairwise collision avoidance (paper eq. 5) as separating hyperplanes.
+
+The distance constraint :math:`\|p_j - p_l\| \ge d_{jl}` is non-convex. Its
+linearization at :math:`(\bar p_j, \bar p_l)` is the separating hyperplane
+
+.. math::
+
+    n^\top (p_j - p_l) \ge d_{jl}, \qquad n = \frac{\bar p_j - \bar p_l}{\|\bar p_j - \bar p_l\|},
+
+which is also its first-order Taylor expansion, and an *inner* approximation:
+:math:`\|p_j - p_l\| \ge n^\top(p_j - p_l)` for any unit :math:`n`, so a
+satisfied row implies the true distance.
+
+**Stage-1 rule.** The first predicted stage is a hard constraint. If the
+Taylor normal of stage 1 does not keep the *current* configuration feasible,
+:math:`n^\top(p_j(k) - p_l(k)) < d_{jl}`, the normal of the current positions
+is used instead. Then stopping every robot (``v = 0``, exact for both
+discretizations) always satisfies stage 1: the QP stays feasible and a safe
+configuration stays safe (recursive feasibility at the sampling instants).
+
+**Shared responsibility (decentralized).** Robots ``j`` and ``l`` build the
+same hyperplane from the same exchanged predictions, each keeps half the
+distance on its own side of the mid-line:
+:math:`n^\top p_j \ge c + d/2` and :math:`-n^\top p_l \ge -c + d/2` imply
+:math:`n^\top(p_j - p_l) \ge d`. With :math:`n` oriented from the other robot
+to oneself, both robots evaluate the same formula. On stage 1 the offset
+:math:`c` is clipped so that each robot's current position stays on its side.
+
+**Symmetry breaking.** In exactly symmetric encounters the normals of two
+robots heading at each other never turn and both stop (deadlock). A rotation
+of every normal by a fixed angle :math:`\theta` (``keep_right_angle``),
+applied by both robots alike, tilts the hyperplanes so that each robot is
+pushed to its right and they pass each other.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "ExternalCollisionModel",
+    "PairwiseCollisionModel",
+    "rotate",
+    "unit_normals",
+]
+
+_EPS = 1e-9
+
+
+def rotate(vectors: np.ndarray, angle: float) -> np.ndarray:
+    """Rotate 2-D vectors ``(..., 2)`` counter-clockwise by ``angle`` (rad)."""
+    if angle == 0.0:
+        return vectors
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack(
+        (c * vectors[..., 0] - s * vectors[..., 1], s * vectors[..., 0] + c * vectors[..., 1]),
+        axis=-1,
+    )
+
+
+def unit_normals(
+    p_from: np.ndarray, p_to: np.ndarray, fallback: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Unit vectors :math:`(p_{from} - p_{to}) / \|\cdot\|` and the distances.
+
+    Where the points coincide (distance below 1e-9 m) ``fallback`` (broadcast to
+    the same shape, unit vectors) is used.
+    """
+    d = p_from - p_to
+    dist = np.hypot(d[..., 0], d[..., 1])
+    safe = dist > _EPS
+    n = np.where(safe[..., None], d / np.where(safe, dist, 1.0)[..., None], fallback)
+    return n, dist
+
+
+def _stage_one(
+    n1: np.ndarray, now_self: np.ndarray, now_other: np.ndarray, required: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Apply the stage-1 rule; returns the normals and a mask of overridden rows."""
+    n_now, _ = unit_normals(now_self, now_other, np.array([1.0, 0.0]))
+    keeps = np.einsum("...i,...i->...", n1, now_self - now_other) >= required
+    return np.where(keeps[..., None], n1, n_now), ~keeps
+
+
+class PairwiseCollisionModel:
+    r"""Internal pair rows of the centralized QP (both robots are variables).
+
+    Parameters
+    ----------
+    pairs
+        ``(P, 2)`` local robot indices.
+    required
+        ``(P,)`` required centre distances :math:`(d_j + d_l)/2` plus the margin.
+    keep_right_angle
+        Symmetry-breaking rotation :math:`\theta` of every normal (rad).
+    """
+
+    def __init__(self, pairs: np.ndarray, required: np.ndarray, keep_right_angle: float = 0.0):
+        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.required = np.asarray(required, dtype=float)
+        self.keep_right_angle = float(keep_right_angle)
+        self.current_positions: np.ndarray | None = None
+        self.stage_one_overrides = 0
+
+    def set_current_positions(self, positions: np.ndarray) -> None:
+        """Measured positions ``(m, 2)`` used by the stage-1 rule."""
+        self.current_positions = np.asarray(positions, dtype=float)
+
+    def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""Normals ``(P, N, 2)`` and right-hand sides ``(P, N)`` at linearization ``states``.
+
+        ``states`` is ``(m, N+1, 3)``; rows concern stages 1..N.
+        """
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        now = self.current_positions
+        pa, pb = states[a, 1:, :2], states[b, 1:, :2]
+        fallback = unit_normals(now[a], now[b], np.array([1.0, 0.0]))[0][:, None, :]
+        n, _ = unit_normals(pa, pb, fallback)
+        n = rotate(n, self.keep_right_angle)
+        n1, over = _stage_one(n[:, 0], now[a], now[b], self.required)
+        n[:, 0] = n1
+        self.stage_one_overrides = int(over.sum())
+        rhs = np.broadcast_to(self.required[:, None], n.shape[:2]).copy()
+        return n, rhs
+
+    def residuals(self, states: np.ndarray) -> np.ndarray:
+        r"""True constraint residuals :math:`d_{jl} - \|p_j - p_l\|` ``(P, N)`` (> 0 violates)."""
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        d = states[a, 1:, :2] - states[b, 1:, :2]
+        return self.required[:, None] - np.hypot(d[..., 0], d[..., 1])
+
+
+class ExternalCollisionModel:
+    r"""Rows of one robot against neighbours whose predictions are data.
+
+    Each slot ``e`` is one of:
+
+    - ``"shared"``: fixed hyperplane from the exchanged predictions of both
+      robots, half the distance each (linear constraint);
+    - ``"obstacle"``: the neighbour's prediction is a moving obstacle and the
+      full distance is kept, relinearized at the own iterate (the paper's literal
+      scheme, and the fallback for a neighbour whose plan is missing);
+    - ``"off"``: no constraint.
+
+    Parameters
+    ----------
+    required
+        ``(E,)`` required distances plus margin.
+    horizon
+        ``N``.
+    keep_right_angle
+        Symmetry-breaking rotation of the normals (rad).
+    """
+
+    def __init__(self, required: np.ndarray, horizon: int, keep_right_angle: float = 0.0):
+        self.required = np.asarray(required, dtype=float)
+        E = self.required.size
+        self.horizon = horizon
+        self.keep_right_angle = float(keep_right_angle)
+        self.kind = np.array(["off"] * E, dtype=object)
+        self.obstacles = np.zeros((E, horizon, 2))
+        self.fixed_normals = np.zeros((E, horizon, 2))
+        self.fixed_rhs = np.full((E, horizon), -np.inf)
+        self.current_self = np.zeros(2)
+        self.current_others = np.zeros((E, 2))
+        self.stage_one_rule_for_obstacles = True
+        self.stage_one_overrides = 0
+
+    def set_sample(
+        self,
+        current_self: np.ndarray,
+        current_others: np.ndarray,
+        own_prediction: np.ndarray,
+        other_predictions: np.ndarray,
+        kinds: list[str],
+    ) -> None:
+        r"""Data of one sample.
+
+        Parameters
+        ----------
+        current_self, current_others
+            Measured positions ``(2,)`` and ``(E, 2)``.
+        own_prediction
+            ``(N, 2)``: this robot's positions of stages 1..N as *published*
+            (its previous plan shifted), identical to what the neighbours use.
+        other_predictions
+            ``(E, N, 2)``: neighbours' positions for stages 1..N.
+        kinds
+            Slot kinds, ``"shared"``, ``"obstacle"`` or ``"off"``.
+        """
+        self.kind = np.array(kinds, dtype=object)
+        self.current_self = np.asarray(current_self, dtype=float)
+        self.current_others = np.asarray(current_others, dtype=float)
+        self.obstacles = np.asarray(other_predictions, dtype=float)
+        shared = self.kind == "shared"
+        self.fixed_rhs = np.full((self.required.size, self.horizon), -np.inf)
+        self.fixed_normals = np.zeros((self.required.size, self.horizon, 2))
+        if not np.any(shared):
+            return
+        own = np.broadcast_to(own_prediction, self.obstacles.shape)[shared]
+        oth = self.obstacles[shared]
+        half = 0.5 * self.required[shared]
+        now_o = self.current_others[shared]
+        fallback = unit_normals(self.current_self, now_o, np.array([1.0, 0.0]))[0][:, None, :]
+        n, _ = unit_normals(own, oth, fallback)
+        n = rotate(n, self.keep_right_angle)
+        n1, over = _stage_one(n[:, 0], self.current_self, now_o, 2.0 * half)
+        n[:, 0] = n1
+        c = np.einsum("eni,eni->en", n, 0.5 * (own + oth))
+        lo = np.einsum("ei,ei->e", n1, now_o) + half
+        hi = np.einsum("ei,i->e", n1, self.current_self) - half
+        c[:, 0] = np.clip(c[:, 0], lo, np.maximum(lo, hi))
+        self.fixed_normals[shared] = n
+        self.fixed_rhs[shared] = c + half[:, None]
+        self._shared_overrides = int(over.sum())
+
+    def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normals ``(1, E, N, 2)`` and rhs ``(1, E, N)`` at the own linearization ``(1, N+1, 3)``."""
+        normals = self.fixed_normals.copy()
+        rhs = self.fixed_rhs.copy()
+        obst = self.kind == "obstacle"
+        overrides = getattr(self, "_shared_overrides", 0)
+        if np.any(obst):
+            own = states[0, 1:, :2]
+            o = self.obstacles[obst]
+            fallback = unit_normals(self.current_self, self.current_others[obst],
+                                    np.array([1.0, 0.0]))[0][:, None, :]
+            n, _ = unit_normals(own[None], o, fallback)
+            n = rotate(n, self.keep_right_angle)
+            if self.stage_one_rule_for_obstacles:
+                n1, over = _stage_one(n[:, 0], self.current_self, self.current_others[obst],
+                                      self.required[obst])
+                n[:, 0] = n1
+                overrides += int(over.sum())
+            normals[obst] = n
+            rhs[obst] = np.einsum("eni,eni->en", n, o) + self.required[obst][:, None]
+        self.stage_one_overrides = overrides
+        return normals[None], rhs[None]
+
+    def residuals(self, states: np.ndarray) -> np.ndarray:
+        """True residuals ``(1, E, N)`` (> 0 violates): linear rows or obstacle distances."""
+        own = states[0, 1:, :2]
+        res = self.fixed_rhs - np.einsum("eni,ni->en", self.fixed_normals, own)
+        res[self.kind == "off"] = -np.inf
+        obst = self.kind == "obstacle"
+        if np.any(obst):
+            d = own[None] - self.obstacles[obst]
+            res[obst] = self.required[obst][:, None] - np.hypot(d[..., 0], d[..., 1])
+        return res[None]

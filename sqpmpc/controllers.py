@@ -1,0 +1,398 @@
+r"""Centralized (paper Algorithm 3.1) and decentralized (Algorithm 3.2) NMPC controllers.
+
+Both wrap :class:`sqpmpc.rti.MultipleShootingSQP`. Every sample a controller
+
+1. shifts its previous solution and linearizes around it,
+2. solves the QP (RTI) or iterates (SQP),
+3. clips the first input to its bounds and *verifies* it on the nonlinear
+   model: the next positions must satisfy the stage-1 collision rows (and
+   position bounds). A failed QP, a non-finite output or a failed check applies
+   a fallback instead: the first input of the shifted previous plan if it
+   passes the same check, else a braking input (``v`` as close to 0 as the
+   bounds allow, ``omega`` likewise), which the stage-1 rule of
+   :mod:`sqpmpc.collision` keeps safe. Fallbacks are counted, never raised.
+
+The decentralized controller owns one robot. Its neighbours' predicted
+horizons arrive as :class:`PlanMessage`. In the default ``"shared"`` mode each
+pair uses one hyperplane built by both robots from the same two exchanged
+predictions, each keeping half the distance. In ``"paper"`` mode each robot
+treats the others' predictions as fixed obstacles (the seed paper's literal
+scheme, no guarantee). A neighbour whose plan is missing or stale is
+predicted as in the paper's section 3.2: its last input is estimated from its
+current and previous states and held over the horizon; it is then kept at the
+full distance as an obstacle.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from .collision import ExternalCollisionModel, PairwiseCollisionModel
+from .errors import ProblemError
+from .layout import QPLayout
+from .model import discrete_dynamics, estimate_input, rollout
+from .rti import IterationReport, MultipleShootingSQP, SolverSettings
+from .scenario import Scenario
+
+__all__ = [
+    "CentralizedController",
+    "ControlOutput",
+    "DecentralizedController",
+    "PlanMessage",
+    "braking_input",
+    "predict_from_plan",
+    "predict_from_states",
+]
+
+DecentralizedMode = Literal["shared", "paper"]
+
+
+@dataclass(frozen=True)
+class PlanMessage:
+    """A robot's predicted horizon as exchanged between controllers.
+
+    Attributes
+    ----------
+    robot_id
+        Sender.
+    sample
+        Sample index ``k`` at which the plan was computed (its stage 0 is time ``t_k``).
+    states
+        ``(N+1, 3)`` predicted states.
+    inputs
+        ``(N, 2)`` predicted inputs.
+    """
+
+    robot_id: int
+    sample: int
+    states: np.ndarray
+    inputs: np.ndarray
+
+
+@dataclass
+class ControlOutput:
+    """Result of one controller sample.
+
+    Attributes
+    ----------
+    inputs
+        ``(m, 2)`` inputs to apply (within bounds).
+    predicted_states, predicted_inputs
+        ``(m, N+1, 3)`` and ``(m, N, 2)``: the plan consistent with ``inputs``.
+    fallback
+        ``None``, ``"shifted-plan"`` or ``"brake"``.
+    report
+        What the iteration did.
+    compute_time
+        Wall time of the whole sample computation, s.
+    """
+
+    inputs: np.ndarray
+    predicted_states: np.ndarray
+    predicted_inputs: np.ndarray
+    fallback: str | None
+    report: IterationReport
+    compute_time: float
+    info: dict[str, float] = field(default_factory=dict)
+
+
+def braking_input(lower: np.ndarray, upper: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """The input closest to zero within ``[lower, upper]``, broadcast to ``shape + (2,)``."""
+    return np.broadcast_to(np.clip(0.0, lower, upper), shape + (2,)).copy()
+
+
+def predict_from_plan(
+    plan: PlanMessage, sample: int, horizon: int, sample_time: float, method: str
+) -> np.ndarray | None:
+    """States ``(N+1, 3)`` for times ``t_k .. t_{k+N}`` from a plan computed at an earlier sample.
+
+    Stages past the plan's end are extrapolated holding its last input.
+    Returns ``None`` when the plan is from the future or older than ``N`` samples.
+    """
+    d = sample - plan.sample
+    if d < 0 or d > horizon:
+        return None
+    known = plan.states[d:]
+    missing = horizon + 1 - known.shape[0]
+    if missing == 0:
+        return known.copy()
+    tail = rollout(known[-1], np.repeat(plan.inputs[-1:], missing, axis=0), sample_time, method)
+    return np.concatenate((known, tail[1:]), axis=0)
+
+
+def predict_from_states(
+    current: np.ndarray,
+    previous: np.ndarray | None,
+    horizon: int,
+    sample_time: float,
+    method: str,
+) -> np.ndarray:
+    """Paper section 3.2 fallback: hold the input estimated from two states, ``(N+1, 3)``."""
+    u = np.zeros(2) if previous is None else estimate_input(previous, current, sample_time)
+    return rollout(current, np.repeat(u[None], horizon, axis=0), sample_time, method)
+
+
+class _ControllerBase:
+    """Shared parts: engine construction, reference sampling, verification, fallback."""
+
+    def __init__(self, scenario: Scenario, indices: np.ndarray, layout: QPLayout,
+                 settings: SolverSettings) -> None:
+        self.scenario = scenario
+        self.settings = settings
+        self.indices = np.asarray(indices, dtype=np.int64)
+        b = scenario.bounds
+        self.input_lower, self.input_upper = b.input_lower(), b.input_upper()
+        self.position_lower, self.position_upper = b.position_lower(), b.position_upper()
+        self.engine = MultipleShootingSQP(
+            layout, scenario.sample_time, np.asarray(scenario.weights.Q),
+            np.asarray(scenario.weights.R), self.input_lower, self.input_upper,
+            self.position_lower, self.position_upper, settings,
+        )
+        self.horizon = scenario.horizon
+        self.sample_time = scenario.sample_time
+        self.failures = 0
+
+    def reference(self, t: float) -> np.ndarray:
+        """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""
+        times = t + self.sample_time * np.arange(1, self.horizon + 1)
+        return np.swapaxes(self.scenario.reference_positions(times)[:, self.indices], 0, 1)
+
+    def _next(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        return discrete_dynamics(states, inputs, self.sample_time, self.settings.discretization)
+
+    def _in_position_bounds(self, positions: np.ndarray) -> bool:
+        return bool(np.all(positions >= self.position_lower - 1e-9)
+                    and np.all(positions <= self.position_upper + 1e-9))
+
+    def _plan_from(self, states: np.ndarray, first: np.ndarray,
+                   rest: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Plan applying ``first (m, 2)`` then ``rest (m, N-1, 2)`` (or braking)."""
+        m = states.shape[0]
+        if rest is None:
+            rest = braking_input(self.input_lower, self.input_upper, (m, self.horizon - 1))
+        u = np.concatenate((first[:, None], rest), axis=1)
+        x = np.swapaxes(rollout(states, np.swapaxes(u, 0, 1), self.sample_time,
+                                self.settings.discretization), 0, 1)
+        return x, u
+
+    def _finish(self, states: np.ndarray, report: IterationReport, t0: float,
+                safe: callable) -> ControlOutput:
+        """Verify the QP's first input, fall back if needed, store the consistent plan."""
+        previous = getattr(self, "_shifted_inputs", None)
+        fallback = None
+        if report.success:
+            plan_x, plan_u = self.engine.states_inputs()
+            u0 = np.clip(plan_u[:, 0], self.input_lower, self.input_upper)
+            if np.all(np.isfinite(u0)) and safe(self._next(states, u0)):
+                plan_u = plan_u.copy()
+                plan_u[:, 0] = u0
+                plan_x, plan_u = self._plan_from(states, u0, plan_u[:, 1:])
+                return ControlOutput(u0, plan_x, plan_u, None, report,
+                                     time.perf_counter() - t0)
+        self.failures += 1
+        candidates = []
+        if previous is not None:
+            candidates.append(("shifted-plan", previous[:, 0], previous[:, 1:]))
+        m = states.shape[0]
+        brake = braking_input(self.input_lower, self.input_upper, (m,))
+        candidates.append(("brake", brake, None))
+        for name, first, rest in candidates:
+            first = np.clip(first, self.input_lower, self.input_upper)
+            if name == "brake" or safe(self._next(states, first)):
+                fallback = name
+                plan_x, plan_u = self._plan_from(states, first, rest)
+                break
+        self.engine.set_guess(states, plan_u)
+        self.engine.samples = 1
+        return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, fallback, report,
+                             time.perf_counter() - t0)
+
+    def _remember_shifted(self) -> None:
+        if self.engine.has_solution:
+            self.engine.shift()
+            self._shifted_inputs = self.engine.states_inputs()[1].copy()
+        else:
+            self._shifted_inputs = None
+
+
+class CentralizedController(_ControllerBase):
+    """One QP over all robots (paper Algorithm 3.1, eq. 7).
+
+    Parameters
+    ----------
+    scenario
+        The problem.
+    settings
+        Iteration settings.
+    """
+
+    def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
+        settings = settings or SolverSettings()
+        pairs = scenario.pairs().reshape(-1, 2)
+        required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
+        layout = QPLayout(
+            scenario.n_robots, scenario.horizon, pairs, 0,
+            bool(np.isfinite(scenario.bounds.position_lower()).any()
+                 or np.isfinite(scenario.bounds.position_upper()).any()),
+        )
+        super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
+        self.pairs = pairs
+        self.required = required
+        self.collisions = PairwiseCollisionModel(
+            pairs, required + settings.collision_margin, settings.keep_right_angle
+        )
+
+    def _safe(self, next_states: np.ndarray) -> bool:
+        p = next_states[:, :2]
+        if self.pairs.size:
+            d = p[self.pairs[:, 0]] - p[self.pairs[:, 1]]
+            if np.any(np.hypot(d[:, 0], d[:, 1]) < self.required):
+                return False
+        return self._in_position_bounds(p)
+
+    def step(self, t: float, states: np.ndarray) -> ControlOutput:
+        """Compute the inputs of every robot at time ``t`` from the measured ``states (n, 3)``."""
+        t0 = time.perf_counter()
+        states = np.asarray(states, dtype=float)
+        if states.shape != (self.scenario.n_robots, 3) or not np.all(np.isfinite(states)):
+            raise ProblemError(
+                f"states must be finite with shape ({self.scenario.n_robots}, 3), got {states.shape}"
+            )
+        self._remember_shifted()
+        self.collisions.set_current_positions(states[:, :2])
+        report = self.engine.solve(states, self.reference(t), internal=self.collisions)
+        out = self._finish(states, report, t0, self._safe)
+        out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
+        return out
+
+
+class DecentralizedController(_ControllerBase):
+    """One robot's controller with its own QP (paper Algorithm 3.2).
+
+    Parameters
+    ----------
+    scenario
+        The problem (all robots: ids, diameters, references).
+    robot_id
+        The robot this controller drives.
+    settings
+        Iteration settings.
+    mode
+        ``"shared"`` (default, shared-responsibility hyperplanes) or ``"paper"``.
+    """
+
+    def __init__(self, scenario: Scenario, robot_id: int,
+                 settings: SolverSettings | None = None,
+                 mode: DecentralizedMode = "shared") -> None:
+        settings = settings or SolverSettings()
+        if mode not in ("shared", "paper"):
+            raise ProblemError(f"decentralized mode must be 'shared' or 'paper', got {mode!r}")
+        index = scenario.index_of(robot_id)
+        others = np.array([i for i in range(scenario.n_robots) if i != index], dtype=np.int64)
+        layout = QPLayout(
+            1, scenario.horizon, np.zeros((0, 2), dtype=np.int64), others.size,
+            bool(np.isfinite(scenario.bounds.position_lower()).any()
+                 or np.isfinite(scenario.bounds.position_upper()).any()),
+        )
+        super().__init__(scenario, np.array([index]), layout, settings)
+        self.robot_id = int(robot_id)
+        self.index = index
+        self.others = others
+        self.other_ids = scenario.ids[others]
+        self.mode = mode
+        self.required = scenario.required_distances()[index, others]
+        self.collisions = ExternalCollisionModel(
+            self.required + settings.collision_margin, scenario.horizon,
+            settings.keep_right_angle,
+        )
+        self.collisions.stage_one_rule_for_obstacles = mode == "shared"
+        self.published: PlanMessage | None = None
+
+    def _safe(self, next_state: np.ndarray) -> bool:
+        states = np.zeros((1, self.horizon + 1, 3))
+        states[0, 1] = next_state[0]
+        res = self.collisions.residuals(states)[0, :, 0]
+        margin = self.settings.collision_margin
+        allowed = np.where(self.collisions.kind == "shared", 0.5 * margin, margin)
+        ok = np.all((res <= allowed + 1e-12) | ~np.isfinite(res))
+        return bool(ok and self._in_position_bounds(next_state[:, :2]))
+
+    def neighbour_predictions(
+        self,
+        sample: int,
+        states: np.ndarray,
+        plans: Mapping[int, PlanMessage | None],
+        previous_states: np.ndarray | None,
+    ) -> tuple[np.ndarray, list[str]]:
+        """Neighbours' predicted states ``(E, N+1, 3)`` and their slot kinds."""
+        method = self.settings.discretization
+        preds = np.empty((self.others.size, self.horizon + 1, 3))
+        kinds: list[str] = []
+        for e, (j, jid) in enumerate(zip(self.others, self.other_ids, strict=True)):
+            plan = plans.get(int(jid))
+            pred = None
+            if plan is not None:
+                pred = predict_from_plan(plan, sample, self.horizon, self.sample_time, method)
+            if pred is None:
+                prev = None if previous_states is None else previous_states[j]
+                pred = predict_from_states(states[j], prev, self.horizon, self.sample_time, method)
+                kinds.append("obstacle")
+            else:
+                kinds.append("shared" if self.mode == "shared" else "obstacle")
+            preds[e] = pred
+        return preds, kinds
+
+    def step(
+        self,
+        sample: int,
+        t: float,
+        states: np.ndarray,
+        plans: Mapping[int, PlanMessage | None],
+        previous_states: np.ndarray | None = None,
+    ) -> ControlOutput:
+        """Compute this robot's input at sample ``k`` (time ``t``).
+
+        Parameters
+        ----------
+        sample
+            Sample index ``k``.
+        t
+            Time ``t_k``.
+        states
+            Measured states of all robots ``(n, 3)`` (scenario order).
+        plans
+            Latest plan received from each neighbour id (``None`` or absent if none).
+        previous_states
+            States at ``k - 1`` (for the fallback estimate), or ``None``.
+        """
+        t0 = time.perf_counter()
+        states = np.asarray(states, dtype=float)
+        n = self.scenario.n_robots
+        if states.shape != (n, 3) or not np.all(np.isfinite(states)):
+            raise ProblemError(f"states must be finite with shape ({n}, 3), got {states.shape}")
+        method = self.settings.discretization
+        own = None
+        if self.published is not None:
+            own = predict_from_plan(self.published, sample, self.horizon, self.sample_time, method)
+        if own is None:
+            own = predict_from_states(states[self.index], None, self.horizon,
+                                      self.sample_time, method)
+        preds, kinds = self.neighbour_predictions(sample, states, plans, previous_states)
+        self.collisions.set_sample(
+            states[self.index, :2], states[self.others, :2], own[1:, :2], preds[:, 1:, :2], kinds
+        )
+        self._remember_shifted()
+        report = self.engine.solve(states[self.index][None], self.reference(t),
+                                   external=self.collisions)
+        out = self._finish(states[self.index][None], report, t0, self._safe)
+        out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
+        out.info["fallback_neighbours"] = float(sum(k == "obstacle" for k in kinds)
+                                                if self.mode == "shared" else 0)
+        self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0].copy(),
+                                     out.predicted_inputs[0].copy())
+        return out

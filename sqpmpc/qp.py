@@ -1,0 +1,327 @@
+r"""The sparse QP of one SQP/RTI iteration, held by OSQP and updated in place.
+
+The QP is
+
+.. math::
+
+    \min_z \tfrac12 z^\top P z + q^\top z \quad \text{s.t.} \quad l \le A z \le u,
+
+with the layout of :class:`sqpmpc.layout.QPLayout`. OSQP is set up once, on the
+first solve; afterwards every ``update_*`` method writes values into arrays
+kept in the layout's entry order, and :meth:`SparseQP.solve` pushes only what
+changed (vectors, ``A`` values, ``P`` values) with ``OSQP.update`` and warm
+starts primal and dual variables. A change of vectors alone never triggers a
+re-factorization.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from .errors import ProblemError, SolverError
+from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
+
+__all__ = ["OSQPSettings", "QPResult", "SparseQP"]
+
+_SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
+
+
+@dataclass(frozen=True)
+class OSQPSettings:
+    """OSQP settings used by the controllers (see the OSQP documentation).
+
+    Tolerances are tighter than OSQP's defaults: the collision rows carry a
+    safety margin of 1e-3 m by default, and ``eps_abs`` must stay well below it.
+    """
+
+    eps_abs: float = 1e-6
+    eps_rel: float = 1e-6
+    max_iter: int = 4000
+    polishing: bool = False
+    adaptive_rho: bool = True
+    rho: float = 0.1
+    sigma: float = 1e-6
+    alpha: float = 1.6
+    scaling: int = 10
+    check_termination: int = 10
+    accept_inaccurate: bool = False
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("float", "int") and not (np.isfinite(value) and value >= 0):
+                raise ProblemError(f"OSQPSettings.{f.name} must be finite and >= 0, got {value}")
+
+    def to_osqp(self) -> dict[str, object]:
+        """Keyword arguments for ``OSQP.setup``."""
+        return {
+            "eps_abs": self.eps_abs,
+            "eps_rel": self.eps_rel,
+            "max_iter": self.max_iter,
+            "polishing": self.polishing,
+            "adaptive_rho": self.adaptive_rho,
+            "rho": self.rho,
+            "sigma": self.sigma,
+            "alpha": self.alpha,
+            "scaling": self.scaling,
+            "check_termination": self.check_termination,
+            "verbose": False,
+            "warm_starting": True,
+        }
+
+
+@dataclass
+class QPResult:
+    """Outcome of one QP solve.
+
+    Attributes
+    ----------
+    success
+        A finite primal/dual pair came back with status *solved* (or *solved
+        inaccurate* when the settings accept it).
+    status
+        OSQP's status string.
+    x, y
+        Primal and dual solutions (copies); OSQP's sign convention
+        :math:`Pz + q + A^\top y = 0`, ``y > 0`` on active upper bounds.
+    primal_residual, dual_residual
+        :math:`\|Az - \Pi_{[l,u]}(Az)\|_\infty` and :math:`\|Pz + q + A^\top y\|_\infty`
+        as reported by OSQP.
+    iterations
+        ADMM iterations.
+    solve_time, wall_time
+        OSQP's own solve time and the wall time of ``update`` + ``solve``, s.
+    """
+
+    success: bool
+    status: str
+    x: np.ndarray
+    y: np.ndarray
+    objective: float
+    primal_residual: float
+    dual_residual: float
+    iterations: int
+    solve_time: float
+    wall_time: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+class SparseQP:
+    """OSQP-backed QP with a fixed pattern and in-place value updates.
+
+    Parameters
+    ----------
+    layout
+        Index maps and sparsity.
+    settings
+        OSQP settings.
+    """
+
+    def __init__(self, layout: QPLayout, settings: OSQPSettings | None = None) -> None:
+        self.layout = layout
+        self.settings = settings or OSQPSettings()
+        L = layout
+        self.A_values = np.zeros(L.A_nnz)
+        sl = L.A_slices
+        for name in ("init", "dyn_I", "input", "position", "internal_slack",
+                     "external_slack", "slack"):
+            self.A_values[sl[name]] = 1.0
+        self.P_values = np.zeros(L.P_nnz)
+        self._P_diag_cost = np.zeros(L.n_var)
+        self._q_cost = np.zeros(L.n_var)
+        self._q_curvature = np.zeros(L.n_var)
+        self.lower = np.full(L.n_con, -np.inf)
+        self.upper = np.full(L.n_con, np.inf)
+        self.lower[L.slack_rows] = 0.0
+        self.lower[L.internal_rows] = -np.inf
+        self._solver: osqp.OSQP | None = None
+        self._dirty_P = self._dirty_A = self._dirty_vec = True
+        self.setup_count = 0
+
+    # ---------------------------------------------------------------- values
+    @property
+    def q(self) -> np.ndarray:
+        """Linear cost vector (cost part plus curvature offset)."""
+        return self._q_cost + self._q_curvature
+
+    def update_cost_weights(
+        self, Q_diag: np.ndarray, R_diag: np.ndarray, slack_penalty: float
+    ) -> None:
+        r"""Set :math:`P` for :math:`\sum_i \|p_i - r_i\|_Q^2 + \|u_{i-1}\|_R^2` and the L1 slack price.
+
+        ``Q`` weighs positions of stages 1..N, ``R`` inputs of stages 0..N-1;
+        OSQP's :math:`\tfrac12 z^\top P z` convention gives :math:`P = 2Q`, :math:`2R`.
+        """
+        L = self.layout
+        self._P_diag_cost[:] = 0.0
+        self._P_diag_cost[L.state_index[:, 1:, :2]] = 2.0 * np.asarray(Q_diag, float)
+        self._P_diag_cost[L.input_index] = 2.0 * np.asarray(R_diag, float)
+        self._Q_diag = np.asarray(Q_diag, float)
+        self.P_values[L.P_diag_slice] = self._P_diag_cost
+        self._q_cost[L.n_var - L.n_slack:] = float(slack_penalty)
+        self._dirty_P = self._dirty_vec = True
+
+    def update_reference(self, reference: np.ndarray) -> None:
+        """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
+        L = self.layout
+        self._q_cost[L.state_index[:, 1:, :2]] = -2.0 * self._Q_diag * reference
+        self._dirty_vec = True
+
+    def update_initial_state(self, initial_states: np.ndarray) -> None:
+        """Measured states ``(m, 3)``: :math:`\\chi_0 = \\chi(k)`."""
+        rows = self.layout.init_rows
+        self.lower[rows] = initial_states
+        self.upper[rows] = initial_states
+        self._dirty_vec = True
+
+    def update_input_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Input bounds ``(2,)`` applied on every stage."""
+        rows = self.layout.input_rows
+        self.lower[rows] = lower
+        self.upper[rows] = upper
+        self._dirty_vec = True
+
+    def update_position_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Position bounds ``(2,)`` on stages 1..N (only if the layout has the rows)."""
+        rows = self.layout.position_rows
+        self.lower[rows] = lower
+        self.upper[rows] = upper
+        self._dirty_vec = True
+
+    def update_dynamics(self, A_k: np.ndarray, B_k: np.ndarray, c_k: np.ndarray) -> None:
+        r"""Linearized dynamics :math:`\chi_{i+1} - A_i\chi_i - B_i u_i = c_i`.
+
+        Parameters
+        ----------
+        A_k, B_k, c_k
+            ``(m, N, 3, 3)``, ``(m, N, 3, 2)`` and ``(m, N, 3)``.
+        """
+        sl = self.layout.A_slices
+        self.A_values[sl["dyn_A"]] = -A_k[:, :, A_PATTERN[0], A_PATTERN[1]].ravel()
+        self.A_values[sl["dyn_B"]] = -B_k[:, :, B_PATTERN[0], B_PATTERN[1]].ravel()
+        rows = self.layout.dyn_rows
+        self.lower[rows] = c_k
+        self.upper[rows] = c_k
+        self._dirty_A = self._dirty_vec = True
+
+    def update_internal_collisions(self, normals: np.ndarray, rhs: np.ndarray) -> None:
+        r"""Rows :math:`n^\top(p_a - p_b) + s \ge b` for pairs ``(P, N, 2)``, ``(P, N)``."""
+        if self.layout.n_pairs == 0:
+            return
+        self.A_values[self.layout.A_slices["internal"]] = np.concatenate(
+            (normals, -normals), axis=2
+        ).ravel()
+        self.lower[self.layout.internal_rows] = rhs
+        self._dirty_A = self._dirty_vec = True
+
+    def update_external_collisions(self, normals: np.ndarray, rhs: np.ndarray) -> None:
+        r"""Rows :math:`n^\top p_j + s \ge b`, ``(m, E, N, 2)`` and ``(m, E, N)``; ``-inf`` disables."""
+        if self.layout.n_external == 0:
+            return
+        self.A_values[self.layout.A_slices["external"]] = normals.ravel()
+        self.lower[self.layout.external_rows] = rhs
+        self._dirty_A = self._dirty_vec = True
+
+    def update_curvature(self, blocks: np.ndarray | None, z_bar: np.ndarray) -> None:
+        r"""Add PSD curvature blocks ``(m, N, 3, 3)`` on :math:`(\psi_i, v_i, \omega_i)`.
+
+        In absolute variables the SQP model :math:`\tfrac12\Delta^\top H\Delta +
+        \nabla f^\top\Delta` with :math:`z = \bar z + \Delta` needs the offset
+        :math:`q \mathrel{-}= H_c\bar z`. ``None`` removes the curvature (Gauss-Newton).
+        """
+        L = self.layout
+        diag = self._P_diag_cost.copy()
+        off = CURV_PATTERN[0] != CURV_PATTERN[1]
+        self._q_curvature[:] = 0.0
+        if blocks is None:
+            self.P_values[L.P_curv_slice] = 0.0
+        else:
+            idx = L.curvature_index  # (m, N, 3)
+            diag_add = np.einsum("...ii->...i", blocks)
+            np.add.at(diag, idx, diag_add)
+            self.P_values[L.P_curv_slice] = blocks[
+                :, :, CURV_PATTERN[0][off], CURV_PATTERN[1][off]
+            ].ravel()
+            zt = z_bar[idx]
+            self._q_curvature[:] = 0.0
+            np.add.at(self._q_curvature, idx, -np.einsum("...ij,...j->...i", blocks, zt))
+        self.P_values[L.P_diag_slice] = diag
+        self._dirty_P = self._dirty_vec = True
+
+    # -------------------------------------------------------------- matrices
+    def matrices(self) -> tuple[sp.csc_matrix, np.ndarray, sp.csc_matrix, np.ndarray, np.ndarray]:
+        """Current ``(P (upper triangle), q, A, l, u)`` as new objects."""
+        return (
+            self.layout.csc(self.P_values, "P"),
+            self.q.copy(),
+            self.layout.csc(self.A_values, "A"),
+            self.lower.copy(),
+            self.upper.copy(),
+        )
+
+    # ----------------------------------------------------------------- solve
+    def _push(self) -> None:
+        L = self.layout
+        if self._solver is None:
+            P, q, A, lo, up = self.matrices()
+            self._solver = osqp.OSQP()
+            self._solver.setup(P, q, A, lo, up, **self.settings.to_osqp())
+            self.setup_count += 1
+        else:
+            kwargs: dict[str, np.ndarray] = {}
+            if self._dirty_vec:
+                kwargs.update(q=self.q, l=self.lower, u=self.upper)
+            if self._dirty_P:
+                kwargs["Px"] = self.P_values[L.P_order_inverse]
+            if self._dirty_A:
+                kwargs["Ax"] = self.A_values[L.A_order_inverse]
+            if kwargs:
+                self._solver.update(**kwargs)
+        self._dirty_P = self._dirty_A = self._dirty_vec = False
+
+    def solve(
+        self, warm_x: np.ndarray | None = None, warm_y: np.ndarray | None = None
+    ) -> QPResult:
+        """Push pending updates, warm start, solve; never raises on solver failure.
+
+        Returns
+        -------
+        QPResult
+            With ``success`` False on any status other than solved, or on
+            non-finite output.
+        """
+        t0 = time.perf_counter()
+        try:
+            self._push()
+            if warm_x is not None or warm_y is not None:
+                self._solver.warm_start(x=warm_x, y=warm_y)
+            res = self._solver.solve(raise_error=False)
+        except (ValueError, RuntimeError) as exc:  # OSQP setup/update errors
+            raise SolverError(f"OSQP rejected the QP data: {exc}") from exc
+        wall = time.perf_counter() - t0
+        info = res.info
+        x = np.array(res.x, dtype=float, copy=True)
+        y = np.array(res.y, dtype=float, copy=True)
+        finite = x.size == self.layout.n_var and np.all(np.isfinite(x)) and np.all(np.isfinite(y))
+        ok_status = info.status_val == osqp.SolverStatus.OSQP_SOLVED or (
+            self.settings.accept_inaccurate and info.status_val in _SOLVED
+        )
+        return QPResult(
+            success=bool(finite and ok_status),
+            status=str(info.status),
+            x=x,
+            y=y,
+            objective=float(info.obj_val),
+            primal_residual=float(info.prim_res),
+            dual_residual=float(info.dual_res),
+            iterations=int(info.iter),
+            solve_time=float(info.solve_time),
+            wall_time=wall,
+            extra={"polish_status": float(info.status_polish),
+                   "rho_updates": float(info.rho_updates)},
+        )

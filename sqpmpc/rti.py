@@ -1,0 +1,466 @@
+r"""Real-time iteration and SQP on the multiple-shooting OCP (paper eq. 4 / eq. 7).
+
+Each iteration linearizes the dynamics :math:`\chi_{i+1} = f_d(\chi_i, u_i)`
+and the collision constraints at the current iterate :math:`\bar z`, writes the
+values into the fixed-pattern QP (:class:`sqpmpc.qp.SparseQP`) and solves it
+with OSQP, warm-started with :math:`(\bar z, \bar y)`:
+
+.. math::
+
+    \chi_{i+1} - A_i\chi_i - B_i u_i = f_d(\bar\chi_i, \bar u_i) - A_i\bar\chi_i - B_i\bar u_i.
+
+**RTI** (default): at every sample the previous solution is shifted by one
+stage (states, inputs, slacks and multipliers), :math:`\chi_0` is set to the
+measurement and exactly one QP is solved. **SQP**: the same iteration is
+repeated with an Armijo line search on the exact L1 merit function
+
+.. math::
+
+    \phi_\mu(z) = f(z) + \mu \big(\|c(z)\|_1 + \textstyle\sum \max(0, h(z))\big),
+
+until the NLP's KKT residual (stationarity, primal feasibility and
+complementarity, infinity norms) is below ``kkt_tolerance``. The Hessian is
+either Gauss-Newton (the cost's, exact for this quadratic cost) or the exact
+Hessian of the Lagrangian, whose dynamics part
+:math:`-\sum_i \lambda_i^\top\nabla^2 f_d` is projected per stage onto the
+positive semi-definite cone.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from .errors import ProblemError
+from .layout import QPLayout
+from .model import DISCRETIZATIONS, discrete_dynamics, discrete_jacobians, weighted_dynamics_hessian
+from .qp import OSQPSettings, QPResult, SparseQP
+
+__all__ = ["CollisionRows", "IterationReport", "MultipleShootingSQP", "SolverSettings"]
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Settings of the RTI/SQP iteration shared by both schemes.
+
+    Attributes
+    ----------
+    iteration_scheme
+        ``"rti"``: one QP per sample; ``"sqp"``: iterate to ``kkt_tolerance``.
+    hessian
+        ``"gauss-newton"`` or ``"exact"`` (PSD-projected dynamics curvature).
+    discretization
+        ``"euler"`` (paper eq. 3) or ``"rk4"``.
+    max_sqp_iterations
+        Iteration cap of SQP mode.
+    kkt_tolerance
+        KKT residual (infinity norm) at which SQP stops.
+    first_sample_iterations
+        SQP iterations allowed at the first sample (a converged start for RTI).
+    rti_kkt_threshold
+        In RTI mode, extra iterations are done while the KKT residual after the
+        QP step exceeds this value (``inf`` disables), at most ``rti_max_iterations``.
+    slack_penalty
+        Price of the L1 slacks of collision rows on stages 2..N (exact penalty).
+    collision_margin
+        Added to every required distance in the QP (covers solver tolerance), m.
+    keep_right_angle
+        Symmetry-breaking rotation of the collision normals, rad.
+    """
+
+    iteration_scheme: Literal["rti", "sqp"] = "rti"
+    hessian: Literal["gauss-newton", "exact"] = "gauss-newton"
+    discretization: str = "euler"
+    max_sqp_iterations: int = 50
+    kkt_tolerance: float = 1e-6
+    first_sample_iterations: int = 30
+    rti_kkt_threshold: float = float("inf")
+    rti_max_iterations: int = 1
+    slack_penalty: float = 1e3
+    collision_margin: float = 1e-3
+    keep_right_angle: float = 0.0
+    osqp: OSQPSettings = field(default_factory=OSQPSettings)
+
+    def __post_init__(self) -> None:
+        if self.iteration_scheme not in ("rti", "sqp"):
+            raise ProblemError(f"iteration_scheme must be 'rti' or 'sqp', got {self.iteration_scheme!r}")
+        if self.hessian not in ("gauss-newton", "exact"):
+            raise ProblemError(f"hessian must be 'gauss-newton' or 'exact', got {self.hessian!r}")
+        if self.discretization not in DISCRETIZATIONS:
+            raise ProblemError(
+                f"discretization must be one of {DISCRETIZATIONS}, got {self.discretization!r}"
+            )
+        for name in ("max_sqp_iterations", "first_sample_iterations", "rti_max_iterations"):
+            if int(getattr(self, name)) < 1:
+                raise ProblemError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("kkt_tolerance", "slack_penalty", "collision_margin"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ProblemError(f"{name} must be finite and >= 0, got {value}")
+
+
+class CollisionRows(Protocol):
+    """What the iteration needs from a collision model (see :mod:`sqpmpc.collision`)."""
+
+    def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def residuals(self, states: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class IterationReport:
+    """What one call of :meth:`MultipleShootingSQP.solve` did.
+
+    Attributes
+    ----------
+    success
+        Every QP solved; ``states``/``inputs`` hold the new iterate.
+    iterations
+        QPs solved.
+    kkt_residual
+        Last KKT residual evaluated (``nan`` if none was).
+    converged
+        SQP mode: the KKT tolerance was met.
+    status
+        OSQP status of the last QP.
+    assembly_time, qp_time, osqp_solve_time, total_time
+        Seconds: linearization and value writes, ``update`` + ``solve`` wall
+        time, OSQP's own solve time, and the whole call.
+    """
+
+    success: bool
+    iterations: int
+    kkt_residual: float
+    converged: bool
+    status: str
+    assembly_time: float
+    qp_time: float
+    osqp_solve_time: float
+    total_time: float
+    qp_iterations: int = 0
+    last_qp: QPResult | None = None
+
+
+class MultipleShootingSQP:
+    r"""The RTI/SQP engine for ``m`` own robots.
+
+    Parameters
+    ----------
+    layout
+        QP layout (robots, horizon, collision rows).
+    sample_time
+        :math:`T_s`, s.
+    Q_diag, R_diag
+        Cost weights on (x, y) and (v, omega).
+    input_lower, input_upper
+        ``(2,)`` input bounds.
+    position_lower, position_upper
+        ``(2,)`` position bounds (``±inf`` where absent); used if the layout has rows.
+    settings
+        Iteration settings.
+    """
+
+    def __init__(
+        self,
+        layout: QPLayout,
+        sample_time: float,
+        Q_diag: np.ndarray,
+        R_diag: np.ndarray,
+        input_lower: np.ndarray,
+        input_upper: np.ndarray,
+        position_lower: np.ndarray,
+        position_upper: np.ndarray,
+        settings: SolverSettings,
+    ) -> None:
+        self.layout = layout
+        self.sample_time = float(sample_time)
+        self.settings = settings
+        self.input_lower = np.asarray(input_lower, float)
+        self.input_upper = np.asarray(input_upper, float)
+        self.qp = SparseQP(layout, settings.osqp)
+        self.qp.update_cost_weights(Q_diag, R_diag, settings.slack_penalty)
+        self.qp.update_input_bounds(self.input_lower, self.input_upper)
+        if layout.position_bounds:
+            self.qp.update_position_bounds(position_lower, position_upper)
+        self.z: np.ndarray | None = None
+        self.y = np.zeros(layout.n_con)
+        self.merit_weight = 1.0
+        self.samples = 0
+        self._slack_rows_int = layout.slack_rows[layout.slack_internal_index - layout.block_size * layout.n_robots]
+        self._slack_rows_ext = layout.slack_rows[layout.slack_external_index - layout.block_size * layout.n_robots]
+
+    # ------------------------------------------------------------ iterate
+    @property
+    def has_solution(self) -> bool:
+        """Whether a previous iterate exists (to shift)."""
+        return self.z is not None
+
+    def states_inputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Current iterate as ``(m, N+1, 3)`` states and ``(m, N, 2)`` inputs."""
+        if self.z is None:
+            raise ProblemError("no iterate yet: call solve() first")
+        return self.layout.split_primal(self.z)
+
+    def set_guess(self, initial_states: np.ndarray, inputs: np.ndarray) -> None:
+        """Set the iterate to the rollout of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``."""
+        L = self.layout
+        u = np.clip(np.asarray(inputs, float), self.input_lower, self.input_upper)
+        states = np.empty((L.n_robots, L.horizon + 1, 3))
+        states[:, 0] = initial_states
+        for i in range(L.horizon):
+            states[:, i + 1] = discrete_dynamics(
+                states[:, i], u[:, i], self.sample_time, self.settings.discretization
+            )
+        self.z = L.join_primal(states, u)
+        self.y = np.zeros(L.n_con)
+        self.samples = 0
+
+    def shift(self) -> None:
+        """Shift iterate and multipliers by one stage (last input held, state extrapolated)."""
+        if self.z is None:
+            return
+        L = self.layout
+        z, y = self.z, self.y
+        states, inputs = L.split_primal(z)
+        last = discrete_dynamics(
+            states[:, -1], inputs[:, -1], self.sample_time, self.settings.discretization
+        )
+        z[L.state_index] = np.concatenate((states[:, 1:], last[:, None]), axis=1)
+        for idx, axis in (
+            (L.input_index, 1),
+            (L.slack_internal_index, 1),
+            (L.slack_external_index, 2),
+        ):
+            _shift_indexed(z, idx, axis)
+        for idx, axis in (
+            (L.dyn_rows, 1),
+            (L.input_rows, 1),
+            (L.position_rows, 1),
+            (L.internal_rows, 1),
+            (L.external_rows, 2),
+            (self._slack_rows_int, 1),
+            (self._slack_rows_ext, 2),
+        ):
+            _shift_indexed(y, idx, axis)
+
+    def _linearize(
+        self,
+        z: np.ndarray,
+        initial_states: np.ndarray,
+        internal: CollisionRows | None,
+        external: CollisionRows | None,
+    ) -> None:
+        L, s = self.layout, self.settings
+        states, inputs = L.split_primal(z)
+        N = L.horizon
+        nxt, A_k, B_k = discrete_jacobians(
+            states[:, :N], inputs, self.sample_time, s.discretization
+        )
+        c_k = (
+            nxt
+            - np.einsum("mnij,mnj->mni", A_k, states[:, :N])
+            - np.einsum("mnij,mnj->mni", B_k, inputs)
+        )
+        self.qp.update_dynamics(A_k, B_k, c_k)
+        self.qp.update_initial_state(initial_states)
+        if internal is not None:
+            self.qp.update_internal_collisions(*internal.rows(states))
+        if external is not None:
+            self.qp.update_external_collisions(*external.rows(states))
+        if s.hessian == "exact":
+            lam = self.y[L.dyn_rows]
+            H = -weighted_dynamics_hessian(
+                states[:, :N], inputs, lam, self.sample_time, s.discretization
+            )
+            w, V = np.linalg.eigh(H)
+            H = np.einsum("...ij,...j,...kj->...ik", V, np.maximum(w, 0.0), V)
+            self.qp.update_curvature(H, z)
+
+    # ------------------------------------------------------------ NLP values
+    def _cost(self, z: np.ndarray) -> tuple[float, np.ndarray]:
+        P_diag = self.qp._P_diag_cost
+        q = self.qp._q_cost
+        return float(0.5 * z @ (P_diag * z) + q @ z), P_diag * z + q
+
+    def _infeasibility(
+        self,
+        z: np.ndarray,
+        initial_states: np.ndarray,
+        internal: CollisionRows | None,
+        external: CollisionRows | None,
+    ) -> float:
+        """L1 norm of the nonlinear constraint violations at ``z``."""
+        L = self.layout
+        states, inputs = L.split_primal(z)
+        defect = states[:, 1:] - discrete_dynamics(
+            states[:, :-1], inputs, self.sample_time, self.settings.discretization
+        )
+        total = np.abs(defect).sum() + np.abs(states[:, 0] - initial_states).sum()
+        for model, slack_idx in ((internal, L.slack_internal_index),
+                                 (external, L.slack_external_index)):
+            if model is None:
+                continue
+            res = model.residuals(states)
+            slack = np.zeros(res.shape)
+            slack[..., 1:] = z[slack_idx].reshape(res[..., 1:].shape)
+            total += np.maximum(res - slack, 0.0)[np.isfinite(res)].sum()
+        return float(total)
+
+    def kkt_residual(self, z: np.ndarray, y: np.ndarray) -> float:
+        r"""KKT residual of the NLP at ``z`` with multipliers ``y``.
+
+        Must be called right after linearizing at ``z``: the QP's constraint
+        matrix is then the constraint Jacobian at ``z`` and the QP rows evaluated
+        at ``z`` are the (shifted) constraint values. Returns the largest of
+        :math:`\|\nabla f + J^\top y\|_\infty`, the primal violation and the
+        complementarity :math:`|y_i|\,\mathrm{dist}_i`.
+        """
+        _, grad = self._cost(z)
+        A = self.layout.csc(self.qp.A_values, "A")
+        Az = A @ z
+        stat = np.abs(grad + A.T @ y).max()
+        lo, up = self.qp.lower, self.qp.upper
+        prim = np.maximum(np.maximum(lo - Az, Az - up), 0.0).max()
+        gap_lo = np.where(np.isfinite(lo), Az - lo, np.inf)
+        gap_up = np.where(np.isfinite(up), up - Az, np.inf)
+        comp_lo = np.where(y < 0, -y * np.minimum(gap_lo, 1e12), 0.0)
+        comp_up = np.where(y > 0, y * np.minimum(gap_up, 1e12), 0.0)
+        comp = np.maximum(np.abs(comp_lo), np.abs(comp_up)).max()
+        # multipliers on rows with no finite bound in their direction are infeasible duals
+        wrong = np.where((y < 0) & ~np.isfinite(lo), -y, 0.0) + np.where(
+            (y > 0) & ~np.isfinite(up), y, 0.0)
+        return float(max(stat, prim, comp, wrong.max(initial=0.0)))
+
+    # ------------------------------------------------------------ solve
+    def solve(
+        self,
+        initial_states: np.ndarray,
+        reference: np.ndarray,
+        internal: CollisionRows | None = None,
+        external: CollisionRows | None = None,
+        max_iterations: int | None = None,
+    ) -> IterationReport:
+        """Run RTI (one QP) or SQP from the current iterate.
+
+        Parameters
+        ----------
+        initial_states
+            Measured states ``(m, 3)``.
+        reference
+            Reference positions of stages 1..N, ``(m, N, 2)``.
+        internal, external
+            Collision models (centralized pairs; neighbours as data).
+        max_iterations
+            Overrides the number of QPs (RTI: 1, SQP: ``max_sqp_iterations``).
+        """
+        t_start = time.perf_counter()
+        s, L = self.settings, self.layout
+        initial_states = np.asarray(initial_states, float)
+        if initial_states.shape != (L.n_robots, 3) or not np.all(np.isfinite(initial_states)):
+            raise ProblemError(
+                f"initial_states must be finite with shape ({L.n_robots}, 3), "
+                f"got {initial_states.shape}"
+            )
+        if self.z is None:
+            self.set_guess(initial_states, np.zeros((L.n_robots, L.horizon, 2)))
+        sqp = s.iteration_scheme == "sqp"
+        if max_iterations is None:
+            if self.samples == 0:
+                max_iterations = max(s.first_sample_iterations, 1)
+                sqp = True
+            else:
+                max_iterations = s.max_sqp_iterations if sqp else s.rti_max_iterations
+        self.qp.update_reference(reference)
+        z = self.z.copy()
+        z[L.state_index[:, 0]] = initial_states
+        y = self.y.copy()
+        assembly = qp_time = osqp_time = 0.0
+        kkt = float("nan")
+        converged = False
+        iterations = qp_iters = 0
+        status = "not run"
+        last: QPResult | None = None
+        check_kkt = sqp or np.isfinite(s.rti_kkt_threshold)
+        tol = s.kkt_tolerance if sqp else s.rti_kkt_threshold
+        while True:
+            t0 = time.perf_counter()
+            self.y = y
+            self._linearize(z, initial_states, internal, external)
+            if check_kkt and iterations > 0:
+                kkt = self.kkt_residual(z, y)
+                if kkt <= tol:
+                    converged = True
+                    assembly += time.perf_counter() - t0
+                    break
+            assembly += time.perf_counter() - t0
+            if iterations >= max_iterations:
+                break
+            res = self.qp.solve(z, y)
+            last = res
+            iterations += 1
+            qp_iters += res.iterations
+            qp_time += res.wall_time
+            osqp_time += res.solve_time
+            status = res.status
+            if not res.success:
+                self.samples += 1
+                return IterationReport(False, iterations, kkt, False, status, assembly,
+                                       qp_time, osqp_time, time.perf_counter() - t_start,
+                                       qp_iters, last)
+            t1 = time.perf_counter()
+            if sqp:
+                alpha = self._line_search(z, res, initial_states, internal, external)
+                z = z + alpha * (res.x - z)
+                y = y + alpha * (res.y - y)
+            else:
+                z, y = res.x, res.y
+            assembly += time.perf_counter() - t1
+            if not check_kkt and iterations >= max_iterations:
+                break
+        self.z, self.y = z, y
+        self.samples += 1
+        return IterationReport(True, iterations, kkt, converged, status, assembly, qp_time,
+                               osqp_time, time.perf_counter() - t_start, qp_iters, last)
+
+    def _line_search(
+        self,
+        z: np.ndarray,
+        res: QPResult,
+        initial_states: np.ndarray,
+        internal: CollisionRows | None,
+        external: CollisionRows | None,
+    ) -> float:
+        """Armijo backtracking on the L1 merit function; returns the step length."""
+        dz = res.x - z
+        L = self.layout
+        duals = np.concatenate((res.y[L.dyn_rows].ravel(), res.y[L.init_rows].ravel(),
+                                res.y[L.internal_rows].ravel(), res.y[L.external_rows].ravel()))
+        self.merit_weight = max(self.merit_weight, 1.5 * float(np.abs(duals).max(initial=0.0)) + 1.0)
+        mu = self.merit_weight
+        f0, g0 = self._cost(z)
+        h0 = self._infeasibility(z, initial_states, internal, external)
+        phi0 = f0 + mu * h0
+        slope = float(g0 @ dz) - mu * h0
+        if slope >= 0.0:
+            return 1.0
+        alpha = 1.0
+        while alpha > 1e-6:
+            zt = z + alpha * dz
+            phi = self._cost(zt)[0] + mu * self._infeasibility(zt, initial_states, internal, external)
+            if phi <= phi0 + 1e-4 * alpha * slope:
+                return alpha
+            alpha *= 0.5
+        return alpha
+
+
+def _shift_indexed(vec: np.ndarray, idx: np.ndarray, axis: int) -> None:
+    """In place: ``vec[idx]`` shifted by one along ``axis`` of ``idx``, last entry repeated."""
+    if idx.size == 0 or idx.shape[axis] == 0:
+        return
+    vals = vec[idx]
+    head = np.take(vals, np.arange(1, vals.shape[axis]), axis=axis)
+    tail = np.take(vals, [vals.shape[axis] - 1], axis=axis)
+    vec[idx] = np.concatenate((head, tail), axis=axis)
