@@ -42,6 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
     run.add_argument("--keep-right-angle", type=float, default=None,
                      help="symmetry-breaking rotation of collision normals, rad")
+    run.add_argument("--stall-speed", type=float, default=None,
+                     help="linearization speed for stalled robots, m/s (0 disables)")
     run.add_argument("--message-drop", type=float, default=0.0,
                      help="decentralized: probability that a plan message is lost")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -80,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             discretization=args.discretization,
             keep_right_angle=base.keep_right_angle if args.keep_right_angle is None
             else args.keep_right_angle,
+            stall_speed=base.stall_speed if args.stall_speed is None else args.stall_speed,
             osqp=OSQPSettings(),
         )
         options = SimulationOptions(decentralized_mode=args.decentralized_mode,

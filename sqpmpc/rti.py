@@ -69,6 +69,15 @@ class SolverSettings:
         Added to every required distance in the QP (covers solver tolerance), m.
     keep_right_angle
         Symmetry-breaking rotation of the collision normals, rad.
+    stall_speed, stall_distance
+        Controllability repair: a robot whose guess has every ``|v| < stall_speed``
+        while its stage-N reference is farther than ``stall_distance`` is
+        linearized at ``v = ±stall_speed`` (towards the reference) instead. At
+        ``v = 0`` the linearized unicycle cannot move sideways (``A`` loses its
+        heading-position coupling), so a stopped robot would never see that
+        turning opens a way around an obstacle. Only the linearization point
+        changes; stage 1 stays exact because its heading is measured.
+        ``0`` disables.
     """
 
     iteration_scheme: Literal["rti", "sqp"] = "rti"
@@ -82,6 +91,8 @@ class SolverSettings:
     slack_penalty: float = 1e3
     collision_margin: float = 1e-3
     keep_right_angle: float = 0.0
+    stall_speed: float = 0.0
+    stall_distance: float = 0.1
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
 
     def __post_init__(self) -> None:
@@ -96,7 +107,8 @@ class SolverSettings:
         for name in ("max_sqp_iterations", "first_sample_iterations", "rti_max_iterations"):
             if int(getattr(self, name)) < 1:
                 raise ProblemError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("kkt_tolerance", "slack_penalty", "collision_margin"):
+        for name in ("kkt_tolerance", "slack_penalty", "collision_margin", "stall_speed",
+                     "stall_distance"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ProblemError(f"{name} must be finite and >= 0, got {value}")
@@ -189,6 +201,7 @@ class MultipleShootingSQP:
         self.y = np.zeros(layout.n_con)
         self.merit_weight = 1.0
         self.samples = 0
+        self.stalled_repairs = 0
         self._slack_rows_int = layout.slack_rows[layout.slack_internal_index - layout.block_size * layout.n_robots]
         self._slack_rows_ext = layout.slack_rows[layout.slack_external_index - layout.block_size * layout.n_robots]
 
@@ -376,6 +389,8 @@ class MultipleShootingSQP:
         self.qp.update_reference(reference)
         z = self.z.copy()
         z[L.state_index[:, 0]] = initial_states
+        if s.stall_speed > 0.0:
+            self._repair_stalled(z, initial_states, reference)
         y = self.y.copy()
         assembly = qp_time = osqp_time = 0.0
         kkt = float("nan")
@@ -424,6 +439,23 @@ class MultipleShootingSQP:
         self.samples += 1
         return IterationReport(True, iterations, kkt, converged, status, assembly, qp_time,
                                osqp_time, time.perf_counter() - t_start, qp_iters, last)
+
+    def _repair_stalled(self, z: np.ndarray, initial_states: np.ndarray,
+                        reference: np.ndarray) -> None:
+        """Move the linearization speed of stalled robots away from zero (see settings)."""
+        s, L = self.settings, self.layout
+        v = z[L.input_index[:, :, 0]]
+        to_goal = reference[:, -1] - initial_states[:, :2]
+        far = np.hypot(to_goal[:, 0], to_goal[:, 1]) > s.stall_distance
+        stalled = far & (np.abs(v).max(axis=1) < s.stall_speed)
+        if not np.any(stalled):
+            return
+        ahead = (to_goal[:, 0] * np.cos(initial_states[:, 2])
+                 + to_goal[:, 1] * np.sin(initial_states[:, 2])) >= 0.0
+        speed = np.where(ahead, s.stall_speed, -s.stall_speed)
+        speed = np.clip(speed, self.input_lower[0], self.input_upper[0])
+        z[L.input_index[stalled, :, 0]] = speed[stalled, None]
+        self.stalled_repairs += int(stalled.sum())
 
     def _line_search(
         self,

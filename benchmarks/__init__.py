@@ -1,0 +1,1 @@
+"""Benchmarks of sqpmpc (not part of the installed package)."""

@@ -1,0 +1,455 @@
+r"""Run records, the metrics of ``metrics.json`` and the run output files.
+
+A :class:`RunRecord` holds what a closed-loop run produced: the sample times
+:math:`t_0, \dots, t_k`, the states :math:`\chi_j(t_i)` of every robot, the
+applied inputs :math:`u_j(t_i)` (zero-order hold), and the controller
+computation times. ``k`` may be smaller than the scenario's ``K`` when a run
+was interrupted; everything here works on partial records, down to ``k = 0``
+(initial states only, no input applied yet).
+
+:func:`compute_metrics` evaluates the keys of the contract's section 3. With
+:math:`p_j(t_i)` the position :math:`(x, y)` of robot ``j``, :math:`r_j(t)` its
+reference and :math:`\bar d_{jl} = (d_j + d_l)/2` the required distance of the
+pair :math:`(j, l)`:
+
+.. math::
+
+    D_{jl}(t_i) &= \lVert p_j(t_i) - p_l(t_i) \rVert, \qquad
+    c_{jl}(t_i) = D_{jl}(t_i) - \bar d_{jl},
+
+    \mathrm{RMS}_j &= \Bigl(\tfrac{1}{k+1} \textstyle\sum_{i=0}^{k}
+        \lVert p_j(t_i) - r_j(t_i) \rVert^2\Bigr)^{1/2},
+
+    J &= \sum_{i=0}^{k-1} \sum_j
+        e_j(t_{i+1})^\top Q\, e_j(t_{i+1}) + u_j(t_i)^\top R\, u_j(t_i),
+    \qquad e_j = r_j - p_j,
+
+``min_distance`` / ``min_clearance`` are the minima of :math:`D` and
+:math:`c` over every sample and pair, and ``collisions`` counts the
+(sample, pair) with :math:`c < -10^{-6}`.
+
+Solve times: ``solve_times`` has one column per controller (one for the
+centralized scheme, one per robot for the decentralized scheme). The time of a
+sample is the sum over the columns (the paper's Table 3 convention for the
+decentralized scheme). ``per_robot_median_ms`` is the median of each robot's
+column; with a single (central) controller every id maps to the median of
+that one column, and ``controllers`` says how many columns there were.
+
+Every value in the metrics dict is JSON-serializable: Python ``int``,
+``float``, ``str``, ``bool``, ``None``, lists and dicts; non-finite floats
+(and quantities that do not exist, e.g. distances of a single robot) are
+``None``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import ProblemError
+
+__all__ = [
+    "COLLISION_TOLERANCE",
+    "BOUND_TOLERANCE",
+    "RunRecord",
+    "compute_metrics",
+    "load_trajectory",
+    "pair_distances",
+    "write_metrics",
+    "write_run",
+    "write_trajectory",
+]
+
+log = logging.getLogger(__name__)
+
+COLLISION_TOLERANCE = 1e-6
+"""A (sample, pair) is a collision when its clearance is below ``-COLLISION_TOLERANCE``."""
+BOUND_TOLERANCE = 1e-9
+"""An input or position violates its bound when outside it by more than this."""
+
+
+@dataclass
+class RunRecord:
+    """What a closed-loop run produced (possibly partial).
+
+    Parameters
+    ----------
+    scenario
+        The scenario that ran (duck-typed: ``name``, ``sample_time``,
+        ``horizon``, ``steps``, ``n_robots``, ``ids``, ``weights.Q``,
+        ``weights.R``, ``bounds``, ``required_distances()``, ``pairs()``,
+        ``reference_positions(t)``).
+    scheme
+        ``"centralized"`` or ``"decentralized"`` (any label is accepted).
+    t
+        Sample times :math:`t_0..t_k`, shape ``(k+1,)``.
+    states
+        States :math:`(x, y, \\psi)` at every sample, shape ``(k+1, n, 3)``.
+    inputs
+        Applied inputs :math:`(v, \\omega)`, shape ``(k, n, 2)``; input ``i`` is
+        held on :math:`[t_i, t_{i+1})`.
+    solve_times
+        Controller computation time per sample and controller, seconds,
+        shape ``(k, c)`` with ``c = 1`` (centralized) or ``c = n``
+        (decentralized, one column per robot in scenario order). A 1-D array
+        is taken as one column.
+    solver_failures
+        Controller steps in which a fallback input was applied.
+    completed
+        Whether the run reached the scenario's ``t_end``.
+    extra
+        Free extra metrics, merged into the metrics at top level.
+
+    Raises
+    ------
+    ProblemError
+        When the array shapes are inconsistent with each other or with the
+        scenario's number of robots.
+    """
+
+    scenario: Any
+    scheme: str
+    t: np.ndarray
+    states: np.ndarray
+    inputs: np.ndarray
+    solve_times: np.ndarray
+    solver_failures: int = 0
+    completed: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = int(self.scenario.n_robots)
+        self.t = np.asarray(self.t, dtype=float).reshape(-1)
+        k = self.t.shape[0] - 1
+        if k < 0:
+            raise ProblemError("a run record needs at least the initial sample t_0")
+        self.states = np.asarray(self.states, dtype=float)
+        if self.states.shape != (k + 1, n, 3):
+            raise ProblemError(
+                f"states must have shape {(k + 1, n, 3)}, got {self.states.shape}")
+        self.inputs = np.asarray(self.inputs, dtype=float)
+        if self.inputs.size == 0 and k == 0:
+            self.inputs = self.inputs.reshape(0, n, 2)
+        if self.inputs.shape != (k, n, 2):
+            raise ProblemError(f"inputs must have shape {(k, n, 2)}, got {self.inputs.shape}")
+        st = np.asarray(self.solve_times, dtype=float)
+        if st.ndim == 1:
+            st = st.reshape(-1, 1)
+        if st.ndim != 2 or st.shape[0] != k or st.shape[1] not in (1, n):
+            raise ProblemError(
+                f"solve_times must have shape ({k}, 1) or ({k}, {n}), got {st.shape}")
+        self.solve_times = st
+
+    @property
+    def k(self) -> int:
+        """Number of simulated samples (inputs applied), ``len(t) - 1``."""
+        return int(self.t.shape[0] - 1)
+
+    @property
+    def ids(self) -> np.ndarray:
+        """Robot ids as an integer array of shape ``(n,)``."""
+        ids = self.scenario.ids
+        if callable(ids):
+            ids = ids()
+        return np.asarray(ids, dtype=np.int64).reshape(-1)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Positions :math:`(x, y)`, shape ``(k+1, n, 2)``."""
+        return self.states[..., :2]
+
+    def references(self) -> np.ndarray:
+        """Reference positions :math:`r_j(t_i)`, shape ``(k+1, n, 2)``."""
+        ref = np.asarray(self.scenario.reference_positions(self.t), dtype=float)
+        return ref.reshape(self.t.shape[0], self.states.shape[1], 2)
+
+
+def pair_distances(positions: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    r"""Centre distances :math:`D_{jl}(t_i) = \lVert p_j(t_i) - p_l(t_i) \rVert`.
+
+    Parameters
+    ----------
+    positions
+        Shape ``(m, n, 2)``.
+    pairs
+        Index pairs, shape ``(P, 2)``.
+
+    Returns
+    -------
+    np.ndarray
+        Shape ``(m, P)``.
+    """
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    diff = positions[:, pairs[:, 0], :] - positions[:, pairs[:, 1], :]
+    return np.linalg.norm(diff, axis=-1)
+
+
+def _float(x: Any) -> float | None:
+    """A Python float, or ``None`` for NaN / infinity / missing."""
+    if x is None:
+        return None
+    v = float(x)
+    return v if math.isfinite(v) else None
+
+
+def _jsonable(obj: Any) -> Any:
+    """Recursively convert numpy scalars/arrays and non-finite floats for JSON."""
+    if isinstance(obj, dict):
+        return {str(key): _jsonable(v) for key, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return _jsonable(obj.item())
+    if isinstance(obj, bool | int | str) or obj is None:
+        return obj
+    if isinstance(obj, float):
+        return _float(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    return str(obj)
+
+
+def _solve_time_metrics(record: RunRecord, ids: np.ndarray) -> dict[str, Any]:
+    st = record.solve_times
+    per_sample = st.sum(axis=1)
+    if per_sample.size == 0:
+        median = p99 = peak = None
+    else:
+        median = _float(np.median(per_sample) * 1e3)
+        p99 = _float(np.percentile(per_sample, 99) * 1e3)
+        peak = _float(per_sample.max() * 1e3)
+    if st.shape[0] == 0:
+        column_medians: list[float | None] = [None] * st.shape[1]
+    else:
+        column_medians = [_float(v * 1e3) for v in np.median(st, axis=0)]
+    if st.shape[1] == 1:
+        column_medians = column_medians * len(ids)
+    return {
+        "total_s": _float(per_sample.sum()),
+        "median_ms": median,
+        "p99_ms": p99,
+        "max_ms": peak,
+        "per_robot_median_ms": {str(i): m for i, m in zip(ids, column_medians, strict=True)},
+        "controllers": int(st.shape[1]),
+    }
+
+
+def compute_metrics(record: RunRecord) -> dict[str, Any]:
+    """Evaluate the metrics of ``metrics.json`` (contract section 3) on a record.
+
+    Parameters
+    ----------
+    record
+        A complete or partial run record.
+
+    Returns
+    -------
+    dict
+        JSON-serializable metrics: the contract's keys (``scenario``,
+        ``scheme``, ``steps``, ``sample_time``, ``horizon``, ``min_distance``,
+        ``min_clearance``, ``collisions``, ``rms_tracking_error``,
+        ``closed_loop_cost``, ``input_bound_violations``, ``solver_failures``,
+        ``solve_time``) plus ``completed``, ``planned_steps``, ``ids``,
+        ``min_clearance_at`` (``{"t", "pair"}`` of the minimum),
+        ``final_position_error``, ``max_final_position_error``,
+        ``state_bound_violations`` and the record's ``extra`` entries (an
+        extra key that clashes with one of these is stored as
+        ``"extra.<key>"``). ``steps`` is the number ``k`` of samples actually
+        simulated. Without any pair (one robot) ``min_distance``,
+        ``min_clearance`` and ``min_clearance_at`` are ``None`` and
+        ``collisions`` is 0.
+    """
+    sc = record.scenario
+    ids = record.ids
+    k = record.k
+    pos = record.positions
+    ref = record.references()
+
+    # Pairwise distances and clearances over every sample.
+    pairs = np.asarray(sc.pairs(), dtype=np.int64).reshape(-1, 2)
+    min_distance = min_clearance = None
+    min_at: dict[str, Any] | None = None
+    collisions = 0
+    if pairs.shape[0] > 0:
+        dist = pair_distances(pos, pairs)
+        required = np.asarray(sc.required_distances(), dtype=float)[pairs[:, 0], pairs[:, 1]]
+        clearance = dist - required
+        min_distance = _float(dist.min())
+        min_clearance = _float(clearance.min())
+        collisions = int(np.count_nonzero(clearance < -COLLISION_TOLERANCE))
+        if min_clearance is not None:
+            i, p = np.unravel_index(int(np.argmin(clearance)), clearance.shape)
+            min_at = {"t": _float(record.t[i]),
+                      "pair": [int(ids[pairs[p, 0]]), int(ids[pairs[p, 1]])]}
+
+    # Tracking.
+    err = np.linalg.norm(pos - ref, axis=-1)  # (k+1, n)
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    final = err[-1]
+
+    # Closed-loop cost of the executed trajectory.
+    q = np.asarray(sc.weights.Q, dtype=float).reshape(2)
+    r = np.asarray(sc.weights.R, dtype=float).reshape(2)
+    e_next = ref[1:] - pos[1:]
+    cost = float(np.sum(e_next**2 * q) + np.sum(record.inputs**2 * r))
+
+    # Bound violations.
+    lo_u = np.asarray(sc.bounds.input_lower(), dtype=float).reshape(2)
+    hi_u = np.asarray(sc.bounds.input_upper(), dtype=float).reshape(2)
+    u = record.inputs
+    input_violations = int(np.count_nonzero(
+        (u < lo_u - BOUND_TOLERANCE) | (u > hi_u + BOUND_TOLERANCE)))
+    lo_p = np.asarray(sc.bounds.position_lower(), dtype=float).reshape(2)
+    hi_p = np.asarray(sc.bounds.position_upper(), dtype=float).reshape(2)
+    state_violations = int(np.count_nonzero(
+        (pos < lo_p - BOUND_TOLERANCE) | (pos > hi_p + BOUND_TOLERANCE)))
+
+    metrics: dict[str, Any] = {
+        "scenario": str(sc.name),
+        "scheme": str(record.scheme),
+        "steps": k,
+        "sample_time": _float(sc.sample_time),
+        "horizon": int(sc.horizon),
+        "min_distance": min_distance,
+        "min_clearance": min_clearance,
+        "collisions": collisions,
+        "rms_tracking_error": {str(i): _float(v) for i, v in zip(ids, rms, strict=True)},
+        "closed_loop_cost": _float(cost),
+        "input_bound_violations": input_violations,
+        "solver_failures": int(record.solver_failures),
+        "solve_time": _solve_time_metrics(record, ids),
+        "completed": bool(record.completed),
+        "planned_steps": int(sc.steps),
+        "ids": [int(i) for i in ids],
+        "min_clearance_at": min_at,
+        "final_position_error": {str(i): _float(v) for i, v in zip(ids, final, strict=True)},
+        "max_final_position_error": _float(final.max()),
+        "state_bound_violations": state_violations,
+    }
+    for key, value in (record.extra or {}).items():
+        name = str(key)
+        if name in metrics:
+            log.warning("extra metric %r clashes with a standard key; stored as 'extra.%s'",
+                        name, name)
+            name = f"extra.{name}"
+        metrics[name] = value
+    return _jsonable(metrics)
+
+
+def _atomic_write(path: Path, write: Callable[[Any], None], mode: str) -> None:
+    """Write through ``write(fileobj)`` to a temporary file, then rename onto ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode) as fh:
+            write(fh)
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary files
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
+    """Write the trajectory as an ``.npz`` archive (no pickled objects).
+
+    Arrays: ``t`` ``(k+1,)``, ``states`` ``(k+1, n, 3)``, ``inputs``
+    ``(k, n, 2)``, ``ids`` ``(n,)`` (int64), ``solve_times`` ``(k, c)``
+    seconds and ``references`` ``(k+1, n, 2)``. The file is written
+    atomically.
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    path = Path(path)
+    arrays = {
+        "t": record.t,
+        "states": record.states,
+        "inputs": record.inputs,
+        "ids": record.ids,
+        "solve_times": record.solve_times,
+        "references": record.references(),
+    }
+    _atomic_write(path, lambda fh: np.savez(fh, **arrays), "wb")
+    return path
+
+
+def load_trajectory(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """Load a trajectory written by :func:`write_trajectory` (``allow_pickle=False``)."""
+    with np.load(Path(path), allow_pickle=False) as data:
+        return {name: data[name] for name in data.files}
+
+
+def write_metrics(path: str | os.PathLike[str], metrics: dict[str, Any]) -> Path:
+    """Write ``metrics`` as indented JSON, atomically (temporary file + ``os.replace``).
+
+    Raises
+    ------
+    ValueError
+        If the dict holds a non-finite float (strict JSON has none).
+    """
+    path = Path(path)
+    text = json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + "\n"
+    _atomic_write(path, lambda fh: fh.write(text), "w")
+    return path
+
+
+def write_run(
+    out_dir: str | os.PathLike[str],
+    record: RunRecord,
+    plots: bool = True,
+    plotter: Callable[[RunRecord, Path], Any] | None = None,
+) -> dict[str, Any]:
+    """Write a run's outputs into ``out_dir`` and return its metrics.
+
+    ``trajectory.npz`` and ``metrics.json`` are written first; then, when
+    ``plots`` is true, the PNG figures via ``plotter`` (default
+    :func:`sqpmpc.plots.plot_run`). An exception while plotting propagates,
+    but only after the trajectory and metrics are on disk.
+
+    Parameters
+    ----------
+    out_dir
+        Output directory, created if missing.
+    record
+        The (possibly partial) run record.
+    plots
+        Whether to draw the figures.
+    plotter
+        ``plotter(record, out_dir)`` drawing the figures; for tests and
+        alternative renderers.
+
+    Returns
+    -------
+    dict
+        The metrics, as written to ``metrics.json``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_trajectory(out / "trajectory.npz", record)
+    metrics = compute_metrics(record)
+    write_metrics(out / "metrics.json", metrics)
+    if plots:
+        if plotter is None:
+            from .plots import plot_run
+
+            plotter = plot_run
+        plotter(record, out)
+    return metrics
