@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+from .deadlock import DetourSettings
 from .errors import ProblemError, ScenarioError
 from .metrics import write_run
 from .qp import OSQPSettings
@@ -42,6 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
     run.add_argument("--keep-right-angle", type=float, default=None,
                      help="symmetry-breaking rotation of collision normals, rad")
+    run.add_argument("--keep-right-growth", type=float, default=None,
+                     help="growth of the rotation per stage, rad")
+    run.add_argument("--slack-penalty", type=float, default=None,
+                     help="L1 price of collision slacks on stages 2..N")
+    run.add_argument("--detour-patience", type=int, default=None,
+                     help="blocked samples before the right-hand detour starts")
+    run.add_argument("--no-detour", action="store_true", help="disable the detour rule")
     run.add_argument("--stall-speed", type=float, default=None,
                      help="linearization speed for stalled robots, m/s (0 disables)")
     run.add_argument("--message-drop", type=float, default=0.0,
@@ -82,6 +90,14 @@ def main(argv: list[str] | None = None) -> int:
             discretization=args.discretization,
             keep_right_angle=base.keep_right_angle if args.keep_right_angle is None
             else args.keep_right_angle,
+            keep_right_growth=base.keep_right_growth if args.keep_right_growth is None
+            else args.keep_right_growth,
+            slack_penalty=base.slack_penalty if args.slack_penalty is None
+            else args.slack_penalty,
+            detour=DetourSettings(
+                enabled=not args.no_detour,
+                patience=DetourSettings().patience if args.detour_patience is None
+                else args.detour_patience),
             stall_speed=base.stall_speed if args.stall_speed is None else args.stall_speed,
             osqp=OSQPSettings(),
         )

@@ -47,9 +47,9 @@ __all__ = [
 _EPS = 1e-9
 
 
-def rotate(vectors: np.ndarray, angle: float) -> np.ndarray:
-    """Rotate 2-D vectors ``(..., 2)`` counter-clockwise by ``angle`` (rad)."""
-    if angle == 0.0:
+def rotate(vectors: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
+    """Rotate 2-D vectors ``(..., 2)`` counter-clockwise by ``angle`` (rad, broadcast)."""
+    if np.all(np.asarray(angle) == 0.0):
         return vectors
     c, s = np.cos(angle), np.sin(angle)
     return np.stack(
@@ -92,13 +92,15 @@ class PairwiseCollisionModel:
     required
         ``(P,)`` required centre distances :math:`(d_j + d_l)/2` plus the margin.
     keep_right_angle
-        Symmetry-breaking rotation :math:`\theta` of every normal (rad).
+        Symmetry-breaking rotation of the normals (rad), a scalar or one angle
+        per stage ``(N,)``.
     """
 
-    def __init__(self, pairs: np.ndarray, required: np.ndarray, keep_right_angle: float = 0.0):
+    def __init__(self, pairs: np.ndarray, required: np.ndarray,
+                 keep_right_angle: float | np.ndarray = 0.0):
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.required = np.asarray(required, dtype=float)
-        self.keep_right_angle = float(keep_right_angle)
+        self.keep_right_angle = np.asarray(keep_right_angle, dtype=float)
         self.current_positions: np.ndarray | None = None
         self.stage_one_overrides = 0
 
@@ -114,8 +116,8 @@ class PairwiseCollisionModel:
         a, b = self.pairs[:, 0], self.pairs[:, 1]
         now = self.current_positions
         pa, pb = states[a, 1:, :2], states[b, 1:, :2]
-        fallback = unit_normals(now[a], now[b], np.array([1.0, 0.0]))[0][:, None, :]
-        n, _ = unit_normals(pa, pb, fallback)
+        n0 = unit_normals(now[a], now[b], np.array([1.0, 0.0]))[0]
+        n, _ = unit_normals(pa, pb, n0[:, None, :])
         n = rotate(n, self.keep_right_angle)
         n1, over = _stage_one(n[:, 0], now[a], now[b], self.required)
         n[:, 0] = n1
@@ -152,11 +154,12 @@ class ExternalCollisionModel:
         Symmetry-breaking rotation of the normals (rad).
     """
 
-    def __init__(self, required: np.ndarray, horizon: int, keep_right_angle: float = 0.0):
+    def __init__(self, required: np.ndarray, horizon: int,
+                 keep_right_angle: float | np.ndarray = 0.0):
         self.required = np.asarray(required, dtype=float)
         E = self.required.size
         self.horizon = horizon
-        self.keep_right_angle = float(keep_right_angle)
+        self.keep_right_angle = np.asarray(keep_right_angle, dtype=float)
         self.kind = np.array(["off"] * E, dtype=object)
         self.obstacles = np.zeros((E, horizon, 2))
         self.fixed_normals = np.zeros((E, horizon, 2))
@@ -199,12 +202,13 @@ class ExternalCollisionModel:
             return
         own = np.broadcast_to(own_prediction, self.obstacles.shape)[shared]
         oth = self.obstacles[shared]
-        half = 0.5 * self.required[shared]
+        d = self.required[shared]
+        half = 0.5 * d
         now_o = self.current_others[shared]
-        fallback = unit_normals(self.current_self, now_o, np.array([1.0, 0.0]))[0][:, None, :]
-        n, _ = unit_normals(own, oth, fallback)
+        n0 = unit_normals(self.current_self, now_o, np.array([1.0, 0.0]))[0]
+        n, _ = unit_normals(own, oth, n0[:, None, :])
         n = rotate(n, self.keep_right_angle)
-        n1, over = _stage_one(n[:, 0], self.current_self, now_o, 2.0 * half)
+        n1, over = _stage_one(n[:, 0], self.current_self, now_o, d)
         n[:, 0] = n1
         c = np.einsum("eni,eni->en", n, 0.5 * (own + oth))
         lo = np.einsum("ei,ei->e", n1, now_o) + half
@@ -223,9 +227,9 @@ class ExternalCollisionModel:
         if np.any(obst):
             own = states[0, 1:, :2]
             o = self.obstacles[obst]
-            fallback = unit_normals(self.current_self, self.current_others[obst],
-                                    np.array([1.0, 0.0]))[0][:, None, :]
-            n, _ = unit_normals(own[None], o, fallback)
+            n0 = unit_normals(self.current_self, self.current_others[obst],
+                              np.array([1.0, 0.0]))[0]
+            n, _ = unit_normals(own[None], o, n0[:, None, :])
             n = rotate(n, self.keep_right_angle)
             if self.stage_one_rule_for_obstacles:
                 n1, over = _stage_one(n[:, 0], self.current_self, self.current_others[obst],

@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 
 from .collision import ExternalCollisionModel, PairwiseCollisionModel
+from .deadlock import DetourRule
 from .errors import ProblemError
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
@@ -156,6 +157,12 @@ class _ControllerBase:
         self.horizon = scenario.horizon
         self.sample_time = scenario.sample_time
         self.failures = 0
+        self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour)
+        self.last_speed = np.zeros(self.indices.size)
+
+    def references(self, t: float, positions: np.ndarray) -> np.ndarray:
+        """References ``(m, N, 2)`` with the detour rule applied (positions of all robots)."""
+        return self.detour.apply(positions, self.last_speed, self.reference(t))
 
     def reference(self, t: float) -> np.ndarray:
         """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""
@@ -244,7 +251,8 @@ class CentralizedController(_ControllerBase):
         self.pairs = pairs
         self.required = required
         self.collisions = PairwiseCollisionModel(
-            pairs, required + settings.collision_margin, settings.keep_right_angle
+            pairs, required + settings.collision_margin,
+            settings.keep_right_angles(scenario.horizon)[None, :],
         )
 
     def _safe(self, next_states: np.ndarray) -> bool:
@@ -265,8 +273,10 @@ class CentralizedController(_ControllerBase):
             )
         self._remember_shifted()
         self.collisions.set_current_positions(states[:, :2])
-        report = self.engine.solve(states, self.reference(t), internal=self.collisions)
+        report = self.engine.solve(states, self.references(t, states[:, :2]),
+                                   internal=self.collisions)
         out = self._finish(states, report, t0, self._safe)
+        self.last_speed = out.inputs[:, 0].copy()
         out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
         return out
 
@@ -308,7 +318,7 @@ class DecentralizedController(_ControllerBase):
         self.required = scenario.required_distances()[index, others]
         self.collisions = ExternalCollisionModel(
             self.required + settings.collision_margin, scenario.horizon,
-            settings.keep_right_angle,
+            settings.keep_right_angles(scenario.horizon)[None, :],
         )
         self.collisions.stage_one_rule_for_obstacles = mode == "shared"
         self.published: PlanMessage | None = None
@@ -387,9 +397,11 @@ class DecentralizedController(_ControllerBase):
             states[self.index, :2], states[self.others, :2], own[1:, :2], preds[:, 1:, :2], kinds
         )
         self._remember_shifted()
-        report = self.engine.solve(states[self.index][None], self.reference(t),
+        report = self.engine.solve(states[self.index][None],
+                                   self.references(t, states[:, :2]),
                                    external=self.collisions)
         out = self._finish(states[self.index][None], report, t0, self._safe)
+        self.last_speed = out.inputs[:, 0].copy()
         out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
         out.info["fallback_neighbours"] = float(sum(k == "obstacle" for k in kinds)
                                                 if self.mode == "shared" else 0)

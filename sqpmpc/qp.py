@@ -49,7 +49,7 @@ class OSQPSettings:
     alpha: float = 1.6
     scaling: int = 10
     check_termination: int = 10
-    accept_inaccurate: bool = False
+    accept_inaccurate: bool = True
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -37,6 +37,7 @@ import numpy as np
 from .errors import ProblemError
 from .layout import QPLayout
 from .model import DISCRETIZATIONS, discrete_dynamics, discrete_jacobians, weighted_dynamics_hessian
+from .deadlock import DetourSettings
 from .qp import OSQPSettings, QPResult, SparseQP
 
 __all__ = ["CollisionRows", "IterationReport", "MultipleShootingSQP", "SolverSettings"]
@@ -67,8 +68,11 @@ class SolverSettings:
         Price of the L1 slacks of collision rows on stages 2..N (exact penalty).
     collision_margin
         Added to every required distance in the QP (covers solver tolerance), m.
-    keep_right_angle
-        Symmetry-breaking rotation of the collision normals, rad.
+    keep_right_angle, keep_right_growth, keep_right_max
+        Symmetry-breaking rotation of the collision normals: stage ``i`` (1..N)
+        is rotated by ``min(keep_right_angle + (i - 1) keep_right_growth,
+        keep_right_max)`` rad. Growing angles make the predicted hyperplanes turn,
+        so robots held in a standoff see room to their right in later stages.
     stall_speed, stall_distance
         Controllability repair: a robot whose guess has every ``|v| < stall_speed``
         while its stage-N reference is farther than ``stall_distance`` is
@@ -88,12 +92,20 @@ class SolverSettings:
     first_sample_iterations: int = 30
     rti_kkt_threshold: float = float("inf")
     rti_max_iterations: int = 1
-    slack_penalty: float = 1e3
+    slack_penalty: float = 50.0
     collision_margin: float = 1e-3
-    keep_right_angle: float = 0.0
-    stall_speed: float = 0.0
+    keep_right_angle: float = 0.3
+    keep_right_growth: float = 0.0
+    keep_right_max: float = 1.0
+    stall_speed: float = 0.05
     stall_distance: float = 0.1
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
+    detour: DetourSettings = field(default_factory=DetourSettings)
+
+    def keep_right_angles(self, horizon: int) -> np.ndarray:
+        """Per-stage rotation angles ``(N,)`` of the collision normals, rad."""
+        i = np.arange(horizon)
+        return np.minimum(self.keep_right_angle + i * self.keep_right_growth, self.keep_right_max)
 
     def __post_init__(self) -> None:
         if self.iteration_scheme not in ("rti", "sqp"):

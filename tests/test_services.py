@@ -1,0 +1,229 @@
+"""The distributed services as real processes over real Zenoh sessions on 127.0.0.1.
+
+Every process is a peer with multicast scouting off and explicit loopback
+endpoints; nothing is mocked. The runs are shortened with ``--t-end``.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from services.messages import CmdMsg, PlanMsg, StateMsg, decode, encode
+from services.testing import (
+    Probe,
+    child_pids,
+    free_ports,
+    pid_alive,
+    start_service,
+    stop_processes,
+)
+from sqpmpc.rti import SolverSettings
+from sqpmpc.scenario import load_scenario
+from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
+
+pytestmark = pytest.mark.timeout(120)
+
+SCENARIO = "paper-s2"
+T_END = 40.0  # 80 samples, through the first close approach (t = 23 s)
+
+
+def _launch(out: Path, *extra: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--out", str(out),
+           "--no-plots", *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                          cwd=Path(__file__).resolve().parent.parent)
+
+
+def _in_process(scheme: str, t_end: float) -> np.ndarray:
+    scenario = load_scenario(SCENARIO).with_changes(t_end=t_end)
+    sim = ClosedLoopSimulation(scenario, scheme, SolverSettings(),
+                               SimulationOptions(decentralized_mode="shared"))
+    return sim.run().states
+
+
+def _metrics(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text())
+
+
+@pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
+def test_lockstep_run_reproduces_the_in_process_trajectory(tmp_path, scheme):
+    out = tmp_path / "run"
+    res = _launch(out, "--scheme", scheme, "--t-end", str(T_END))
+    assert res.returncode == 0, res.stderr
+    assert "collisions" in res.stdout  # the summary
+    traj = np.load(out / "trajectory.npz")
+    reference = _in_process(scheme, T_END)
+    assert traj["states"].shape == reference.shape == (81, 4, 3)
+    assert list(traj["ids"]) == [1, 2, 3, 4]
+    assert np.max(np.abs(traj["states"] - reference)) <= 1e-9
+    m = _metrics(out)
+    assert m["completed"] is True and m["scheme"] == scheme and m["mode"] == "lockstep"
+    assert m["missed_deadlines"] == 0 and m["invalid_messages"] == 0
+    assert m["collisions"] == 0
+    assert m["solve_time"]["total_s"] > 0
+
+
+def test_realtime_run_completes(tmp_path):
+    out = tmp_path / "rt"
+    res = _launch(out, "--scheme", "decentralized", "--mode", "realtime",
+                  "--sample-time", "0.05", "--t-end", "1.5")
+    assert res.returncode == 0, res.stderr
+    m = _metrics(out)
+    assert m["completed"] is True and m["mode"] == "realtime" and m["steps"] == 30
+    assert isinstance(m["missed_deadlines"], int)
+    assert m["sample_time"] == 0.05
+
+
+def test_sigterm_to_the_launcher_leaves_no_child(tmp_path):
+    out = tmp_path / "term"
+    cmd = [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
+           "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots"]
+    launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                cwd=Path(__file__).resolve().parent.parent)
+    try:
+        deadline = time.monotonic() + 30
+        children: list[int] = []
+        while time.monotonic() < deadline and len(children) < 5:
+            children = child_pids(launcher.pid)
+            time.sleep(0.1)
+        assert len(children) == 5, "plant and 4 robots should be running"
+        time.sleep(3.0)  # the realtime loop is running (Ts = 0.5 s)
+        launcher.send_signal(signal.SIGTERM)
+        _, err = launcher.communicate(timeout=60)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+    assert launcher.returncode == 128 + signal.SIGTERM, err
+    assert not [pid for pid in children if pid_alive(pid)]
+    m = _metrics(out)  # the plant wrote what it had
+    assert m["completed"] is False and m["interrupted"] == "SIGINT"
+
+
+def _plant_and_robots(tmp_path: Path, run: str, ids: list[int], t_end: float,
+                      plant_args: tuple[str, ...] = (), robot_args: tuple[str, ...] = ()):
+    ports = free_ports(1 + len(ids))
+    plant_ep = f"tcp/127.0.0.1:{ports[0]}"
+    common = ["--scenario", SCENARIO, "--t-end", str(t_end), "--run", run]
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--out",
+                                    str(tmp_path / "out"), "--no-plots", *plant_args],
+                          tmp_path / "logs")
+    robots = {
+        i: start_service("robot", ["--id", str(i), *common, "--listen",
+                                   f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *robot_args],
+                         tmp_path / "logs", name=f"robot-{i}")
+        for i, port in zip(ids, ports[1:], strict=True)
+    }
+    return plant, robots, plant_ep
+
+
+def test_invalid_messages_are_dropped_and_counted(tmp_path):
+    run = "invalid"
+    plant, robots, plant_ep = _plant_and_robots(tmp_path, run, [1, 2, 3], 10.0)
+    procs = [plant, *robots.values()]
+    probe = None
+    try:
+        probe = Probe(run, [plant_ep])
+        assert probe.wait_alive(["plant", "robot/1", "robot/2", "robot/3"], 30), probe.alive
+        good_cmd = msgpack.unpackb(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), raw=False)
+        bad_version = msgpack.packb({**good_cmd, "v": 99}, use_bin_type=True)
+        nan_u = encode(CmdMsg(1, 0, np.array([np.nan, 0.0]), 0.0))
+        # seen by the plant (subscribed to robot/*/cmd): 5 invalid
+        probe.put(b"\x00garbage\xff", "robot", 1, "cmd")
+        probe.put(bad_version, "robot", 1, "cmd")
+        probe.put(nan_u, "robot", 1, "cmd")
+        probe.put(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), "robot", 2, "cmd")  # id mismatch
+        probe.put(encode(CmdMsg(1, 50, np.zeros(2), 0.0)), "robot", 1, "cmd")  # future sample
+        probe.put(encode(CmdMsg(99, 0, np.zeros(2), 0.0)), "robot", 99, "cmd")  # unknown id
+        # seen by robots 1 and 3 (subscribed to robot 2's plan): 1 invalid each
+        plan = PlanMsg(2, 0, 0.0, 0.0, np.zeros((8, 3)), np.zeros((8, 2)))  # wrong shape
+        probe.put(encode(plan), "robot", 2, "plan")
+        # seen by robots 1, 2, 3: 1 invalid each (unknown ids)
+        probe.put(encode(StateMsg(0, 0.0, (1, 2, 3, 5), np.zeros((4, 3)))), "plant", "state")
+        time.sleep(0.5)
+        # now the last robot: the run starts
+        robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--t-end",
+                                            "10.0", "--run", run, "--connect", plant_ep],
+                                  tmp_path / "logs", name="robot-4")
+        procs.append(robots[4])
+        assert plant.wait(60) == 0, plant.output()
+        for r in robots.values():
+            assert r.wait(30) == 0, r.output()
+    finally:
+        if probe is not None:
+            probe.close()
+        stop_processes(procs)
+    m = _metrics(tmp_path / "out")
+    by_process = m["invalid_messages_by_process"]
+    assert by_process["plant"] == 6, plant.output()
+    assert by_process["robot/1"] == 2 and by_process["robot/3"] == 2
+    assert by_process["robot/2"] == 1 and by_process["robot/4"] == 0
+    assert m["invalid_messages"] == 11
+    # the forged messages changed nothing: every input arrived, the run completed
+    assert m["completed"] is True and m["missed_deadlines"] == 0
+    assert "dropped an invalid message" in plant.output()
+
+
+def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
+    run = "kill"
+    plant, robots, plant_ep = _plant_and_robots(
+        tmp_path, run, [1, 2, 3, 4], 100.0, plant_args=("--timeout", "0.3"),
+        robot_args=("--timeout", "0.05"))
+    procs = [plant, *robots.values()]
+    probe = None
+    try:
+        probe = Probe(run, [plant_ep], [("plant", "state")])
+
+        def reached(k: int) -> bool:
+            return any(decode(e.payload, 8).sample >= k for e in probe.events)
+
+        assert probe.wait_for(lambda: reached(20), 60), plant.output()
+        robots[2].proc.send_signal(signal.SIGSTOP)  # silent: the plant times out on it
+        time.sleep(1.0)
+        robots[2].proc.kill()  # then gone: its liveliness token disappears
+        robots[2].wait(10)
+        assert plant.wait(60) == 0, plant.output()
+        for i in (1, 3, 4):
+            assert robots[i].wait(30) == 0, robots[i].output()
+    finally:
+        if probe is not None:
+            probe.close()
+        stop_processes(procs)
+    m = _metrics(tmp_path / "out")
+    assert m["completed"] is True and m["steps"] == 200
+    missed = m["missed_deadlines_by_robot"]
+    assert missed["2"] >= 100  # braked from the stop on
+    assert missed["1"] == missed["3"] == missed["4"] == 0
+    assert m["missed_deadlines"] == missed["2"]
+    assert m["lockstep_timeouts"] >= 1  # while robot 2 was stopped
+    assert "robot/2 is gone" in plant.output()
+    traj = np.load(tmp_path / "out" / "trajectory.npz")
+    assert np.all(traj["inputs"][-missed["2"]:, 1] == 0.0)  # robot 2 brakes to the end
+    assert np.any(traj["inputs"][-missed["2"]:, [0, 2, 3]] != 0.0)  # the others move on
+
+
+@pytest.mark.parametrize("module,args", [
+    ("plant", ["--scenario", "no-such-scenario"]),
+    ("robot", ["--id", "1", "--scenario", "no-such-scenario"]),
+    ("robot", ["--id", "9", "--scenario", SCENARIO]),
+    ("central", ["--scenario", SCENARIO, "--t-end", "0.3"]),
+    ("launch", ["--scenario", "no-such-scenario", "--scheme", "centralized"]),
+    ("launch", ["--scenario", SCENARIO, "--scheme", "centralized", "--run", "a/b"]),
+])
+def test_bad_input_gives_one_message_and_status_2(module, args):
+    res = subprocess.run([sys.executable, "-m", f"services.{module}", *args],
+                         capture_output=True, text=True, timeout=60,
+                         cwd=Path(__file__).resolve().parent.parent)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"services.{module}: error: "), res.stderr
+    assert "Traceback" not in res.stderr
