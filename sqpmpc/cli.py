@@ -32,11 +32,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sqpmpc", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a closed loop in one process")
-    run.add_argument("scenario", help=f"TOML file or built-in name ({', '.join(builtin_scenario_names())})")
+    names = ", ".join(builtin_scenario_names())
+    run.add_argument("scenario", help=f"TOML file or built-in name ({names})")
     run.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
     run.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<new>)")
     run.add_argument("--decentralized-mode", choices=("shared", "paper"), default="shared",
-                     help="shared-responsibility hyperplanes (default) or the paper's literal scheme")
+                     help="shared-responsibility hyperplanes (default) or the paper's "
+                          "literal scheme")
     run.add_argument("--iteration", choices=("rti", "sqp"), default="rti",
                      help="one QP per sample (rti, default) or SQP to convergence")
     run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
@@ -108,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ScenarioError, ProblemError) as exc:
         print(f"sqpmpc: error: {exc}", file=sys.stderr)
         return 2
-    out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{time.strftime('%Y%m%d-%H%M%S')}"
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
     status = 0
     try:
         sim.run()

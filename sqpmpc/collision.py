@@ -142,6 +142,13 @@ class ExternalCollisionModel:
     - ``"obstacle"``: the neighbour's prediction is a moving obstacle and the
       full distance is kept, relinearized at the own iterate (the paper's literal
       scheme, and the fallback for a neighbour whose plan is missing);
+    - ``"missing"``: a neighbour in the shared scheme whose plan did not
+      arrive. Stages 2..N treat its extrapolated prediction as an obstacle;
+      stage 1 must be safe whatever it does: if the current distance allows,
+      keep :math:`d + r` from its current position, :math:`r = T_s v_{max}`
+      its reach in one sample; otherwise do not approach it (and the safety
+      check accepts only standing still, which its own shared constraint,
+      clipped to our current position, keeps safe);
     - ``"off"``: no constraint.
 
     Parameters
@@ -155,10 +162,11 @@ class ExternalCollisionModel:
     """
 
     def __init__(self, required: np.ndarray, horizon: int,
-                 keep_right_angle: float | np.ndarray = 0.0):
+                 keep_right_angle: float | np.ndarray = 0.0, reach: float = 0.0):
         self.required = np.asarray(required, dtype=float)
         E = self.required.size
         self.horizon = horizon
+        self.reach = float(reach)
         self.keep_right_angle = np.asarray(keep_right_angle, dtype=float)
         self.kind = np.array(["off"] * E, dtype=object)
         self.obstacles = np.zeros((E, horizon, 2))
@@ -219,10 +227,10 @@ class ExternalCollisionModel:
         self._shared_overrides = int(over.sum())
 
     def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Normals ``(1, E, N, 2)`` and rhs ``(1, E, N)`` at the own linearization ``(1, N+1, 3)``."""
+        """Normals ``(1, E, N, 2)`` and rhs ``(1, E, N)`` at the own iterate ``(1, N+1, 3)``."""
         normals = self.fixed_normals.copy()
         rhs = self.fixed_rhs.copy()
-        obst = self.kind == "obstacle"
+        obst = (self.kind == "obstacle") | (self.kind == "missing")
         overrides = getattr(self, "_shared_overrides", 0)
         if np.any(obst):
             own = states[0, 1:, :2]
@@ -238,16 +246,38 @@ class ExternalCollisionModel:
                 overrides += int(over.sum())
             normals[obst] = n
             rhs[obst] = np.einsum("eni,eni->en", n, o) + self.required[obst][:, None]
+            missing = self.kind == "missing"
+            if np.any(missing):
+                n0 = unit_normals(self.current_self, self.current_others[missing],
+                                  np.array([1.0, 0.0]))[0]
+                gap = np.einsum("ei,ei->e", n0, self.current_self - self.current_others[missing])
+                keep = self.required[missing] + self.reach
+                normals[missing, 0] = n0
+                rhs[missing, 0] = np.where(
+                    gap >= keep,
+                    np.einsum("ei,ei->e", n0, self.current_others[missing]) + keep,
+                    np.einsum("ei,i->e", n0, self.current_self),
+                )
         self.stage_one_overrides = overrides
         return normals[None], rhs[None]
 
     def residuals(self, states: np.ndarray) -> np.ndarray:
-        """True residuals ``(1, E, N)`` (> 0 violates): linear rows or obstacle distances."""
+        """True residuals ``(1, E, N)`` (> 0 violates): linear rows or obstacle distances.
+
+        For ``"missing"`` slots stage 1 is measured against the disk the
+        neighbour can reach in one sample; standing still counts as satisfied.
+        """
         own = states[0, 1:, :2]
         res = self.fixed_rhs - np.einsum("eni,ni->en", self.fixed_normals, own)
         res[self.kind == "off"] = -np.inf
-        obst = self.kind == "obstacle"
+        obst = (self.kind == "obstacle") | (self.kind == "missing")
         if np.any(obst):
             d = own[None] - self.obstacles[obst]
             res[obst] = self.required[obst][:, None] - np.hypot(d[..., 0], d[..., 1])
+        missing = self.kind == "missing"
+        if np.any(missing):
+            d = own[0] - self.current_others[missing]
+            res[missing, 0] = self.required[missing] + self.reach - np.hypot(d[:, 0], d[:, 1])
+            if np.hypot(*(own[0] - self.current_self)) <= 1e-12:
+                res[missing, 0] = -np.inf
         return res[None]

@@ -269,7 +269,8 @@ class CentralizedController(_ControllerBase):
         states = np.asarray(states, dtype=float)
         if states.shape != (self.scenario.n_robots, 3) or not np.all(np.isfinite(states)):
             raise ProblemError(
-                f"states must be finite with shape ({self.scenario.n_robots}, 3), got {states.shape}"
+                f"states must be finite with shape ({self.scenario.n_robots}, 3), "
+                f"got {states.shape}"
             )
         self._remember_shifted()
         self.collisions.set_current_positions(states[:, :2])
@@ -319,6 +320,7 @@ class DecentralizedController(_ControllerBase):
         self.collisions = ExternalCollisionModel(
             self.required + settings.collision_margin, scenario.horizon,
             settings.keep_right_angles(scenario.horizon)[None, :],
+            reach=scenario.sample_time * max(abs(self.input_lower[0]), abs(self.input_upper[0])),
         )
         self.collisions.stage_one_rule_for_obstacles = mode == "shared"
         self.published: PlanMessage | None = None
@@ -346,12 +348,13 @@ class DecentralizedController(_ControllerBase):
         for e, (j, jid) in enumerate(zip(self.others, self.other_ids, strict=True)):
             plan = plans.get(int(jid))
             pred = None
-            if plan is not None:
+            if plan is not None and (self.mode == "paper" or plan.sample == sample - 1):
+                # shared hyperplanes need the plan the neighbour itself uses: the previous one
                 pred = predict_from_plan(plan, sample, self.horizon, self.sample_time, method)
             if pred is None:
                 prev = None if previous_states is None else previous_states[j]
                 pred = predict_from_states(states[j], prev, self.horizon, self.sample_time, method)
-                kinds.append("obstacle")
+                kinds.append("missing" if self.mode == "shared" else "obstacle")
             else:
                 kinds.append("shared" if self.mode == "shared" else "obstacle")
             preds[e] = pred
@@ -403,8 +406,7 @@ class DecentralizedController(_ControllerBase):
         out = self._finish(states[self.index][None], report, t0, self._safe)
         self.last_speed = out.inputs[:, 0].copy()
         out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
-        out.info["fallback_neighbours"] = float(sum(k == "obstacle" for k in kinds)
-                                                if self.mode == "shared" else 0)
+        out.info["fallback_neighbours"] = float(sum(k == "missing" for k in kinds))
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0].copy(),
                                      out.predicted_inputs[0].copy())
         return out

@@ -134,7 +134,8 @@ def discrete_jacobians(
     sample_time: float,
     method: str = "euler",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    r"""Next state and Jacobians :math:`A = \partial f_d/\partial\chi`, :math:`B = \partial f_d/\partial u`.
+    r"""Next state and Jacobians :math:`A = \partial f_d/\partial\chi`,
+    :math:`B = \partial f_d/\partial u`.
 
     For Euler,
 

@@ -77,7 +77,7 @@ class OSQPSettings:
 
 @dataclass
 class QPResult:
-    """Outcome of one QP solve.
+    r"""Outcome of one QP solve.
 
     Attributes
     ----------
@@ -152,7 +152,7 @@ class SparseQP:
     def update_cost_weights(
         self, Q_diag: np.ndarray, R_diag: np.ndarray, slack_penalty: float
     ) -> None:
-        r"""Set :math:`P` for :math:`\sum_i \|p_i - r_i\|_Q^2 + \|u_{i-1}\|_R^2` and the L1 slack price.
+        r"""Set :math:`P` of :math:`\sum_i \|p_i - r_i\|_Q^2 + \|u_{i-1}\|_R^2`; the slack price.
 
         ``Q`` weighs positions of stages 1..N, ``R`` inputs of stages 0..N-1;
         OSQP's :math:`\tfrac12 z^\top P z` convention gives :math:`P = 2Q`, :math:`2R`.
@@ -220,7 +220,7 @@ class SparseQP:
         self._dirty_A = self._dirty_vec = True
 
     def update_external_collisions(self, normals: np.ndarray, rhs: np.ndarray) -> None:
-        r"""Rows :math:`n^\top p_j + s \ge b`, ``(m, E, N, 2)`` and ``(m, E, N)``; ``-inf`` disables."""
+        r"""Rows :math:`n^\top p_j + s \ge b`: ``(m, E, N, 2)``, ``(m, E, N)``; -inf disables."""
         if self.layout.n_external == 0:
             return
         self.A_values[self.layout.A_slices["external"]] = normals.ravel()

@@ -34,10 +34,10 @@ from typing import Literal, Protocol
 
 import numpy as np
 
+from .deadlock import DetourSettings
 from .errors import ProblemError
 from .layout import QPLayout
 from .model import DISCRETIZATIONS, discrete_dynamics, discrete_jacobians, weighted_dynamics_hessian
-from .deadlock import DetourSettings
 from .qp import OSQPSettings, QPResult, SparseQP
 
 __all__ = ["CollisionRows", "IterationReport", "MultipleShootingSQP", "SolverSettings"]
@@ -109,7 +109,9 @@ class SolverSettings:
 
     def __post_init__(self) -> None:
         if self.iteration_scheme not in ("rti", "sqp"):
-            raise ProblemError(f"iteration_scheme must be 'rti' or 'sqp', got {self.iteration_scheme!r}")
+            raise ProblemError(
+                f"iteration_scheme must be 'rti' or 'sqp', got {self.iteration_scheme!r}"
+            )
         if self.hessian not in ("gauss-newton", "exact"):
             raise ProblemError(f"hessian must be 'gauss-newton' or 'exact', got {self.hessian!r}")
         if self.discretization not in DISCRETIZATIONS:
@@ -214,8 +216,9 @@ class MultipleShootingSQP:
         self.merit_weight = 1.0
         self.samples = 0
         self.stalled_repairs = 0
-        self._slack_rows_int = layout.slack_rows[layout.slack_internal_index - layout.block_size * layout.n_robots]
-        self._slack_rows_ext = layout.slack_rows[layout.slack_external_index - layout.block_size * layout.n_robots]
+        first_slack = layout.n_var - layout.n_slack
+        self._slack_rows_int = layout.slack_rows[layout.slack_internal_index - first_slack]
+        self._slack_rows_ext = layout.slack_rows[layout.slack_external_index - first_slack]
 
     # ------------------------------------------------------------ iterate
     @property
@@ -482,7 +485,8 @@ class MultipleShootingSQP:
         L = self.layout
         duals = np.concatenate((res.y[L.dyn_rows].ravel(), res.y[L.init_rows].ravel(),
                                 res.y[L.internal_rows].ravel(), res.y[L.external_rows].ravel()))
-        self.merit_weight = max(self.merit_weight, 1.5 * float(np.abs(duals).max(initial=0.0)) + 1.0)
+        largest = float(np.abs(duals).max(initial=0.0))
+        self.merit_weight = max(self.merit_weight, 1.5 * largest + 1.0)
         mu = self.merit_weight
         f0, g0 = self._cost(z)
         h0 = self._infeasibility(z, initial_states, internal, external)
@@ -493,7 +497,8 @@ class MultipleShootingSQP:
         alpha = 1.0
         while alpha > 1e-6:
             zt = z + alpha * dz
-            phi = self._cost(zt)[0] + mu * self._infeasibility(zt, initial_states, internal, external)
+            h = self._infeasibility(zt, initial_states, internal, external)
+            phi = self._cost(zt)[0] + mu * h
             if phi <= phi0 + 1e-4 * alpha * slope:
                 return alpha
             alpha *= 0.5

@@ -14,7 +14,6 @@ A run that stops midway (exception, Ctrl-C) keeps what it had:
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass
 from typing import Literal
 
