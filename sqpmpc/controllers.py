@@ -122,8 +122,12 @@ def predict_from_plan(
     missing = horizon + 1 - known.shape[0]
     if missing == 0:
         return known.copy()
-    tail = rollout(known[-1], np.repeat(plan.inputs[-1:], missing, axis=0), sample_time, method)
-    return np.concatenate((known, tail[1:]), axis=0)
+    if missing == 1:
+        tail = discrete_dynamics(known[-1], plan.inputs[-1], sample_time, method)[None]
+    else:
+        tail = rollout(known[-1], np.repeat(plan.inputs[-1:], missing, axis=0), sample_time,
+                       method)[1:]
+    return np.concatenate((known, tail), axis=0)
 
 
 def predict_from_states(
@@ -158,6 +162,8 @@ class _ControllerBase:
         self.sample_time = scenario.sample_time
         self.failures = 0
         self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour)
+        self._references = [scenario.robots[i].reference for i in self.indices]
+        self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         self.last_speed = np.zeros(self.indices.size)
 
     def references(self, t: float, positions: np.ndarray) -> np.ndarray:
@@ -166,8 +172,11 @@ class _ControllerBase:
 
     def reference(self, t: float) -> np.ndarray:
         """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""
-        times = t + self.sample_time * np.arange(1, self.horizon + 1)
-        return np.swapaxes(self.scenario.reference_positions(times)[:, self.indices], 0, 1)
+        times = t + self._stage_offsets
+        out = np.empty((self.indices.size, self.horizon, 2))
+        for r, ref in enumerate(self._references):
+            out[r] = ref.position(times)
+        return out
 
     def _next(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         return discrete_dynamics(states, inputs, self.sample_time, self.settings.discretization)

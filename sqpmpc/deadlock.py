@@ -83,6 +83,10 @@ class DetourRule:
         s = self.settings
         if not s.enabled or positions.shape[0] < 2:
             return reference
+        slow = np.abs(last_speed) < s.speed
+        if not slow.any() and not self.active_for.any():
+            self.blocked_for[:] = 0
+            return reference
         p = positions[self.own]  # (m, 2)
         goal = reference[:, -1] - p
         goal_dist = np.hypot(goal[:, 0], goal[:, 1])

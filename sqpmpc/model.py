@@ -33,6 +33,7 @@ __all__ = [
     "continuous_dynamics",
     "discrete_dynamics",
     "discrete_jacobians",
+    "euler_linearization_values",
     "weighted_dynamics_hessian",
     "estimate_input",
     "rollout",
@@ -70,7 +71,11 @@ def continuous_dynamics(states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
     """
     psi = states[..., 2]
     v = inputs[..., 0]
-    return np.stack((v * np.cos(psi), v * np.sin(psi), inputs[..., 1] + 0.0 * psi), axis=-1)
+    out = np.empty(np.broadcast_shapes(states.shape, inputs.shape[:-1] + (3,)))
+    np.multiply(v, np.cos(psi), out=out[..., 0])
+    np.multiply(v, np.sin(psi), out=out[..., 1])
+    out[..., 2] = inputs[..., 1]
+    return out
 
 
 def _continuous_jacobians(
@@ -190,6 +195,41 @@ def discrete_jacobians(
     return nxt, eye + (h / 6.0) * acc_x, (h / 6.0) * acc_u
 
 
+def euler_linearization_values(
+    states: np.ndarray, inputs: np.ndarray, sample_time: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""Euler linearization written directly in the QP's pattern order (hot path).
+
+    With :math:`f` linear in :math:`u`, the affine term of
+    :math:`\chi^+ \approx A\chi + Bu + c` is
+    :math:`c = -T_s J_\chi \bar\chi = T_s \bar v\bar\psi(\sin\bar\psi, -\cos\bar\psi, 0)`.
+
+    Returns
+    -------
+    tuple of np.ndarray
+        ``A`` entries ``(..., 5)`` at (0,0), (1,1), (2,2), (0,2), (1,2); ``B`` entries
+        ``(..., 5)`` at (0,0), (0,1), (1,0), (1,1), (2,1); and ``c`` ``(..., 3)``.
+    """
+    h = float(sample_time)
+    psi = states[..., 2]
+    hv = h * inputs[..., 0]
+    c, s = np.cos(psi), np.sin(psi)
+    shape = psi.shape
+    A = np.empty(shape + (5,))
+    A[..., :3] = 1.0
+    np.multiply(-hv, s, out=A[..., 3])
+    np.multiply(hv, c, out=A[..., 4])
+    B = np.zeros(shape + (5,))
+    np.multiply(h, c, out=B[..., 0])
+    np.multiply(h, s, out=B[..., 2])
+    B[..., 4] = h
+    off = np.zeros(shape + (3,))
+    hvpsi = hv * psi
+    np.multiply(hvpsi, s, out=off[..., 0])
+    np.multiply(-hvpsi, c, out=off[..., 1])
+    return A, B, off
+
+
 def weighted_dynamics_hessian(
     states: np.ndarray,
     inputs: np.ndarray,
@@ -280,8 +320,23 @@ def rollout(
     np.ndarray
         ``(N + 1, ..., 3)`` states, the initial one first.
     """
-    out = [np.asarray(initial_state, dtype=float)]
-    for u in np.asarray(inputs, dtype=float):
+    inputs = np.asarray(inputs, dtype=float)
+    x0 = np.asarray(initial_state, dtype=float)
+    if method == "euler":  # closed form: headings by cumulative sums, then positions
+        h = float(sample_time)
+        psi = x0[..., 2] + h * np.concatenate(
+            (np.zeros((1,) + inputs.shape[1:-1]), np.cumsum(inputs[..., 1], axis=0)), axis=0)
+        step = np.empty(inputs.shape[:-1] + (2,))
+        np.multiply(h * inputs[..., 0], np.cos(psi[:-1]), out=step[..., 0])
+        np.multiply(h * inputs[..., 0], np.sin(psi[:-1]), out=step[..., 1])
+        out = np.empty((inputs.shape[0] + 1,) + np.broadcast_shapes(x0.shape, step.shape[1:-1]
+                                                                     + (3,)))
+        out[0] = x0
+        out[1:, ..., :2] = x0[..., :2] + np.cumsum(step, axis=0)
+        out[..., 2] = psi
+        return out
+    out = [x0]
+    for u in inputs:
         out.append(discrete_dynamics(out[-1], u, sample_time, method))
     return np.stack(out)
 

@@ -209,6 +209,17 @@ class SparseQP:
         self.upper[rows] = c_k
         self._dirty_A = self._dirty_vec = True
 
+    def update_dynamics_values(self, A_values: np.ndarray, B_values: np.ndarray,
+                               c_k: np.ndarray) -> None:
+        """Like :meth:`update_dynamics` with ``A``/``B`` given as pattern entries ``(m, N, 5)``."""
+        sl = self.layout.A_slices
+        np.negative(A_values.ravel(), out=self.A_values[sl["dyn_A"]])
+        np.negative(B_values.ravel(), out=self.A_values[sl["dyn_B"]])
+        rows = self.layout.dyn_rows
+        self.lower[rows] = c_k
+        self.upper[rows] = c_k
+        self._dirty_A = self._dirty_vec = True
+
     def update_internal_collisions(self, normals: np.ndarray, rhs: np.ndarray) -> None:
         r"""Rows :math:`n^\top(p_a - p_b) + s \ge b` for pairs ``(P, N, 2)``, ``(P, N)``."""
         if self.layout.n_pairs == 0:

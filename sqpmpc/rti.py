@@ -37,7 +37,13 @@ import numpy as np
 from .deadlock import DetourSettings
 from .errors import ProblemError
 from .layout import QPLayout
-from .model import DISCRETIZATIONS, discrete_dynamics, discrete_jacobians, weighted_dynamics_hessian
+from .model import (
+    DISCRETIZATIONS,
+    discrete_dynamics,
+    discrete_jacobians,
+    euler_linearization_values,
+    weighted_dynamics_hessian,
+)
 from .qp import OSQPSettings, QPResult, SparseQP
 
 __all__ = ["CollisionRows", "IterationReport", "MultipleShootingSQP", "SolverSettings"]
@@ -217,8 +223,18 @@ class MultipleShootingSQP:
         self.samples = 0
         self.stalled_repairs = 0
         first_slack = layout.n_var - layout.n_slack
-        self._slack_rows_int = layout.slack_rows[layout.slack_internal_index - first_slack]
-        self._slack_rows_ext = layout.slack_rows[layout.slack_external_index - first_slack]
+        slack_rows_int = layout.slack_rows[layout.slack_internal_index - first_slack]
+        slack_rows_ext = layout.slack_rows[layout.slack_external_index - first_slack]
+        # one gather per vector shifts every stage-indexed block by one stage
+        self._shift_z = np.arange(layout.n_var)
+        for idx, axis in ((layout.state_index, 1), (layout.input_index, 1),
+                          (layout.slack_internal_index, 1), (layout.slack_external_index, 2)):
+            _shift_indexed(self._shift_z, idx, axis)
+        self._shift_y = np.arange(layout.n_con)
+        for idx, axis in ((layout.dyn_rows, 1), (layout.input_rows, 1),
+                          (layout.position_rows, 1), (layout.internal_rows, 1),
+                          (layout.external_rows, 2), (slack_rows_int, 1), (slack_rows_ext, 2)):
+            _shift_indexed(self._shift_y, idx, axis)
 
     # ------------------------------------------------------------ iterate
     @property
@@ -251,28 +267,12 @@ class MultipleShootingSQP:
         if self.z is None:
             return
         L = self.layout
-        z, y = self.z, self.y
-        states, inputs = L.split_primal(z)
-        last = discrete_dynamics(
-            states[:, -1], inputs[:, -1], self.sample_time, self.settings.discretization
-        )
-        z[L.state_index] = np.concatenate((states[:, 1:], last[:, None]), axis=1)
-        for idx, axis in (
-            (L.input_index, 1),
-            (L.slack_internal_index, 1),
-            (L.slack_external_index, 2),
-        ):
-            _shift_indexed(z, idx, axis)
-        for idx, axis in (
-            (L.dyn_rows, 1),
-            (L.input_rows, 1),
-            (L.position_rows, 1),
-            (L.internal_rows, 1),
-            (L.external_rows, 2),
-            (self._slack_rows_int, 1),
-            (self._slack_rows_ext, 2),
-        ):
-            _shift_indexed(y, idx, axis)
+        last_state = L.state_index[:, -1]
+        last = discrete_dynamics(self.z[last_state], self.z[L.input_index[:, -1]],
+                                 self.sample_time, self.settings.discretization)
+        self.z = self.z[self._shift_z]
+        self.z[last_state] = last
+        self.y = self.y[self._shift_y]
 
     def _linearize(
         self,
@@ -284,15 +284,19 @@ class MultipleShootingSQP:
         L, s = self.layout, self.settings
         states, inputs = L.split_primal(z)
         N = L.horizon
-        nxt, A_k, B_k = discrete_jacobians(
-            states[:, :N], inputs, self.sample_time, s.discretization
-        )
-        c_k = (
-            nxt
-            - np.einsum("mnij,mnj->mni", A_k, states[:, :N])
-            - np.einsum("mnij,mnj->mni", B_k, inputs)
-        )
-        self.qp.update_dynamics(A_k, B_k, c_k)
+        if s.discretization == "euler":
+            self.qp.update_dynamics_values(
+                *euler_linearization_values(states[:, :N], inputs, self.sample_time))
+        else:
+            nxt, A_k, B_k = discrete_jacobians(
+                states[:, :N], inputs, self.sample_time, s.discretization
+            )
+            c_k = (
+                nxt
+                - np.einsum("mnij,mnj->mni", A_k, states[:, :N])
+                - np.einsum("mnij,mnj->mni", B_k, inputs)
+            )
+            self.qp.update_dynamics(A_k, B_k, c_k)
         self.qp.update_initial_state(initial_states)
         if internal is not None:
             self.qp.update_internal_collisions(*internal.rows(states))

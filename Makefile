@@ -1,0 +1,28 @@
+# sqpmpc: `make demo` runs the distributed demo, `make test` the checks.
+# Both create the virtual environment .venv from pyproject.toml on first use.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e ".[test,bench]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized --out runs/demo
+
+test: $(STAMP)
+	$(BIN)/ruff check sqpmpc services tests benchmarks
+	$(BIN)/pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python -m benchmarks.compare_ipopt
+	$(BIN)/python -m benchmarks.bench_services
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache
