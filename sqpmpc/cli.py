@@ -96,10 +96,9 @@ def main(argv: list[str] | None = None) -> int:
             else args.keep_right_growth,
             slack_penalty=base.slack_penalty if args.slack_penalty is None
             else args.slack_penalty,
-            detour=DetourSettings(
-                enabled=not args.no_detour,
-                patience=DetourSettings().patience if args.detour_patience is None
-                else args.detour_patience),
+            detour=DetourSettings(enabled=not args.no_detour) if args.detour_patience is None
+            else DetourSettings(enabled=not args.no_detour, patience=args.detour_patience,
+                                patience_centralized=args.detour_patience),
             stall_speed=base.stall_speed if args.stall_speed is None else args.stall_speed,
             osqp=OSQPSettings(),
         )

@@ -161,7 +161,10 @@ class _ControllerBase:
         self.horizon = scenario.horizon
         self.sample_time = scenario.sample_time
         self.failures = 0
-        self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour)
+        patience = (settings.detour.patience_centralized if indices.size > 1 or
+                    scenario.n_robots == 1 else settings.detour.patience)
+        self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour,
+                                 patience)
         self._references = [scenario.robots[i].reference for i in self.indices]
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         self.last_speed = np.zeros(self.indices.size)

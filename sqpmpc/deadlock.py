@@ -12,7 +12,9 @@ The rule, applied by every robot alike from measured positions only:
   neighbour closer than its required distance plus ``reach`` lies within
   ``cone`` of the direction to its stage-N reference, which is farther than
   ``reach``;
-- after ``patience`` consecutive blocked samples it takes a *detour*: for
+- after ``patience`` consecutive blocked samples (``patience_centralized`` for
+  the centralized controller, whose joint optimization resolves most
+  encounters itself, so the rule is its last resort) it takes a *detour*: for
   ``hold`` samples (renewed while it stays blocked) its reference on every
   stage is the point at distance ``radius`` from the blocker, rotated by
   ``angle`` to the right of the direction from the blocker to itself
@@ -39,6 +41,7 @@ class DetourSettings:
     reach: float = 0.3
     cone: float = float(np.deg2rad(75.0))
     patience: int = 2
+    patience_centralized: int = 5
     hold: int = 6
     radius_factor: float = 2.0
     angle: float = float(np.deg2rad(60.0))
@@ -55,10 +58,14 @@ class DetourRule:
         ``(n, n)`` required centre distances.
     settings
         Rule parameters.
+    patience
+        Blocked samples before a detour starts (``settings.patience`` if ``None``).
     """
 
-    def __init__(self, own: np.ndarray, required: np.ndarray, settings: DetourSettings):
+    def __init__(self, own: np.ndarray, required: np.ndarray, settings: DetourSettings,
+                 patience: int | None = None):
         self.own = np.asarray(own, dtype=np.int64)
+        self.patience = settings.patience if patience is None else int(patience)
         self.required = np.asarray(required, dtype=float)
         self.settings = settings
         m = self.own.size
@@ -83,23 +90,23 @@ class DetourRule:
         s = self.settings
         if not s.enabled or positions.shape[0] < 2:
             return reference
-        slow = np.abs(last_speed) < s.speed
-        if not slow.any() and not self.active_for.any():
-            self.blocked_for[:] = 0
-            return reference
         p = positions[self.own]  # (m, 2)
         goal = reference[:, -1] - p
         goal_dist = np.hypot(goal[:, 0], goal[:, 1])
+        candidates = (np.abs(last_speed) < s.speed) & (goal_dist > s.reach)
+        if not candidates.any() and not self.active_for.any():
+            self.blocked_for[:] = 0
+            return reference
         rel = positions[None, :, :] - p[:, None, :]  # (m, n, 2)
         dist = np.hypot(rel[..., 0], rel[..., 1])
         dist[np.arange(self.own.size), self.own] = np.inf
         cos = np.einsum("mni,mi->mn", rel, goal) / np.maximum(dist * goal_dist[:, None], 1e-12)
         near = dist < self.required[self.own] + s.reach
         blocking = near & (cos > np.cos(s.cone))
-        blocked = (np.abs(last_speed) < s.speed) & (goal_dist > s.reach) & blocking.any(axis=1)
+        blocked = candidates & blocking.any(axis=1)
         self.blocked_for = np.where(blocked, self.blocked_for + 1, 0)
         closest = np.argmin(np.where(blocking, dist, np.inf), axis=1)
-        start = blocked & (self.blocked_for >= s.patience)
+        start = blocked & (self.blocked_for >= self.patience)
         self.activations += int(np.sum(start & (self.active_for == 0)))
         self.blocker = np.where(start, closest, self.blocker)
         self.active_for = np.where(start, s.hold, np.maximum(self.active_for - 1, 0))

@@ -33,7 +33,7 @@ from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
 pytestmark = pytest.mark.timeout(120)
 
 SCENARIO = "paper-s2"
-T_END = 40.0  # 80 samples, through the first close approach (t = 23 s)
+T_END = 100.0  # 200 samples, through the first close approaches
 
 
 def _launch(out: Path, *extra: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
@@ -62,7 +62,7 @@ def test_lockstep_run_reproduces_the_in_process_trajectory(tmp_path, scheme):
     assert "collisions" in res.stdout  # the summary
     traj = np.load(out / "trajectory.npz")
     reference = _in_process(scheme, T_END)
-    assert traj["states"].shape == reference.shape == (81, 4, 3)
+    assert traj["states"].shape == reference.shape == (201, 4, 3)
     assert list(traj["ids"]) == [1, 2, 3, 4]
     assert np.max(np.abs(traj["states"] - reference)) <= 1e-9
     m = _metrics(out)
@@ -104,6 +104,7 @@ def test_sigterm_to_the_launcher_leaves_no_child(tmp_path):
             launcher.kill()
             launcher.wait()
     assert launcher.returncode == 128 + signal.SIGTERM, err
+    assert "killing" not in err  # every child left on its own signal, none needed SIGKILL
     assert not [pid for pid in children if pid_alive(pid)]
     m = _metrics(out)  # the plant wrote what it had
     assert m["completed"] is False and m["interrupted"] == "SIGINT"
@@ -176,7 +177,7 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
 def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
     run = "kill"
     plant, robots, plant_ep = _plant_and_robots(
-        tmp_path, run, [1, 2, 3, 4], 100.0, plant_args=("--timeout", "0.3"),
+        tmp_path, run, [1, 2, 3, 4], 150.0, plant_args=("--timeout", "0.3"),
         robot_args=("--timeout", "0.05"))
     procs = [plant, *robots.values()]
     probe = None
@@ -199,16 +200,50 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
             probe.close()
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
-    assert m["completed"] is True and m["steps"] == 200
+    assert m["completed"] is True and m["steps"] == 300
     missed = m["missed_deadlines_by_robot"]
     assert missed["2"] >= 100  # braked from the stop on
     assert missed["1"] == missed["3"] == missed["4"] == 0
     assert m["missed_deadlines"] == missed["2"]
     assert m["lockstep_timeouts"] >= 1  # while robot 2 was stopped
     assert "robot/2 is gone" in plant.output()
+    for i in (1, 3, 4):  # the others saw it go (and predict it as an obstacle from then on)
+        assert "robot/2 is gone" in robots[i].output()
     traj = np.load(tmp_path / "out" / "trajectory.npz")
     assert np.all(traj["inputs"][-missed["2"]:, 1] == 0.0)  # robot 2 brakes to the end
     assert np.any(traj["inputs"][-missed["2"]:, [0, 2, 3]] != 0.0)  # the others move on
+
+
+def test_a_robot_started_late_joins_the_running_loop(tmp_path):
+    run = "late"
+    plant, robots, plant_ep = _plant_and_robots(
+        tmp_path, run, [1, 2, 3], 400.0, plant_args=("--startup-timeout", "1"))
+    procs = [plant, *robots.values()]
+    probe = None
+    try:
+        probe = Probe(run, [plant_ep], [("plant", "state")])
+        assert probe.wait_for(lambda: bool(probe.events), 60), plant.output()  # running
+        robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--run", run,
+                                            "--connect", plant_ep], tmp_path / "logs",
+                                  name="robot-4")
+        procs.append(robots[4])
+        assert plant.wait(90) == 0, plant.output()
+        for r in robots.values():
+            assert r.wait(30) == 0, r.output()
+    finally:
+        if probe is not None:
+            probe.close()
+        stop_processes(procs)
+    m = _metrics(tmp_path / "out")
+    missed = m["missed_deadlines_by_robot"]
+    assert m["completed"] is True and m["steps"] == 800
+    assert 1 <= missed["4"] <= 750, "robot 4 braked until it joined, then drove"
+    assert missed["1"] == missed["2"] == missed["3"] == 0
+    assert m["lockstep_timeouts"] == 0  # the plant re-sent the sample robot 4 joined at
+    assert "robot/4 joined at sample" in plant.output()
+    traj = np.load(tmp_path / "out" / "trajectory.npz")
+    assert np.all(traj["inputs"][: missed["4"], 3] == 0.0)
+    assert np.any(traj["inputs"][missed["4"]:, 3] != 0.0)
 
 
 @pytest.mark.parametrize("module,args", [
@@ -216,6 +251,8 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
     ("robot", ["--id", "1", "--scenario", "no-such-scenario"]),
     ("robot", ["--id", "9", "--scenario", SCENARIO]),
     ("central", ["--scenario", SCENARIO, "--t-end", "0.3"]),
+    ("robot", ["--id", "1", "--scenario", SCENARIO, "--listen", "not-an-endpoint"]),
+    ("router", ["--listen", "tcp/127.0.0.1:not-a-port"]),
     ("launch", ["--scenario", "no-such-scenario", "--scheme", "centralized"]),
     ("launch", ["--scenario", SCENARIO, "--scheme", "centralized", "--run", "a/b"]),
 ])

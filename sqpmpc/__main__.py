@@ -1,0 +1,7 @@
+"""``python -m sqpmpc`` is the ``sqpmpc`` command."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

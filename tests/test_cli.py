@@ -1,0 +1,98 @@
+"""The ``sqpmpc run`` command: contract outputs, user errors, interrupted runs."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sqpmpc.scenario import load_scenario
+
+CONTRACT_KEYS = {
+    "scenario", "scheme", "steps", "sample_time", "horizon", "min_distance", "min_clearance",
+    "collisions", "rms_tracking_error", "closed_loop_cost", "input_bound_violations",
+    "solver_failures", "solve_time",
+}
+
+
+def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "sqpmpc", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
+def test_run_writes_the_contract_outputs(tmp_path: Path, scheme: str) -> None:
+    scenario = tmp_path / "short.toml"
+    scenario.write_text(load_scenario("paper-s1").with_changes(t_end=30.0).to_toml())
+    out = tmp_path / "out"
+    proc = run_cli("run", str(scenario), "--scheme", scheme, "--out", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert CONTRACT_KEYS <= metrics.keys()
+    assert metrics["scheme"] == scheme and metrics["steps"] == 30
+    assert set(metrics["rms_tracking_error"]) == {"1", "2", "3", "4"}
+    assert {"total_s", "median_ms", "p99_ms", "max_ms", "per_robot_median_ms"} <= set(
+        metrics["solve_time"])
+    traj = np.load(out / "trajectory.npz", allow_pickle=False)
+    assert traj["t"].shape == (31,)
+    assert traj["states"].shape == (31, 4, 3)
+    assert traj["inputs"].shape == (30, 4, 2)
+    np.testing.assert_array_equal(traj["ids"], [1, 2, 3, 4])
+    for png in ("trajectories.png", "distances.png", "inputs.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+BAD = [
+    ("unknown key", 'name = "x"\nt_end = 10.0\nsample_time = 1.0\nhorizon = 5\ncolour = 1\n',
+     "colour"),
+    ("missing file", None, "does-not-exist.toml"),
+]
+
+
+@pytest.mark.parametrize(("what", "text", "needle"), BAD, ids=[b[0] for b in BAD])
+def test_bad_input_gives_one_clear_error_and_status_2(tmp_path: Path, what: str,
+                                                      text: str | None, needle: str) -> None:
+    path = tmp_path / ("bad.toml" if text is not None else "does-not-exist.toml")
+    if text is not None:
+        path.write_text(text)
+    proc = run_cli("run", str(path), "--scheme", "centralized", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0] and path.name in lines[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_overlapping_robots_are_refused(tmp_path: Path) -> None:
+    sc = load_scenario("head-on")
+    text = sc.to_toml().replace("initial_state = [3.0, 0.0,", "initial_state = [-2.9, 0.0,")
+    path = tmp_path / "overlap.toml"
+    path.write_text(text)
+    proc = run_cli("run", str(path), "--scheme", "decentralized")
+    assert proc.returncode == 2, proc.stderr
+    assert "overlap" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    long = tmp_path / "long.toml"  # 8000 samples: far longer than the wait below
+    long.write_text(load_scenario("paper-s2").with_changes(t_end=4000.0).to_toml())
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sqpmpc", "run", str(long), "--scheme", "decentralized",
+         "--out", str(out), "--no-plots", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["completed"] is False
+    assert 0 < metrics["steps"] < 8000
+    traj = np.load(out / "trajectory.npz", allow_pickle=False)
+    assert traj["states"].shape[0] == metrics["steps"] + 1
