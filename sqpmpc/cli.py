@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--detour-patience", type=int, default=None,
                      help="blocked samples before the right-hand detour starts")
     run.add_argument("--no-detour", action="store_true", help="disable the detour rule")
+    run.add_argument("--max-normal-turn", type=float, default=None,
+                     help="largest turn of a pair's normal between stages, rad")
     run.add_argument("--stall-speed", type=float, default=None,
                      help="linearization speed for stalled robots, m/s (0 disables)")
     run.add_argument("--message-drop", type=float, default=0.0,
@@ -99,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             detour=DetourSettings(enabled=not args.no_detour) if args.detour_patience is None
             else DetourSettings(enabled=not args.no_detour, patience=args.detour_patience,
                                 patience_centralized=args.detour_patience),
+            max_normal_turn=base.max_normal_turn if args.max_normal_turn is None
+            else args.max_normal_turn,
             stall_speed=base.stall_speed if args.stall_speed is None else args.stall_speed,
             osqp=OSQPSettings(),
         )

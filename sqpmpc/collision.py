@@ -40,6 +40,7 @@ import numpy as np
 __all__ = [
     "ExternalCollisionModel",
     "PairwiseCollisionModel",
+    "limit_turning",
     "rotate",
     "unit_normals",
 ]
@@ -73,6 +74,43 @@ def unit_normals(
     return n, dist
 
 
+def limit_turning(n0: np.ndarray, normals: np.ndarray, max_turn: float) -> np.ndarray:
+    r"""Limit how far a pair's normal turns from one stage to the next.
+
+    Predictions sampled every :math:`T_s` can put two robots on opposite sides
+    at consecutive stages although they would pass *through* each other in
+    between (tunnelling); a plan built on such hyperplanes waits at stage 1 and
+    jumps at stage 2, forever. A normal that turns by more than ``max_turn``
+    from the previous stage's (stage 0: the current relative direction ``n0``)
+    is replaced by the previous one turned by ``max_turn`` towards it
+    (counter-clockwise when exactly opposite). Negating both normals of a pair
+    commutes with this, so both robots compute the same hyperplanes.
+
+    Parameters
+    ----------
+    n0
+        ``(..., 2)`` unit normals of the current positions.
+    normals
+        ``(..., N, 2)`` unit normals of stages 1..N.
+    max_turn
+        Largest rotation between consecutive stages, rad (``>= pi`` disables).
+    """
+    if max_turn >= np.pi:
+        return normals
+    out = normals.copy()
+    prev = n0
+    cos_max = np.cos(max_turn)
+    for i in range(out.shape[-2]):
+        cur = out[..., i, :]
+        dot = np.einsum("...i,...i->...", prev, cur)
+        cross = prev[..., 0] * cur[..., 1] - prev[..., 1] * cur[..., 0]
+        turned = rotate(prev, np.where(cross < 0.0, -max_turn, max_turn))
+        cur = np.where((dot < cos_max)[..., None], turned, cur)
+        out[..., i, :] = cur
+        prev = cur
+    return out
+
+
 def _stage_one(
     n1: np.ndarray, now_self: np.ndarray, now_other: np.ndarray, required: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -94,13 +132,16 @@ class PairwiseCollisionModel:
     keep_right_angle
         Symmetry-breaking rotation of the normals (rad), a scalar or one angle
         per stage ``(N,)``.
+    max_turn
+        Largest turn of a normal between consecutive stages (:func:`limit_turning`).
     """
 
     def __init__(self, pairs: np.ndarray, required: np.ndarray,
-                 keep_right_angle: float | np.ndarray = 0.0):
+                 keep_right_angle: float | np.ndarray = 0.0, max_turn: float = 0.6):
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.required = np.asarray(required, dtype=float)
         self.keep_right_angle = np.asarray(keep_right_angle, dtype=float)
+        self.max_turn = float(max_turn)
         self.current_positions: np.ndarray | None = None
         self.stage_one_overrides = 0
 
@@ -118,11 +159,14 @@ class PairwiseCollisionModel:
         pa, pb = states[a, 1:, :2], states[b, 1:, :2]
         n0 = unit_normals(now[a], now[b], np.array([1.0, 0.0]))[0]
         n, _ = unit_normals(pa, pb, n0[:, None, :])
+        n = limit_turning(n0, n, self.max_turn)
         n = rotate(n, self.keep_right_angle)
         n1, over = _stage_one(n[:, 0], now[a], now[b], self.required)
         n[:, 0] = n1
         self.stage_one_overrides = int(over.sum())
         rhs = np.broadcast_to(self.required[:, None], n.shape[:2]).copy()
+        # never ask stage 1 for more than the current configuration has (margin included)
+        rhs[:, 0] = np.minimum(rhs[:, 0], np.einsum("pi,pi->p", n1, now[a] - now[b]))
         return n, rhs
 
     def residuals(self, states: np.ndarray) -> np.ndarray:
@@ -159,15 +203,21 @@ class ExternalCollisionModel:
         ``N``.
     keep_right_angle
         Symmetry-breaking rotation of the normals (rad).
+    reach
+        Distance a neighbour can travel in one sample (``"missing"`` slots), m.
+    max_turn
+        Largest turn of a normal between consecutive stages (:func:`limit_turning`).
     """
 
     def __init__(self, required: np.ndarray, horizon: int,
-                 keep_right_angle: float | np.ndarray = 0.0, reach: float = 0.0):
+                 keep_right_angle: float | np.ndarray = 0.0, reach: float = 0.0,
+                 max_turn: float = 0.6):
         self.required = np.asarray(required, dtype=float)
         E = self.required.size
         self.horizon = horizon
         self.reach = float(reach)
         self.keep_right_angle = np.asarray(keep_right_angle, dtype=float)
+        self.max_turn = float(max_turn)
         self.kind = np.array(["off"] * E, dtype=object)
         self.obstacles = np.zeros((E, horizon, 2))
         self.fixed_normals = np.zeros((E, horizon, 2))
@@ -215,6 +265,7 @@ class ExternalCollisionModel:
         now_o = self.current_others[shared]
         n0 = unit_normals(self.current_self, now_o, np.array([1.0, 0.0]))[0]
         n, _ = unit_normals(own, oth, n0[:, None, :])
+        n = limit_turning(n0, n, self.max_turn)
         n = rotate(n, self.keep_right_angle)
         n1, over = _stage_one(n[:, 0], self.current_self, now_o, d)
         n[:, 0] = n1
@@ -223,7 +274,11 @@ class ExternalCollisionModel:
         hi = np.einsum("ei,i->e", n1, self.current_self) - half
         c[:, 0] = np.clip(c[:, 0], lo, np.maximum(lo, hi))
         self.fixed_normals[shared] = n
-        self.fixed_rhs[shared] = c + half[:, None]
+        rhs = c + half[:, None]
+        # within the margin both robots keep at least their current side (stopping stays
+        # feasible and the pair keeps its current gap, which is safe)
+        rhs[:, 0] = np.minimum(rhs[:, 0], np.einsum("ei,i->e", n1, self.current_self))
+        self.fixed_rhs[shared] = rhs
         self._shared_overrides = int(over.sum())
 
     def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -264,7 +264,7 @@ class CentralizedController(_ControllerBase):
         self.required = required
         self.collisions = PairwiseCollisionModel(
             pairs, required + settings.collision_margin,
-            settings.keep_right_angles(scenario.horizon)[None, :],
+            settings.keep_right_angles(scenario.horizon)[None, :], settings.max_normal_turn,
         )
 
     def _safe(self, next_states: np.ndarray) -> bool:
@@ -333,6 +333,7 @@ class DecentralizedController(_ControllerBase):
             self.required + settings.collision_margin, scenario.horizon,
             settings.keep_right_angles(scenario.horizon)[None, :],
             reach=scenario.sample_time * max(abs(self.input_lower[0]), abs(self.input_upper[0])),
+            max_turn=settings.max_normal_turn,
         )
         self.collisions.stage_one_rule_for_obstacles = mode == "shared"
         self.published: PlanMessage | None = None

@@ -39,8 +39,8 @@ class OSQPSettings:
     safety margin of 1e-3 m by default, and ``eps_abs`` must stay well below it.
     """
 
-    eps_abs: float = 1e-6
-    eps_rel: float = 1e-6
+    eps_abs: float = 1e-5
+    eps_rel: float = 1e-5
     max_iter: int = 4000
     polishing: bool = False
     adaptive_rho: bool = True

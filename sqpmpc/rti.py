@@ -79,6 +79,10 @@ class SolverSettings:
         is rotated by ``min(keep_right_angle + (i - 1) keep_right_growth,
         keep_right_max)`` rad. Growing angles make the predicted hyperplanes turn,
         so robots held in a standoff see room to their right in later stages.
+    max_normal_turn
+        Largest turn of a pair's collision normal between consecutive stages, rad:
+        predictions that tunnel through each other between two samples would
+        otherwise flip the hyperplane (see :func:`sqpmpc.collision.limit_turning`).
     stall_speed, stall_distance
         Controllability repair: a robot whose guess has every ``|v| < stall_speed``
         while its stage-N reference is farther than ``stall_distance`` is
@@ -104,6 +108,7 @@ class SolverSettings:
     keep_right_growth: float = 0.0
     keep_right_max: float = 1.0
     stall_speed: float = 0.05
+    max_normal_turn: float = 0.6
     stall_distance: float = 0.1
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
     detour: DetourSettings = field(default_factory=DetourSettings)

@@ -128,3 +128,16 @@ def test_centralized_controller_refuses_bad_state_shapes() -> None:
         ctrl.step(0.0, np.zeros((3, 3)))
     with pytest.raises(ProblemError, match="finite"):
         ctrl.step(0.0, np.full((4, 3), np.nan))
+
+
+def test_limit_turning_prevents_flipped_normals() -> None:
+    from sqpmpc.collision import limit_turning
+
+    n0 = np.array([[0.0, 1.0]])
+    flipped = np.array([[[0.0, -1.0], [0.0, -1.0], [0.0, -1.0], [0.0, -1.0]]])
+    out = limit_turning(n0, flipped, 0.6)
+    angles = np.arctan2(out[0, :, 1], out[0, :, 0])
+    steps = np.abs(np.diff(np.unwrap(np.concatenate(([np.pi / 2], angles)))))
+    assert np.all(steps <= 0.6 + 1e-12)
+    # negating the pair's normals (the other robot's view) gives the negated result
+    np.testing.assert_allclose(limit_turning(-n0, -flipped, 0.6), -out, atol=1e-12)

@@ -110,30 +110,31 @@ def test_sigterm_to_the_launcher_leaves_no_child(tmp_path):
     assert m["completed"] is False and m["interrupted"] == "SIGINT"
 
 
-def _plant_and_robots(tmp_path: Path, run: str, ids: list[int], t_end: float,
-                      plant_args: tuple[str, ...] = (), robot_args: tuple[str, ...] = ()):
-    ports = free_ports(1 + len(ids))
-    plant_ep = f"tcp/127.0.0.1:{ports[0]}"
+def _start_run(tmp_path: Path, run: str, ids: list[int], t_end: float,
+               plant_args: tuple[str, ...] = (), robot_args: tuple[str, ...] = (),
+               subscriptions: tuple[tuple[object, ...], ...] = ()):
+    """A probe (listening first, so the plant connects to it at once), the plant, robots."""
+    ports = free_ports(2 + len(ids))
+    probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
+    probe = Probe(run, [], subscriptions, listen=[probe_ep])
     common = ["--scenario", SCENARIO, "--t-end", str(t_end), "--run", run]
-    plant = start_service("plant", [*common, "--listen", plant_ep, "--out",
-                                    str(tmp_path / "out"), "--no-plots", *plant_args],
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
+                                    "--out", str(tmp_path / "out"), "--no-plots", *plant_args],
                           tmp_path / "logs")
     robots = {
         i: start_service("robot", ["--id", str(i), *common, "--listen",
                                    f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *robot_args],
                          tmp_path / "logs", name=f"robot-{i}")
-        for i, port in zip(ids, ports[1:], strict=True)
+        for i, port in zip(ids, ports[2:], strict=True)
     }
-    return plant, robots, plant_ep
+    return probe, plant, robots, plant_ep
 
 
 def test_invalid_messages_are_dropped_and_counted(tmp_path):
     run = "invalid"
-    plant, robots, plant_ep = _plant_and_robots(tmp_path, run, [1, 2, 3], 10.0)
+    probe, plant, robots, plant_ep = _start_run(tmp_path, run, [1, 2, 3], 10.0)
     procs = [plant, *robots.values()]
-    probe = None
     try:
-        probe = Probe(run, [plant_ep])
         assert probe.wait_alive(["plant", "robot/1", "robot/2", "robot/3"], 30), probe.alive
         good_cmd = msgpack.unpackb(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), raw=False)
         bad_version = msgpack.packb({**good_cmd, "v": 99}, use_bin_type=True)
@@ -160,8 +161,7 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         for r in robots.values():
             assert r.wait(30) == 0, r.output()
     finally:
-        if probe is not None:
-            probe.close()
+        probe.close()
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     by_process = m["invalid_messages_by_process"]
@@ -176,13 +176,11 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
 
 def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
     run = "kill"
-    plant, robots, plant_ep = _plant_and_robots(
+    probe, plant, robots, _ = _start_run(
         tmp_path, run, [1, 2, 3, 4], 150.0, plant_args=("--timeout", "0.3"),
-        robot_args=("--timeout", "0.05"))
+        robot_args=("--timeout", "0.05"), subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
-    probe = None
     try:
-        probe = Probe(run, [plant_ep], [("plant", "state")])
 
         def reached(k: int) -> bool:
             return any(decode(e.payload, 8).sample >= k for e in probe.events)
@@ -196,8 +194,7 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
         for i in (1, 3, 4):
             assert robots[i].wait(30) == 0, robots[i].output()
     finally:
-        if probe is not None:
-            probe.close()
+        probe.close()
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     assert m["completed"] is True and m["steps"] == 300
@@ -216,23 +213,22 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
 
 def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     run = "late"
-    plant, robots, plant_ep = _plant_and_robots(
-        tmp_path, run, [1, 2, 3], 400.0, plant_args=("--startup-timeout", "1"))
+    probe, plant, robots, plant_ep = _start_run(
+        tmp_path, run, [1, 2, 3], 400.0, plant_args=("--startup-timeout", "1"),
+        robot_args=("--timeout", "0.2"),  # their wait for all neighbours at the start
+        subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
-    probe = None
     try:
-        probe = Probe(run, [plant_ep], [("plant", "state")])
         assert probe.wait_for(lambda: bool(probe.events), 60), plant.output()  # running
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--run", run,
-                                            "--connect", plant_ep], tmp_path / "logs",
-                                  name="robot-4")
+                                            "--connect", plant_ep, "--startup-timeout", "60"],
+                                  tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
         assert plant.wait(90) == 0, plant.output()
         for r in robots.values():
             assert r.wait(30) == 0, r.output()
     finally:
-        if probe is not None:
-            probe.close()
+        probe.close()
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     missed = m["missed_deadlines_by_robot"]
