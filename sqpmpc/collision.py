@@ -225,6 +225,7 @@ class ExternalCollisionModel:
         self.current_self = np.zeros(2)
         self.current_others = np.zeros((E, 2))
         self.stage_one_rule_for_obstacles = True
+        self._shared_overrides = 0
         self.stage_one_overrides = 0
 
     def set_sample(
@@ -256,6 +257,7 @@ class ExternalCollisionModel:
         shared = self.kind == "shared"
         self.fixed_rhs = np.full((self.required.size, self.horizon), -np.inf)
         self.fixed_normals = np.zeros((self.required.size, self.horizon, 2))
+        self._shared_overrides = 0
         if not np.any(shared):
             return
         own = np.broadcast_to(own_prediction, self.obstacles.shape)[shared]
@@ -286,7 +288,7 @@ class ExternalCollisionModel:
         normals = self.fixed_normals.copy()
         rhs = self.fixed_rhs.copy()
         obst = (self.kind == "obstacle") | (self.kind == "missing")
-        overrides = getattr(self, "_shared_overrides", 0)
+        overrides = self._shared_overrides
         if np.any(obst):
             own = states[0, 1:, :2]
             o = self.obstacles[obst]

@@ -26,7 +26,7 @@ full distance as an obstacle.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -168,6 +168,7 @@ class _ControllerBase:
         self._references = [scenario.robots[i].reference for i in self.indices]
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         self.last_speed = np.zeros(self.indices.size)
+        self._shifted_inputs: np.ndarray | None = None
 
     def references(self, t: float, positions: np.ndarray) -> np.ndarray:
         """References ``(m, N, 2)`` with the detour rule applied (positions of all robots)."""
@@ -200,16 +201,14 @@ class _ControllerBase:
         return x, u
 
     def _finish(self, states: np.ndarray, report: IterationReport, t0: float,
-                safe: callable) -> ControlOutput:
+                safe: Callable[[np.ndarray], bool]) -> ControlOutput:
         """Verify the QP's first input, fall back if needed, store the consistent plan."""
-        previous = getattr(self, "_shifted_inputs", None)
+        previous = self._shifted_inputs
         fallback = None
         if report.success:
             plan_x, plan_u = self.engine.states_inputs()
             u0 = np.clip(plan_u[:, 0], self.input_lower, self.input_upper)
             if np.all(np.isfinite(u0)) and safe(self._next(states, u0)):
-                plan_u = plan_u.copy()
-                plan_u[:, 0] = u0
                 plan_x, plan_u = self._plan_from(states, u0, plan_u[:, 1:])
                 return ControlOutput(u0, plan_x, plan_u, None, report,
                                      time.perf_counter() - t0)
@@ -226,8 +225,7 @@ class _ControllerBase:
                 fallback = name
                 plan_x, plan_u = self._plan_from(states, first, rest)
                 break
-        self.engine.set_guess(states, plan_u)
-        self.engine.samples = 1
+        self.engine.set_guess(states, plan_u, converge_first=False)
         return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, fallback, report,
                              time.perf_counter() - t0)
 

@@ -98,7 +98,7 @@ class SolverSettings:
     hessian: Literal["gauss-newton", "exact"] = "gauss-newton"
     discretization: str = "euler"
     max_sqp_iterations: int = 50
-    kkt_tolerance: float = 1e-6
+    kkt_tolerance: float = 1e-3
     first_sample_iterations: int = 30
     rti_kkt_threshold: float = float("inf")
     rti_max_iterations: int = 1
@@ -253,8 +253,14 @@ class MultipleShootingSQP:
             raise ProblemError("no iterate yet: call solve() first")
         return self.layout.split_primal(self.z)
 
-    def set_guess(self, initial_states: np.ndarray, inputs: np.ndarray) -> None:
-        """Set the iterate to the rollout of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``."""
+    def set_guess(self, initial_states: np.ndarray, inputs: np.ndarray,
+                  converge_first: bool = True) -> None:
+        """Set the iterate to the rollout of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``.
+
+        With ``converge_first`` the next :meth:`solve` iterates up to
+        ``first_sample_iterations`` (a converged start); otherwise it proceeds as
+        an ordinary sample.
+        """
         L = self.layout
         u = np.clip(np.asarray(inputs, float), self.input_lower, self.input_upper)
         states = np.empty((L.n_robots, L.horizon + 1, 3))
@@ -265,7 +271,7 @@ class MultipleShootingSQP:
             )
         self.z = L.join_primal(states, u)
         self.y = np.zeros(L.n_con)
-        self.samples = 0
+        self.samples = 0 if converge_first else max(self.samples, 1)
 
     def shift(self) -> None:
         """Shift iterate and multipliers by one stage (last input held, state extrapolated)."""
