@@ -97,9 +97,14 @@ def limit_turning(n0: np.ndarray, normals: np.ndarray, max_turn: float) -> np.nd
     """
     if max_turn >= np.pi:
         return normals
+    cos_max = np.cos(max_turn)
+    # common case: no raw turn exceeds the limit, so none is clamped (hot path)
+    first = np.einsum("...i,...i->...", n0, normals[..., 0, :])
+    later = np.einsum("...ni,...ni->...n", normals[..., :-1, :], normals[..., 1:, :])
+    if (first >= cos_max).all() and (later >= cos_max).all():
+        return normals
     out = normals.copy()
     prev = n0
-    cos_max = np.cos(max_turn)
     for i in range(out.shape[-2]):
         cur = out[..., i, :]
         dot = np.einsum("...i,...i->...", prev, cur)
