@@ -1,0 +1,77 @@
+"""The centralized controller as one service speaking the robots' protocol.
+
+``python -m services.central --scenario S [--run R] [--connect EP] [--listen EP]``
+
+At every sample it waits for the plant's states of all robots, runs
+:class:`sqpmpc.controllers.CentralizedController` and publishes one ``cmd``
+per robot (on each robot's key, carrying the whole computation time and the
+fallback flag), so the plant runs both schemes the same way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from sqpmpc.controllers import CentralizedController
+from sqpmpc.rti import SolverSettings
+from sqpmpc.scenario import Scenario
+
+from .control import ControllerNode, SampleStates
+from .node import add_common_arguments, open_node, scenario_from_args, setup_logging
+
+__all__ = ["CentralNode", "build_parser", "main"]
+
+log = logging.getLogger(__name__)
+PROG = "services.central"
+
+
+class CentralNode(ControllerNode):
+    """The centralized controller service.
+
+    Parameters
+    ----------
+    scenario
+        The problem.
+    args
+        Parsed arguments (see :func:`build_parser`).
+    """
+
+    def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
+        self.controller = CentralizedController(scenario, SolverSettings())
+        super().__init__(scenario, args, "central")
+
+    def step_sample(self, sample: int, entry: SampleStates) -> None:
+        out = self.controller.step(entry.t, entry.states)
+        for j, rid in enumerate(self.ids):
+            self.publish_cmd(rid, sample, out.inputs[j], out.compute_time, out.fallback)
+        if out.fallback is not None:
+            log.debug("sample %d: fallback %s", sample, out.fallback)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.central``."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    add_common_arguments(parser)
+    parser.add_argument("--timeout", type=float, default=5.0, help="unused; for symmetry, s")
+    parser.add_argument("--startup-timeout", type=float, default=None,
+                        help="give up when no state came within this time, s (default: wait)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.log_level, "central")
+    scenario = scenario_from_args(PROG, args)
+    node = open_node(PROG, lambda: CentralNode(scenario, args))
+    try:
+        node.start([("plant", "state"), ("plant", "done")])
+        return node.run()
+    finally:
+        node.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,135 @@
+"""The loop a controller service (robot or central) runs.
+
+It keeps the plant's ``state`` messages per sample and, whenever one is newer
+than the last sample handled, calls
+:meth:`ControllerNode.step_sample` with the ``(n, 3)`` states in scenario
+order. In lockstep the plant publishes one sample at a time, so every sample
+is handled in order; in real time a controller that falls behind skips to the
+newest sample. The loop ends on the plant's ``done`` message, when
+the plant's liveliness token disappears, or on SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from sqpmpc.scenario import Scenario
+
+from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
+from .node import POLL, Node
+
+__all__ = ["ControllerNode", "SampleStates"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SampleStates:
+    """The states of one sample."""
+
+    t: float
+    budget: float | None
+    states: np.ndarray
+
+
+class ControllerNode(Node):
+    """Base of :mod:`services.robot` and :mod:`services.central`.
+
+    Parameters
+    ----------
+    scenario, args, name
+        See :class:`~services.node.Node`; ``args.timeout`` bounds waits for
+        peers' messages, ``args.startup_timeout`` (``None``: forever) the wait
+        for the plant's first state.
+    """
+
+    def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str) -> None:
+        super().__init__(scenario, args, name)
+        self.timeout = float(args.timeout)
+        self.startup_timeout = args.startup_timeout
+        self.samples: dict[int, SampleStates] = {}
+        self.last_sample = -1
+        self.done: DoneMsg | None = None
+        self.plant_lost = False
+        self.steps_done = 0
+
+    # ------------------------------------------------------------------ events
+    def on_message(self, kind: str, msg: Message) -> None:
+        if isinstance(msg, StateMsg):
+            if msg.sample > self.last_sample:
+                self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x)
+            # a neighbour's plan can overtake the state of its sample (e.g. while this
+            # process joins), but a forged far-future sample must not lock a stream
+            bound = msg.sample + self.scenario.horizon + 2
+            self.validator.max_sample = max(self.validator.max_sample or 0, bound)
+        elif isinstance(msg, DoneMsg):
+            self.done = msg
+        else:
+            self.on_other(kind, msg)
+
+    def on_other(self, kind: str, msg: Message) -> None:
+        """Messages other than state and done (override)."""
+
+    def on_liveliness(self, name: str, alive: bool) -> None:
+        if name == "plant" and not alive:
+            self.plant_lost = True
+
+    # -------------------------------------------------------------------- loop
+    def _newest(self) -> int | None:
+        ready = [k for k in self.samples if k > self.last_sample]
+        return max(ready) if ready else None
+
+    def _finished(self) -> bool:
+        return self.stop.is_set() or self.done is not None or self.plant_lost
+
+    def previous_states(self, sample: int) -> np.ndarray | None:
+        """The states of ``sample - 1`` if this process has them."""
+        prev = self.samples.get(sample - 1)
+        return None if prev is None else prev.states
+
+    def step_sample(self, sample: int, entry: SampleStates) -> None:
+        """Compute and publish for ``sample`` (override)."""
+        raise NotImplementedError
+
+    def publish_cmd(self, robot_id: int, sample: int, u: np.ndarray, compute_time: float,
+                    fallback: str | None) -> None:
+        """Publish one robot's input for ``sample``."""
+        msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid)
+        self.bus.put(encode(msg), "robot", robot_id, "cmd")
+
+    def run(self) -> int:
+        """Serve until the plant is done; returns the exit status."""
+        log.info("%s waiting for the plant's states", self.name)
+        if not self.wait_until(lambda: self._newest() is not None or self._finished(),
+                               self.startup_timeout):
+            log.error("no state from the plant within %s s", self.startup_timeout)
+            return 1
+        while not self._finished():
+            self.drain()  # so that a late controller skips to the newest sample
+            k = self._newest()
+            if k is None:
+                self.pump(POLL)
+                continue
+            entry = self.samples[k]
+            self.step_sample(k, entry)
+            self.steps_done += 1
+            self.last_sample = k
+            for old in [s for s in self.samples if s < k - 1]:
+                del self.samples[old]
+        if self.plant_lost and self.done is None and not self.stop.is_set():
+            # the token's removal can overtake the plant's last message
+            self.wait_until(lambda: self.done is not None, 1.0)
+        if self.stop.is_set():
+            log.info("%s stopping on signal %s", self.name, self.signals.get("signal"))
+            return 0
+        if self.done is not None:
+            log.info("%s: the plant is done after %d samples (%d computed here, %d invalid "
+                     "messages dropped)", self.name, self.done.sample, self.steps_done,
+                     self.validator.invalid)
+            return 0
+        log.error("%s: the plant disappeared without finishing", self.name)
+        return 1

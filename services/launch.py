@@ -1,0 +1,251 @@
+"""Run a distributed closed loop on this machine: the plant and the controllers as processes.
+
+``python -m services.launch --scenario S --scheme centralized|decentralized [--out DIR]
+[--mode lockstep|realtime] [--decentralized-mode shared|paper] [--t-end T]
+[--sample-time TS] [--no-plots] [--pin-cpus]``
+
+Every process is a Zenoh peer on loopback only (multicast scouting off): the
+plant listens on a free port chosen at start, each controller listens on its
+own and connects to the plant (peers find each other through it). The
+launcher opens no Zenoh session itself. Each child runs in its own process
+group (in the launcher's session: a terminal's Ctrl-C reaches the launcher
+only, and the children share one scheduling autogroup, which matters on few
+cores) and, on Linux, receives SIGTERM if the launcher dies. When the launcher
+exits (normally, on an error, SIGINT or SIGTERM) it stops and reaps every
+child: SIGINT to the plant (which then writes what it has) and SIGTERM to the
+controllers, SIGKILL after a grace period.
+
+Exit status: the plant's (0 when the run completed), 2 for bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import logging
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from .node import install_signal_handlers, scenario_from_args
+from .plant import summarize
+
+__all__ = ["Child", "build_parser", "free_ports", "main", "stop_children"]
+
+log = logging.getLogger("services.launch")
+PROG = "services.launch"
+PLANT_GRACE = 30.0
+"""Seconds the plant may take to write its outputs after being interrupted."""
+CONTROLLER_GRACE = 5.0
+"""Seconds the controllers may take to exit after the plant finished."""
+
+
+def free_ports(count: int, host: str = "127.0.0.1") -> list[int]:
+    """``count`` distinct TCP ports free on ``host`` right now."""
+    socks = []
+    try:
+        for _ in range(count):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.bind((host, 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+def _child_setup(cpu: int | None) -> Callable[[], None]:
+    """``preexec_fn`` of a child: die with the launcher (Linux), optionally pin to a CPU."""
+
+    def setup() -> None:
+        if sys.platform.startswith("linux"):
+            try:
+                libc = ctypes.CDLL("libc.so.6", use_errno=True)
+                libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+            except OSError:
+                pass
+            if cpu is not None:
+                os.sched_setaffinity(0, {cpu})
+
+    return setup
+
+
+class Child:
+    """A service process in its own process group (same session as the launcher)."""
+
+    def __init__(self, name: str, argv: list[str], cpu: int | None = None,
+                 env: dict[str, str] | None = None) -> None:
+        self.name = name
+        self.argv = argv
+        self.reported = False
+        self.proc = subprocess.Popen(argv, process_group=0, env=env,
+                                     preexec_fn=_child_setup(cpu))
+        log.info("started %s (pid %d)%s", name, self.proc.pid,
+                 f" on CPU {cpu}" if cpu is not None else "")
+
+    @property
+    def pid(self) -> int:
+        """Process id (also the process group id)."""
+        return self.proc.pid
+
+    def signal(self, sig: int) -> None:
+        """Send ``sig`` to the child's process group (if it has not been reaped)."""
+        if self.proc.returncode is None:
+            try:
+                os.killpg(self.proc.pid, sig)
+            except (ProcessLookupError, PermissionError):
+                pass
+
+    def poll(self) -> int | None:
+        """Exit status, or ``None`` while running."""
+        return self.proc.poll()
+
+
+def _wait_all(children: list[Child], timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while any(c.poll() is None for c in children):
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def stop_children(children: list[Child], first: dict[str, int], grace: float) -> None:
+    """Signal every running child (``first[name]`` or SIGTERM), then SIGKILL after ``grace``.
+
+    Returns when every child has been reaped.
+    """
+    for c in children:
+        c.signal(first.get(c.name, signal.SIGTERM))
+    if not _wait_all(children, grace):
+        for c in children:
+            if c.poll() is None:
+                log.warning("%s did not exit in %.0f s: killing it", c.name, grace)
+                c.signal(signal.SIGKILL)
+        _wait_all(children, 10.0)
+    for c in children:  # reap
+        try:
+            c.proc.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            log.error("%s (pid %d) could not be reaped", c.name, c.pid)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.launch``."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", required=True, help="TOML file or built-in name")
+    parser.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default runs/<scenario>-<scheme>-<mode>-<time>)")
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    parser.add_argument("--decentralized-mode", choices=("shared", "paper"), default="shared")
+    parser.add_argument("--t-end", type=float, default=None, help="override the scenario's t_end")
+    parser.add_argument("--sample-time", type=float, default=None,
+                        help="override the scenario's sample time Ts")
+    parser.add_argument("--run", default=None, help="run namespace (default: a fresh name)")
+    parser.add_argument("--timeout", type=float, default=None,
+                        help="lockstep: the plant's wait for a sample's inputs, s")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("--pin-cpus", action="store_true",
+                        help="pin each controller to one CPU (round robin)")
+    parser.add_argument("--log-level", default="WARNING", help="log level of the services")
+    return parser
+
+
+def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path
+              ) -> list[tuple[str, list[str]]]:
+    py = [sys.executable, "-m"]
+    common = ["--scenario", args.scenario, "--run", run, "--log-level", args.log_level]
+    for flag, value in (("--t-end", args.t_end), ("--sample-time", args.sample_time)):
+        if value is not None:
+            common += [flag, repr(value)]
+    names = ["central"] if args.scheme == "centralized" else [f"robot/{i}" for i in ids]
+    ports = free_ports(1 + len(names))
+    plant_ep = f"tcp/127.0.0.1:{ports[0]}"
+    plant = [*py, "services.plant", *common, "--listen", plant_ep, "--scheme", args.scheme,
+             "--mode", args.mode, "--out", str(out), "--quiet"]
+    if args.timeout is not None:
+        plant += ["--timeout", repr(args.timeout)]
+    if args.no_plots:
+        plant.append("--no-plots")
+    cmds = [("plant", plant)]
+    for name, port in zip(names, ports[1:], strict=True):
+        net = ["--listen", f"tcp/127.0.0.1:{port}", "--connect", plant_ep]
+        if name == "central":
+            cmds.append((name, [*py, "services.central", *common, *net]))
+        else:
+            rid = name.split("/")[1]
+            cmds.append((name, [*py, "services.robot", "--id", rid, "--mode",
+                                args.decentralized_mode, *common, *net]))
+    return cmds
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s launch %(message)s",
+                        stream=sys.stderr)
+    args.connect, args.listen = [], []
+    run = args.run or f"run-{os.getpid()}-{secrets.token_hex(3)}"
+    args.run = run
+    scenario = scenario_from_args(PROG, args)  # exits 2 with one message on bad input
+    out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
+                                      f"{time.strftime('%Y%m%d-%H%M%S')}")
+    stop = threading.Event()
+    received = install_signal_handlers(stop)
+    env = dict(os.environ)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")  # small matrices: threads only compete with the other processes
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    metrics_file = out / "metrics.json"
+    before = metrics_file.stat().st_mtime_ns if metrics_file.exists() else None
+    children: list[Child] = []
+    status = 1
+    try:
+        for j, (name, cmd) in enumerate(_commands(args, [int(i) for i in scenario.ids],
+                                                  run, out)):
+            if stop.is_set():
+                break
+            cpu = cpus[(j - 1) % len(cpus)] if args.pin_cpus and cpus and j > 0 else None
+            children.append(Child(name, cmd, cpu, env))
+        plant = children[0] if children else None
+        while plant is not None and not stop.is_set():
+            code = plant.poll()
+            if code is not None:
+                status = code
+                break
+            for c in children[1:]:
+                code = c.poll()
+                if code not in (None, 0) and not c.reported:
+                    c.reported = True
+                    log.warning("%s exited with status %s", c.name, code)
+            time.sleep(0.05)
+        if stop.is_set():
+            sig = received.get("signal", signal.SIGTERM)
+            log.info("stopping on %s", signal.Signals(sig).name)
+            status = 128 + sig
+        else:
+            # the plant is done: the controllers leave on its 'done' message
+            if not _wait_all(children, CONTROLLER_GRACE):
+                log.warning("controllers still running %.0f s after the plant: stopping them",
+                            CONTROLLER_GRACE)
+    finally:
+        stop_children(children, {"plant": signal.SIGINT}, PLANT_GRACE)
+    if metrics_file.exists() and metrics_file.stat().st_mtime_ns != before:
+        print(summarize(json.loads(metrics_file.read_text())))
+        print(f"wrote {out}")
+    else:
+        log.error("no metrics were written (plant status %s)", status)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

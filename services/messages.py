@@ -1,0 +1,336 @@
+"""Wire schema of the sqpmpc services: msgpack maps, version 1.
+
+Every payload is a msgpack map with string keys, carrying ``"v"`` (schema
+version, :data:`SCHEMA_VERSION`) and ``"type"``. Arrays are msgpack ``bin``
+values holding little-endian float64 numbers in row-major order (their shape
+is fixed by the schema and the scenario's horizon ``N``), so values
+round-trip exactly and decode in one copy. Unknown extra keys are ignored (a
+later minor addition does not break an older reader); anything else that does
+not match is refused by :class:`MessageValidator` with
+:class:`InvalidMessage`, which the services count and drop.
+
+=========  ==========================================================================
+type       fields (besides ``v`` and ``type``)
+=========  ==========================================================================
+``state``  ``sample`` int >= 0, ``t`` float (time t_k, s), ``ids`` [int] (every robot,
+           scenario order), ``x`` n x 3 (x, y, psi of each robot), ``budget`` float > 0
+           or nil (wall-clock seconds the controllers have in real-time mode; nil in
+           lockstep), ``scenario`` str (digest of the scenario and its overrides)
+``cmd``    ``id`` int, ``sample`` int >= 0, ``u`` [v, omega], ``compute_time`` float >= 0 (s),
+           ``fallback`` str or nil, ``invalid`` int >= 0 (messages the sender dropped)
+``plan``   ``id`` int, ``sample`` int >= 0, ``t`` float (time t_k), ``stamp`` float (sender's wall
+           clock, Unix s), ``states`` (N+1) x 3, ``inputs`` N x 2
+``done``   ``sample`` int (samples simulated), ``completed`` bool
+=========  ==========================================================================
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+import numpy as np
+
+__all__ = [
+    "MAX_PAYLOAD",
+    "SCHEMA_VERSION",
+    "CmdMsg",
+    "DoneMsg",
+    "InvalidMessage",
+    "Message",
+    "MessageValidator",
+    "PlanMsg",
+    "StateMsg",
+    "decode",
+    "encode",
+]
+
+SCHEMA_VERSION = 1
+"""Version carried in every message (``"v"``); also the ``@v1`` chunk of the key space."""
+MAX_PAYLOAD = 1 << 16
+"""Payloads larger than this (bytes) are refused before unpacking."""
+
+
+class InvalidMessage(ValueError):
+    """A payload that does not match the schema; it is dropped and counted."""
+
+
+@dataclass(frozen=True, slots=True)
+class StateMsg:
+    """The states of every robot at sample ``k`` (published by the plant)."""
+
+    sample: int
+    t: float
+    ids: tuple[int, ...]
+    x: np.ndarray
+    budget: float | None = None
+    scenario: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class CmdMsg:
+    """A controller's input for one robot at sample ``k`` (read by the plant)."""
+
+    id: int
+    sample: int
+    u: np.ndarray
+    compute_time: float
+    fallback: str | None = None
+    invalid: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class PlanMsg:
+    """A robot's predicted horizon computed at sample ``k`` (read by its neighbours)."""
+
+    id: int
+    sample: int
+    t: float
+    stamp: float
+    states: np.ndarray
+    inputs: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class DoneMsg:
+    """The plant finished (or stopped): controllers may exit."""
+
+    sample: int
+    completed: bool
+
+
+Message = StateMsg | CmdMsg | PlanMsg | DoneMsg
+
+
+_F64 = np.dtype("<f8")
+
+
+def _floats(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype=_F64).tobytes()
+
+
+def encode(msg: Message) -> bytes:
+    """Serialize a message to msgpack bytes.
+
+    Parameters
+    ----------
+    msg
+        One of :class:`StateMsg`, :class:`CmdMsg`, :class:`PlanMsg`, :class:`DoneMsg`.
+
+    Returns
+    -------
+    bytes
+        The payload.
+    """
+    if isinstance(msg, StateMsg):
+        body = {"type": "state", "sample": int(msg.sample), "t": float(msg.t),
+                "ids": [int(i) for i in msg.ids], "x": _floats(msg.x),
+                "budget": None if msg.budget is None else float(msg.budget),
+                "scenario": msg.scenario}
+    elif isinstance(msg, CmdMsg):
+        body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
+                "compute_time": float(msg.compute_time), "fallback": msg.fallback,
+                "invalid": int(msg.invalid)}
+    elif isinstance(msg, PlanMsg):
+        body = {"type": "plan", "id": int(msg.id), "sample": int(msg.sample), "t": float(msg.t),
+                "stamp": float(msg.stamp), "states": _floats(msg.states),
+                "inputs": _floats(msg.inputs)}
+    elif isinstance(msg, DoneMsg):
+        body = {"type": "done", "sample": int(msg.sample), "completed": bool(msg.completed)}
+    else:
+        raise TypeError(f"not a message: {type(msg).__name__}")
+    return msgpack.packb({"v": SCHEMA_VERSION, **body}, use_bin_type=True)
+
+
+# ----------------------------------------------------------------------------- field checks
+def _int(body: dict[str, Any], key: str, minimum: int | None = None) -> int:
+    value = body.get(key)
+    if type(value) is not int:
+        raise InvalidMessage(f"{key!r} must be an integer, got {type(value).__name__}")
+    if minimum is not None and value < minimum:
+        raise InvalidMessage(f"{key!r} must be >= {minimum}, got {value}")
+    return value
+
+
+def _float(body: dict[str, Any], key: str, optional: bool = False) -> float | None:
+    value = body.get(key)
+    if value is None and optional:
+        return None
+    if type(value) not in (float, int):
+        raise InvalidMessage(f"{key!r} must be a number, got {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise InvalidMessage(f"{key!r} must be finite, got {value}")
+    return value
+
+
+def _array(body: dict[str, Any], key: str, shape: tuple[int, ...]) -> np.ndarray:
+    value = body.get(key)
+    size = 8 * math.prod(shape)
+    if not isinstance(value, bytes):
+        raise InvalidMessage(f"{key!r} must be bin (float64 bytes), got {type(value).__name__}")
+    if len(value) != size:
+        raise InvalidMessage(f"{key!r} must hold {shape} float64 ({size} bytes), "
+                             f"got {len(value)} bytes")
+    a = np.frombuffer(value, dtype=_F64).astype(np.float64).reshape(shape)
+    if not np.isfinite(a).all():
+        raise InvalidMessage(f"{key!r} must be finite")
+    return a
+
+
+def decode(payload: bytes, horizon: int) -> Message:
+    """Parse and type-check a payload (no cross-message checks).
+
+    Parameters
+    ----------
+    payload
+        Raw bytes received.
+    horizon
+        ``N``: fixes the shapes of a plan's arrays.
+
+    Raises
+    ------
+    InvalidMessage
+        Anything that is not a well-formed version-1 message.
+    """
+    if not isinstance(payload, bytes | bytearray | memoryview):
+        raise InvalidMessage(f"payload must be bytes, got {type(payload).__name__}")
+    if len(payload) > MAX_PAYLOAD:
+        raise InvalidMessage(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
+    try:
+        body = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise InvalidMessage(f"not msgpack: {type(exc).__name__}: {exc}") from None
+    if not isinstance(body, dict):
+        raise InvalidMessage(f"payload must be a map, got {type(body).__name__}")
+    version = body.get("v")
+    if type(version) is not int or version != SCHEMA_VERSION:
+        raise InvalidMessage(f"unsupported schema version {version!r} "
+                             f"(this reader speaks {SCHEMA_VERSION})")
+    kind = body.get("type")
+    if kind == "state":
+        scenario = body.get("scenario", "")
+        if not isinstance(scenario, str):
+            raise InvalidMessage("'scenario' must be a string")
+        budget = _float(body, "budget", optional=True)
+        if budget is not None and budget <= 0.0:
+            raise InvalidMessage(f"'budget' must be positive, got {budget}")
+        ids = body.get("ids")
+        if (not isinstance(ids, list) or not ids or len(ids) > 4096
+                or any(type(i) is not int for i in ids)):
+            raise InvalidMessage("'ids' must be a non-empty list of integers")
+        return StateMsg(_int(body, "sample", 0), _float(body, "t"), tuple(ids),
+                        _array(body, "x", (len(ids), 3)), budget, scenario)
+    if kind == "cmd":
+        fallback = body.get("fallback")
+        if fallback is not None and not isinstance(fallback, str):
+            raise InvalidMessage("'fallback' must be a string or nil")
+        compute_time = _float(body, "compute_time")
+        if compute_time < 0.0:
+            raise InvalidMessage(f"'compute_time' must be >= 0, got {compute_time}")
+        return CmdMsg(_int(body, "id"), _int(body, "sample", 0), _array(body, "u", (2,)),
+                      compute_time, fallback, _int(body, "invalid", 0))
+    if kind == "plan":
+        return PlanMsg(_int(body, "id"), _int(body, "sample", 0), _float(body, "t"),
+                       _float(body, "stamp"), _array(body, "states", (horizon + 1, 3)),
+                       _array(body, "inputs", (horizon, 2)))
+    if kind == "done":
+        completed = body.get("completed")
+        if not isinstance(completed, bool):
+            raise InvalidMessage("'completed' must be a boolean")
+        return DoneMsg(_int(body, "sample", 0), completed)
+    raise InvalidMessage(f"unknown message type {kind!r}")
+
+
+class MessageValidator:
+    """Decode and validate messages of one run; counts what it refuses.
+
+    On top of :func:`decode` it checks that the message type matches the key
+    it arrived on, that robot ids are known (a ``state`` must list exactly the
+    scenario's ids, in order; a ``cmd`` or ``plan`` must carry the id of the
+    robot key it arrived on), that a ``state`` carries the scenario digest
+    this process computed, and that a stream's sample index never goes
+    backwards (per message type and robot id).
+
+    Parameters
+    ----------
+    ids
+        The scenario's robot ids, in scenario order.
+    horizon
+        ``N`` of the scenario.
+    scenario_digest
+        When given, ``state`` messages must carry this digest.
+
+    Attributes
+    ----------
+    max_sample
+        When set, a ``cmd`` or ``plan`` for a later sample is refused before it
+        can advance its stream (a forged future sample cannot lock the sender out).
+    invalid
+        Number of messages refused so far.
+    """
+
+    _TYPES = {"state": StateMsg, "cmd": CmdMsg, "plan": PlanMsg, "done": DoneMsg}
+
+    def __init__(self, ids: Iterable[int], horizon: int, scenario_digest: str | None = None):
+        self.order = tuple(int(i) for i in ids)
+        self.ids = frozenset(self.order)
+        self.horizon = int(horizon)
+        self.scenario_digest = scenario_digest
+        self.max_sample: int | None = None
+        self.invalid = 0
+        self.last_error = ""
+        self._last: dict[tuple[str, int], int] = {}
+
+    def _check(self, msg: Message, kind: str | None, key_id: int | None) -> None:
+        if kind is not None and not isinstance(msg, self._TYPES.get(kind, ())):
+            raise InvalidMessage(f"a {type(msg).__name__} on a {kind!r} key")
+        if isinstance(msg, DoneMsg):
+            return
+        if isinstance(msg, StateMsg):
+            if msg.ids != self.order:
+                raise InvalidMessage(f"state for robots {list(msg.ids)}, expected "
+                                     f"{list(self.order)}")
+            if self.scenario_digest is not None and msg.scenario != self.scenario_digest:
+                raise InvalidMessage(f"scenario digest {msg.scenario!r} differs from "
+                                     f"{self.scenario_digest!r}: same --scenario and overrides?")
+            stream = ("state", 0)
+        else:
+            if msg.id not in self.ids:
+                raise InvalidMessage(f"unknown robot id {msg.id}")
+            if key_id is not None and key_id != msg.id:
+                raise InvalidMessage(f"id {msg.id} on the key of robot {key_id}")
+            if self.max_sample is not None and msg.sample > self.max_sample:
+                raise InvalidMessage(f"sample {msg.sample} is ahead of the run "
+                                     f"(at most {self.max_sample} expected)")
+            stream = (type(msg).__name__, msg.id)
+        last = self._last.get(stream)
+        if last is not None and msg.sample < last:
+            raise InvalidMessage(f"sample {msg.sample} is older than {last} already received "
+                                 f"({stream[0]}, robot {stream[1]})")
+        self._last[stream] = msg.sample
+
+    def check(self, payload: bytes, kind: str | None = None, key_id: int | None = None) -> Message:
+        """Validate a payload received on a key of ``kind`` (for robot ``key_id``).
+
+        Raises
+        ------
+        InvalidMessage
+            The message must be dropped (the counter is already incremented).
+        """
+        try:
+            msg = decode(payload, self.horizon)
+            self._check(msg, kind, key_id)
+            return msg
+        except InvalidMessage as exc:
+            self.invalid += 1
+            self.last_error = str(exc)
+            raise
+
+    def refuse(self, reason: str) -> None:
+        """Count a message refused for a reason found by the caller (e.g. unknown key)."""
+        self.invalid += 1
+        self.last_error = reason

@@ -1,0 +1,253 @@
+"""What every service process shares: command line, scenario loading, signals, the event pump.
+
+A :class:`Node` owns a :class:`~services.transport.Bus`, a
+:class:`~services.messages.MessageValidator` and the set of processes known to
+be alive (from liveliness tokens). :meth:`Node.pump` takes one event from the
+inbox, validates it and hands it to :meth:`Node.on_message` or
+:meth:`Node.on_liveliness`; an invalid message is logged, counted and dropped.
+SIGINT and SIGTERM set :attr:`Node.stop`; every wait loop checks it at least
+every :data:`POLL` seconds, then the process closes its session and exits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, NoReturn, TypeVar
+
+import zenoh
+
+from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.scenario import Scenario, load_scenario
+
+from .messages import InvalidMessage, Message, MessageValidator
+from .transport import Bus, Event, check_run_name
+
+__all__ = [
+    "POLL",
+    "Node",
+    "add_common_arguments",
+    "fail",
+    "install_signal_handlers",
+    "open_node",
+    "scenario_digest",
+    "scenario_from_args",
+    "setup_logging",
+]
+
+log = logging.getLogger(__name__)
+
+POLL = 0.1
+"""Longest time a wait loop blocks before looking at the stop flag, s."""
+LOGGED_INVALID = 20
+"""Invalid messages logged one by one; after that, one line per thousand."""
+
+
+def fail(prog: str, message: str, status: int = 2) -> NoReturn:
+    """Print one clear error line and exit (status 2: bad user input)."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    raise SystemExit(status)
+
+
+def setup_logging(level: str, name: str) -> None:
+    """Log to stderr with the process name in every line."""
+    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO),
+                        format=f"%(asctime)s {name} %(levelname)s %(message)s",
+                        stream=sys.stderr)
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments every service takes: scenario, overrides, run namespace, Zenoh endpoints."""
+    parser.add_argument("--scenario", required=True, help="TOML file or built-in name")
+    parser.add_argument("--t-end", type=float, default=None, help="override the scenario's t_end")
+    parser.add_argument("--sample-time", type=float, default=None,
+                        help="override the scenario's sample time Ts")
+    parser.add_argument("--run", default="default", help="run namespace in the key space")
+    parser.add_argument("--connect", action="append", default=[], metavar="EP",
+                        help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--listen", action="append", default=[], metavar="EP",
+                        help="Zenoh endpoint to listen on (repeatable; default "
+                             "tcp/127.0.0.1:0 for a peer)")
+    parser.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
+                        help="peer (default) or client of a router")
+    parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
+
+
+def scenario_from_args(prog: str, args: argparse.Namespace) -> Scenario:
+    """Load the scenario with the overrides, or exit with status 2 and one message."""
+    try:
+        check_run_name(args.run)
+        scenario = load_scenario(args.scenario)
+        changes: dict[str, Any] = {}
+        if args.sample_time is not None:
+            changes["sample_time"] = args.sample_time
+            if args.t_end is None:  # keep t_end a whole multiple of the new Ts
+                steps = max(1, round(scenario.t_end / args.sample_time))
+                changes["t_end"] = steps * args.sample_time
+        if args.t_end is not None:
+            changes["t_end"] = args.t_end
+        if changes:
+            scenario = scenario.with_changes(**changes)
+        return scenario
+    except (ScenarioError, ProblemError, ValueError) as exc:
+        fail(prog, str(exc))
+
+
+_N = TypeVar("_N")
+
+
+def open_node(prog: str, factory: Callable[[], _N]) -> _N:
+    """``factory()`` (which opens a Zenoh session); a bad endpoint exits with status 2."""
+    try:
+        return factory()
+    except zenoh.ZError as exc:
+        fail(prog, f"cannot open the Zenoh session: {str(exc).split(' at /')[0]}")
+
+
+def scenario_digest(scenario: Scenario) -> str:
+    """A short digest of everything in the scenario (processes must agree on it)."""
+    return hashlib.sha256(scenario.to_toml().encode()).hexdigest()[:16]
+
+
+def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
+    """SIGINT and SIGTERM set ``stop``; the returned dict records the signal number."""
+    received: dict[str, int] = {}
+
+    def handler(signum: int, _frame: object) -> None:
+        received.setdefault("signal", signum)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return received
+
+
+class Node:
+    """Base of the plant, robot and central services.
+
+    Parameters
+    ----------
+    scenario
+        The problem every process of the run shares.
+    args
+        Parsed common arguments (run, endpoints, Zenoh mode).
+    name
+        Liveliness name below ``alive/``, e.g. ``"plant"`` or ``"robot/3"``.
+    """
+
+    def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str) -> None:
+        self.scenario = scenario
+        self.name = name
+        self.ids = [int(i) for i in scenario.ids]
+        self.digest = scenario_digest(scenario)
+        self.validator = MessageValidator(self.ids, scenario.horizon, self.digest)
+        self.alive: set[str] = set()
+        self.stop = threading.Event()
+        self.signals: dict[str, int] = {}
+        self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode)
+
+    def start(self, subscriptions: list[tuple[object, ...]]) -> None:
+        """Subscribe, watch liveliness, then declare this process alive (in that order).
+
+        A peer that sees the token therefore also knows the subscriptions.
+        """
+        for parts in subscriptions:
+            self.bus.subscribe(*parts)
+        self.bus.watch_liveliness()
+        self.bus.declare_alive(*self.name.split("/"))
+        self.signals = install_signal_handlers(self.stop)
+
+    def close(self) -> None:
+        """Close the Zenoh session."""
+        self.bus.close()
+
+    # ------------------------------------------------------------------ events
+    def on_message(self, kind: str, msg: Message) -> None:
+        """Handle a valid message received on a ``kind`` key (override)."""
+
+    def on_liveliness(self, name: str, alive: bool) -> None:
+        """A token ``alive/<name>`` appeared or disappeared (override to react)."""
+
+    def _dispatch(self, event: Event) -> None:
+        parts = self.bus.relative(event.key)
+        if parts is None:
+            return
+        if event.kind in ("alive", "gone"):
+            if parts[0] != "alive":
+                return
+            name = "/".join(parts[1:])
+            if event.kind == "alive":
+                self.alive.add(name)
+            else:
+                self.alive.discard(name)
+            log.info("%s %s", name, "is alive" if event.kind == "alive" else "is gone")
+            self.on_liveliness(name, event.kind == "alive")
+            return
+        if event.kind != "put":
+            return
+        if len(parts) == 3 and parts[0] == "robot":
+            kind, key_id = parts[2], None
+            try:
+                key_id = int(parts[1])
+            except ValueError:
+                pass
+            if key_id is None or key_id not in self.validator.ids:
+                self._refused(f"message on the key of unknown robot {parts[1]!r}")
+                return
+        elif len(parts) == 2 and parts[0] == "plant" and parts[1] in ("state", "done"):
+            kind, key_id = parts[1], None
+        else:
+            return
+        try:
+            msg = self.validator.check(event.payload, kind, key_id)
+        except InvalidMessage as exc:
+            self._log_invalid(f"on {event.key}: {exc}")
+            return
+        self.on_message(kind, msg)
+
+    def _refused(self, reason: str) -> None:
+        self.validator.refuse(reason)
+        self._log_invalid(reason)
+
+    def _log_invalid(self, what: str) -> None:
+        n = self.validator.invalid
+        if n <= LOGGED_INVALID or n % 1000 == 0:  # a flood must not flood the log
+            log.warning("dropped an invalid message (%d so far) %s", n, what)
+
+    def pump(self, timeout: float) -> bool:
+        """Handle at most one event, waiting up to ``timeout`` s; ``True`` if one came."""
+        event = self.bus.get(min(timeout, POLL))
+        if event is None:
+            return False
+        self._dispatch(event)
+        return True
+
+    def drain(self) -> None:
+        """Handle every event already queued, without waiting."""
+        while self.pump(0.0):
+            pass
+
+    def wait_until(self, ready: Callable[[], bool], timeout: float | None) -> bool:
+        """Pump events until ``ready()`` holds, the timeout expires or a stop is asked.
+
+        Returns
+        -------
+        bool
+            Whether ``ready()`` held.
+        """
+        deadline = None if timeout is None else time.perf_counter() + timeout
+        while True:
+            if ready():
+                return True
+            if self.stop.is_set():
+                return False
+            remaining = POLL if deadline is None else deadline - time.perf_counter()
+            if remaining <= 0.0:
+                return ready()
+            self.pump(remaining)

@@ -1,0 +1,294 @@
+"""The plant service: holds the true state, publishes it, applies the controllers' inputs.
+
+``python -m services.plant --scenario S [--scheme decentralized|centralized]
+[--mode lockstep|realtime] [--out DIR] [--run R] [--connect EP] [--listen EP]
+[--timeout S] [--startup-timeout S] [--t-end T] [--sample-time TS] [--no-plots]``
+
+Before sample 0 it waits (up to ``--startup-timeout``) for the liveliness of
+every controller of the scheme. Then, at every sample ``k``, it publishes the
+states of all robots (one message) and collects one ``cmd`` per robot:
+
+- ``lockstep``: it advances as soon as every robot whose controller is alive
+  has sent its input for ``k``, or after ``--timeout`` seconds;
+- ``realtime``: it advances every ``Ts`` of wall time with the newest valid
+  input received for ``k``.
+
+A robot without an input (late, timed out, or its controller gone) gets the
+braking input (``v = omega = 0`` clipped to the bounds), counted in
+``missed_deadlines``. The state advances with the controllers'
+discretization, as in :class:`sqpmpc.simulation.ClosedLoopSimulation`.
+At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
+``metrics.json``, ``trajectory.npz`` and the plots into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sqpmpc.controllers import braking_input
+from sqpmpc.metrics import RunRecord, write_run
+from sqpmpc.model import discrete_dynamics
+from sqpmpc.rti import SolverSettings
+from sqpmpc.scenario import Scenario
+
+from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
+from .node import Node, add_common_arguments, open_node, scenario_from_args, setup_logging
+
+__all__ = ["PlantNode", "build_parser", "main", "summarize"]
+
+log = logging.getLogger(__name__)
+PROG = "services.plant"
+
+
+class PlantNode(Node):
+    """The plant of one distributed run.
+
+    Parameters
+    ----------
+    scenario
+        The problem.
+    args
+        Parsed arguments (see :func:`build_parser`).
+    """
+
+    def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
+        super().__init__(scenario, args, "plant")
+        self.mode = args.mode
+        self.scheme = args.scheme
+        self.timeout = float(args.timeout)
+        self.startup_timeout = float(args.startup_timeout)
+        self.method = SolverSettings().discretization
+        n, steps = scenario.n_robots, scenario.steps
+        self.t = scenario.sample_time * np.arange(steps + 1)
+        self.states = np.zeros((steps + 1, n, 3))
+        self.states[0] = scenario.initial_states()
+        self.inputs = np.zeros((steps, n, 2))
+        self.solve_times = np.zeros((steps, n if self.scheme == "decentralized" else 1))
+        self.brake = braking_input(scenario.bounds.input_lower(), scenario.bounds.input_upper(),
+                                   (1,))[0]
+        self.k = 0
+        self.validator.max_sample = 0
+        self.cmds: dict[int, CmdMsg] = {}
+        self.missed = dict.fromkeys(self.ids, 0)
+        self.late_commands = 0
+        self.timeouts = 0
+        self._missing: set[int] = set()
+        self.solver_failures = 0
+        self.reported_invalid: dict[str, int] = {}
+        self.loop_wall = 0.0
+        self.running = False
+        self.sample_walls: list[float] = []
+
+    @property
+    def controllers(self) -> list[str]:
+        """Liveliness names of the controllers this scheme needs."""
+        if self.scheme == "centralized":
+            return ["central"]
+        return [f"robot/{i}" for i in self.ids]
+
+    def expected(self) -> list[int]:
+        """Robots whose controller is alive now."""
+        if self.scheme == "centralized":
+            return list(self.ids) if "central" in self.alive else []
+        return [i for i in self.ids if f"robot/{i}" in self.alive]
+
+    # ------------------------------------------------------------------ events
+    def on_liveliness(self, name: str, alive: bool) -> None:
+        # a controller joining mid-run missed the current sample's states: send them again
+        # (the others ignore a sample they already handled); runs on the main thread
+        if alive and self.running and name in self.controllers:
+            log.info("%s joined at sample %d", name, self.k)
+            self.publish_states(self.k)
+
+    def on_message(self, kind: str, msg: Message) -> None:
+        if not isinstance(msg, CmdMsg):
+            return
+        sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
+        self.reported_invalid[sender] = msg.invalid
+        if msg.sample < self.k:
+            self.late_commands += 1
+        else:
+            self.cmds[msg.id] = msg  # the newest valid input for this sample
+
+    # -------------------------------------------------------------------- loop
+    def publish_states(self, k: int) -> None:
+        """Publish every robot's state of sample ``k``."""
+        budget = self.scenario.sample_time if self.mode == "realtime" else None
+        msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest)
+        self.bus.put(encode(msg), "plant", "state")
+
+    def apply(self, k: int) -> None:
+        """Apply the inputs collected for sample ``k`` and integrate to ``k + 1``."""
+        missing = set(self.ids) - set(self.cmds)
+        if missing != self._missing:
+            if missing - self._missing:
+                log.warning("sample %d: braking robots %s (no input)", k,
+                            sorted(missing - self._missing))
+            if self._missing - missing:
+                log.info("sample %d: inputs from robots %s again", k,
+                         sorted(self._missing - missing))
+            self._missing = missing
+        fallback = False
+        for j, rid in enumerate(self.ids):
+            cmd = self.cmds.get(rid)
+            if cmd is None:
+                self.missed[rid] += 1
+                self.inputs[k, j] = self.brake
+                continue
+            self.inputs[k, j] = cmd.u
+            if self.scheme == "decentralized":
+                self.solve_times[k, j] = cmd.compute_time
+                self.solver_failures += cmd.fallback is not None
+            else:
+                self.solve_times[k, 0] = cmd.compute_time
+                fallback = fallback or cmd.fallback is not None
+        self.solver_failures += fallback
+        self.states[k + 1] = discrete_dynamics(self.states[k], self.inputs[k],
+                                               self.scenario.sample_time, self.method)
+
+    def run(self) -> None:
+        """Run the samples until ``t_end`` or a stop signal."""
+        log.info("plant (%s, %s): waiting for %s", self.mode, self.scheme,
+                 ", ".join(self.controllers))
+        if not self.wait_until(lambda: all(c in self.alive for c in self.controllers),
+                               self.startup_timeout) and not self.stop.is_set():
+            log.warning("starting without %s after %.3g s",
+                        sorted(set(self.controllers) - self.alive), self.startup_timeout)
+        if self.stop.is_set():
+            return
+        ts = self.scenario.sample_time
+        self.running = True
+        start = time.perf_counter()
+        for k in range(self.scenario.steps):
+            t0 = time.perf_counter()
+            self.k, self.cmds = k, {}
+            self.validator.max_sample = k  # a cmd for a sample not yet published is invalid
+            self.publish_states(k)
+            if self.mode == "lockstep":
+                if not self.wait_until(lambda: all(i in self.cmds for i in self.expected()),
+                                       self.timeout) and not self.stop.is_set():
+                    self.timeouts += 1
+                    log.warning("sample %d: no input from robots %s within %.3g s",
+                                k, sorted(set(self.expected()) - set(self.cmds)), self.timeout)
+            else:
+                deadline = start + (k + 1) * ts
+                self.wait_until(lambda: self.stop.is_set(),
+                                deadline - time.perf_counter())
+            if self.stop.is_set():
+                break
+            self.apply(k)
+            self.k = k + 1
+            self.sample_walls.append(time.perf_counter() - t0)
+        self.running = False
+        self.loop_wall = time.perf_counter() - start
+
+    def record(self) -> RunRecord:
+        """What has been run so far."""
+        k = self.k
+        sig = self.signals.get("signal")
+        walls = np.asarray(self.sample_walls) * 1e3
+        invalid = {"plant": self.validator.invalid, **self.reported_invalid}
+        extra: dict[str, Any] = {
+            "distributed": True,
+            "mode": self.mode,
+            "run": self.bus.prefix.rsplit("/", 1)[-1],
+            "missed_deadlines": int(sum(self.missed.values())),
+            "missed_deadlines_by_robot": {str(i): int(v) for i, v in self.missed.items()},
+            "late_commands": int(self.late_commands),
+            "lockstep_timeouts": int(self.timeouts),
+            "invalid_messages": int(sum(invalid.values())),
+            "invalid_messages_by_process": invalid,
+            "interrupted": signal.Signals(sig).name if sig else None,
+            "plant_discretization": self.method,
+            "sample_loop_wall_s": float(self.loop_wall),
+            "sample_wall_ms": {
+                "median": float(np.median(walls)) if walls.size else None,
+                "max": float(walls.max()) if walls.size else None,
+            },
+        }
+        return RunRecord(self.scenario, self.scheme, self.t[: k + 1].copy(),
+                         self.states[: k + 1].copy(), self.inputs[:k].copy(),
+                         self.solve_times[:k].copy(), int(self.solver_failures),
+                         k == self.scenario.steps, extra)
+
+    def finish(self) -> None:
+        """Tell the controllers the run is over."""
+        self.bus.put(encode(DoneMsg(self.k, self.k == self.scenario.steps)), "plant", "done")
+
+
+def summarize(metrics: dict[str, Any]) -> str:
+    """One-paragraph summary of a distributed run's metrics."""
+    st = metrics.get("solve_time", {})
+    rms = metrics.get("rms_tracking_error", {})
+    return (
+        f"{metrics['scenario']} / {metrics['scheme']} ({metrics.get('mode')}): "
+        f"steps {metrics['steps']} (completed: {metrics.get('completed')}), "
+        f"min clearance {_num(metrics['min_clearance'])} m, collisions {metrics['collisions']}, "
+        f"missed deadlines {metrics.get('missed_deadlines')}, "
+        f"invalid messages {metrics.get('invalid_messages')}, "
+        f"solver failures {metrics['solver_failures']}, "
+        f"RMS error {', '.join(f'{k}: {_num(v)}' for k, v in rms.items())} m, "
+        f"controller time median {_num(st.get('median_ms'))} ms, "
+        f"sample loop {_num(metrics.get('sample_loop_wall_s'))} s wall"
+    )
+
+
+def _num(value: Any) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.plant``."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    add_common_arguments(parser)
+    parser.add_argument("--scheme", choices=("decentralized", "centralized"),
+                        default="decentralized", help="which controllers to expect")
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default runs/<scenario>-<scheme>-<mode>-<time>)")
+    parser.add_argument("--timeout", type=float, default=10.0,
+                        help="lockstep: longest wait for a sample's inputs, s")
+    parser.add_argument("--startup-timeout", type=float, default=60.0,
+                        help="longest wait for the controllers before sample 0, s")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status (0 completed, 128+signal, 1 otherwise)."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.log_level, "plant")
+    scenario = scenario_from_args(PROG, args)
+    out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
+                                      f"{time.strftime('%Y%m%d-%H%M%S')}")
+    node = open_node(PROG, lambda: PlantNode(scenario, args))
+    try:
+        node.start([("robot", "*", "cmd")])
+        node.run()
+    finally:
+        try:
+            node.finish()
+        finally:
+            node.close()
+        record = node.record()
+        metrics = write_run(out, record, plots=not args.no_plots)
+        if not args.quiet:
+            print(summarize(metrics))
+            print(f"wrote {out}")
+    if record.completed:
+        return 0
+    sig = node.signals.get("signal")
+    return 128 + sig if sig else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,209 @@
+"""Zenoh transport of the services: key space, session configuration, an event inbox.
+
+Key space (version 1, one namespace per run)::
+
+    sqpmpc/@v1/<run>/plant/state         plant -> controllers   (StateMsg, all robots)
+    sqpmpc/@v1/<run>/robot/<id>/cmd      controller -> plant    (CmdMsg)
+    sqpmpc/@v1/<run>/robot/<id>/plan     robot -> robots        (PlanMsg)
+    sqpmpc/@v1/<run>/plant/done          plant -> controllers   (DoneMsg)
+    sqpmpc/@v1/<run>/alive/plant         liveliness tokens, one per process
+    sqpmpc/@v1/<run>/alive/central
+    sqpmpc/@v1/<run>/alive/robot/<id>
+
+The plant publishes the states of all robots of a sample in one message: a
+consistent snapshot, and one delivery per controller instead of ``n``.
+The ``@v1`` chunk is verbatim: ``**`` does not match it, so wildcard
+subscribers of another version never see these messages.
+
+Sessions are peers (or clients of a router) with multicast scouting off and
+explicit endpoints. Subscribers use callbacks that only copy the key, kind
+and payload into a thread-safe queue (:class:`Bus.inbox`); all Zenoh calls
+happen on the main thread. Publishers use ``CongestionControl.BLOCK`` (every
+message must arrive) and ``express`` (no batching: a sample's messages are on
+the critical path of the loop).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import zenoh
+
+__all__ = [
+    "KEY_ROOT",
+    "Bus",
+    "Event",
+    "check_run_name",
+    "make_config",
+    "run_prefix",
+]
+
+log = logging.getLogger(__name__)
+
+KEY_ROOT = "sqpmpc/@v1"
+"""Root of the versioned key space."""
+_RUN_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+def check_run_name(run: str) -> str:
+    """Return ``run`` if it is a valid run name (one key chunk), else raise ``ValueError``."""
+    if not _RUN_RE.match(run) or run in (".", ".."):
+        raise ValueError(f"run name must be 1-64 characters of A-Z a-z 0-9 _ . -, got {run!r}")
+    return run
+
+
+def run_prefix(run: str) -> str:
+    """``sqpmpc/@v1/<run>``."""
+    return f"{KEY_ROOT}/{check_run_name(run)}"
+
+
+def make_config(
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    mode: str = "peer",
+) -> zenoh.Config:
+    """A Zenoh configuration with multicast scouting off and explicit endpoints.
+
+    Parameters
+    ----------
+    listen
+        Endpoints to listen on, e.g. ``tcp/127.0.0.1:7447`` (port 0: any free port).
+        A peer with none listens on ``tcp/127.0.0.1:0`` (loopback only).
+    connect
+        Endpoints to connect to (retried until they appear).
+    mode
+        ``"peer"``, ``"client"`` (needs a router in ``connect``) or ``"router"``.
+    """
+    if mode not in ("peer", "client", "router"):
+        raise ValueError(f"zenoh mode must be peer, client or router, got {mode!r}")
+    listen = list(listen)
+    if not listen and mode != "client":
+        listen = ["tcp/127.0.0.1:0"]
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if mode == "client":
+        # wait for the router instead of failing at open
+        conf.insert_json5("connect/timeout_ms", "-1")
+    else:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    return conf
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """Something received: ``kind`` is ``"put"``, ``"alive"`` or ``"gone"``."""
+
+    kind: str
+    key: str
+    payload: bytes
+
+
+class Bus:
+    """One Zenoh session of a service with its inbox, publishers and liveliness token.
+
+    Parameters
+    ----------
+    run
+        Run name (namespace).
+    listen, connect, mode
+        See :func:`make_config`.
+
+    Notes
+    -----
+    Open the bus only in the process that uses it, after every fork, and close
+    it (or use it as a context manager): an open session can hang interpreter exit.
+    """
+
+    def __init__(self, run: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
+                 mode: str = "peer") -> None:
+        self.prefix = run_prefix(run)
+        self.inbox: queue.SimpleQueue[Event] = queue.SimpleQueue()
+        self.session = zenoh.open(make_config(listen, connect, mode))
+        self._subscribers: list[zenoh.Subscriber] = []
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._tokens: list[zenoh.LivelinessToken] = []
+        self._closed = False
+
+    # ---------------------------------------------------------------- keys
+    def key(self, *parts: object) -> str:
+        """``sqpmpc/@v1/<run>/<parts...>``."""
+        return "/".join((self.prefix, *(str(p) for p in parts)))
+
+    def relative(self, key: str) -> list[str] | None:
+        """Chunks of ``key`` below this run's prefix, or ``None`` if it is not under it."""
+        if not key.startswith(self.prefix + "/"):
+            return None
+        return key[len(self.prefix) + 1:].split("/")
+
+    # ------------------------------------------------------------- receive
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # runs on a Zenoh thread: copy and queue, nothing else
+        self.inbox.put(Event("put" if sample.kind == zenoh.SampleKind.PUT else "delete",
+                             str(sample.key_expr), sample.payload.to_bytes()))
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        self.inbox.put(Event("alive" if sample.kind == zenoh.SampleKind.PUT else "gone",
+                             str(sample.key_expr), b""))
+
+    def subscribe(self, *parts: object) -> None:
+        """Subscribe to ``<prefix>/<parts>`` (wildcards allowed); samples go to the inbox."""
+        self._subscribers.append(self.session.declare_subscriber(self.key(*parts),
+                                                                 self._on_sample))
+
+    def watch_liveliness(self) -> None:
+        """Report every liveliness token of the run (present ones first) to the inbox."""
+        self._subscribers.append(self.session.liveliness().declare_subscriber(
+            self.key("alive", "**"), self._on_liveliness, history=True))
+
+    def get(self, timeout: float) -> Event | None:
+        """Next event, waiting at most ``timeout`` seconds (``None`` if none came)."""
+        try:
+            if timeout <= 0.0:
+                return self.inbox.get_nowait()
+            return self.inbox.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    # ------------------------------------------------------------- publish
+    def put(self, payload: bytes, *parts: object) -> None:
+        """Publish ``payload`` on ``<prefix>/<parts>`` (reliable, blocking congestion control)."""
+        key = self.key(*parts)
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+            self._publishers[key] = pub
+        pub.put(payload)
+
+    def declare_alive(self, *parts: object) -> None:
+        """Declare this process's liveliness token ``<prefix>/alive/<parts>``."""
+        self._tokens.append(self.session.liveliness().declare_token(self.key("alive", *parts)))
+
+    # --------------------------------------------------------------- close
+    def close(self) -> None:
+        """Undeclare the token, subscribers and publishers, then close the session."""
+        if self._closed:
+            return
+        self._closed = True
+        for obj in [*self._tokens, *self._subscribers, *self._publishers.values()]:
+            try:
+                obj.undeclare()
+            except Exception as exc:  # closing must go on whatever happens
+                log.debug("undeclare failed: %r", exc)
+        self._tokens.clear()
+        self._subscribers.clear()
+        self._publishers.clear()
+        self.session.close()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
