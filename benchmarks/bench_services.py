@@ -1,6 +1,6 @@
 """Benchmarks of the distributed services (real processes, Zenoh on loopback).
 
-``python benchmarks/bench_services.py [--out DIR] [--repeat R] [--duration S] [--skip-realtime]``
+``python -m benchmarks.bench_services [--out DIR] [--repeat R] [--duration S] [--skip-realtime]``
 
 1. **Lockstep**: paper-s2 (800 samples), plant + 4 robot processes through
    ``services.launch``, without and with ``--pin-cpus``; prints the plant's
@@ -26,11 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from sqpmpc.scenario import load_scenario
+from sqpmpc.simulation import ClosedLoopSimulation
 
-from sqpmpc.scenario import load_scenario  # noqa: E402
-from sqpmpc.simulation import ClosedLoopSimulation  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 __all__ = ["circle_swap_toml", "main"]
 

@@ -15,10 +15,9 @@ import logging
 import sys
 
 from sqpmpc.controllers import CentralizedController
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario
 
-from .control import ControllerNode, SampleStates
+from .control import ControllerNode, SampleStates, controller_settings
 from .node import add_common_arguments, open_node, scenario_from_args, setup_logging
 
 __all__ = ["CentralNode", "build_parser", "main"]
@@ -39,7 +38,7 @@ class CentralNode(ControllerNode):
     """
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
-        self.controller = CentralizedController(scenario, SolverSettings())
+        self.controller = CentralizedController(scenario, controller_settings(args))
         super().__init__(scenario, args, "central")
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:
@@ -55,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     add_common_arguments(parser)
     parser.add_argument("--timeout", type=float, default=5.0, help="unused; for symmetry, s")
+    parser.add_argument("--qp-time-limit", type=float, default=0.0,
+                        help="bound on one QP solve, s (0: none); real-time runs pass a "
+                             "fraction of Ts, a QP out of time is a counted fallback")
     parser.add_argument("--startup-timeout", type=float, default=None,
                         help="give up when no state came within this time, s (default: wait)")
     return parser

@@ -17,14 +17,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sqpmpc.qp import OSQPSettings
+from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import POLL, Node
 
-__all__ = ["ControllerNode", "SampleStates"]
+__all__ = ["ControllerNode", "SampleStates", "controller_settings"]
 
 log = logging.getLogger(__name__)
+
+
+def controller_settings(args: argparse.Namespace) -> SolverSettings:
+    """The library's default settings, with the QP time limit of ``--qp-time-limit``."""
+    return SolverSettings(osqp=OSQPSettings(time_limit=float(args.qp_time_limit)))
 
 
 @dataclass

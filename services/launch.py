@@ -160,8 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path
-              ) -> list[tuple[str, list[str]]]:
+def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
+              sample_time: float) -> list[tuple[str, list[str]]]:
     py = [sys.executable, "-m"]
     common = ["--scenario", args.scenario, "--run", run, "--log-level", args.log_level]
     for flag, value in (("--t-end", args.t_end), ("--sample-time", args.sample_time)):
@@ -177,8 +177,11 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path
     if args.no_plots:
         plant.append("--no-plots")
     cmds = [("plant", plant)]
+    controller_extra: list[str] = []
+    if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback
+        controller_extra = ["--qp-time-limit", repr(0.4 * sample_time)]
     for name, port in zip(names, ports[1:], strict=True):
-        net = ["--listen", f"tcp/127.0.0.1:{port}", "--connect", plant_ep]
+        net = ["--listen", f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *controller_extra]
         if name == "central":
             cmds.append((name, [*py, "services.central", *common, *net]))
         else:
@@ -210,8 +213,9 @@ def main(argv: list[str] | None = None) -> int:
     children: list[Child] = []
     status = 1
     try:
-        for j, (name, cmd) in enumerate(_commands(args, [int(i) for i in scenario.ids],
-                                                  run, out)):
+        commands = _commands(args, [int(i) for i in scenario.ids], run, out,
+                             scenario.sample_time)
+        for j, (name, cmd) in enumerate(commands):
             if stop.is_set():
                 break
             cpu = cpus[(j - 1) % len(cpus)] if args.pin_cpus and cpus and j > 0 else None

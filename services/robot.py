@@ -29,10 +29,9 @@ import time
 
 from sqpmpc.controllers import DecentralizedController, PlanMessage
 from sqpmpc.errors import ProblemError
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario
 
-from .control import ControllerNode, SampleStates
+from .control import ControllerNode, SampleStates, controller_settings
 from .messages import Message, PlanMsg, encode
 from .node import add_common_arguments, fail, open_node, scenario_from_args, setup_logging
 
@@ -54,7 +53,8 @@ class RobotNode(ControllerNode):
     """
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
-        self.controller = DecentralizedController(scenario, args.id, SolverSettings(), args.mode)
+        self.controller = DecentralizedController(scenario, args.id, controller_settings(args),
+                                                  args.mode)
         super().__init__(scenario, args, f"robot/{args.id}")
         self.robot_id = int(args.id)
         self.neighbours = [i for i in self.ids if i != self.robot_id]
@@ -142,6 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_common_arguments(parser)
     parser.add_argument("--timeout", type=float, default=5.0,
                         help="longest wait for a neighbour's plan in lockstep, s")
+    parser.add_argument("--qp-time-limit", type=float, default=0.0,
+                        help="bound on one QP solve, s (0: none); real-time runs pass a "
+                             "fraction of Ts, a QP out of time is a counted fallback")
     parser.add_argument("--startup-timeout", type=float, default=None,
                         help="give up when no state came within this time, s (default: wait)")
     return parser

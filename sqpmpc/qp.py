@@ -37,6 +37,8 @@ class OSQPSettings:
 
     Tolerances are tighter than OSQP's defaults: the collision rows carry a
     safety margin of 1e-3 m by default, and ``eps_abs`` must stay well below it.
+    ``time_limit`` (s, 0 for none) bounds a solve for real-time use: a QP that
+    runs out of time is a failed QP, and the controller applies its fallback.
     """
 
     eps_abs: float = 1e-5
@@ -49,6 +51,7 @@ class OSQPSettings:
     alpha: float = 1.6
     scaling: int = 10
     check_termination: int = 10
+    time_limit: float = 0.0
     accept_inaccurate: bool = True
 
     def __post_init__(self) -> None:
@@ -59,7 +62,7 @@ class OSQPSettings:
 
     def to_osqp(self) -> dict[str, object]:
         """Keyword arguments for ``OSQP.setup``."""
-        return {
+        kwargs: dict[str, object] = {
             "eps_abs": self.eps_abs,
             "eps_rel": self.eps_rel,
             "max_iter": self.max_iter,
@@ -73,6 +76,9 @@ class OSQPSettings:
             "verbose": False,
             "warm_starting": True,
         }
+        if self.time_limit > 0.0:
+            kwargs["time_limit"] = self.time_limit
+        return kwargs
 
 
 @dataclass
