@@ -122,7 +122,11 @@ class ControllerNode(Node):
                 self.pump(POLL)
                 continue
             entry = self.samples[k]
-            self.step_sample(k, entry)
+            try:
+                self.step_sample(k, entry)
+            except KeyboardInterrupt:  # OSQP caught the SIGINT during a solve
+                self.stop.set()
+                break
             self.steps_done += 1
             self.last_sample = k
             for old in [s for s in self.samples if s < k - 1]:

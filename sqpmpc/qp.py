@@ -306,6 +306,8 @@ class SparseQP:
     ) -> QPResult:
         """Push pending updates, warm start, solve; never raises on solver failure.
 
+        A Ctrl-C that OSQP caught during the solve is raised as ``KeyboardInterrupt``.
+
         Returns
         -------
         QPResult
@@ -322,6 +324,9 @@ class SparseQP:
             raise SolverError(f"OSQP rejected the QP data: {exc}") from exc
         wall = time.perf_counter() - t0
         info = res.info
+        if info.status_val == osqp.SolverStatus.OSQP_SIGINT:
+            # OSQP catches Ctrl-C during a solve; hand it back to the caller
+            raise KeyboardInterrupt
         x = np.array(res.x, dtype=float, copy=True)
         y = np.array(res.y, dtype=float, copy=True)
         finite = x.size == self.layout.n_var and np.all(np.isfinite(x)) and np.all(np.isfinite(y))

@@ -96,3 +96,26 @@ def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
     assert 0 < metrics["steps"] < 8000
     traj = np.load(out / "trajectory.npz", allow_pickle=False)
     assert traj["states"].shape[0] == metrics["steps"] + 1
+
+
+def _bad_cases() -> list[tuple[str, str, str]]:
+    from tests.test_scenario import BAD_CASES
+
+    return BAD_CASES
+
+
+@pytest.mark.parametrize(("description", "text", "key"), _bad_cases(),
+                         ids=[c[0] for c in _bad_cases()])
+def test_every_kind_of_bad_file_exits_2_with_one_message(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], description: str, text: str,
+        key: str) -> None:
+    from sqpmpc.cli import main
+
+    path = tmp_path / "bad-case.toml"
+    path.write_text(text, encoding="utf-8")
+    status = main(["run", str(path), "--scheme", "decentralized", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert status == 2, description
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(path) in lines[0] and key in lines[0], err
+    assert not (tmp_path / "o").exists()
