@@ -41,7 +41,7 @@ class DetourSettings:
     reach: float = 0.3
     cone: float = float(np.deg2rad(75.0))
     patience: int = 2
-    patience_centralized: int = 5
+    patience_centralized: int = 8
     hold: int = 6
     radius_factor: float = 2.0
     angle: float = float(np.deg2rad(60.0))
