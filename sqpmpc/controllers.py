@@ -146,7 +146,7 @@ class _ControllerBase:
     """Shared parts: engine construction, reference sampling, verification, fallback."""
 
     def __init__(self, scenario: Scenario, indices: np.ndarray, layout: QPLayout,
-                 settings: SolverSettings) -> None:
+                 settings: SolverSettings, detour_patience: int) -> None:
         self.scenario = scenario
         self.settings = settings
         self.indices = np.asarray(indices, dtype=np.int64)
@@ -161,10 +161,8 @@ class _ControllerBase:
         self.horizon = scenario.horizon
         self.sample_time = scenario.sample_time
         self.failures = 0
-        patience = (settings.detour.patience_centralized if indices.size > 1 or
-                    scenario.n_robots == 1 else settings.detour.patience)
         self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour,
-                                 patience)
+                                 detour_patience)
         self._references = [scenario.robots[i].reference for i in self.indices]
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         self.last_speed = np.zeros(self.indices.size)
@@ -257,7 +255,8 @@ class CentralizedController(_ControllerBase):
             bool(np.isfinite(scenario.bounds.position_lower()).any()
                  or np.isfinite(scenario.bounds.position_upper()).any()),
         )
-        super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
+        super().__init__(scenario, np.arange(scenario.n_robots), layout, settings,
+                         settings.detour.patience_centralized)
         self.pairs = pairs
         self.required = required
         self.collisions = PairwiseCollisionModel(
@@ -320,7 +319,8 @@ class DecentralizedController(_ControllerBase):
             bool(np.isfinite(scenario.bounds.position_lower()).any()
                  or np.isfinite(scenario.bounds.position_upper()).any()),
         )
-        super().__init__(scenario, np.array([index]), layout, settings)
+        super().__init__(scenario, np.array([index]), layout, settings,
+                         settings.detour.patience)
         self.robot_id = int(robot_id)
         self.index = index
         self.others = others
