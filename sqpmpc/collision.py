@@ -116,12 +116,29 @@ def limit_turning(n0: np.ndarray, normals: np.ndarray, max_turn: float) -> np.nd
     return out
 
 
-def _stage_one(
-    n1: np.ndarray, now_self: np.ndarray, now_other: np.ndarray, required: np.ndarray
+def _pair_normals(
+    now_self: np.ndarray, now_other: np.ndarray, pred_self: np.ndarray,
+    pred_other: np.ndarray, max_turn: float, angle: np.ndarray | float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Apply the stage-1 rule; returns the normals and a mask of overridden rows."""
-    n_now, _ = unit_normals(now_self, now_other, np.array([1.0, 0.0]))
-    keeps = np.einsum("...i,...i->...", n1, now_self - now_other) >= required
+    """Current normals ``(..., 2)`` and the stage normals ``(..., N, 2)`` of pairs.
+
+    The stage normals point from the other robot's to this robot's predicted
+    positions, turn at most ``max_turn`` per stage and are rotated by ``angle``.
+    """
+    n0 = unit_normals(now_self, now_other, np.array([1.0, 0.0]))[0]
+    n, _ = unit_normals(pred_self, pred_other, n0[..., None, :])
+    return n0, rotate(limit_turning(n0, n, max_turn), angle)
+
+
+def _stage_one(
+    n1: np.ndarray, n_now: np.ndarray, gap_now: np.ndarray, required: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Apply the stage-1 rule; returns the normals and a mask of overridden rows.
+
+    ``n_now`` are the unit normals of the current positions, ``gap_now`` the
+    current offsets (this robot minus the other).
+    """
+    keeps = np.einsum("...i,...i->...", n1, gap_now) >= required
     return np.where(keeps[..., None], n1, n_now), ~keeps
 
 
@@ -161,12 +178,9 @@ class PairwiseCollisionModel:
         """
         a, b = self.pairs[:, 0], self.pairs[:, 1]
         now = self.current_positions
-        pa, pb = states[a, 1:, :2], states[b, 1:, :2]
-        n0 = unit_normals(now[a], now[b], np.array([1.0, 0.0]))[0]
-        n, _ = unit_normals(pa, pb, n0[:, None, :])
-        n = limit_turning(n0, n, self.max_turn)
-        n = rotate(n, self.keep_right_angle)
-        n1, over = _stage_one(n[:, 0], now[a], now[b], self.required)
+        n0, n = _pair_normals(now[a], now[b], states[a, 1:, :2], states[b, 1:, :2],
+                              self.max_turn, self.keep_right_angle)
+        n1, over = _stage_one(n[:, 0], n0, now[a] - now[b], self.required)
         n[:, 0] = n1
         self.stage_one_overrides = int(over.sum())
         rhs = np.broadcast_to(self.required[:, None], n.shape[:2]).copy()
@@ -270,11 +284,9 @@ class ExternalCollisionModel:
         d = self.required[shared]
         half = 0.5 * d
         now_o = self.current_others[shared]
-        n0 = unit_normals(self.current_self, now_o, np.array([1.0, 0.0]))[0]
-        n, _ = unit_normals(own, oth, n0[:, None, :])
-        n = limit_turning(n0, n, self.max_turn)
-        n = rotate(n, self.keep_right_angle)
-        n1, over = _stage_one(n[:, 0], self.current_self, now_o, d)
+        n0, n = _pair_normals(self.current_self, now_o, own, oth, self.max_turn,
+                              self.keep_right_angle)
+        n1, over = _stage_one(n[:, 0], n0, self.current_self - now_o, d)
         n[:, 0] = n1
         c = np.einsum("eni,eni->en", n, 0.5 * (own + oth))
         lo = np.einsum("ei,ei->e", n1, now_o) + half
@@ -302,7 +314,7 @@ class ExternalCollisionModel:
             n, _ = unit_normals(own[None], o, n0[:, None, :])
             n = rotate(n, self.keep_right_angle)
             if self.stage_one_rule_for_obstacles:
-                n1, over = _stage_one(n[:, 0], self.current_self, self.current_others[obst],
+                n1, over = _stage_one(n[:, 0], n0, self.current_self - self.current_others[obst],
                                       self.required[obst])
                 n[:, 0] = n1
                 overrides += int(over.sum())

@@ -125,6 +125,13 @@ def discrete_dynamics(
     inputs = np.asarray(inputs, dtype=float)
     h = float(sample_time)
     if method == "euler":
+        if states.shape[:-1] == inputs.shape[:-1]:  # hot path: no broadcasting needed
+            out = states.copy()
+            hv = h * inputs[..., 0]
+            out[..., 0] += hv * np.cos(states[..., 2])
+            out[..., 1] += hv * np.sin(states[..., 2])
+            out[..., 2] += h * inputs[..., 1]
+            return out
         return states + h * continuous_dynamics(states, inputs)
     k1 = continuous_dynamics(states, inputs)
     k2 = continuous_dynamics(states + 0.5 * h * k1, inputs)
