@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,8 @@ from sqpmpc.metrics import (
     write_run,
     write_trajectory,
 )
+from sqpmpc.scenario import Scenario
+from tests.scenarios import goal_scenario
 
 CONTRACT_KEYS = {
     "scenario", "scheme", "steps", "sample_time", "horizon", "min_distance", "min_clearance",
@@ -28,77 +29,7 @@ CONTRACT_KEYS = {
 }
 
 
-@dataclass(frozen=True)
-class FakeWeights:
-    Q: tuple[float, float] = (1.0, 1.0)
-    R: tuple[float, float] = (0.5, 0.5)
-
-
-@dataclass(frozen=True)
-class FakeBounds:
-    v: tuple[float, float] = (-0.6, 0.6)
-    omega: tuple[float, float] = (-0.8, 0.8)
-    x: tuple[float, float] = (-math.inf, math.inf)
-    y: tuple[float, float] = (-math.inf, math.inf)
-
-    def input_lower(self) -> np.ndarray:
-        return np.array([self.v[0], self.omega[0]])
-
-    def input_upper(self) -> np.ndarray:
-        return np.array([self.v[1], self.omega[1]])
-
-    def position_lower(self) -> np.ndarray:
-        return np.array([self.x[0], self.y[0]])
-
-    def position_upper(self) -> np.ndarray:
-        return np.array([self.x[1], self.y[1]])
-
-
-@dataclass(frozen=True)
-class FakeScenario:
-    """Duck-typed stand-in for sqpmpc.scenario.Scenario: references r_j(t) = goal_j + t vel_j."""
-
-    goals: np.ndarray
-    diameters: tuple[float, ...]
-    velocities: np.ndarray | None = None
-    robot_ids: tuple[int, ...] | None = None
-    name: str = "fake"
-    sample_time: float = 1.0
-    horizon: int = 5
-    t_end: float = 10.0
-    weights: FakeWeights = field(default_factory=FakeWeights)
-    bounds: FakeBounds = field(default_factory=FakeBounds)
-
-    @property
-    def steps(self) -> int:
-        return int(round(self.t_end / self.sample_time))
-
-    @property
-    def n_robots(self) -> int:
-        return len(self.diameters)
-
-    @property
-    def ids(self) -> np.ndarray:
-        ids = self.robot_ids or tuple(range(1, self.n_robots + 1))
-        return np.array(ids, dtype=int)
-
-    def required_distances(self) -> np.ndarray:
-        d = np.asarray(self.diameters, dtype=float)
-        req = (d[:, None] + d[None, :]) / 2
-        np.fill_diagonal(req, 0.0)
-        return req
-
-    def pairs(self) -> np.ndarray:
-        return np.stack(np.triu_indices(self.n_robots, k=1), axis=1)
-
-    def reference_positions(self, t: np.ndarray | float) -> np.ndarray:
-        t = np.asarray(t, dtype=float)
-        goals = np.asarray(self.goals, dtype=float)
-        vel = np.zeros_like(goals) if self.velocities is None else np.asarray(self.velocities)
-        return goals + t[..., None, None] * vel
-
-
-def make_record(scenario: FakeScenario, positions, inputs=None, solve_times=None,
+def make_record(scenario: Scenario, positions, inputs=None, solve_times=None,
                 **kwargs) -> RunRecord:
     """A record with the given (k+1, n, 2) positions, heading 0, zero inputs by default."""
     pos = np.asarray(positions, dtype=float)
@@ -112,9 +43,9 @@ def make_record(scenario: FakeScenario, positions, inputs=None, solve_times=None
                      solve_times=solve_times, **kwargs)
 
 
-def two_robots() -> FakeScenario:
+def two_robots() -> Scenario:
     # Required distance (0.4 + 0.6) / 2 = 0.5.
-    return FakeScenario(goals=np.array([[0.0, 0.0], [1.0, 0.0]]), diameters=(0.4, 0.6))
+    return goal_scenario(np.array([[0.0, 0.0], [1.0, 0.0]]), diameters=(0.4, 0.6))
 
 
 def test_pair_distance_clearance_and_collisions() -> None:
@@ -135,7 +66,7 @@ def test_collision_tolerance() -> None:
 
 
 def test_required_distance_per_pair() -> None:
-    sc = FakeScenario(goals=np.zeros((3, 2)), diameters=(0.2, 0.4, 1.0))
+    sc = goal_scenario(np.zeros((3, 2)), diameters=(0.2, 0.4, 1.0))
     # Pair (1, 2) needs 0.3 at 0.35; (1, 3) needs 0.6 at 0.5: clearance -0.1;
     # (2, 3) needs 0.7 at 0.85.
     pos = [[[0, 0], [0.35, 0], [-0.5, 0]]]
@@ -147,8 +78,8 @@ def test_required_distance_per_pair() -> None:
 
 
 def test_closed_loop_cost_rms_and_final_error_by_hand() -> None:
-    sc = FakeScenario(goals=np.array([[1.0, 1.0]]), diameters=(0.3,),
-                      weights=FakeWeights(Q=(1.0, 2.0), R=(0.5, 3.0)))
+    sc = goal_scenario(np.array([[1.0, 1.0]]), diameters=(0.3,),
+                      Q=(1.0, 2.0), R=(0.5, 3.0))
     pos = [[[0.0, 0.0]], [[0.5, 1.0]], [[1.0, 0.0]]]
     inputs = [[[0.5, 0.1]], [[0.2, -0.2]]]
     m = compute_metrics(make_record(sc, pos, inputs=inputs))
@@ -164,7 +95,7 @@ def test_closed_loop_cost_rms_and_final_error_by_hand() -> None:
 
 
 def test_moving_reference_uses_record_times() -> None:
-    sc = FakeScenario(goals=np.array([[0.0, 0.0]]), velocities=np.array([[1.0, 0.0]]),
+    sc = goal_scenario(np.array([[0.0, 0.0]]), velocities=np.array([[1.0, 0.0]]),
                       diameters=(0.3,), sample_time=0.5)
     pos = [[[0.0, 0.0]], [[0.5, 0.0]], [[1.0, 0.0]]]  # exactly on r(t) = (t, 0)
     m = compute_metrics(make_record(sc, pos))
@@ -173,7 +104,7 @@ def test_moving_reference_uses_record_times() -> None:
 
 
 def test_input_bound_violations_tolerance() -> None:
-    sc = FakeScenario(goals=np.zeros((2, 2)), diameters=(0.1, 0.1))
+    sc = goal_scenario(np.zeros((2, 2)), diameters=(0.1, 0.1))
     pos = np.zeros((3, 2, 2))
     pos[:, 1, 0] = 1.0
     inputs = [
@@ -185,8 +116,8 @@ def test_input_bound_violations_tolerance() -> None:
 
 
 def test_state_bound_violations() -> None:
-    sc = FakeScenario(goals=np.zeros((1, 2)), diameters=(0.3,),
-                      bounds=FakeBounds(x=(-1.0, 1.0)))
+    sc = goal_scenario(np.zeros((1, 2)), diameters=(0.3,),
+                      x_bounds=(-1.0, 1.0))
     m = compute_metrics(make_record(sc, [[[0.0, 50.0]], [[1.0 + 1e-10, 0.0]], [[1.5, 0.0]]]))
     assert m["state_bound_violations"] == 1
 
@@ -218,7 +149,7 @@ def test_solve_time_decentralized_sums_over_robots() -> None:
 
 
 def test_contract_keys_and_json() -> None:
-    sc = FakeScenario(goals=np.zeros((2, 2)), diameters=(0.3, 0.3), robot_ids=(7, 3))
+    sc = goal_scenario(np.zeros((2, 2)), diameters=(0.3, 0.3), ids=(7, 3))
     pos = np.zeros((3, 2, 2))
     pos[:, 1, 1] = 2.0
     rec = make_record(sc, pos, solver_failures=np.int64(2), completed=False,
@@ -226,7 +157,7 @@ def test_contract_keys_and_json() -> None:
                              "arr": np.array([1.0, np.nan]), "mode": None})
     m = compute_metrics(rec)
     assert CONTRACT_KEYS <= m.keys()
-    assert m["scenario"] == "fake" and m["scheme"] == "centralized"
+    assert m["scenario"] == "unit" and m["scheme"] == "centralized"
     assert m["steps"] == 2 and m["planned_steps"] == 10 and m["horizon"] == 5
     assert m["solver_failures"] == 2 and m["completed"] is False
     assert set(m["rms_tracking_error"]) == {"7", "3"}
@@ -276,7 +207,7 @@ def test_record_shape_checks() -> None:
 
 
 def test_trajectory_round_trip_without_pickle(tmp_path: Path) -> None:
-    sc = FakeScenario(goals=np.zeros((2, 2)), diameters=(0.3, 0.3), robot_ids=(4, 9))
+    sc = goal_scenario(np.zeros((2, 2)), diameters=(0.3, 0.3), ids=(4, 9))
     rng = np.random.default_rng(0)
     pos = rng.normal(size=(5, 2, 2))
     rec = make_record(sc, pos, inputs=rng.normal(size=(4, 2, 2)),
