@@ -47,6 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="symmetry-breaking rotation of collision normals, rad")
     run.add_argument("--keep-right-growth", type=float, default=None,
                      help="growth of the rotation per stage, rad")
+    run.add_argument("--collision-margin", type=float, default=None,
+                     help="added to every required distance in the QP, m (default 0.001); "
+                          "raise it to cover a plant that differs from the prediction model")
     run.add_argument("--slack-penalty", type=float, default=None,
                      help="L1 price of collision slacks on stages 2..N")
     run.add_argument("--detour-patience", type=int, default=None,
@@ -96,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
             else args.keep_right_angle,
             keep_right_growth=base.keep_right_growth if args.keep_right_growth is None
             else args.keep_right_growth,
+            collision_margin=base.collision_margin if args.collision_margin is None
+            else args.collision_margin,
             slack_penalty=base.slack_penalty if args.slack_penalty is None
             else args.slack_penalty,
             detour=DetourSettings(enabled=not args.no_detour) if args.detour_patience is None
