@@ -199,6 +199,8 @@ class QPLayout:
                 "external_slack": s_ext_slack, "slack": s_slack,
             },
             "A_nnz": A_rows.size,
+            "A_rows": A_rows,
+            "A_cols": A_cols,
             "A_order": A_order,
             "A_order_inverse": np.argsort(A_order),
             "A_pattern": A_pattern,
@@ -227,6 +229,16 @@ class QPLayout:
         if slacks is not None:
             z[self.n_var - self.n_slack:] = slacks
         return z
+
+    def A_times(self, values_in_entry_order: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """``A z`` for ``A`` given by its entry-order values (no matrix is built)."""
+        return np.bincount(self.A_rows, values_in_entry_order * z[self.A_cols],
+                           minlength=self.n_con)
+
+    def A_transpose_times(self, values_in_entry_order: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``A^T y`` for ``A`` given by its entry-order values (no matrix is built)."""
+        return np.bincount(self.A_cols, values_in_entry_order * y[self.A_rows],
+                           minlength=self.n_var)
 
     def csc(self, values_in_entry_order: np.ndarray, which: str) -> sp.csc_matrix:
         """A CSC matrix with this layout's pattern and the given entry-order values."""

@@ -362,9 +362,9 @@ class MultipleShootingSQP:
         complementarity :math:`|y_i|\,\mathrm{dist}_i`.
         """
         _, grad = self._cost(z)
-        A = self.layout.csc(self.qp.A_values, "A")
-        Az = A @ z
-        stat = np.abs(grad + A.T @ y).max()
+        L, A_values = self.layout, self.qp.A_values
+        Az = L.A_times(A_values, z)
+        stat = np.abs(grad + L.A_transpose_times(A_values, y)).max()
         lo, up = self.qp.lower, self.qp.upper
         prim = np.maximum(np.maximum(lo - Az, Az - up), 0.0).max()
         # complementarity on finite bounds; a multiplier pushing against an infinite

@@ -194,3 +194,13 @@ def test_vector_only_update_keeps_matrices() -> None:
     assert res.success
     P_after, _, A_after, _, _ = qp.matrices()
     assert (P_before != P_after).nnz == 0 and (A_before != A_after).nnz == 0
+
+
+def test_matrix_free_products_equal_the_csc_matrix() -> None:
+    layout = QPLayout(3, N, np.array([(0, 1), (1, 2)]), 2, True)
+    rng = np.random.default_rng(11)
+    values = rng.normal(size=layout.A_nnz)
+    z, y = rng.normal(size=layout.n_var), rng.normal(size=layout.n_con)
+    A = layout.csc(values, "A")
+    np.testing.assert_allclose(layout.A_times(values, z), A @ z, atol=1e-12)
+    np.testing.assert_allclose(layout.A_transpose_times(values, y), A.T @ y, atol=1e-12)
