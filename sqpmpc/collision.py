@@ -188,12 +188,6 @@ class PairwiseCollisionModel:
         rhs[:, 0] = np.minimum(rhs[:, 0], np.einsum("pi,pi->p", n1, now[a] - now[b]))
         return n, rhs
 
-    def residuals(self, states: np.ndarray) -> np.ndarray:
-        r"""True constraint residuals :math:`d_{jl} - \|p_j - p_l\|` ``(P, N)`` (> 0 violates)."""
-        a, b = self.pairs[:, 0], self.pairs[:, 1]
-        d = states[a, 1:, :2] - states[b, 1:, :2]
-        return self.required[:, None] - np.hypot(d[..., 0], d[..., 1])
-
 
 class ExternalCollisionModel:
     r"""Rows of one robot against neighbours whose predictions are data.

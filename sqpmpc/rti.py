@@ -144,8 +144,6 @@ class CollisionRows(Protocol):
 
     def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
-    def residuals(self, states: np.ndarray) -> np.ndarray: ...
-
 
 @dataclass
 class IterationReport:
@@ -227,6 +225,8 @@ class MultipleShootingSQP:
         self.merit_weight = 1.0
         self.samples = 0
         self.stalled_repairs = 0
+        self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
+                                               layout.external_rows.ravel()))
         first_slack = layout.n_var - layout.n_slack
         slack_rows_int = layout.slack_rows[layout.slack_internal_index - first_slack]
         slack_rows_ext = layout.slack_rows[layout.slack_external_index - first_slack]
@@ -328,28 +328,26 @@ class MultipleShootingSQP:
         q = self.qp._q_cost
         return float(0.5 * z @ (P_diag * z) + q @ z), P_diag * z + q
 
-    def _infeasibility(
-        self,
-        z: np.ndarray,
-        initial_states: np.ndarray,
-        internal: CollisionRows | None,
-        external: CollisionRows | None,
-    ) -> float:
-        """L1 norm of the nonlinear constraint violations at ``z``."""
+    def _infeasibility(self, z: np.ndarray, initial_states: np.ndarray) -> float:
+        r"""L1 norm of the constraint violations at ``z`` for the merit function.
+
+        Dynamics and initial state are measured on the nonlinear model; the
+        collision rows as the QP holds them for this iteration (separating
+        hyperplanes, slacks included). Those rows are inner approximations
+        chosen per iteration (rotated normals, the stage-1 rule), so measuring
+        them, not the raw distances, keeps the merit consistent with the QP and
+        lets full steps be accepted.
+        """
         L = self.layout
         states, inputs = L.split_primal(z)
         defect = states[:, 1:] - discrete_dynamics(
             states[:, :-1], inputs, self.sample_time, self.settings.discretization
         )
         total = np.abs(defect).sum() + np.abs(states[:, 0] - initial_states).sum()
-        for model, slack_idx in ((internal, L.slack_internal_index),
-                                 (external, L.slack_external_index)):
-            if model is None:
-                continue
-            res = model.residuals(states)
-            slack = np.zeros(res.shape)
-            slack[..., 1:] = z[slack_idx].reshape(res[..., 1:].shape)
-            total += np.maximum(res - slack, 0.0)[np.isfinite(res)].sum()
+        rows = self._collision_rows
+        if rows.size:
+            Az = L.A_times(self.qp.A_values, z)[rows]
+            total += np.maximum(self.qp.lower[rows] - Az, 0.0).sum()
         return float(total)
 
     def kkt_residual(self, z: np.ndarray, y: np.ndarray) -> float:
@@ -459,7 +457,7 @@ class MultipleShootingSQP:
                                        qp_iters, last)
             t1 = time.perf_counter()
             if sqp:
-                alpha = self._line_search(z, res, initial_states, internal, external)
+                alpha = self._line_search(z, res, initial_states)
                 z = z + alpha * (res.x - z)
                 y = y + alpha * (res.y - y)
             else:
@@ -489,14 +487,7 @@ class MultipleShootingSQP:
         z[L.input_index[stalled, :, 0]] = speed[stalled, None]
         self.stalled_repairs += int(stalled.sum())
 
-    def _line_search(
-        self,
-        z: np.ndarray,
-        res: QPResult,
-        initial_states: np.ndarray,
-        internal: CollisionRows | None,
-        external: CollisionRows | None,
-    ) -> float:
+    def _line_search(self, z: np.ndarray, res: QPResult, initial_states: np.ndarray) -> float:
         """Armijo backtracking on the L1 merit function; returns the step length."""
         dz = res.x - z
         L = self.layout
@@ -506,7 +497,7 @@ class MultipleShootingSQP:
         self.merit_weight = max(self.merit_weight, 1.5 * largest + 1.0)
         mu = self.merit_weight
         f0, g0 = self._cost(z)
-        h0 = self._infeasibility(z, initial_states, internal, external)
+        h0 = self._infeasibility(z, initial_states)
         phi0 = f0 + mu * h0
         slope = float(g0 @ dz) - mu * h0
         if slope >= 0.0:
@@ -514,7 +505,7 @@ class MultipleShootingSQP:
         alpha = 1.0
         while alpha > 1e-6:
             zt = z + alpha * dz
-            h = self._infeasibility(zt, initial_states, internal, external)
+            h = self._infeasibility(zt, initial_states)
             phi = self._cost(zt)[0] + mu * h
             if phi <= phi0 + 1e-4 * alpha * slope:
                 return alpha
