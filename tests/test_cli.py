@@ -87,7 +87,7 @@ def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
         [sys.executable, "-m", "sqpmpc", "run", str(long), "--scheme", "decentralized",
          "--out", str(out), "--no-plots", "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)
+    time.sleep(5.0)  # past the imports (a SIGINT there would not reach the run loop)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
