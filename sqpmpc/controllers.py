@@ -160,7 +160,6 @@ class _ControllerBase:
         )
         self.horizon = scenario.horizon
         self.sample_time = scenario.sample_time
-        self.failures = 0
         self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour,
                                  detour_patience)
         self._references = [scenario.robots[i].reference for i in self.indices]
@@ -210,7 +209,6 @@ class _ControllerBase:
                 plan_x, plan_u = self._plan_from(states, u0, plan_u[:, 1:])
                 return ControlOutput(u0, plan_x, plan_u, None, report,
                                      time.perf_counter() - t0)
-        self.failures += 1
         candidates = []
         if previous is not None:
             candidates.append(("shifted-plan", previous[:, 0], previous[:, 1:]))

@@ -224,7 +224,6 @@ class MultipleShootingSQP:
         self.y = np.zeros(layout.n_con)
         self.merit_weight = 1.0
         self.samples = 0
-        self.stalled_repairs = 0
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
         first_slack = layout.n_var - layout.n_slack
@@ -485,7 +484,6 @@ class MultipleShootingSQP:
         speed = np.where(ahead, s.stall_speed, -s.stall_speed)
         speed = np.clip(speed, self.input_lower[0], self.input_upper[0])
         z[L.input_index[stalled, :, 0]] = speed[stalled, None]
-        self.stalled_repairs += int(stalled.sum())
 
     def _line_search(self, z: np.ndarray, res: QPResult, initial_states: np.ndarray) -> float:
         """Armijo backtracking on the L1 merit function; returns the step length."""
