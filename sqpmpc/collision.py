@@ -208,10 +208,23 @@ class ExternalCollisionModel:
       clipped to our current position, keeps safe);
     - ``"off"``: no constraint.
 
+    **Safety check of the first stage** (:meth:`first_stage_safe`). The QP
+    rows carry the margin; the check accepts a position that keeps the *true*
+    distance whatever the neighbour does within its own rows. For a shared slot
+    with common normal :math:`n_1`, current projected gap
+    :math:`g = n_1^\top(p_j(k) - p_l(k))` and true distance :math:`D`:
+    if :math:`g \ge D + \text{margin}` both robots use the same mid-line
+    :math:`c` and each must keep :math:`n_1^\top p \ge c + D/2`; otherwise
+    (inside the margin, where the QP row only forbids approaching) each may
+    give up at most :math:`\max(0, g - D)/2`, measured from the common current
+    mid-line. Either way the two accepted positions keep
+    :math:`n_1^\top(p_j - p_l) \ge \min(D, g)`: solver tolerances cannot
+    accumulate into a collision over many samples.
+
     Parameters
     ----------
     required
-        ``(E,)`` required distances plus margin.
+        ``(E,)`` true required centre distances.
     horizon
         ``N``.
     keep_right_angle
@@ -220,12 +233,15 @@ class ExternalCollisionModel:
         Distance a neighbour can travel in one sample (``"missing"`` slots), m.
     max_turn
         Largest turn of a normal between consecutive stages (:func:`limit_turning`).
+    margin
+        Added to ``required`` in the QP rows, m.
     """
 
     def __init__(self, required: np.ndarray, horizon: int,
                  keep_right_angle: float | np.ndarray = 0.0, reach: float = 0.0,
-                 max_turn: float = 0.6):
-        self.required = np.asarray(required, dtype=float)
+                 max_turn: float = 0.6, margin: float = 0.0):
+        self.safe_distance = np.asarray(required, dtype=float)
+        self.required = self.safe_distance + float(margin)
         E = self.required.size
         self.horizon = horizon
         self.reach = float(reach)
@@ -235,6 +251,7 @@ class ExternalCollisionModel:
         self.obstacles = np.zeros((E, horizon, 2))
         self.fixed_normals = np.zeros((E, horizon, 2))
         self.fixed_rhs = np.full((E, horizon), -np.inf)
+        self.safe_rhs = np.full(E, -np.inf)
         self.current_self = np.zeros(2)
         self.current_others = np.zeros((E, 2))
         self.stage_one_rule_for_obstacles = True
@@ -270,6 +287,7 @@ class ExternalCollisionModel:
         shared = self.kind == "shared"
         self.fixed_rhs = np.full((self.required.size, self.horizon), -np.inf)
         self.fixed_normals = np.zeros((self.required.size, self.horizon, 2))
+        self.safe_rhs = np.full(self.required.size, -np.inf)
         self._shared_overrides = 0
         if not np.any(shared):
             return
@@ -292,6 +310,12 @@ class ExternalCollisionModel:
         # feasible and the pair keeps its current gap, which is safe)
         rhs[:, 0] = np.minimum(rhs[:, 0], np.einsum("ei,i->e", n1, self.current_self))
         self.fixed_rhs[shared] = rhs
+        # first-stage check on the true distance (see the class notes)
+        D = self.safe_distance[shared]
+        gap = np.einsum("ei,ei->e", n1, self.current_self - now_o)
+        mid = np.einsum("ei,ei->e", n1, 0.5 * (self.current_self + now_o))
+        self.safe_rhs[shared] = np.where(gap >= d, c[:, 0] + 0.5 * D,
+                                         mid + 0.5 * np.minimum(D, gap))
         self._shared_overrides = int(over.sum())
 
     def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -329,23 +353,27 @@ class ExternalCollisionModel:
         self.stage_one_overrides = overrides
         return normals[None], rhs[None]
 
-    def residuals(self, states: np.ndarray) -> np.ndarray:
-        """True residuals ``(1, E, N)`` (> 0 violates): linear rows or obstacle distances.
+    def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12) -> bool:
+        """Whether this robot's next position ``(2,)`` keeps every true distance.
 
-        For ``"missing"`` slots stage 1 is measured against the disk the
-        neighbour can reach in one sample; standing still counts as satisfied.
+        Shared slots: the check of the class notes. Obstacle slots: the true
+        distance to the neighbour's predicted stage 1. Missing slots: the true
+        distance plus the neighbour's one-sample reach from its current
+        position, or standing still.
         """
-        own = states[0, 1:, :2]
-        res = self.fixed_rhs - np.einsum("eni,ni->en", self.fixed_normals, own)
-        res[self.kind == "off"] = -np.inf
-        obst = (self.kind == "obstacle") | (self.kind == "missing")
+        p = np.asarray(position, dtype=float)
+        shared = self.kind == "shared"
+        if np.any(self.fixed_normals[shared, 0] @ p < self.safe_rhs[shared] - tolerance):
+            return False
+        obst = self.kind == "obstacle"
         if np.any(obst):
-            d = own[None] - self.obstacles[obst]
-            res[obst] = self.required[obst][:, None] - np.hypot(d[..., 0], d[..., 1])
+            d = p - self.obstacles[obst, 0]
+            if np.any(np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance):
+                return False
         missing = self.kind == "missing"
-        if np.any(missing):
-            d = own[0] - self.current_others[missing]
-            res[missing, 0] = self.required[missing] + self.reach - np.hypot(d[:, 0], d[:, 1])
-            if np.hypot(*(own[0] - self.current_self)) <= 1e-12:
-                res[missing, 0] = -np.inf
-        return res[None]
+        if np.any(missing) and np.hypot(*(p - self.current_self)) > 1e-12:
+            d = p - self.current_others[missing]
+            keep = self.safe_distance[missing] + self.reach
+            if np.any(np.hypot(d[:, 0], d[:, 1]) < keep - tolerance):
+                return False
+        return True

@@ -326,22 +326,17 @@ class DecentralizedController(_ControllerBase):
         self.mode = mode
         self.required = scenario.required_distances()[index, others]
         self.collisions = ExternalCollisionModel(
-            self.required + settings.collision_margin, scenario.horizon,
+            self.required, scenario.horizon,
             settings.keep_right_angles(scenario.horizon)[None, :],
             reach=scenario.sample_time * max(abs(self.input_lower[0]), abs(self.input_upper[0])),
-            max_turn=settings.max_normal_turn,
+            max_turn=settings.max_normal_turn, margin=settings.collision_margin,
         )
         self.collisions.stage_one_rule_for_obstacles = mode == "shared"
         self.published: PlanMessage | None = None
 
     def _safe(self, next_state: np.ndarray) -> bool:
-        states = np.zeros((1, self.horizon + 1, 3))
-        states[0, 1] = next_state[0]
-        res = self.collisions.residuals(states)[0, :, 0]
-        margin = self.settings.collision_margin
-        allowed = np.where(self.collisions.kind == "shared", 0.5 * margin, margin)
-        ok = np.all((res <= allowed + 1e-12) | ~np.isfinite(res))
-        return bool(ok and self._in_position_bounds(next_state[:, :2]))
+        return (self.collisions.first_stage_safe(next_state[0, :2])
+                and self._in_position_bounds(next_state[:, :2]))
 
     def neighbour_predictions(
         self,

@@ -120,6 +120,53 @@ def test_shared_hyperplanes_of_a_pair_are_the_same_line() -> None:
     np.testing.assert_allclose(r_a + r_b, req, atol=1e-12)
 
 
+@pytest.mark.parametrize("keep_right_angle", [0.3, 0.0])
+def test_decentralized_stays_safe_without_the_detour_rule(keep_right_angle: float) -> None:
+    # robots pressed together for hundreds of samples: solver tolerances accepted by the
+    # first-stage check used to accumulate into collisions (146 samples, -0.7 mm)
+    settings = SolverSettings(keep_right_angle=keep_right_angle,
+                              detour=DetourSettings(enabled=False))
+    m = compute_metrics(simulate(load_scenario("paper-s2"), "decentralized", settings))
+    assert m["collisions"] == 0 and m["min_clearance"] >= 0.0
+    assert m["input_bound_violations"] == 0
+
+
+@pytest.mark.parametrize("gap_in_margins", [0.3, 0.9, 2.5])
+def test_first_stage_checks_of_a_pair_together_keep_the_true_distance(
+    gap_in_margins: float,
+) -> None:
+    """Any two next positions the two robots' checks accept are at least ``D`` apart."""
+    sc = load_scenario("head-on")
+    a, b = DecentralizedController(sc, 1), DecentralizedController(sc, 2)
+    D = sc.required_distances()[0, 1]
+    margin = a.settings.collision_margin
+    half = 0.5 * (D + gap_in_margins * margin)
+    states = np.array([[-half, 0.01, 0.0], [half, -0.01, np.pi]])
+    N = sc.horizon
+    plans = {
+        rid: PlanMessage(rid, 0, np.tile(states[rid - 1], (N + 1, 1)), np.zeros((N, 2)))
+        for rid in (1, 2)
+    }
+    a.published, b.published = plans[1], plans[2]
+    a.step(1, 0.5, states, plans, states)
+    b.step(1, 0.5, states, plans, states)
+    rng = np.random.default_rng(1)
+    steps = rng.uniform(-2.0 * margin, 2.0 * margin, size=(4000, 2))
+    ok_a = np.array([a.collisions.first_stage_safe(states[0, :2] + s) for s in steps])
+    ok_b = np.array([b.collisions.first_stage_safe(states[1, :2] + s) for s in steps])
+    assert a.collisions.first_stage_safe(states[0, :2])  # standing still is always accepted
+    assert b.collisions.first_stage_safe(states[1, :2])
+    assert 0 < ok_a.sum() < steps.shape[0] and 0 < ok_b.sum() < steps.shape[0]
+    pa = states[0, :2] + steps[ok_a]
+    pb = states[1, :2] + steps[ok_b]
+    # worst pair: the accepted positions closest along the line of centres
+    n = (states[0, :2] - states[1, :2]) / np.linalg.norm(states[0, :2] - states[1, :2])
+    worst = (pa @ n).min() - (pb @ n).max()
+    assert worst >= min(D, 2 * half) - 1e-12
+    dist = np.linalg.norm(pa[:, None] - pb[None], axis=-1)
+    assert dist.min() >= min(D, 2 * half) - 1e-12
+
+
 def test_centralized_controller_refuses_bad_state_shapes() -> None:
     from sqpmpc.errors import ProblemError
 
