@@ -20,6 +20,7 @@ def test_paper_s2_closed_loop_is_safe_and_tracks(scheme: str) -> None:
     assert m["steps"] == 800 and m["completed"]
     assert m["collisions"] == 0
     assert m["min_clearance"] >= 0.0
+    assert m["intersample_collisions"] == 0  # nobody passes through anybody between samples
     assert m["input_bound_violations"] == 0
     assert m["solver_failures"] == 0
     assert m["max_final_position_error"] <= 0.05
@@ -39,6 +40,7 @@ def test_symmetry_breaking_rules_resolve_the_hard_encounters(name: str, scheme: 
     sc = load_scenario(name)
     m = compute_metrics(simulate(sc, scheme))
     assert m["collisions"] == 0 and m["min_clearance"] >= 0.0
+    assert m["intersample_collisions"] == 0
     assert m["max_final_position_error"] <= 0.05
     # the rules are what makes it pass, not luck: without them the robots deadlock
     settings = SolverSettings(keep_right_angle=0.0, detour=DetourSettings(enabled=False))

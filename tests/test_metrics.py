@@ -14,6 +14,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.metrics import (
     RunRecord,
     compute_metrics,
+    intersample_distances,
     load_trajectory,
     write_metrics,
     write_run,
@@ -56,6 +57,38 @@ def test_pair_distance_clearance_and_collisions() -> None:
     assert m["min_clearance"] == pytest.approx(-0.2)
     assert m["collisions"] == 1
     assert m["min_clearance_at"] == {"t": 2.0, "pair": [1, 2]}
+
+
+def test_robots_passing_through_each_other_between_samples_collide() -> None:
+    # the samples are 0.6 m apart (safe), but the straight segments cross at the same time
+    pos = [[[0, 0], [0.6, 0]], [[0.6, 0], [0.0, 0]]]
+    m = compute_metrics(make_record(two_robots(), pos))
+    assert m["collisions"] == 0 and m["min_clearance"] == pytest.approx(0.1)
+    assert m["intersample_collisions"] == 1
+    assert m["intersample_min_clearance"] == pytest.approx(-0.5)
+    # passing side by side 0.5 apart: touching, not a collision
+    pos = [[[0, 0], [0.6, 0.5]], [[0.6, 0], [0.0, 0.5]]]
+    m = compute_metrics(make_record(two_robots(), pos))
+    assert m["intersample_collisions"] == 0
+    assert m["intersample_min_clearance"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_intersample_distances_are_the_exact_segment_minimum() -> None:
+    rng = np.random.default_rng(4)
+    pos = rng.normal(size=(30, 3, 2))
+    pairs = np.array([[0, 1], [0, 2], [1, 2]])
+    exact = intersample_distances(pos, pairs)
+    s = np.linspace(0.0, 1.0, 4001)[:, None, None, None]
+    path = (1 - s) * pos[None, :-1] + s * pos[None, 1:]  # (S, 29, 3, 2)
+    dense = np.linalg.norm(path[..., pairs[:, 0], :] - path[..., pairs[:, 1], :], axis=-1)
+    dense = dense.min(axis=0)
+    assert exact.shape == (29, 3)
+    assert np.all(exact <= dense + 1e-12)
+    np.testing.assert_allclose(exact, dense, atol=1e-6)
+    # standing still: the minimum is the sample distance
+    still = np.repeat(pos[:1], 2, axis=0)
+    np.testing.assert_allclose(intersample_distances(still, pairs)[0],
+                               np.linalg.norm(pos[0, pairs[:, 0]] - pos[0, pairs[:, 1]], axis=-1))
 
 
 def test_collision_tolerance() -> None:
