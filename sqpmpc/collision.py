@@ -46,6 +46,7 @@ __all__ = [
 ]
 
 _EPS = 1e-9
+_X_AXIS = np.array([1.0, 0.0])
 
 
 def rotate(vectors: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
@@ -57,6 +58,30 @@ def rotate(vectors: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
         (c * vectors[..., 0] - s * vectors[..., 1], s * vectors[..., 0] + c * vectors[..., 1]),
         axis=-1,
     )
+
+
+def _rotation(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Cosines and sines of ``angle`` for :func:`_rotate`, ``None`` if every angle is 0."""
+    if np.all(angle == 0.0):
+        return None
+    return np.cos(angle), np.sin(angle)
+
+
+def _rotate(vectors: np.ndarray, rotation: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """:func:`rotate` with precomputed ``(cos, sin)``; ``vectors`` must have the result's shape."""
+    if rotation is None:
+        return vectors
+    c, s = rotation
+    x, y = vectors[..., 0], vectors[..., 1]
+    out = np.empty_like(vectors)
+    np.subtract(c * x, s * y, out=out[..., 0])
+    np.add(s * x, c * y, out=out[..., 1])
+    return out
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products of 2-D vectors ``(..., 2)`` (broadcast), as ``einsum("...i,...i")``."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
 def unit_normals(
@@ -72,6 +97,15 @@ def unit_normals(
     safe = dist > _EPS
     n = np.where(safe[..., None], d / np.where(safe, dist, 1.0)[..., None], fallback)
     return n, dist
+
+
+def _unit(d: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """:func:`unit_normals` of the differences ``d``, whose shape must dominate ``fallback``'s."""
+    dist = np.hypot(d[..., 0], d[..., 1])
+    safe = dist > _EPS
+    if safe.all():  # hot path: no coinciding points
+        return d / dist[..., None]
+    return np.where(safe[..., None], d / np.where(safe, dist, 1.0)[..., None], fallback)
 
 
 def limit_turning(n0: np.ndarray, normals: np.ndarray, max_turn: float) -> np.ndarray:
@@ -99,9 +133,10 @@ def limit_turning(n0: np.ndarray, normals: np.ndarray, max_turn: float) -> np.nd
         return normals
     cos_max = np.cos(max_turn)
     # common case: no raw turn exceeds the limit, so none is clamped (hot path)
-    first = np.einsum("...i,...i->...", n0, normals[..., 0, :])
-    later = np.einsum("...ni,...ni->...n", normals[..., :-1, :], normals[..., 1:, :])
-    if (first >= cos_max).all() and (later >= cos_max).all():
+    if n0.shape[:-1] != normals.shape[:-2]:
+        n0 = np.broadcast_to(n0, normals.shape[:-2] + n0.shape[-1:])
+    previous = np.concatenate((n0[..., None, :], normals[..., :-1, :]), axis=-2)
+    if (_dot(previous, normals) >= cos_max).all():
         return normals
     out = normals.copy()
     prev = n0
@@ -117,29 +152,38 @@ def limit_turning(n0: np.ndarray, normals: np.ndarray, max_turn: float) -> np.nd
 
 
 def _pair_normals(
-    now_self: np.ndarray, now_other: np.ndarray, pred_self: np.ndarray,
-    pred_other: np.ndarray, max_turn: float, angle: np.ndarray | float,
+    gap_now: np.ndarray, pred_gap: np.ndarray, max_turn: float,
+    rotation: tuple[np.ndarray, np.ndarray] | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Current normals ``(..., 2)`` and the stage normals ``(..., N, 2)`` of pairs.
+    """Current normals ``(P, 2)`` and the stage normals ``(P, N, 2)`` of pairs.
 
-    The stage normals point from the other robot's to this robot's predicted
-    positions, turn at most ``max_turn`` per stage and are rotated by ``angle``.
+    ``gap_now`` and ``pred_gap`` are the current and predicted offsets (this
+    robot minus the other). The stage normals turn at most ``max_turn`` per
+    stage and are rotated by ``rotation`` (see :func:`_rotation`).
     """
-    n0 = unit_normals(now_self, now_other, np.array([1.0, 0.0]))[0]
-    n, _ = unit_normals(pred_self, pred_other, n0[..., None, :])
-    return n0, rotate(limit_turning(n0, n, max_turn), angle)
+    n0 = _unit(gap_now, _X_AXIS)
+    n = _unit(pred_gap, n0[..., None, :])
+    return n0, _rotate(limit_turning(n0, n, max_turn), rotation)
 
 
 def _stage_one(
-    n1: np.ndarray, n_now: np.ndarray, gap_now: np.ndarray, required: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Apply the stage-1 rule; returns the normals and a mask of overridden rows.
+    n: np.ndarray, n_now: np.ndarray, gap_now: np.ndarray, required: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Apply the stage-1 rule to the stage normals ``n (P, N, 2)`` in place.
 
     ``n_now`` are the unit normals of the current positions, ``gap_now`` the
-    current offsets (this robot minus the other).
+    current offsets (this robot minus the other). Returns the stage-1 normals
+    ``(P, 2)``, their projected current gaps ``(P,)`` and the number of
+    overridden rows.
     """
-    keeps = np.einsum("...i,...i->...", n1, gap_now) >= required
-    return np.where(keeps[..., None], n1, n_now), ~keeps
+    n1 = n[:, 0]
+    gap = _dot(n1, gap_now)
+    keeps = gap >= required
+    if keeps.all():  # hot path: every Taylor normal keeps the current configuration
+        return n1, gap, 0
+    n1 = np.where(keeps[:, None], n1, n_now)
+    n[:, 0] = n1
+    return n1, _dot(n1, gap_now), int(keeps.size - np.count_nonzero(keeps))
 
 
 class PairwiseCollisionModel:
@@ -166,6 +210,7 @@ class PairwiseCollisionModel:
         self.max_turn = float(max_turn)
         self.current_positions: np.ndarray | None = None
         self.stage_one_overrides = 0
+        self._rotation = _rotation(self.keep_right_angle)
 
     def set_current_positions(self, positions: np.ndarray) -> None:
         """Measured positions ``(m, 2)`` used by the stage-1 rule."""
@@ -178,14 +223,14 @@ class PairwiseCollisionModel:
         """
         a, b = self.pairs[:, 0], self.pairs[:, 1]
         now = self.current_positions
-        n0, n = _pair_normals(now[a], now[b], states[a, 1:, :2], states[b, 1:, :2],
-                              self.max_turn, self.keep_right_angle)
-        n1, over = _stage_one(n[:, 0], n0, now[a] - now[b], self.required)
-        n[:, 0] = n1
-        self.stage_one_overrides = int(over.sum())
-        rhs = np.broadcast_to(self.required[:, None], n.shape[:2]).copy()
+        gap_now = now[a] - now[b]
+        pred = states[:, 1:, :2]
+        n0, n = _pair_normals(gap_now, pred[a] - pred[b], self.max_turn, self._rotation)
+        _, gap, self.stage_one_overrides = _stage_one(n, n0, gap_now, self.required)
+        rhs = np.empty(n.shape[:2])
+        rhs[:] = self.required[:, None]
         # never ask stage 1 for more than the current configuration has (margin included)
-        rhs[:, 0] = np.minimum(rhs[:, 0], np.einsum("pi,pi->p", n1, now[a] - now[b]))
+        np.minimum(self.required, gap, out=rhs[:, 0])
         return n, rhs
 
 
@@ -247,7 +292,6 @@ class ExternalCollisionModel:
         self.reach = float(reach)
         self.keep_right_angle = np.asarray(keep_right_angle, dtype=float)
         self.max_turn = float(max_turn)
-        self.kind = np.array(["off"] * E, dtype=object)
         self.obstacles = np.zeros((E, horizon, 2))
         self.fixed_normals = np.zeros((E, horizon, 2))
         self.fixed_rhs = np.full((E, horizon), -np.inf)
@@ -257,6 +301,30 @@ class ExternalCollisionModel:
         self.stage_one_rule_for_obstacles = True
         self._shared_overrides = 0
         self.stage_one_overrides = 0
+        self._rotation = _rotation(self.keep_right_angle)
+        self._half_required = 0.5 * self.required
+        self._kinds: tuple[str, ...] | None = None
+        self._set_kinds(["off"] * E)
+        # stage-1 normals and bounds of the shared slots, for first_stage_safe
+        self._stage_one_normals = np.zeros((0, 2))
+        self._stage_one_rhs = np.zeros(0)
+
+    def _set_kinds(self, kinds: list[str]) -> None:
+        """Slot kinds and their masks (recomputed only when the kinds change)."""
+        key = tuple(kinds)
+        if key == self._kinds:
+            return
+        self._kinds = key
+        self.kind = np.array(kinds, dtype=object)
+        self._shared = self.kind == "shared"
+        self._obstacle = self.kind == "obstacle"
+        self._missing = self.kind == "missing"
+        self._avoid = self._obstacle | self._missing
+        self._any_shared = bool(self._shared.any())
+        self._all_shared = bool(self._shared.all())
+        self._any_obstacle = bool(self._obstacle.any())
+        self._any_missing = bool(self._missing.any())
+        self._any_avoid = bool(self._avoid.any())
 
     def set_sample(
         self,
@@ -280,76 +348,82 @@ class ExternalCollisionModel:
         kinds
             Slot kinds, ``"shared"``, ``"obstacle"`` or ``"off"``.
         """
-        self.kind = np.array(kinds, dtype=object)
-        self.current_self = np.asarray(current_self, dtype=float)
+        self._set_kinds(kinds)
+        self.current_self = me = np.asarray(current_self, dtype=float)
         self.current_others = np.asarray(current_others, dtype=float)
         self.obstacles = np.asarray(other_predictions, dtype=float)
-        shared = self.kind == "shared"
-        self.fixed_rhs = np.full((self.required.size, self.horizon), -np.inf)
-        self.fixed_normals = np.zeros((self.required.size, self.horizon, 2))
-        self.safe_rhs = np.full(self.required.size, -np.inf)
         self._shared_overrides = 0
-        if not np.any(shared):
+        E, N = self.required.size, self.horizon
+        if not self._any_shared:
+            self.fixed_rhs = np.full((E, N), -np.inf)
+            self.fixed_normals = np.zeros((E, N, 2))
+            self.safe_rhs = np.full(E, -np.inf)
+            self._stage_one_normals = np.zeros((0, 2))
+            self._stage_one_rhs = np.zeros(0)
             return
-        own = np.broadcast_to(own_prediction, self.obstacles.shape)[shared]
-        oth = self.obstacles[shared]
-        d = self.required[shared]
-        half = 0.5 * d
-        now_o = self.current_others[shared]
-        n0, n = _pair_normals(self.current_self, now_o, own, oth, self.max_turn,
-                              self.keep_right_angle)
-        n1, over = _stage_one(n[:, 0], n0, self.current_self - now_o, d)
-        n[:, 0] = n1
-        c = np.einsum("eni,eni->en", n, 0.5 * (own + oth))
-        lo = np.einsum("ei,ei->e", n1, now_o) + half
-        hi = np.einsum("ei,i->e", n1, self.current_self) - half
+        # every slot shared (the usual case): plain views instead of masked copies
+        sel = slice(None) if self._all_shared else self._shared
+        own = np.asarray(own_prediction, dtype=float)
+        if own.ndim == 3:
+            own = own[sel]
+        oth = self.obstacles[sel]
+        d = self.required[sel]
+        half = self._half_required[sel]
+        now_o = self.current_others[sel]
+        gap_now = me - now_o
+        n0, n = _pair_normals(gap_now, own - oth, self.max_turn, self._rotation)
+        n1, gap, self._shared_overrides = _stage_one(n, n0, gap_now, d)
+        c = _dot(n, 0.5 * (own + oth))
+        lo = _dot(n1, now_o) + half
+        n1_me = _dot(n1, me)
+        hi = n1_me - half
         c[:, 0] = np.clip(c[:, 0], lo, np.maximum(lo, hi))
-        self.fixed_normals[shared] = n
         rhs = c + half[:, None]
         # within the margin both robots keep at least their current side (stopping stays
         # feasible and the pair keeps its current gap, which is safe)
-        rhs[:, 0] = np.minimum(rhs[:, 0], np.einsum("ei,i->e", n1, self.current_self))
-        self.fixed_rhs[shared] = rhs
+        rhs[:, 0] = np.minimum(rhs[:, 0], n1_me)
         # first-stage check on the true distance (see the class notes)
-        D = self.safe_distance[shared]
-        gap = np.einsum("ei,ei->e", n1, self.current_self - now_o)
-        mid = np.einsum("ei,ei->e", n1, 0.5 * (self.current_self + now_o))
-        self.safe_rhs[shared] = np.where(gap >= d, c[:, 0] + 0.5 * D,
-                                         mid + 0.5 * np.minimum(D, gap))
-        self._shared_overrides = int(over.sum())
+        D = self.safe_distance[sel]
+        mid = _dot(n1, 0.5 * (me + now_o))
+        safe_rhs = np.where(gap >= d, c[:, 0] + 0.5 * D, mid + 0.5 * np.minimum(D, gap))
+        if self._all_shared:
+            self.fixed_normals, self.fixed_rhs, self.safe_rhs = n, rhs, safe_rhs
+        else:
+            self.fixed_normals = np.zeros((E, N, 2))
+            self.fixed_normals[sel] = n
+            self.fixed_rhs = np.full((E, N), -np.inf)
+            self.fixed_rhs[sel] = rhs
+            self.safe_rhs = np.full(E, -np.inf)
+            self.safe_rhs[sel] = safe_rhs
+        self._stage_one_normals = np.ascontiguousarray(n[:, 0])
+        self._stage_one_rhs = safe_rhs
 
     def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Normals ``(1, E, N, 2)`` and rhs ``(1, E, N)`` at the own iterate ``(1, N+1, 3)``."""
         normals = self.fixed_normals.copy()
         rhs = self.fixed_rhs.copy()
-        obst = (self.kind == "obstacle") | (self.kind == "missing")
         overrides = self._shared_overrides
-        if np.any(obst):
+        if self._any_avoid:
+            obst = self._avoid
+            me = self.current_self
             own = states[0, 1:, :2]
             o = self.obstacles[obst]
-            n0 = unit_normals(self.current_self, self.current_others[obst],
-                              np.array([1.0, 0.0]))[0]
-            n, _ = unit_normals(own[None], o, n0[:, None, :])
-            n = rotate(n, self.keep_right_angle)
+            gap_now = me - self.current_others[obst]
+            n0 = _unit(gap_now, _X_AXIS)
+            n = _rotate(_unit(own[None] - o, n0[:, None, :]), self._rotation)
             if self.stage_one_rule_for_obstacles:
-                n1, over = _stage_one(n[:, 0], n0, self.current_self - self.current_others[obst],
-                                      self.required[obst])
-                n[:, 0] = n1
-                overrides += int(over.sum())
+                overrides += _stage_one(n, n0, gap_now, self.required[obst])[2]
             normals[obst] = n
-            rhs[obst] = np.einsum("eni,eni->en", n, o) + self.required[obst][:, None]
-            missing = self.kind == "missing"
-            if np.any(missing):
-                n0 = unit_normals(self.current_self, self.current_others[missing],
-                                  np.array([1.0, 0.0]))[0]
-                gap = np.einsum("ei,ei->e", n0, self.current_self - self.current_others[missing])
+            rhs[obst] = _dot(n, o) + self.required[obst][:, None]
+            if self._any_missing:
+                missing = self._missing
+                others = self.current_others[missing]
+                gap_now = me - others
+                n0 = _unit(gap_now, _X_AXIS)
                 keep = self.required[missing] + self.reach
                 normals[missing, 0] = n0
-                rhs[missing, 0] = np.where(
-                    gap >= keep,
-                    np.einsum("ei,ei->e", n0, self.current_others[missing]) + keep,
-                    np.einsum("ei,i->e", n0, self.current_self),
-                )
+                rhs[missing, 0] = np.where(_dot(n0, gap_now) >= keep, _dot(n0, others) + keep,
+                                           _dot(n0, me))
         self.stage_one_overrides = overrides
         return normals[None], rhs[None]
 
@@ -362,18 +436,19 @@ class ExternalCollisionModel:
         position, or standing still.
         """
         p = np.asarray(position, dtype=float)
-        shared = self.kind == "shared"
-        if np.any(self.fixed_normals[shared, 0] @ p < self.safe_rhs[shared] - tolerance):
+        if self._any_shared and (
+            self._stage_one_normals @ p < self._stage_one_rhs - tolerance
+        ).any():
             return False
-        obst = self.kind == "obstacle"
-        if np.any(obst):
+        if self._any_obstacle:
+            obst = self._obstacle
             d = p - self.obstacles[obst, 0]
-            if np.any(np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance):
+            if (np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance).any():
                 return False
-        missing = self.kind == "missing"
-        if np.any(missing) and np.hypot(*(p - self.current_self)) > 1e-12:
+        if self._any_missing and np.hypot(*(p - self.current_self)) > 1e-12:
+            missing = self._missing
             d = p - self.current_others[missing]
             keep = self.safe_distance[missing] + self.reach
-            if np.any(np.hypot(d[:, 0], d[:, 1]) < keep - tolerance):
+            if (np.hypot(d[:, 0], d[:, 1]) < keep - tolerance).any():
                 return False
         return True
