@@ -37,6 +37,7 @@ from .deadlock import DetourRule
 from .errors import ProblemError
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
+from .references import ReferenceSet
 from .rti import IterationReport, MultipleShootingSQP, SolverSettings
 from .scenario import Scenario
 
@@ -162,8 +163,10 @@ class _ControllerBase:
         self.sample_time = scenario.sample_time
         self.detour = DetourRule(self.indices, scenario.required_distances(), settings.detour,
                                  detour_patience)
-        self._references = [scenario.robots[i].reference for i in self.indices]
+        self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
+        self._position_low = self.position_lower - 1e-9
+        self._position_high = self.position_upper + 1e-9
         self.last_speed = np.zeros(self.indices.size)
         self._shifted_inputs: np.ndarray | None = None
 
@@ -173,18 +176,19 @@ class _ControllerBase:
 
     def reference(self, t: float) -> np.ndarray:
         """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""
-        times = t + self._stage_offsets
-        out = np.empty((self.indices.size, self.horizon, 2))
-        for r, ref in enumerate(self._references):
-            out[r] = ref.position(times)
-        return out
+        return self._references.positions(t + self._stage_offsets)
 
     def _next(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         return discrete_dynamics(states, inputs, self.sample_time, self.settings.discretization)
 
     def _in_position_bounds(self, positions: np.ndarray) -> bool:
-        return bool(np.all(positions >= self.position_lower - 1e-9)
-                    and np.all(positions <= self.position_upper + 1e-9))
+        return bool((positions >= self._position_low).all()
+                    and (positions <= self._position_high).all())
+
+    def _rollout(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """States ``(m, N+1, 3)`` of applying ``inputs (m, N, 2)`` from ``states (m, 3)``."""
+        return np.swapaxes(rollout(states, np.swapaxes(inputs, 0, 1), self.sample_time,
+                                   self.settings.discretization), 0, 1)
 
     def _plan_from(self, states: np.ndarray, first: np.ndarray,
                    rest: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -193,9 +197,7 @@ class _ControllerBase:
         if rest is None:
             rest = braking_input(self.input_lower, self.input_upper, (m, self.horizon - 1))
         u = np.concatenate((first[:, None], rest), axis=1)
-        x = np.swapaxes(rollout(states, np.swapaxes(u, 0, 1), self.sample_time,
-                                self.settings.discretization), 0, 1)
-        return x, u
+        return self._rollout(states, u), u
 
     def _finish(self, states: np.ndarray, report: IterationReport, t0: float,
                 safe: Callable[[np.ndarray], bool]) -> ControlOutput:
@@ -203,12 +205,15 @@ class _ControllerBase:
         previous = self._shifted_inputs
         fallback = None
         if report.success:
-            plan_x, plan_u = self.engine.states_inputs()
+            plan_u = self.engine.inputs()
             u0 = np.clip(plan_u[:, 0], self.input_lower, self.input_upper)
-            if np.all(np.isfinite(u0)) and safe(self._next(states, u0)):
-                plan_x, plan_u = self._plan_from(states, u0, plan_u[:, 1:])
-                return ControlOutput(u0, plan_x, plan_u, None, report,
-                                     time.perf_counter() - t0)
+            if np.isfinite(u0).all():
+                plan_u[:, 0] = u0
+                # stage 1 of the rollout is exactly the next state of the first input
+                plan_x = self._rollout(states, plan_u)
+                if safe(plan_x[:, 1]):
+                    return ControlOutput(u0, plan_x, plan_u, None, report,
+                                         time.perf_counter() - t0)
         candidates = []
         if previous is not None:
             candidates.append(("shifted-plan", previous[:, 0], previous[:, 1:]))
@@ -228,7 +233,7 @@ class _ControllerBase:
     def _remember_shifted(self) -> None:
         if self.engine.has_solution:
             self.engine.shift()
-            self._shifted_inputs = self.engine.states_inputs()[1].copy()
+            self._shifted_inputs = self.engine.inputs()
         else:
             self._shifted_inputs = None
 
@@ -323,6 +328,7 @@ class DecentralizedController(_ControllerBase):
         self.index = index
         self.others = others
         self.other_ids = scenario.ids[others]
+        self._neighbours = list(zip(others.tolist(), self.other_ids.tolist(), strict=True))
         self.mode = mode
         self.required = scenario.required_distances()[index, others]
         self.collisions = ExternalCollisionModel(
@@ -346,22 +352,58 @@ class DecentralizedController(_ControllerBase):
         previous_states: np.ndarray | None,
     ) -> tuple[np.ndarray, list[str]]:
         """Neighbours' predicted states ``(E, N+1, 3)`` and their slot kinds."""
-        method = self.settings.discretization
-        preds = np.empty((self.others.size, self.horizon + 1, 3))
+        preds, kinds = self._predictions(sample, states, plans, previous_states)
+        return preds[1:], kinds
+
+    def _predictions(
+        self,
+        sample: int,
+        states: np.ndarray,
+        plans: Mapping[int, PlanMessage | None],
+        previous_states: np.ndarray | None,
+    ) -> tuple[np.ndarray, list[str]]:
+        """Own published prediction and the neighbours' ``(1 + E, N+1, 3)``, the slot kinds.
+
+        Row 0 is this robot's published plan (as the neighbours see it), rows
+        ``1..E`` the neighbours. Plans one sample old (the usual case) are
+        extrapolated by one step together, others by :func:`predict_from_plan`.
+        """
+        N, method = self.horizon, self.settings.discretization
+        preds = np.empty((self.others.size + 1, N + 1, 3))
         kinds: list[str] = []
-        for e, (j, jid) in enumerate(zip(self.others, self.other_ids, strict=True)):
-            plan = plans.get(int(jid))
-            pred = None
-            if plan is not None and (self.mode == "paper" or plan.sample == sample - 1):
-                # shared hyperplanes need the plan the neighbour itself uses: the previous one
-                pred = predict_from_plan(plan, sample, self.horizon, self.sample_time, method)
+        recent: list[int] = []  # rows filled from a plan computed at sample - 1
+        last_states: list[np.ndarray] = []
+        last_inputs: list[np.ndarray] = []
+
+        def from_plan(row: int, plan: PlanMessage) -> bool:
+            if sample - plan.sample == 1 and plan.states.shape[0] == N + 1:
+                preds[row, :N] = plan.states[1:]
+                recent.append(row)
+                last_states.append(plan.states[-1])
+                last_inputs.append(plan.inputs[-1])
+                return True
+            pred = predict_from_plan(plan, sample, N, self.sample_time, method)
             if pred is None:
-                prev = None if previous_states is None else previous_states[j]
-                pred = predict_from_states(states[j], prev, self.horizon, self.sample_time, method)
-                kinds.append("missing" if self.mode == "shared" else "obstacle")
-            else:
-                kinds.append("shared" if self.mode == "shared" else "obstacle")
-            preds[e] = pred
+                return False
+            preds[row] = pred
+            return True
+
+        if self.published is None or not from_plan(0, self.published):
+            preds[0] = predict_from_states(states[self.index], None, N, self.sample_time, method)
+        shared = self.mode == "shared"
+        for row, (j, jid) in enumerate(self._neighbours, start=1):
+            plan = plans.get(jid)
+            # shared hyperplanes need the plan the neighbour itself uses: the previous one
+            if plan is not None and (not shared or plan.sample == sample - 1) and from_plan(row,
+                                                                                          plan):
+                kinds.append("shared" if shared else "obstacle")
+                continue
+            prev = None if previous_states is None else previous_states[j]
+            preds[row] = predict_from_states(states[j], prev, N, self.sample_time, method)
+            kinds.append("missing" if shared else "obstacle")
+        if recent:
+            preds[recent, N] = discrete_dynamics(np.array(last_states), np.array(last_inputs),
+                                                 self.sample_time, method)
         return preds, kinds
 
     def step(
@@ -392,16 +434,10 @@ class DecentralizedController(_ControllerBase):
         n = self.scenario.n_robots
         if states.shape != (n, 3) or not np.all(np.isfinite(states)):
             raise ProblemError(f"states must be finite with shape ({n}, 3), got {states.shape}")
-        method = self.settings.discretization
-        own = None
-        if self.published is not None:
-            own = predict_from_plan(self.published, sample, self.horizon, self.sample_time, method)
-        if own is None:
-            own = predict_from_states(states[self.index], None, self.horizon,
-                                      self.sample_time, method)
-        preds, kinds = self.neighbour_predictions(sample, states, plans, previous_states)
+        preds, kinds = self._predictions(sample, states, plans, previous_states)
         self.collisions.set_sample(
-            states[self.index, :2], states[self.others, :2], own[1:, :2], preds[:, 1:, :2], kinds
+            states[self.index, :2], states[self.others, :2], preds[0, 1:, :2],
+            preds[1:, 1:, :2], kinds,
         )
         self._remember_shifted()
         report = self.engine.solve(states[self.index][None],
@@ -410,7 +446,7 @@ class DecentralizedController(_ControllerBase):
         out = self._finish(states[self.index][None], report, t0, self._safe)
         self.last_speed = out.inputs[:, 0].copy()
         out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
-        out.info["fallback_neighbours"] = float(sum(k == "missing" for k in kinds))
+        out.info["fallback_neighbours"] = float(kinds.count("missing"))
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0].copy(),
                                      out.predicted_inputs[0].copy())
         return out

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,6 +37,7 @@ __all__ = [
     "HarmonicReference",
     "PointReference",
     "Reference",
+    "ReferenceSet",
     "WaypointReference",
     "reference_from_dict",
 ]
@@ -310,6 +311,55 @@ class WaypointReference:
 
 Reference = HarmonicReference | PointReference | WaypointReference
 """Any reference kind (a type alias usable with ``isinstance``)."""
+
+
+
+class ReferenceSet:
+    """Several references evaluated together (the hot path of the controllers).
+
+    Harmonic and point references are evaluated for all robots at once with
+    the same arithmetic as their own :meth:`position` (identical values);
+    waypoint references one by one.
+
+    Parameters
+    ----------
+    references
+        One reference per robot.
+    """
+
+    def __init__(self, references: Sequence[Reference]) -> None:
+        self.references = tuple(references)
+        m = len(self.references)
+        harmonic = [i for i, r in enumerate(self.references) if isinstance(r, HarmonicReference)]
+        points = [i for i, r in enumerate(self.references) if isinstance(r, PointReference)]
+        self._others = [i for i in range(m) if i not in harmonic and i not in points]
+        self._harmonic = slice(None) if len(harmonic) == m else np.array(harmonic, dtype=np.int64)
+        self._n_harmonic = len(harmonic)
+        # per robot (column vectors): omega, then c, s, k of x and of y
+        coeffs = np.array([(r.omega,) + r.x + r.y for r in self.references
+                           if isinstance(r, HarmonicReference)]).reshape(-1, 7)
+        self._coeffs = tuple(coeffs[:, i:i + 1] for i in range(7))
+        self._points = slice(None) if len(points) == m else np.array(points, dtype=np.int64)
+        self._n_points = len(points)
+        self._point_xy = np.array([self.references[i].position_xy for i in points]
+                                  ).reshape(-1, 1, 2)
+
+    def positions(self, times: np.ndarray) -> np.ndarray:
+        """Positions ``(m, T, 2)`` of every reference at ``times (T,)``, m."""
+        times = _as_time(times)
+        out = np.empty((len(self.references),) + times.shape + (2,))
+        if self._n_harmonic:
+            omega, cx, sx, kx, cy, sy, ky = self._coeffs
+            wt = omega * times
+            s, c = np.sin(wt), np.cos(wt)
+            out[self._harmonic, :, 0] = cx + sx * s + kx * c
+            out[self._harmonic, :, 1] = cy + sy * s + ky * c
+        if self._n_points:
+            out[self._points] = self._point_xy
+        for i in self._others:
+            out[i] = self.references[i].position(times)
+        return out
+
 
 _EXPECTED = {
     "omega": "a finite number (rad/s)",

@@ -252,6 +252,12 @@ class MultipleShootingSQP:
             raise ProblemError("no iterate yet: call solve() first")
         return self.layout.split_primal(self.z)
 
+    def inputs(self) -> np.ndarray:
+        """Inputs ``(m, N, 2)`` of the current iterate (a copy)."""
+        if self.z is None:
+            raise ProblemError("no iterate yet: call solve() first")
+        return self.z[self.layout.input_index]
+
     def set_guess(self, initial_states: np.ndarray, inputs: np.ndarray,
                   converge_first: bool = True) -> None:
         """Set the iterate to the rollout of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``.
