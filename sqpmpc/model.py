@@ -331,15 +331,18 @@ def rollout(
     x0 = np.asarray(initial_state, dtype=float)
     if method == "euler":  # closed form: headings by cumulative sums, then positions
         h = float(sample_time)
-        psi = x0[..., 2] + h * np.concatenate(
-            (np.zeros((1,) + inputs.shape[1:-1]), np.cumsum(inputs[..., 1], axis=0)), axis=0)
+        # add.accumulate is cumsum without its Python wrapper (the same sums)
+        turn = np.empty((inputs.shape[0] + 1,) + inputs.shape[1:-1])
+        turn[0] = 0.0
+        np.multiply(h, np.add.accumulate(inputs[..., 1], axis=0), out=turn[1:])
+        psi = x0[..., 2] + turn
+        hv = h * inputs[..., 0]
         step = np.empty(inputs.shape[:-1] + (2,))
-        np.multiply(h * inputs[..., 0], np.cos(psi[:-1]), out=step[..., 0])
-        np.multiply(h * inputs[..., 0], np.sin(psi[:-1]), out=step[..., 1])
-        out = np.empty((inputs.shape[0] + 1,) + np.broadcast_shapes(x0.shape, step.shape[1:-1]
-                                                                     + (3,)))
+        np.multiply(hv, np.cos(psi[:-1]), out=step[..., 0])
+        np.multiply(hv, np.sin(psi[:-1]), out=step[..., 1])
+        out = np.empty(psi.shape + (3,))
         out[0] = x0
-        out[1:, ..., :2] = x0[..., :2] + np.cumsum(step, axis=0)
+        np.add(x0[..., :2], np.add.accumulate(step, axis=0), out=out[1:, ..., :2])
         out[..., 2] = psi
         return out
     out = [x0]

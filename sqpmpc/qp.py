@@ -168,14 +168,15 @@ class SparseQP:
         self._P_diag_cost[L.state_index[:, 1:, :2]] = 2.0 * np.asarray(Q_diag, float)
         self._P_diag_cost[L.input_index] = 2.0 * np.asarray(R_diag, float)
         self._Q_diag = np.asarray(Q_diag, float)
+        self._reference_scale = -2.0 * self._Q_diag
+        self._reference_index = L.state_index[:, 1:, :2].ravel()
         self.P_values[L.P_diag_slice] = self._P_diag_cost
         self._q_cost[L.n_var - L.n_slack:] = float(slack_penalty)
         self._dirty_P = self._dirty_vec = True
 
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
-        L = self.layout
-        self._q_cost[L.state_index[:, 1:, :2]] = -2.0 * self._Q_diag * reference
+        self._q_cost[self._reference_index] = (self._reference_scale * reference).ravel()
         self._dirty_vec = True
 
     def update_initial_state(self, initial_states: np.ndarray) -> None:

@@ -224,6 +224,8 @@ class MultipleShootingSQP:
         self.y = np.zeros(layout.n_con)
         self.merit_weight = 1.0
         self.samples = 0
+        self._initial_index = np.ascontiguousarray(layout.state_index[:, 0])
+        self._speed_index = np.ascontiguousarray(layout.input_index[:, :, 0])
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
         first_slack = layout.n_var - layout.n_slack
@@ -407,7 +409,7 @@ class MultipleShootingSQP:
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
         initial_states = np.asarray(initial_states, float)
-        if initial_states.shape != (L.n_robots, 3) or not np.all(np.isfinite(initial_states)):
+        if initial_states.shape != (L.n_robots, 3) or not np.isfinite(initial_states).all():
             raise ProblemError(
                 f"initial_states must be finite with shape ({L.n_robots}, 3), "
                 f"got {initial_states.shape}"
@@ -423,7 +425,7 @@ class MultipleShootingSQP:
                 max_iterations = s.max_sqp_iterations if sqp else s.rti_max_iterations
         self.qp.update_reference(reference)
         z = self.z.copy()
-        z[L.state_index[:, 0]] = initial_states
+        z[self._initial_index] = initial_states
         if s.stall_speed > 0.0:
             self._repair_stalled(z, initial_states, reference)
         y = self.y.copy()
@@ -479,11 +481,13 @@ class MultipleShootingSQP:
                         reference: np.ndarray) -> None:
         """Move the linearization speed of stalled robots away from zero (see settings)."""
         s, L = self.settings, self.layout
-        v = z[L.input_index[:, :, 0]]
+        slow = np.maximum.reduce(np.abs(z[self._speed_index]), axis=1) < s.stall_speed
+        if not np.count_nonzero(slow):  # hot path: every robot's guess moves
+            return
         to_goal = reference[:, -1] - initial_states[:, :2]
         far = np.hypot(to_goal[:, 0], to_goal[:, 1]) > s.stall_distance
-        stalled = far & (np.abs(v).max(axis=1) < s.stall_speed)
-        if not np.any(stalled):
+        stalled = far & slow
+        if not np.count_nonzero(stalled):
             return
         ahead = (to_goal[:, 0] * np.cos(initial_states[:, 2])
                  + to_goal[:, 1] * np.sin(initial_states[:, 2])) >= 0.0
