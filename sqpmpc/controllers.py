@@ -182,8 +182,8 @@ class _ControllerBase:
         return discrete_dynamics(states, inputs, self.sample_time, self.settings.discretization)
 
     def _in_position_bounds(self, positions: np.ndarray) -> bool:
-        return bool((positions >= self._position_low).all()
-                    and (positions <= self._position_high).all())
+        inside = (positions >= self._position_low) & (positions <= self._position_high)
+        return np.count_nonzero(inside) == inside.size
 
     def _rollout(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """States ``(m, N+1, 3)`` of applying ``inputs (m, N, 2)`` from ``states (m, 3)``."""
@@ -279,7 +279,7 @@ class CentralizedController(_ControllerBase):
         """Compute the inputs of every robot at time ``t`` from the measured ``states (n, 3)``."""
         t0 = time.perf_counter()
         states = np.asarray(states, dtype=float)
-        if states.shape != (self.scenario.n_robots, 3) or not np.all(np.isfinite(states)):
+        if states.shape != (self.scenario.n_robots, 3) or not np.isfinite(states).all():
             raise ProblemError(
                 f"states must be finite with shape ({self.scenario.n_robots}, 3), "
                 f"got {states.shape}"
@@ -432,7 +432,7 @@ class DecentralizedController(_ControllerBase):
         t0 = time.perf_counter()
         states = np.asarray(states, dtype=float)
         n = self.scenario.n_robots
-        if states.shape != (n, 3) or not np.all(np.isfinite(states)):
+        if states.shape != (n, 3) or not np.isfinite(states).all():
             raise ProblemError(f"states must be finite with shape ({n}, 3), got {states.shape}")
         preds, kinds = self._predictions(sample, states, plans, previous_states)
         self.collisions.set_sample(

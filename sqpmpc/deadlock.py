@@ -73,6 +73,9 @@ class DetourRule:
         self.active_for = np.zeros(m, dtype=np.int64)
         self.blocker = np.full(m, -1, dtype=np.int64)
         self.activations = 0
+        self._rows = np.arange(m)
+        self._own_required = self.required[self.own]
+        self._cos_cone = np.cos(settings.cone)
 
     def apply(self, positions: np.ndarray, last_speed: np.ndarray,
               reference: np.ndarray) -> np.ndarray:
@@ -90,28 +93,33 @@ class DetourRule:
         s = self.settings
         if not s.enabled or positions.shape[0] < 2:
             return reference
+        slow = np.abs(last_speed) < s.speed
+        if not np.count_nonzero(slow) and not np.count_nonzero(self.active_for):
+            self.blocked_for[:] = 0  # hot path: nobody is a candidate or on a detour
+            return reference
         p = positions[self.own]  # (m, 2)
         goal = reference[:, -1] - p
         goal_dist = np.hypot(goal[:, 0], goal[:, 1])
-        candidates = (np.abs(last_speed) < s.speed) & (goal_dist > s.reach)
-        if not candidates.any() and not self.active_for.any():
+        candidates = slow & (goal_dist > s.reach)
+        if not np.count_nonzero(candidates) and not np.count_nonzero(self.active_for):
             self.blocked_for[:] = 0
             return reference
         rel = positions[None, :, :] - p[:, None, :]  # (m, n, 2)
         dist = np.hypot(rel[..., 0], rel[..., 1])
-        dist[np.arange(self.own.size), self.own] = np.inf
-        cos = np.einsum("mni,mi->mn", rel, goal) / np.maximum(dist * goal_dist[:, None], 1e-12)
-        near = dist < self.required[self.own] + s.reach
-        blocking = near & (cos > np.cos(s.cone))
+        dist[self._rows, self.own] = np.inf
+        along = rel[..., 0] * goal[:, None, 0] + rel[..., 1] * goal[:, None, 1]
+        cos = along / np.maximum(dist * goal_dist[:, None], 1e-12)
+        near = dist < self._own_required + s.reach
+        blocking = near & (cos > self._cos_cone)
         blocked = candidates & blocking.any(axis=1)
         self.blocked_for = np.where(blocked, self.blocked_for + 1, 0)
         closest = np.argmin(np.where(blocking, dist, np.inf), axis=1)
         start = blocked & (self.blocked_for >= self.patience)
-        self.activations += int(np.sum(start & (self.active_for == 0)))
+        self.activations += np.count_nonzero(start & (self.active_for == 0))
         self.blocker = np.where(start, closest, self.blocker)
         self.active_for = np.where(start, s.hold, np.maximum(self.active_for - 1, 0))
         active = self.active_for > 0
-        if not np.any(active):
+        if not np.count_nonzero(active):
             return reference
         out = reference.copy()
         for r in np.flatnonzero(active):

@@ -29,6 +29,8 @@ from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
 __all__ = ["OSQPSettings", "QPResult", "SparseQP"]
 
 _SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
+_SOLVED_EXACTLY = osqp.SolverStatus.OSQP_SOLVED
+_SIGINT = osqp.SolverStatus.OSQP_SIGINT
 
 
 @dataclass(frozen=True)
@@ -325,13 +327,13 @@ class SparseQP:
             raise SolverError(f"OSQP rejected the QP data: {exc}") from exc
         wall = time.perf_counter() - t0
         info = res.info
-        if info.status_val == osqp.SolverStatus.OSQP_SIGINT:
+        if info.status_val == _SIGINT:
             # OSQP catches Ctrl-C during a solve; hand it back to the caller
             raise KeyboardInterrupt
         x = np.array(res.x, dtype=float, copy=True)
         y = np.array(res.y, dtype=float, copy=True)
-        finite = x.size == self.layout.n_var and np.all(np.isfinite(x)) and np.all(np.isfinite(y))
-        ok_status = info.status_val == osqp.SolverStatus.OSQP_SOLVED or (
+        finite = x.size == self.layout.n_var and np.isfinite(x).all() and np.isfinite(y).all()
+        ok_status = info.status_val == _SOLVED_EXACTLY or (
             self.settings.accept_inaccurate and info.status_val in _SOLVED
         )
         return QPResult(

@@ -226,6 +226,9 @@ class MultipleShootingSQP:
         self.samples = 0
         self._initial_index = np.ascontiguousarray(layout.state_index[:, 0])
         self._speed_index = np.ascontiguousarray(layout.input_index[:, :, 0])
+        # linearization speeds of stalled robots heading towards / away from their goal
+        self._stall_speeds = np.clip([settings.stall_speed, -settings.stall_speed],
+                                     self.input_lower[0], self.input_upper[0])
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
         first_slack = layout.n_var - layout.n_slack
@@ -480,7 +483,7 @@ class MultipleShootingSQP:
     def _repair_stalled(self, z: np.ndarray, initial_states: np.ndarray,
                         reference: np.ndarray) -> None:
         """Move the linearization speed of stalled robots away from zero (see settings)."""
-        s, L = self.settings, self.layout
+        s = self.settings
         slow = np.maximum.reduce(np.abs(z[self._speed_index]), axis=1) < s.stall_speed
         if not np.count_nonzero(slow):  # hot path: every robot's guess moves
             return
@@ -491,9 +494,8 @@ class MultipleShootingSQP:
             return
         ahead = (to_goal[:, 0] * np.cos(initial_states[:, 2])
                  + to_goal[:, 1] * np.sin(initial_states[:, 2])) >= 0.0
-        speed = np.where(ahead, s.stall_speed, -s.stall_speed)
-        speed = np.clip(speed, self.input_lower[0], self.input_upper[0])
-        z[L.input_index[stalled, :, 0]] = speed[stalled, None]
+        speed = np.where(ahead, *self._stall_speeds)
+        z[self._speed_index[stalled]] = speed[stalled, None]
 
     def _line_search(self, z: np.ndarray, res: QPResult, initial_states: np.ndarray) -> float:
         """Armijo backtracking on the L1 merit function; returns the step length."""
