@@ -61,22 +61,27 @@ def rotate(vectors: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
 
 
 def _rotation(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Cosines and sines of ``angle`` for :func:`_rotate`, ``None`` if every angle is 0."""
+    """Rotation by ``angle`` for :func:`_rotate`, ``None`` if every angle is 0.
+
+    The rows ``(cos, sin)`` and ``(-sin, cos)`` of the rotation matrix, each
+    shaped ``angle.shape + (2,)``.
+    """
     if np.all(angle == 0.0):
         return None
-    return np.cos(angle), np.sin(angle)
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack((c, s), axis=-1), np.stack((-s, c), axis=-1)
 
 
 def _rotate(vectors: np.ndarray, rotation: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """:func:`rotate` with precomputed ``(cos, sin)``; ``vectors`` must have the result's shape."""
+    """:func:`rotate` with a precomputed :func:`_rotation` (the same values).
+
+    ``x (c, s) + y (-s, c)`` equals :func:`rotate`'s ``(c x - s y, s x + c y)``
+    exactly: products commute and adding a negated product is subtracting it.
+    """
     if rotation is None:
         return vectors
-    c, s = rotation
-    x, y = vectors[..., 0], vectors[..., 1]
-    out = np.empty_like(vectors)
-    np.subtract(c * x, s * y, out=out[..., 0])
-    np.add(s * x, c * y, out=out[..., 1])
-    return out
+    first, second = rotation
+    return vectors[..., :1] * first + vectors[..., 1:] * second
 
 
 def _all(mask: np.ndarray) -> bool:

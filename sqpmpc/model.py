@@ -126,11 +126,12 @@ def discrete_dynamics(
     h = float(sample_time)
     if method == "euler":
         if states.shape[:-1] == inputs.shape[:-1]:  # hot path: no broadcasting needed
-            out = states.copy()
+            psi = states[..., 2]
             hv = h * inputs[..., 0]
-            out[..., 0] += hv * np.cos(states[..., 2])
-            out[..., 1] += hv * np.sin(states[..., 2])
-            out[..., 2] += h * inputs[..., 1]
+            out = np.empty(states.shape)
+            np.add(states[..., 0], hv * np.cos(psi), out=out[..., 0])
+            np.add(states[..., 1], hv * np.sin(psi), out=out[..., 1])
+            np.add(psi, h * inputs[..., 1], out=out[..., 2])
             return out
         return states + h * continuous_dynamics(states, inputs)
     k1 = continuous_dynamics(states, inputs)

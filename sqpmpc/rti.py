@@ -231,6 +231,14 @@ class MultipleShootingSQP:
                                      self.input_lower[0], self.input_upper[0])
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
+        # A's entries on the collision rows, in entry order: A z on those rows alone,
+        # accumulated in the same order as layout.A_times
+        local = np.full(layout.n_con, -1, dtype=np.int64)
+        local[self._collision_rows] = np.arange(self._collision_rows.size)
+        on_rows = local[layout.A_rows] >= 0
+        self._collision_entries = np.flatnonzero(on_rows)
+        self._collision_entry_rows = local[layout.A_rows[on_rows]]
+        self._collision_entry_cols = layout.A_cols[on_rows]
         first_slack = layout.n_var - layout.n_slack
         slack_rows_int = layout.slack_rows[layout.slack_internal_index - first_slack]
         slack_rows_ext = layout.slack_rows[layout.slack_external_index - first_slack]
@@ -338,6 +346,10 @@ class MultipleShootingSQP:
         q = self.qp._q_cost
         return float(0.5 * z @ (P_diag * z) + q @ z), P_diag * z + q
 
+    def _cost_value(self, z: np.ndarray) -> float:
+        """The value of :meth:`_cost` alone."""
+        return float(0.5 * z @ (self.qp._P_diag_cost * z) + self.qp._q_cost @ z)
+
     def _infeasibility(self, z: np.ndarray, initial_states: np.ndarray) -> float:
         r"""L1 norm of the constraint violations at ``z`` for the merit function.
 
@@ -353,11 +365,15 @@ class MultipleShootingSQP:
         defect = states[:, 1:] - discrete_dynamics(
             states[:, :-1], inputs, self.sample_time, self.settings.discretization
         )
-        total = np.abs(defect).sum() + np.abs(states[:, 0] - initial_states).sum()
+        # add.reduce is ndarray.sum without its Python wrapper (the same sums)
+        total = (np.add.reduce(np.abs(defect), axis=None)
+                 + np.add.reduce(np.abs(states[:, 0] - initial_states), axis=None))
         rows = self._collision_rows
         if rows.size:
-            Az = L.A_times(self.qp.A_values, z)[rows]
-            total += np.maximum(self.qp.lower[rows] - Az, 0.0).sum()
+            weights = (self.qp.A_values[self._collision_entries]
+                       * z[self._collision_entry_cols])
+            Az = np.bincount(self._collision_entry_rows, weights, minlength=rows.size)
+            total += np.add.reduce(np.maximum(self.qp.lower[rows] - Az, 0.0), axis=None)
         return float(total)
 
     def kkt_residual(self, z: np.ndarray, y: np.ndarray) -> float:
@@ -516,7 +532,7 @@ class MultipleShootingSQP:
         while alpha > 1e-6:
             zt = z + alpha * dz
             h = self._infeasibility(zt, initial_states)
-            phi = self._cost(zt)[0] + mu * h
+            phi = self._cost_value(zt) + mu * h
             if phi <= phi0 + 1e-4 * alpha * slope:
                 return alpha
             alpha *= 0.5
