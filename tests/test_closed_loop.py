@@ -51,7 +51,8 @@ def test_symmetry_breaking_rules_resolve_the_hard_encounters(name: str, scheme: 
 
 def test_failed_qp_applies_a_safe_fallback_and_counts_it() -> None:
     sc = load_scenario("paper-s2").with_changes(t_end=20.0)
-    settings = SolverSettings(osqp=OSQPSettings(max_iter=1, accept_inaccurate=False))
+    settings = SolverSettings(osqp=OSQPSettings(max_iter=1, accept_inaccurate=False,
+                                                rescue_solver="none"))
     sim = ClosedLoopSimulation(sc, "centralized", settings)
     record = sim.run()
     m = compute_metrics(record)

@@ -204,3 +204,47 @@ def test_matrix_free_products_equal_the_csc_matrix() -> None:
     A = layout.csc(values, "A")
     np.testing.assert_allclose(layout.A_times(values, z), A @ z, atol=1e-12)
     np.testing.assert_allclose(layout.A_transpose_times(values, y), A.T @ y, atol=1e-12)
+
+
+def _stopped_qp(rescue_solver: str) -> tuple[SparseQP, dict]:
+    """A random QP whose OSQP solve stops after 5 ADMM iterations, unsolved."""
+    layout = QPLayout(2, N, np.array([(0, 1)]), 1, True)
+    settings = OSQPSettings(max_iter=5, accept_inaccurate=False, rescue_solver=rescue_solver)
+    qp = SparseQP(layout, settings)
+    d = random_data(np.random.default_rng(11), 2, [(0, 1)], 1, layout.n_var)
+    apply(qp, d)
+    return qp, d
+
+
+def test_a_stopped_osqp_solve_is_rescued_by_the_interior_point_solver() -> None:
+    qp, d = _stopped_qp("none")
+    res = qp.solve()
+    assert not res.success and res.status == "maximum iterations reached"
+    assert qp.rescue_count == 0
+    qp, d = _stopped_qp("clarabel")
+    res = qp.solve()
+    assert res.success and res.extra["rescued"] == 1.0 and qp.rescue_count == 1
+    assert "clarabel" in res.status and "maximum iterations" in res.status
+    # the rescued pair is a KKT point in OSQP's sign convention
+    P_ref, q_ref, A_ref, l_ref, u_ref = dense_qp(2, [(0, 1)], 1, True, d)
+    stationarity = P_ref @ res.x + q_ref + A_ref.T @ res.y
+    assert np.abs(stationarity).max() < 1e-6
+    Az = A_ref @ res.x
+    assert np.all(Az >= l_ref - 1e-7) and np.all(Az <= u_ref + 1e-7)
+    active_up = res.y > 1e-6
+    active_lo = res.y < -1e-6
+    np.testing.assert_allclose(Az[active_up], u_ref[active_up], atol=1e-6)
+    np.testing.assert_allclose(Az[active_lo], l_ref[active_lo], atol=1e-6)
+    # and agrees with OSQP run to convergence on the same data
+    full = SparseQP(qp.layout, OSQPSettings(max_iter=100000, eps_abs=1e-8, eps_rel=1e-8))
+    apply(full, d)
+    ref = full.solve()
+    assert ref.success
+    np.testing.assert_allclose(res.x, ref.x, atol=1e-5)
+
+
+def test_unknown_rescue_solver_is_refused() -> None:
+    from sqpmpc.errors import ProblemError
+
+    with pytest.raises(ProblemError, match="rescue_solver"):
+        OSQPSettings(rescue_solver="gurobi-that-is-not-installed")
