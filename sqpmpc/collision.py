@@ -42,10 +42,38 @@ __all__ = [
     "PairwiseCollisionModel",
     "limit_turning",
     "rotate",
+    "segment_distances",
     "unit_normals",
 ]
 
 _EPS = 1e-9
+
+
+def segment_distances(start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    r"""Smallest norm of :math:`r(s) = r_0 + s\,(r_1 - r_0)` over :math:`s \in [0, 1]`.
+
+    For relative positions of two robots that move on straight segments at
+    constant speed over a sample (the Euler model), this is their smallest
+    distance during the sample; for a point and a segment, the point-segment
+    distance. The minimizer is :math:`s^* = \mathrm{clip}(-r_0^\top \Delta r /
+    \|\Delta r\|^2, 0, 1)`.
+
+    Parameters
+    ----------
+    start, end
+        ``(..., 2)`` relative positions at the start and the end of the sample.
+
+    Returns
+    -------
+    np.ndarray
+        ``(...)`` the smallest distances.
+    """
+    dr = end - start
+    den = dr[..., 0] * dr[..., 0] + dr[..., 1] * dr[..., 1]
+    num = -(start[..., 0] * dr[..., 0] + start[..., 1] * dr[..., 1])
+    s = np.clip(np.divide(num, den, out=np.zeros_like(den), where=den > 0.0), 0.0, 1.0)
+    closest = start + s[..., None] * dr
+    return np.hypot(closest[..., 0], closest[..., 1])
 _X_AXIS = np.array([1.0, 0.0])
 
 
@@ -440,10 +468,13 @@ class ExternalCollisionModel:
     def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12) -> bool:
         """Whether this robot's next position ``(2,)`` keeps every true distance.
 
-        Shared slots: the check of the class notes. Obstacle slots: the true
-        distance to the neighbour's predicted stage 1. Missing slots: the true
-        distance plus the neighbour's one-sample reach from its current
-        position, or standing still.
+        Shared slots: the check of the class notes; as the current position
+        also satisfies it and the half-plane is convex, the whole straight
+        segment to the next position does, so the pair is separated during
+        the sample too. Obstacle slots: the true distance to the neighbour's
+        predicted stage 1. Missing slots: the true distance plus the
+        neighbour's one-sample reach, from its current position to every point
+        of this robot's segment, or standing still.
         """
         p = np.asarray(position, dtype=float)
         if self._any_shared and np.count_nonzero(
@@ -457,8 +488,9 @@ class ExternalCollisionModel:
                 return False
         if self._any_missing and np.hypot(*(p - self.current_self)) > 1e-12:
             missing = self._missing
-            d = p - self.current_others[missing]
+            others = self.current_others[missing]
             keep = self.safe_distance[missing] + self.reach
-            if (np.hypot(d[:, 0], d[:, 1]) < keep - tolerance).any():
+            if (segment_distances(self.current_self - others, p - others)
+                    < keep - tolerance).any():
                 return False
         return True

@@ -32,7 +32,7 @@ from typing import Literal
 
 import numpy as np
 
-from .collision import ExternalCollisionModel, PairwiseCollisionModel
+from .collision import ExternalCollisionModel, PairwiseCollisionModel, segment_distances
 from .deadlock import DetourRule
 from .errors import ProblemError
 from .layout import QPLayout
@@ -200,8 +200,11 @@ class _ControllerBase:
         return self._rollout(states, u), u
 
     def _finish(self, states: np.ndarray, report: IterationReport, t0: float,
-                safe: Callable[[np.ndarray], bool]) -> ControlOutput:
-        """Verify the QP's first input, fall back if needed, store the consistent plan."""
+                safe: Callable[[np.ndarray, np.ndarray], bool]) -> ControlOutput:
+        """Verify the QP's first input, fall back if needed, store the consistent plan.
+
+        ``safe(states, next_states)`` judges the motion over one sample.
+        """
         previous = self._shifted_inputs
         fallback = None
         if report.success:
@@ -211,7 +214,7 @@ class _ControllerBase:
                 plan_u[:, 0] = u0
                 # stage 1 of the rollout is exactly the next state of the first input
                 plan_x = self._rollout(states, plan_u)
-                if safe(plan_x[:, 1]):
+                if safe(states, plan_x[:, 1]):
                     return ControlOutput(u0, plan_x, plan_u, None, report,
                                          time.perf_counter() - t0)
         candidates = []
@@ -222,7 +225,7 @@ class _ControllerBase:
         candidates.append(("brake", brake, None))
         for name, first, rest in candidates:
             first = np.clip(first, self.input_lower, self.input_upper)
-            if name == "brake" or safe(self._next(states, first)):
+            if name == "brake" or safe(states, self._next(states, first)):
                 fallback = name
                 plan_x, plan_u = self._plan_from(states, first, rest)
                 break
@@ -267,11 +270,21 @@ class CentralizedController(_ControllerBase):
             settings.keep_right_angles(scenario.horizon)[None, :], settings.max_normal_turn,
         )
 
-    def _safe(self, next_states: np.ndarray) -> bool:
+    def _safe(self, states: np.ndarray, next_states: np.ndarray) -> bool:
+        """Every pair keeps its distance along the straight segments of the sample.
+
+        With the Euler model the robots move on straight segments at constant
+        speed, so the smallest distance of a pair during the sample is
+        :func:`~sqpmpc.collision.segment_distances` of its relative positions:
+        checking it (not only the next sample) keeps robots from passing
+        through each other between samples. (With RK4 the path is an arc; the
+        chord is then an approximation.)
+        """
         p = next_states[:, :2]
         if self.pairs.size:
-            d = p[self.pairs[:, 0]] - p[self.pairs[:, 1]]
-            if np.any(np.hypot(d[:, 0], d[:, 1]) < self.required):
+            a, b = self.pairs[:, 0], self.pairs[:, 1]
+            now = states[:, :2]
+            if (segment_distances(now[a] - now[b], p[a] - p[b]) < self.required).any():
                 return False
         return self._in_position_bounds(p)
 
@@ -340,7 +353,7 @@ class DecentralizedController(_ControllerBase):
         self.collisions.stage_one_rule_for_obstacles = mode == "shared"
         self.published: PlanMessage | None = None
 
-    def _safe(self, next_state: np.ndarray) -> bool:
+    def _safe(self, states: np.ndarray, next_state: np.ndarray) -> bool:
         return (self.collisions.first_stage_safe(next_state[0, :2])
                 and self._in_position_bounds(next_state[:, :2]))
 

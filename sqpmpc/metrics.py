@@ -55,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from .collision import segment_distances
 from .errors import ProblemError
 
 __all__ = [
@@ -220,11 +221,7 @@ def intersample_distances(positions: np.ndarray, pairs: np.ndarray) -> np.ndarra
     """
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     r = positions[:, pairs[:, 0], :] - positions[:, pairs[:, 1], :]
-    r0, dr = r[:-1], np.diff(r, axis=0)
-    den = np.einsum("...i,...i->...", dr, dr)
-    num = -np.einsum("...i,...i->...", r0, dr)
-    s = np.clip(np.divide(num, den, out=np.zeros_like(den), where=den > 0.0), 0.0, 1.0)
-    return np.linalg.norm(r0 + s[..., None] * dr, axis=-1)
+    return segment_distances(r[:-1], r[1:])
 
 
 def _float(x: Any) -> float | None:

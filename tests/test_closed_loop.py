@@ -170,6 +170,18 @@ def test_first_stage_checks_of_a_pair_together_keep_the_true_distance(
     assert dist.min() >= min(D, 2 * half) - 1e-12
 
 
+def test_centralized_check_refuses_passing_through_between_samples() -> None:
+    sc = load_scenario("head-on")
+    ctrl = CentralizedController(sc)
+    D = sc.required_distances()[0, 1]
+    now = np.array([[-0.2, 0.0, 0.0], [0.2, 0.0, np.pi]])
+    swapped = np.array([[0.2, 0.0, 0.0], [-0.2, 0.0, np.pi]])  # both ends 0.4 m > D apart
+    assert np.linalg.norm(swapped[0, :2] - swapped[1, :2]) > D
+    assert not ctrl._safe(now, swapped)
+    sidestep = np.array([[-0.2, 0.0, 0.0], [0.2, 0.5, np.pi]])
+    assert ctrl._safe(now, sidestep)
+
+
 def test_centralized_controller_refuses_bad_state_shapes() -> None:
     from sqpmpc.errors import ProblemError
 
