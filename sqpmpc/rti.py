@@ -443,6 +443,9 @@ class MultipleShootingSQP:
             else:
                 max_iterations = s.max_sqp_iterations if sqp else s.rti_max_iterations
         self.qp.update_reference(reference)
+        # a new NLP every sample: the L1 merit weight follows its own multipliers (a weight
+        # kept from a past encounter, 1000+, made every line search backtrack ~17 times)
+        self.merit_weight = 1.0
         z = self.z.copy()
         z[self._initial_index] = initial_states
         if s.stall_speed > 0.0:

@@ -107,3 +107,21 @@ def test_sqp_solution_satisfies_nlp_kkt_conditions() -> None:
     y_u = y[L.input_rows]
     assert np.all(u >= lo - 1e-6) and np.all(u <= up + 1e-6)
     assert np.abs(np.where(y_u > 0, y_u * (up - u), y_u * (u - lo))).max() < 1e-6
+
+
+def test_merit_weight_follows_each_sample_not_the_past() -> None:
+    """The L1 merit weight is set from the current sample's multipliers.
+
+    A weight kept from an encounter (multipliers in the hundreds) made later line
+    searches backtrack on every step; after the encounter it must come down again.
+    """
+    sc = load_scenario("head-on")
+    sim = ClosedLoopSimulation(sc, "centralized", SolverSettings(iteration_scheme="sqp"))
+    engine = sim.controllers[0].engine
+    weights = []
+    while sim.k < sc.steps:
+        sim.step()
+        weights.append(engine.merit_weight)
+    weights = np.array(weights)
+    assert weights.max() > 100.0  # the encounter has large multipliers
+    assert weights[-5:].max() < 0.1 * weights.max()  # and they do not linger
