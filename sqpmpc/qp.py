@@ -17,6 +17,7 @@ re-factorization.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -159,7 +160,10 @@ def solve_interior_point(
     G = sp.vstack((A[up], -A[lo])).tocsc()
     h = np.concatenate((upper[up], -lower[lo]))
     problem = qpsolvers.Problem(P, q, G, h, A[eq].tocsc(), upper[eq])
-    solution = qpsolvers.solve_problem(problem, solver=solver)
+    with warnings.catch_warnings():
+        # qpsolvers warns on a non-optimal exit; the caller reports it through the result
+        warnings.simplefilter("ignore", UserWarning)
+        solution = qpsolvers.solve_problem(problem, solver=solver)
     if not solution.found or solution.x is None or not np.all(np.isfinite(solution.x)):
         return None
     n_up = int(up.sum())
@@ -403,6 +407,8 @@ class SparseQP:
                 finite = ok_status = rescued = True
                 status = f"solved by {self.settings.rescue_solver} (OSQP: {status})"
                 self.rescue_count += 1
+            else:
+                status = f"{status}; {self.settings.rescue_solver} found no solution either"
             wall = time.perf_counter() - t0
         return QPResult(
             success=bool(finite and ok_status),
