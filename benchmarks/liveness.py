@@ -31,7 +31,8 @@ from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario, load_scenario
 from sqpmpc.simulation import simulate
 
-from .compare_ipopt import GOAL_TOLERANCE, machine_info
+from .compare_ipopt import machine_info
+from .rows import GOAL_TOLERANCE
 
 __all__ = ["perturbed", "run_family"]
 
