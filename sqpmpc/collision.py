@@ -291,6 +291,15 @@ class ExternalCollisionModel:
       clipped to our current position, keeps safe);
     - ``"off"``: no constraint.
 
+    **Touching pairs.** Inside the margin (projected gap below the required
+    distance plus margin) stage 1 only forbids approaching along :math:`n_1`.
+    A unicycle whose heading points a hair inwards then cannot move at stage
+    1, while stage 2's hyperplane, built from predictions in which the pair
+    slides apart, lets it move: the plan says "wait, then go" every sample, a
+    standoff (measured: a touching pair of swap-6 stays 3.15 m from its goals).
+    Such pairs therefore keep the stage-1 row on stage 2 as well (soft, like
+    every later stage); the plan turns first, then slides past.
+
     **Safety check of the first stage** (:meth:`first_stage_safe`). The QP
     rows carry the margin; the check accepts a position that keeps the *true*
     distance whatever the neighbour does within its own rows. For a shared slot
@@ -420,6 +429,11 @@ class ExternalCollisionModel:
         # within the margin both robots keep at least their current side (stopping stays
         # feasible and the pair keeps its current gap, which is safe)
         rhs[:, 0] = np.minimum(rhs[:, 0], n1_me)
+        # touching (inside the margin): stage 2 keeps the stage-1 row too (class notes)
+        touching = gap < d
+        if N > 1 and touching.any():
+            n[touching, 1] = n1[touching]
+            rhs[touching, 1] = n1_me[touching]
         # first-stage check on the true distance (see the class notes)
         D = self.safe_distance[sel]
         mid = _dot(n1, 0.5 * (me + now_o))

@@ -170,6 +170,26 @@ def test_first_stage_checks_of_a_pair_together_keep_the_true_distance(
     assert dist.min() >= min(D, 2 * half) - 1e-12
 
 
+def test_touching_pair_turns_and_slides_past_instead_of_waiting() -> None:
+    """Two robots of swap-6 left touching, one heading a hair inwards (a standoff state).
+
+    Without stage 2 repeating the stage-1 row of a touching pair, both plans
+    "wait, then go" every sample and the pair stays 3.15 m from its goals.
+    """
+    import dataclasses
+
+    sc = load_scenario("swap-6")
+    a = dataclasses.replace(sc.robots[0], initial_state=(0.11267, 0.09963, -4.18528))
+    b = dataclasses.replace(sc.robots[3], initial_state=(-0.14775, -0.05129, -1.04321))
+    pair = sc.with_changes(robots=(a, b), name="touching-pair")
+    D = pair.required_distances()[0, 1]
+    gap = np.hypot(0.11267 + 0.14775, 0.09963 + 0.05129)
+    assert D <= gap < D + SolverSettings().collision_margin  # inside the margin band
+    m = compute_metrics(simulate(pair, "decentralized"))
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["max_final_position_error"] <= 0.05
+
+
 def test_centralized_check_refuses_passing_through_between_samples() -> None:
     sc = load_scenario("head-on")
     ctrl = CentralizedController(sc)
