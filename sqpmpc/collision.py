@@ -43,10 +43,10 @@ __all__ = [
     "limit_turning",
     "rotate",
     "segment_distances",
-    "unit_normals",
 ]
 
 _EPS = 1e-9
+_X_AXIS = np.array([1.0, 0.0])
 
 
 def segment_distances(start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -69,12 +69,11 @@ def segment_distances(start: np.ndarray, end: np.ndarray) -> np.ndarray:
         ``(...)`` the smallest distances.
     """
     dr = end - start
-    den = dr[..., 0] * dr[..., 0] + dr[..., 1] * dr[..., 1]
-    num = -(start[..., 0] * dr[..., 0] + start[..., 1] * dr[..., 1])
+    den = _dot(dr, dr)
+    num = -_dot(start, dr)
     s = np.clip(np.divide(num, den, out=np.zeros_like(den), where=den > 0.0), 0.0, 1.0)
     closest = start + s[..., None] * dr
     return np.hypot(closest[..., 0], closest[..., 1])
-_X_AXIS = np.array([1.0, 0.0])
 
 
 def rotate(vectors: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
@@ -122,23 +121,12 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
-def unit_normals(
-    p_from: np.ndarray, p_to: np.ndarray, fallback: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    r"""Unit vectors :math:`(p_{from} - p_{to}) / \|\cdot\|` and the distances.
-
-    Where the points coincide (distance below 1e-9 m) ``fallback`` (broadcast to
-    the same shape, unit vectors) is used.
-    """
-    d = p_from - p_to
-    dist = np.hypot(d[..., 0], d[..., 1])
-    safe = dist > _EPS
-    n = np.where(safe[..., None], d / np.where(safe, dist, 1.0)[..., None], fallback)
-    return n, dist
-
-
 def _unit(d: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """:func:`unit_normals` of the differences ``d``, whose shape must dominate ``fallback``'s."""
+    """Unit vectors ``d / |d|`` of the differences ``d (..., 2)``.
+
+    Where ``|d|`` is below 1e-9 m, ``fallback`` (unit vectors; ``d``'s shape must
+    dominate its shape) is used.
+    """
     dist = np.hypot(d[..., 0], d[..., 1])
     safe = dist > _EPS
     if _all(safe):  # hot path: no coinciding points
@@ -342,7 +330,6 @@ class ExternalCollisionModel:
         self.obstacles = np.zeros((E, horizon, 2))
         self.fixed_normals = np.zeros((E, horizon, 2))
         self.fixed_rhs = np.full((E, horizon), -np.inf)
-        self.safe_rhs = np.full(E, -np.inf)
         self.current_self = np.zeros(2)
         self.current_others = np.zeros((E, 2))
         self.stage_one_rule_for_obstacles = True
@@ -404,7 +391,6 @@ class ExternalCollisionModel:
         if not self._any_shared:
             self.fixed_rhs = np.full((E, N), -np.inf)
             self.fixed_normals = np.zeros((E, N, 2))
-            self.safe_rhs = np.full(E, -np.inf)
             self._stage_one_normals = np.zeros((0, 2))
             self._stage_one_rhs = np.zeros(0)
             return
@@ -437,18 +423,16 @@ class ExternalCollisionModel:
         # first-stage check on the true distance (see the class notes)
         D = self.safe_distance[sel]
         mid = _dot(n1, 0.5 * (me + now_o))
-        safe_rhs = np.where(gap >= d, c[:, 0] + 0.5 * D, mid + 0.5 * np.minimum(D, gap))
         if self._all_shared:
-            self.fixed_normals, self.fixed_rhs, self.safe_rhs = n, rhs, safe_rhs
+            self.fixed_normals, self.fixed_rhs = n, rhs
         else:
             self.fixed_normals = np.zeros((E, N, 2))
             self.fixed_normals[sel] = n
             self.fixed_rhs = np.full((E, N), -np.inf)
             self.fixed_rhs[sel] = rhs
-            self.safe_rhs = np.full(E, -np.inf)
-            self.safe_rhs[sel] = safe_rhs
         self._stage_one_normals = np.ascontiguousarray(n[:, 0])
-        self._stage_one_rhs = safe_rhs
+        self._stage_one_rhs = np.where(gap >= d, c[:, 0] + 0.5 * D,
+                                       mid + 0.5 * np.minimum(D, gap))
 
     def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Normals ``(1, E, N, 2)`` and rhs ``(1, E, N)`` at the own iterate ``(1, N+1, 3)``."""

@@ -357,17 +357,6 @@ class DecentralizedController(_ControllerBase):
         return (self.collisions.first_stage_safe(next_state[0, :2])
                 and self._in_position_bounds(next_state[:, :2]))
 
-    def neighbour_predictions(
-        self,
-        sample: int,
-        states: np.ndarray,
-        plans: Mapping[int, PlanMessage | None],
-        previous_states: np.ndarray | None,
-    ) -> tuple[np.ndarray, list[str]]:
-        """Neighbours' predicted states ``(E, N+1, 3)`` and their slot kinds."""
-        preds, kinds = self._predictions(sample, states, plans, previous_states)
-        return preds[1:], kinds
-
     def _predictions(
         self,
         sample: int,

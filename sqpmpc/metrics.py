@@ -202,7 +202,7 @@ def intersample_distances(positions: np.ndarray, pairs: np.ndarray) -> np.ndarra
     segment from :math:`p(t_i)` to :math:`p(t_{i+1})` at constant speed, so
     the relative position of a pair is affine in time,
     :math:`r(s) = r_i + s\,(r_{i+1} - r_i)`, :math:`s \in [0, 1]`, and its
-    smallest norm is at :math:`s^* = \mathrm{clip}(-r_i^	op \Delta r /
+    smallest norm is at :math:`s^* = \mathrm{clip}(-r_i^\top \Delta r /
     \|\Delta r\|^2, 0, 1)`. Constraints imposed only at the samples (paper
     eq. 5) allow two robots to pass *through* each other between samples;
     this measures it. For an RK4 plant the segment is the chord of the arc.

@@ -33,6 +33,7 @@ __all__ = ["OSQPSettings", "QPResult", "SparseQP", "solve_interior_point"]
 _SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
 _SOLVED_EXACTLY = osqp.SolverStatus.OSQP_SOLVED
 _SIGINT = osqp.SolverStatus.OSQP_SIGINT
+_TIME_LIMIT = osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED
 
 
 @dataclass(frozen=True)
@@ -398,7 +399,7 @@ class SparseQP:
         rescued = False
         rescue_time = 0.0
         if (not (finite and ok_status) and self.settings.rescue_solver != "none"
-                and info.status_val != osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED):
+                and info.status_val != _TIME_LIMIT):
             t_rescue = time.perf_counter()
             rescue = solve_interior_point(*self.matrices(), solver=self.settings.rescue_solver)
             rescue_time = time.perf_counter() - t_rescue

@@ -342,12 +342,11 @@ class MultipleShootingSQP:
 
     # ------------------------------------------------------------ NLP values
     def _cost(self, z: np.ndarray) -> tuple[float, np.ndarray]:
-        P_diag = self.qp._P_diag_cost
-        q = self.qp._q_cost
-        return float(0.5 * z @ (P_diag * z) + q @ z), P_diag * z + q
+        """Value and gradient of the quadratic cost (curvature terms excluded)."""
+        return self._cost_value(z), self.qp._P_diag_cost * z + self.qp._q_cost
 
     def _cost_value(self, z: np.ndarray) -> float:
-        """The value of :meth:`_cost` alone."""
+        """Value of the quadratic cost alone (the line search needs no gradient)."""
         return float(0.5 * z @ (self.qp._P_diag_cost * z) + self.qp._q_cost @ z)
 
     def _infeasibility(self, z: np.ndarray, initial_states: np.ndarray) -> float:
