@@ -196,6 +196,33 @@ def test_vector_only_update_keeps_matrices() -> None:
     assert (P_before != P_after).nnz == 0 and (A_before != A_after).nnz == 0
 
 
+@pytest.mark.parametrize(("m", "pairs", "E", "pos"), CASES)
+def test_direct_osqp_calls_equal_the_public_wrapper_bitwise(m, pairs, E, pos) -> None:
+    """The fast path to OSQP's compiled solver gives exactly the wrapper's results."""
+    layout = QPLayout(m, N, np.array(pairs, dtype=np.int64).reshape(-1, 2), E, pos)
+    direct, wrapped = SparseQP(layout), SparseQP(layout)
+    wrapped.use_osqp_wrapper = True
+    rng = np.random.default_rng(5)
+    warm = None
+    for sample in range(6):
+        d = random_data(rng, m, pairs, E, layout.n_var)
+        for qp in (direct, wrapped):
+            if sample % 2:  # every other sample only vectors change
+                qp.update_reference(d["ref"])
+                qp.update_initial_state(d["x0"])
+            else:
+                apply(qp, d)
+        results = [qp.solve(*(warm or (None, None))) for qp in (direct, wrapped)]
+        assert direct._core is not None  # the fast path was taken
+        a, b = results
+        assert a.status == b.status and a.iterations == b.iterations
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.y, b.y)
+        assert (a.objective, a.primal_residual, a.dual_residual) == (
+            b.objective, b.primal_residual, b.dual_residual)
+        warm = (a.x + 0.01, a.y)
+
+
 def test_matrix_free_products_equal_the_csc_matrix() -> None:
     layout = QPLayout(3, N, np.array([(0, 1), (1, 2)]), 2, True)
     rng = np.random.default_rng(11)
