@@ -58,7 +58,7 @@ def perturbed(scenario: Scenario, seed: int, noise: float) -> Scenario:
 def run_family(scenario: Scenario, scheme: str, settings: SolverSettings, seeds: int,
                noise: float) -> dict[str, object]:
     """Run the nominal and ``seeds`` perturbed closed loops; summary counts."""
-    arrived = collisions = between = fallbacks = rescues = 0
+    arrived = collisions = between = fallbacks = rescues = gear_cycles = 0
     worst = 0.0
     failed: list[str] = []
     for seed in range(seeds + 1):
@@ -71,10 +71,12 @@ def run_family(scenario: Scenario, scheme: str, settings: SolverSettings, seeds:
         between += int(m["intersample_collisions"])
         fallbacks += int(m["solver_failures"])
         rescues += int(m.get("qp_rescues", 0))
+        gear_cycles += int(m.get("gear_cycle_samples", 0))
         if not ok:
             failed.append(f"{seed}: {err:.2f} m")
     return {"runs": seeds + 1, "arrived": arrived, "worst": worst, "collisions": collisions,
-            "between": between, "fallbacks": fallbacks, "rescues": rescues, "failed": failed}
+            "between": between, "fallbacks": fallbacks, "rescues": rescues,
+            "gear_cycles": gear_cycles, "failed": failed}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -84,20 +86,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=16, help="perturbed runs per family")
     parser.add_argument("--noise", type=float, default=1e-3, help="noise std, m and rad")
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    parser.add_argument("--schemes", nargs="+", default=["centralized", "decentralized"],
+                        choices=["centralized", "decentralized"])
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     lines = ["| scenario | scheme | rules | arrived (<= 0.05 m) | worst final error m | "
-             "collisions at / between samples | fallbacks | OSQP rescues | runs that did "
-             "not arrive (seed: error) |", "|---|---|---|---|---|---|---|---|---|"]
+             "collisions at / between samples | fallbacks | OSQP rescues | "
+             "gear-cycle SQP samples | runs that did not arrive (seed: error) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name in args.scenarios:
         scenario = load_scenario(name)
-        for scheme in ("centralized", "decentralized"):
+        for scheme in args.schemes:
             for label, settings in RULES.items():
                 r = run_family(scenario, scheme, settings, args.seeds, args.noise)
                 line = (f"| {scenario.name} | {scheme} | {label} | {r['arrived']} of "
                         f"{r['runs']} | {r['worst']:.3f} | {r['collisions']} / {r['between']} | "
-                        f"{r['fallbacks']} | {r['rescues']} | "
+                        f"{r['fallbacks']} | {r['rescues']} | {r['gear_cycles']} | "
                         f"{', '.join(r['failed']) or '-'} |")
                 print(line, file=sys.stderr, flush=True)
                 lines.append(line)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -38,7 +38,7 @@ from .errors import ProblemError
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
 from .references import ReferenceSet
-from .rti import IterationReport, MultipleShootingSQP, SolverSettings
+from .rti import CollisionRows, IterationReport, MultipleShootingSQP, SolverSettings
 from .scenario import Scenario
 
 __all__ = [
@@ -168,6 +168,8 @@ class _ControllerBase:
         self._position_low = self.position_lower - 1e-9
         self._position_high = self.position_upper + 1e-9
         self.last_speed = np.zeros(self.indices.size)
+        self._speed_before_last = np.zeros(self.indices.size)
+        self.gear_cycle_samples = 0
         self._shifted_inputs: np.ndarray | None = None
 
     def references(self, t: float, positions: np.ndarray) -> np.ndarray:
@@ -177,6 +179,37 @@ class _ControllerBase:
     def reference(self, t: float) -> np.ndarray:
         """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""
         return self._references.positions(t + self._stage_offsets)
+
+    def _solve(self, states: np.ndarray, reference: np.ndarray,
+               **rows: CollisionRows) -> IterationReport:
+        """The engine's sample; a gear 2-cycle is iterated to convergence (``gear_cycle_sqp``)."""
+        report = self.engine.solve(states, reference, **rows)
+        s = self.settings
+        if not (s.gear_cycle_sqp and s.iteration_scheme == "rti" and report.success):
+            return report
+        v = self.engine.inputs()[:, 0, 0]
+        eps = 0.1 * s.stall_speed
+        v1, v2 = self.last_speed, self._speed_before_last
+        moving = (np.abs(v) > eps) & (np.abs(v1) > eps) & (np.abs(v2) > eps)
+        cycle = moving & (np.sign(v) == np.sign(v2)) & (np.sign(v) != np.sign(v1))
+        if not np.count_nonzero(cycle) or not np.count_nonzero(
+                cycle & ~self.engine.engaged_robots(self.engine.y)):
+            return report
+        self.gear_cycle_samples += 1
+        more = self.engine.solve(states, reference, iteration_scheme="sqp", **rows)
+        last = more if more.success else report  # a failed SQP keeps the RTI iterate
+        return replace(
+            last, success=True, iterations=report.iterations + more.iterations,
+            assembly_time=report.assembly_time + more.assembly_time,
+            qp_time=report.qp_time + more.qp_time,
+            osqp_solve_time=report.osqp_solve_time + more.osqp_solve_time,
+            total_time=report.total_time + more.total_time,
+            qp_iterations=report.qp_iterations + more.qp_iterations,
+        )
+
+    def _record_speed(self, out: ControlOutput) -> None:
+        self._speed_before_last = self.last_speed
+        self.last_speed = out.inputs[:, 0].copy()
 
     def _next(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         return discrete_dynamics(states, inputs, self.sample_time, self.settings.discretization)
@@ -299,10 +332,10 @@ class CentralizedController(_ControllerBase):
             )
         self._remember_shifted()
         self.collisions.set_current_positions(states[:, :2])
-        report = self.engine.solve(states, self.references(t, states[:, :2]),
-                                   internal=self.collisions)
+        report = self._solve(states, self.references(t, states[:, :2]),
+                             internal=self.collisions)
         out = self._finish(states, report, t0, self._safe)
-        self.last_speed = out.inputs[:, 0].copy()
+        self._record_speed(out)
         out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
         return out
 
@@ -442,11 +475,10 @@ class DecentralizedController(_ControllerBase):
             preds[1:, 1:, :2], kinds,
         )
         self._remember_shifted()
-        report = self.engine.solve(states[self.index][None],
-                                   self.references(t, states[:, :2]),
-                                   external=self.collisions)
+        report = self._solve(states[self.index][None], self.references(t, states[:, :2]),
+                             external=self.collisions)
         out = self._finish(states[self.index][None], report, t0, self._safe)
-        self.last_speed = out.inputs[:, 0].copy()
+        self._record_speed(out)
         out.info["stage_one_overrides"] = float(self.collisions.stage_one_overrides)
         out.info["fallback_neighbours"] = float(kinds.count("missing"))
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0].copy(),

@@ -174,6 +174,7 @@ class ClosedLoopSimulation:
             "plant_discretization": self.plant_method,
             "qp_iterations_total": int(self.qp_iterations),
             "qp_rescues": int(sum(c.engine.qp.rescue_count for c in self.controllers)),
+            "gear_cycle_samples": int(sum(c.gear_cycle_samples for c in self.controllers)),
             "sqp_iterations_total": int(self.sqp_iterations[:k].sum()),
             "dropped_messages": int(self.dropped_messages),
             "timing_breakdown_s": {key: float(v) for key, v in self.timing.items()},

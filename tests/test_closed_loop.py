@@ -190,6 +190,44 @@ def test_touching_pair_turns_and_slides_past_instead_of_waiting() -> None:
     assert m["max_final_position_error"] <= 0.05
 
 
+def test_lone_robot_gear_two_cycle_is_iterated_away() -> None:
+    """crossing-4 with initial states off by 1 mm (seed 1): one robot, alone after the
+    crossing, alternates forward-left / reverse-right plans under plain RTI."""
+    import dataclasses
+
+    sc = load_scenario("crossing-4")
+    x0 = sc.initial_states() + np.random.default_rng(1).normal(scale=1e-3, size=(4, 3))
+    robots = tuple(dataclasses.replace(r, initial_state=tuple(map(float, x0[i])))
+                   for i, r in enumerate(sc.robots))
+    sc = sc.with_changes(robots=robots)
+    plain = simulate(sc, "decentralized", SolverSettings(gear_cycle_sqp=False))
+    m_plain = compute_metrics(plain)
+    assert m_plain["max_final_position_error"] > 1.0
+    speeds = plain.inputs[-12:, 2, 0]  # the stuck robot: the speed flips sign every sample
+    assert np.all(speeds[1:] * speeds[:-1] < 0)
+    m = compute_metrics(simulate(sc, "decentralized"))
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["max_final_position_error"] <= 0.05
+    assert 0 < m["gear_cycle_samples"] < 0.1 * m["steps"] * sc.n_robots
+
+
+def test_engaged_robots_are_those_with_an_active_collision_row() -> None:
+    sc = load_scenario("crossing-4")
+    engine = CentralizedController(sc).engine
+    L = engine.layout
+    y = np.zeros(L.n_con)
+    y[L.dyn_rows] = 5.0  # dynamics multipliers do not count
+    assert not engine.engaged_robots(y).any()
+    pair = 4  # pairs are (0,1), (0,2), (0,3), (1,2), (1,3), (2,3)
+    y[L.internal_rows[pair, 3]] = -0.01
+    np.testing.assert_array_equal(engine.engaged_robots(y), [False, True, False, True])
+    ctrl = DecentralizedController(sc, robot_id=1)
+    L = ctrl.engine.layout
+    y = np.zeros(L.n_con)
+    y[L.external_rows[0, 2, 0]] = -0.01
+    assert ctrl.engine.engaged_robots(y).tolist() == [True]
+
+
 def test_centralized_check_refuses_passing_through_between_samples() -> None:
     sc = load_scenario("head-on")
     ctrl = CentralizedController(sc)
