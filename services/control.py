@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sqpmpc.controllers import CentralizedController, DecentralizedController
 from sqpmpc.qp import OSQPSettings
 from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario
@@ -51,8 +52,10 @@ class ControllerNode(Node):
     scenario, args, name
         See :class:`~services.node.Node`; ``args.timeout`` bounds waits for
         peers' messages, ``args.startup_timeout`` (``None``: forever) the wait
-        for the plant's first state.
+        for the plant's first state. Subclasses set ``controller`` first.
     """
+
+    controller: CentralizedController | DecentralizedController
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str) -> None:
         super().__init__(scenario, args, name)
@@ -105,7 +108,9 @@ class ControllerNode(Node):
     def publish_cmd(self, robot_id: int, sample: int, u: np.ndarray, compute_time: float,
                     fallback: str | None) -> None:
         """Publish one robot's input for ``sample``."""
-        msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid)
+        c = self.controller
+        msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid,
+                     c.engine.qp.rescue_count, c.gear_cycle_samples)
         self.bus.put(encode(msg), "robot", robot_id, "cmd")
 
     def run(self) -> int:

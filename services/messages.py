@@ -17,7 +17,9 @@ type       fields (besides ``v`` and ``type``)
            or nil (wall-clock seconds the controllers have in real-time mode; nil in
            lockstep), ``scenario`` str (digest of the scenario and its overrides)
 ``cmd``    ``id`` int, ``sample`` int >= 0, ``u`` [v, omega], ``compute_time`` float >= 0 (s),
-           ``fallback`` str or nil, ``invalid`` int >= 0 (messages the sender dropped)
+           ``fallback`` str or nil, ``invalid`` int >= 0 (messages the sender dropped);
+           optional ``qp_rescues``, ``gear_cycle_samples`` int >= 0 (the sending
+           controller's totals so far, 0 when absent)
 ``plan``   ``id`` int, ``sample`` int >= 0, ``t`` float (time t_k), ``stamp`` float (sender's wall
            clock, Unix s), ``states`` (N+1) x 3, ``inputs`` N x 2
 ``done``   ``sample`` int (samples simulated), ``completed`` bool
@@ -80,6 +82,8 @@ class CmdMsg:
     compute_time: float
     fallback: str | None = None
     invalid: int = 0
+    qp_rescues: int = 0
+    gear_cycle_samples: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,7 +137,8 @@ def encode(msg: Message) -> bytes:
     elif isinstance(msg, CmdMsg):
         body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
                 "compute_time": float(msg.compute_time), "fallback": msg.fallback,
-                "invalid": int(msg.invalid)}
+                "invalid": int(msg.invalid), "qp_rescues": int(msg.qp_rescues),
+                "gear_cycle_samples": int(msg.gear_cycle_samples)}
     elif isinstance(msg, PlanMsg):
         body = {"type": "plan", "id": int(msg.id), "sample": int(msg.sample), "t": float(msg.t),
                 "stamp": float(msg.stamp), "states": _floats(msg.states),
@@ -232,7 +237,9 @@ def decode(payload: bytes, horizon: int) -> Message:
         if compute_time < 0.0:
             raise InvalidMessage(f"'compute_time' must be >= 0, got {compute_time}")
         return CmdMsg(_int(body, "id"), _int(body, "sample", 0), _array(body, "u", (2,)),
-                      compute_time, fallback, _int(body, "invalid", 0))
+                      compute_time, fallback, _int(body, "invalid", 0),
+                      *(_int(body, key, 0) if key in body else 0
+                        for key in ("qp_rescues", "gear_cycle_samples")))
     if kind == "plan":
         return PlanMsg(_int(body, "id"), _int(body, "sample", 0), _float(body, "t"),
                        _float(body, "stamp"), _array(body, "states", (horizon + 1, 3)),

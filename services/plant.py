@@ -83,6 +83,7 @@ class PlantNode(Node):
         self._missing: set[int] = set()
         self.solver_failures = 0
         self.reported_invalid: dict[str, int] = {}
+        self.reported_counts: dict[str, tuple[int, int]] = {}  # (QP rescues, gear-cycle samples)
         self.loop_wall = 0.0
         self.running = False
         self.sample_walls: list[float] = []
@@ -113,6 +114,7 @@ class PlantNode(Node):
             return
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
         self.reported_invalid[sender] = msg.invalid
+        self.reported_counts[sender] = (msg.qp_rescues, msg.gear_cycle_samples)
         if msg.sample < self.k:
             self.late_commands += 1
         else:
@@ -206,6 +208,8 @@ class PlantNode(Node):
             "lockstep_timeouts": int(self.timeouts),
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
+            "qp_rescues": int(sum(c[0] for c in self.reported_counts.values())),
+            "gear_cycle_samples": int(sum(c[1] for c in self.reported_counts.values())),
             "interrupted": signal.Signals(sig).name if sig else None,
             "plant_discretization": self.method,
             "sample_loop_wall_s": float(self.loop_wall),

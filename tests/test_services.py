@@ -26,6 +26,7 @@ from services.testing import (
     start_service,
     stop_processes,
 )
+from sqpmpc.metrics import RunRecord
 from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import load_scenario
 from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
@@ -43,11 +44,11 @@ def _launch(out: Path, *extra: str, timeout: float = 90.0) -> subprocess.Complet
                           cwd=Path(__file__).resolve().parent.parent)
 
 
-def _in_process(scheme: str, t_end: float) -> np.ndarray:
+def _in_process(scheme: str, t_end: float) -> RunRecord:
     scenario = load_scenario(SCENARIO).with_changes(t_end=t_end)
     sim = ClosedLoopSimulation(scenario, scheme, SolverSettings(),
                                SimulationOptions(decentralized_mode="shared"))
-    return sim.run().states
+    return sim.run()
 
 
 def _metrics(out: Path) -> dict:
@@ -61,7 +62,8 @@ def test_lockstep_run_reproduces_the_in_process_trajectory(tmp_path, scheme):
     assert res.returncode == 0, res.stderr
     assert "collisions" in res.stdout  # the summary
     traj = np.load(out / "trajectory.npz")
-    reference = _in_process(scheme, T_END)
+    in_process = _in_process(scheme, T_END)
+    reference = in_process.states
     assert traj["states"].shape == reference.shape == (201, 4, 3)
     assert list(traj["ids"]) == [1, 2, 3, 4]
     assert np.max(np.abs(traj["states"] - reference)) <= 1e-9
@@ -70,6 +72,9 @@ def test_lockstep_run_reproduces_the_in_process_trajectory(tmp_path, scheme):
     assert m["missed_deadlines"] == 0 and m["invalid_messages"] == 0
     assert m["collisions"] == 0
     assert m["solve_time"]["total_s"] > 0
+    # the controllers' counters reach the plant's metrics
+    for key in ("qp_rescues", "gear_cycle_samples"):
+        assert m[key] == in_process.extra[key]
 
 
 def test_realtime_run_completes(tmp_path):

@@ -179,8 +179,20 @@ def test_wrong_types_in_a_plan_are_refused(field, value):
         decode(_raw(body), N)
 
 
+def test_cmd_counters_round_trip_and_default_to_zero():
+    cmd = CmdMsg(3, 7, np.array([0.1, -0.2]), 1e-4, "brake", 2, qp_rescues=5,
+                 gear_cycle_samples=9)
+    back = decode(encode(cmd), N)
+    assert (back.qp_rescues, back.gear_cycle_samples, back.invalid) == (5, 9, 2)
+    body = _body(cmd)
+    del body["qp_rescues"], body["gear_cycle_samples"]  # an older sender
+    back = decode(_raw(body), N)
+    assert (back.qp_rescues, back.gear_cycle_samples) == (0, 0)
+
+
 @pytest.mark.parametrize("field,value", [
     ("compute_time", -1.0), ("fallback", 3), ("invalid", -2), ("u", None),
+    ("qp_rescues", -1), ("gear_cycle_samples", 1.5),
 ])
 def test_wrong_values_in_a_cmd_are_refused(field, value):
     body = _body(CmdMsg(1, 0, np.zeros(2), 0.0))
