@@ -59,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="largest turn of a pair's normal between stages, rad")
     run.add_argument("--stall-speed", type=float, default=None,
                      help="linearization speed for stalled robots, m/s (0 disables)")
+    run.add_argument("--parking-gain", type=float, default=None,
+                     help="position-weight factor near a resting reference (1 disables)")
+    run.add_argument("--no-gear-cycle-sqp", action="store_true",
+                     help="never iterate a gear 2-cycle to convergence")
     run.add_argument("--message-drop", type=float, default=0.0,
                      help="decentralized: probability that a plan message is lost")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -109,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
             max_normal_turn=base.max_normal_turn if args.max_normal_turn is None
             else args.max_normal_turn,
             stall_speed=base.stall_speed if args.stall_speed is None else args.stall_speed,
+            parking_gain=base.parking_gain if args.parking_gain is None else args.parking_gain,
+            gear_cycle_sqp=not args.no_gear_cycle_sqp,
             osqp=OSQPSettings(),
         )
         options = SimulationOptions(decentralized_mode=args.decentralized_mode,

@@ -173,8 +173,19 @@ class _ControllerBase:
         self._shifted_inputs: np.ndarray | None = None
 
     def references(self, t: float, positions: np.ndarray) -> np.ndarray:
-        """References ``(m, N, 2)`` with the detour rule applied (positions of all robots)."""
-        return self.detour.apply(positions, self.last_speed, self.reference(t))
+        """References ``(m, N, 2)`` with the detour rule applied (positions of all robots).
+
+        Also tells the engine which robots park: their scenario reference is
+        at rest over the horizon and at most ``parking_radius`` away
+        (``SolverSettings.parking_gain``).
+        """
+        raw = self.reference(t)
+        if self.settings.parking_gain != 1.0:
+            spread = np.max(np.abs(raw - raw[:, :1]), axis=(1, 2))
+            to_goal = raw[:, -1] - positions[self.indices]
+            near = np.hypot(to_goal[:, 0], to_goal[:, 1]) <= self.settings.parking_radius
+            self.engine.update_parking((spread <= 1e-9) & near)
+        return self.detour.apply(positions, self.last_speed, raw)
 
     def reference(self, t: float) -> np.ndarray:
         """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""

@@ -211,8 +211,12 @@ class SparseQP:
             self.A_values[sl[name]] = 1.0
         self.P_values = np.zeros(L.P_nnz)
         self._P_diag_cost = np.zeros(L.n_var)
+        self._P_diag_curvature = np.zeros(L.n_var)  # diagonal of the curvature blocks
         self._q_cost = np.zeros(L.n_var)
         self._q_curvature = np.zeros(L.n_var)
+        self._Q_diag = np.zeros(2)
+        self._position_scale = np.ones(L.n_robots)
+        self._reference_scale = np.zeros((L.n_robots, 1, 2))
         self.lower = np.full(L.n_con, -np.inf)
         self.upper = np.full(L.n_con, np.inf)
         self.lower[L.slack_rows] = 0.0
@@ -243,11 +247,29 @@ class SparseQP:
         self._P_diag_cost[L.state_index[:, 1:, :2]] = 2.0 * np.asarray(Q_diag, float)
         self._P_diag_cost[L.input_index] = 2.0 * np.asarray(R_diag, float)
         self._Q_diag = np.asarray(Q_diag, float)
-        self._reference_scale = -2.0 * self._Q_diag
+        self._position_scale = np.ones(L.n_robots)
+        self._reference_scale = np.broadcast_to(-2.0 * self._Q_diag, (L.n_robots, 1, 2)).copy()
         self._reference_index = L.state_index[:, 1:, :2].ravel()
-        self.P_values[L.P_diag_slice] = self._P_diag_cost
+        self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._q_cost[L.n_var - L.n_slack:] = float(slack_penalty)
         self._dirty_P = self._dirty_vec = True
+
+    def update_position_weight_scale(self, scale: np.ndarray) -> None:
+        r"""Scale the position weight of each own robot: :math:`Q_r = s_r Q`, ``scale (m,)``.
+
+        Changes ``P`` (and the reference term of ``q`` from the next
+        :meth:`update_reference` on) only where the scale changed.
+        """
+        scale = np.asarray(scale, dtype=float)
+        if np.array_equal(scale, self._position_scale):
+            return
+        L = self.layout
+        self._position_scale = scale.copy()
+        Q = scale[:, None, None] * self._Q_diag  # (m, 1, 2)
+        self._P_diag_cost[L.state_index[:, 1:, :2]] = 2.0 * Q
+        self._reference_scale = -2.0 * Q
+        self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
+        self._dirty_P = True
 
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
@@ -328,7 +350,7 @@ class SparseQP:
         :math:`q \mathrel{-}= H_c\bar z`. ``None`` removes the curvature (Gauss-Newton).
         """
         L = self.layout
-        diag = self._P_diag_cost.copy()
+        self._P_diag_curvature[:] = 0.0
         off = CURV_PATTERN[0] != CURV_PATTERN[1]
         self._q_curvature[:] = 0.0
         if blocks is None:
@@ -336,14 +358,14 @@ class SparseQP:
         else:
             idx = L.curvature_index  # (m, N, 3)
             diag_add = np.einsum("...ii->...i", blocks)
-            np.add.at(diag, idx, diag_add)
+            np.add.at(self._P_diag_curvature, idx, diag_add)
             self.P_values[L.P_curv_slice] = blocks[
                 :, :, CURV_PATTERN[0][off], CURV_PATTERN[1][off]
             ].ravel()
             zt = z_bar[idx]
             self._q_curvature[:] = 0.0
             np.add.at(self._q_curvature, idx, -np.einsum("...ij,...j->...i", blocks, zt))
-        self.P_values[L.P_diag_slice] = diag
+        self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._dirty_P = self._dirty_vec = True
 
     # -------------------------------------------------------------- matrices

@@ -69,6 +69,15 @@ def test_bad_input_gives_one_clear_error_and_status_2(tmp_path: Path, what: str,
     assert not (tmp_path / "o").exists()
 
 
+def test_bad_parking_gain_is_refused_by_name(tmp_path: Path) -> None:
+    proc = run_cli("run", "head-on", "--scheme", "centralized", "--parking-gain", "0.5",
+                   "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "parking_gain" in lines[0] and "0.5" in lines[0]
+    assert not (tmp_path / "o").exists()
+
+
 def test_overlapping_robots_are_refused(tmp_path: Path) -> None:
     sc = load_scenario("head-on")
     text = sc.to_toml().replace("initial_state = [3.0, 0.0,", "initial_state = [-2.9, 0.0,")

@@ -211,6 +211,41 @@ def test_lone_robot_gear_two_cycle_is_iterated_away() -> None:
     assert 0 < m["gear_cycle_samples"] < 0.1 * m["steps"] * sc.n_robots
 
 
+@pytest.mark.parametrize("goal_y", [0.5, 1.0])
+def test_parking_rule_reaches_a_goal_beside_the_robot(goal_y: float) -> None:
+    """With the paper's weights a unicycle stops 0.11-0.13 m short of a goal to its side."""
+    from sqpmpc.scenario import parse_scenario
+
+    sc = parse_scenario({
+        "name": "goal-beside", "t_end": 20.0, "sample_time": 0.5, "horizon": 8,
+        "weights": {"Q": [1.0, 1.0], "R": [0.5, 0.5]},
+        "bounds": {"v": [-0.6, 0.6], "omega": [-0.7853981633974483, 0.7853981633974483]},
+        "robots": [{"id": 1, "initial_state": [0.0, 0.0, 0.0], "diameter": 0.3,
+                    "reference": {"type": "waypoints", "times": [0.0, 1.0],
+                                  "points": [[0.0, goal_y], [0.0, goal_y]]}}],
+    })
+    plain = compute_metrics(simulate(sc, "centralized", SolverSettings(parking_gain=1.0)))
+    assert plain["max_final_position_error"] > 0.1
+    m = compute_metrics(simulate(sc, "centralized"))
+    assert m["max_final_position_error"] <= 0.02
+    assert m["input_bound_violations"] == 0
+
+
+def test_parking_rule_needs_a_resting_reference_nearby() -> None:
+    """Only robots within parking_radius of a reference at rest park."""
+    sc = load_scenario("crossing-4")
+    ctrl = CentralizedController(sc)
+    t_late = sc.t_end - sc.sample_time  # every reference is at rest at its goal
+    positions = ctrl.reference(t_late)[:, -1].copy()
+    positions[[0, 1, 3]] += 1.0  # robots 1, 2, 4 far from their goals
+    positions[2] += [0.1, 0.1]  # robot 3 near
+    ctrl.references(t_late, positions)
+    np.testing.assert_array_equal(ctrl.engine.qp._position_scale, [1.0, 1.0, 20.0, 1.0])
+    # at t = 0 the references move over the horizon: nobody parks, even on its reference
+    ctrl.references(0.0, ctrl.reference(0.0)[:, -1].copy())
+    np.testing.assert_array_equal(ctrl.engine.qp._position_scale, np.ones(4))
+
+
 def test_engaged_robots_are_those_with_an_active_collision_row() -> None:
     sc = load_scenario("crossing-4")
     engine = CentralizedController(sc).engine

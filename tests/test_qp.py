@@ -181,6 +181,35 @@ def test_update_in_place_equals_rebuild(m, pairs, E, pos) -> None:
     assert np.all(Az >= l_ref - 1e-7) and np.all(Az <= u_ref + 1e-7)
 
 
+def test_position_weight_scale_equals_scaled_weights() -> None:
+    """Scaling one robot's position weight equals a QP built with that weight."""
+    layout = QPLayout(3, N, np.array([(0, 1), (1, 2)]), 0, False)
+    rng = np.random.default_rng(2)
+    d = random_data(rng, 3, [(0, 1), (1, 2)], 0, layout.n_var)
+    scaled = SparseQP(layout)
+    apply(scaled, d)
+    scaled.update_position_weight_scale(np.array([1.0, 20.0, 1.0]))
+    scaled.update_reference(d["ref"])
+    P, q, A, lo, up = scaled.matrices()
+    P_ref, q_ref, A_ref, l_ref, u_ref = dense_qp(3, [(0, 1), (1, 2)], 0, False, d)
+    # robot 1's position entries: 20 times the cost part, the curvature part unchanged
+    pos = layout.state_index[1, 1:, :2].ravel()
+    cost_part = np.zeros(layout.n_var)
+    cost_part[pos] = 2.0 * np.tile(d["Q"], N)
+    expected_P = np.triu(P_ref)
+    expected_P[pos, pos] += 19.0 * cost_part[pos]
+    np.testing.assert_allclose(P.toarray(), expected_P, atol=1e-12)
+    expected_q = q_ref.copy()
+    expected_q[pos] += 19.0 * (-2.0 * (d["Q"] * d["ref"][1]).ravel())
+    np.testing.assert_allclose(q, expected_q, atol=1e-12)
+    np.testing.assert_array_equal(A.toarray(), A_ref)
+    # back to 1: exactly the unscaled QP again
+    scaled.update_position_weight_scale(np.ones(3))
+    scaled.update_reference(d["ref"])
+    np.testing.assert_allclose(scaled.matrices()[0].toarray(), np.triu(P_ref), atol=1e-12)
+    np.testing.assert_allclose(scaled.q, q_ref, atol=1e-12)
+
+
 def test_vector_only_update_keeps_matrices() -> None:
     layout = QPLayout(1, N, np.zeros((0, 2), dtype=np.int64), 1, False)
     qp = SparseQP(layout)
