@@ -31,8 +31,13 @@ log = logging.getLogger(__name__)
 
 
 def controller_settings(args: argparse.Namespace) -> SolverSettings:
-    """The library's default settings, with the QP time limit of ``--qp-time-limit``."""
-    return SolverSettings(osqp=OSQPSettings(time_limit=float(args.qp_time_limit)))
+    """The library's default settings; ``--qp-time-limit`` bounds each QP and the sample.
+
+    The same value is the sample's ``time_budget``: iterations (the first
+    sample's SQP, a gear-cycle sample) start no new QP once it is spent.
+    """
+    limit = float(args.qp_time_limit)
+    return SolverSettings(time_budget=limit, osqp=OSQPSettings(time_limit=limit))
 
 
 @dataclass

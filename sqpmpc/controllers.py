@@ -191,11 +191,16 @@ class _ControllerBase:
         """Reference positions ``(m, N, 2)`` of stages 1..N at sample time ``t``."""
         return self._references.positions(t + self._stage_offsets)
 
-    def _solve(self, states: np.ndarray, reference: np.ndarray,
+    def _solve(self, states: np.ndarray, reference: np.ndarray, t0: float,
                **rows: CollisionRows) -> IterationReport:
-        """The engine's sample; a gear 2-cycle is iterated to convergence (``gear_cycle_sqp``)."""
-        report = self.engine.solve(states, reference, **rows)
+        """The engine's sample; a gear 2-cycle is iterated to convergence (``gear_cycle_sqp``).
+
+        ``t0`` is the sample's start (``time.perf_counter()``): both calls share
+        ``settings.time_budget`` from it.
+        """
         s = self.settings
+        deadline = t0 + s.time_budget if s.time_budget > 0.0 else None
+        report = self.engine.solve(states, reference, deadline=deadline, **rows)
         if not (s.gear_cycle_sqp and s.iteration_scheme == "rti" and report.success):
             return report
         v = self.engine.inputs()[:, 0, 0]
@@ -206,8 +211,11 @@ class _ControllerBase:
         if not np.count_nonzero(cycle) or not np.count_nonzero(
                 cycle & ~self.engine.engaged_robots(self.engine.y)):
             return report
+        if deadline is not None and time.perf_counter() > deadline:
+            return report
         self.gear_cycle_samples += 1
-        more = self.engine.solve(states, reference, iteration_scheme="sqp", **rows)
+        more = self.engine.solve(states, reference, iteration_scheme="sqp", deadline=deadline,
+                                 **rows)
         last = more if more.success else report  # a failed SQP keeps the RTI iterate
         return replace(
             last, success=True, iterations=report.iterations + more.iterations,
@@ -343,7 +351,7 @@ class CentralizedController(_ControllerBase):
             )
         self._remember_shifted()
         self.collisions.set_current_positions(states[:, :2])
-        report = self._solve(states, self.references(t, states[:, :2]),
+        report = self._solve(states, self.references(t, states[:, :2]), t0,
                              internal=self.collisions)
         out = self._finish(states, report, t0, self._safe)
         self._record_speed(out)
@@ -486,7 +494,7 @@ class DecentralizedController(_ControllerBase):
             preds[1:, 1:, :2], kinds,
         )
         self._remember_shifted()
-        report = self._solve(states[self.index][None], self.references(t, states[:, :2]),
+        report = self._solve(states[self.index][None], self.references(t, states[:, :2]), t0,
                              external=self.collisions)
         out = self._finish(states[self.index][None], report, t0, self._safe)
         self._record_speed(out)

@@ -119,6 +119,12 @@ class SolverSettings:
         ordinary single gear change costs nothing; robots in an encounter are
         left to RTI because the converged OCP is what stands off in symmetric
         encounters.
+    time_budget
+        Wall-clock seconds the iterations of one sample may take (0: no
+        limit). Iterating (SQP mode, the first sample, a gear-cycle sample)
+        starts no new QP once it is spent and keeps the last iterate; the
+        first QP always runs. For real time, with ``osqp.time_limit``
+        bounding each QP.
     """
 
     iteration_scheme: Literal["rti", "sqp"] = "rti"
@@ -141,6 +147,7 @@ class SolverSettings:
     parking_radius: float = 0.25
     parking_tolerance: float = 0.01
     gear_cycle_sqp: bool = True
+    time_budget: float = 0.0
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
     detour: DetourSettings = field(default_factory=DetourSettings)
 
@@ -166,7 +173,7 @@ class SolverSettings:
         if not (np.isfinite(self.parking_gain) and self.parking_gain >= 1.0):
             raise ProblemError(f"parking_gain must be finite and >= 1, got {self.parking_gain}")
         for name in ("kkt_tolerance", "slack_penalty", "collision_margin", "stall_speed",
-                     "stall_distance", "parking_radius", "parking_tolerance"):
+                     "stall_distance", "parking_radius", "parking_tolerance", "time_budget"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ProblemError(f"{name} must be finite and >= 0, got {value}")
@@ -445,6 +452,7 @@ class MultipleShootingSQP:
         external: CollisionRows | None = None,
         max_iterations: int | None = None,
         iteration_scheme: Literal["rti", "sqp"] | None = None,
+        deadline: float | None = None,
     ) -> IterationReport:
         """Run RTI (one QP) or SQP from the current iterate.
 
@@ -460,9 +468,14 @@ class MultipleShootingSQP:
             Overrides the number of QPs (RTI: 1, SQP: ``max_sqp_iterations``).
         iteration_scheme
             Overrides ``settings.iteration_scheme`` for this call.
+        deadline
+            ``time.perf_counter()`` value after which no new QP is started
+            (the first always runs); default: ``settings.time_budget`` from now.
         """
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
+        if deadline is None and s.time_budget > 0.0:
+            deadline = t_start + s.time_budget
         initial_states = np.asarray(initial_states, float)
         if initial_states.shape != (L.n_robots, 3) or not np.isfinite(initial_states).all():
             raise ProblemError(
@@ -506,7 +519,8 @@ class MultipleShootingSQP:
                     assembly += time.perf_counter() - t0
                     break
             assembly += time.perf_counter() - t0
-            if iterations >= max_iterations:
+            if iterations >= max_iterations or (
+                    iterations and deadline is not None and time.perf_counter() > deadline):
                 break
             res = self.qp.solve(z, y)
             last = res

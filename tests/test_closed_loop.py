@@ -246,6 +246,16 @@ def test_parking_rule_needs_a_resting_reference_nearby() -> None:
     np.testing.assert_array_equal(ctrl.engine.qp._position_scale, np.ones(4))
 
 
+def test_spent_time_budget_stops_iterating_after_one_qp() -> None:
+    """SQP iterations start no new QP once the sample's time budget is spent."""
+    sc = load_scenario("head-on").with_changes(t_end=3.0)
+    free = simulate(sc, "centralized", SolverSettings(iteration_scheme="sqp"))
+    assert free.extra["sqp_iterations_total"] > free.k  # several QPs in some sample
+    spent = simulate(sc, "centralized", SolverSettings(iteration_scheme="sqp", time_budget=1e-12))
+    assert spent.extra["sqp_iterations_total"] == spent.k  # exactly one QP per sample
+    assert compute_metrics(spent)["collisions"] == 0
+
+
 def test_engaged_robots_are_those_with_an_active_collision_row() -> None:
     sc = load_scenario("crossing-4")
     engine = CentralizedController(sc).engine
