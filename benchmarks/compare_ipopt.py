@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from sqpmpc.metrics import RunRecord, compute_metrics
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario, load_scenario
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
 
 from .report import render_report

@@ -28,8 +28,8 @@ import numpy as np
 
 from sqpmpc.deadlock import DetourSettings
 from sqpmpc.metrics import compute_metrics
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario, load_scenario
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import simulate
 
 from .compare_ipopt import machine_info

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sqpmpc.rti import SolverSettings
+from sqpmpc.settings import SolverSettings
 
 from .rows import (
     GOAL_TOLERANCE,

@@ -19,8 +19,8 @@ import numpy as np
 
 from sqpmpc.controllers import CentralizedController, DecentralizedController
 from sqpmpc.qp import OSQPSettings
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario
+from sqpmpc.settings import SolverSettings
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import POLL, Node

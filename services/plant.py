@@ -36,8 +36,8 @@ import numpy as np
 from sqpmpc.controllers import braking_input
 from sqpmpc.metrics import RunRecord, write_run
 from sqpmpc.model import discrete_dynamics
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import Scenario
+from sqpmpc.settings import SolverSettings
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import Node, add_common_arguments, open_node, scenario_from_args, setup_logging

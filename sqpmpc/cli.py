@@ -18,8 +18,8 @@ from .deadlock import DetourSettings
 from .errors import ProblemError, ScenarioError
 from .metrics import write_run
 from .qp import OSQPSettings
-from .rti import SolverSettings
 from .scenario import builtin_scenario_names, load_scenario
+from .settings import SolverSettings
 from .simulation import ClosedLoopSimulation, SimulationOptions
 
 __all__ = ["build_parser", "main"]

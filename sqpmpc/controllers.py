@@ -38,8 +38,9 @@ from .errors import ProblemError
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
 from .references import ReferenceSet
-from .rti import CollisionRows, IterationReport, MultipleShootingSQP, SolverSettings
+from .rti import CollisionRows, IterationReport, MultipleShootingSQP
 from .scenario import Scenario
+from .settings import SolverSettings
 
 __all__ = [
     "CentralizedController",

@@ -24,8 +24,8 @@ from .controllers import CentralizedController, DecentralizedController, PlanMes
 from .errors import ProblemError
 from .metrics import RunRecord
 from .model import discrete_dynamics
-from .rti import SolverSettings
 from .scenario import Scenario
+from .settings import SolverSettings
 
 __all__ = ["ClosedLoopSimulation", "SimulationOptions", "simulate"]
 

@@ -9,8 +9,8 @@ from sqpmpc.controllers import CentralizedController, DecentralizedController, P
 from sqpmpc.deadlock import DetourSettings
 from sqpmpc.metrics import compute_metrics
 from sqpmpc.qp import OSQPSettings
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import load_scenario
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions, simulate
 
 

@@ -8,8 +8,8 @@ from sqpmpc.controllers import CentralizedController
 from sqpmpc.deadlock import DetourSettings
 from sqpmpc.model import discrete_dynamics
 from sqpmpc.qp import OSQPSettings
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import load_scenario
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation
 
 

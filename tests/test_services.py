@@ -27,8 +27,8 @@ from services.testing import (
     stop_processes,
 )
 from sqpmpc.metrics import RunRecord
-from sqpmpc.rti import SolverSettings
 from sqpmpc.scenario import load_scenario
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
 
 pytestmark = pytest.mark.timeout(120)
