@@ -166,6 +166,10 @@ class _ControllerBase:
                                  detour_patience)
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
+        v_max = max(abs(self.input_lower[0]), abs(self.input_upper[0]))
+        horizon_time = max(self.horizon * self.sample_time, settings.parking_horizon)
+        self.parking_radius = max(settings.parking_radius,
+                                  settings.parking_reach * v_max * horizon_time)
         self._position_low = self.position_lower - 1e-9
         self._position_high = self.position_upper + 1e-9
         self.last_speed = np.zeros(self.indices.size)
@@ -177,14 +181,14 @@ class _ControllerBase:
         """References ``(m, N, 2)`` with the detour rule applied (positions of all robots).
 
         Also tells the engine which robots park: their scenario reference is
-        at rest over the horizon and at most ``parking_radius`` away
+        at rest over the horizon and at most :attr:`parking_radius` away
         (``SolverSettings.parking_gain``).
         """
         raw = self.reference(t)
         if self.settings.parking_gain != 1.0:
             spread = np.max(np.abs(raw - raw[:, :1]), axis=(1, 2))
             to_goal = raw[:, -1] - positions[self.indices]
-            near = np.hypot(to_goal[:, 0], to_goal[:, 1]) <= self.settings.parking_radius
+            near = np.hypot(to_goal[:, 0], to_goal[:, 1]) <= self.parking_radius
             self.engine.update_parking((spread <= 1e-9) & near)
         return self.detour.apply(positions, self.last_speed, raw)
 

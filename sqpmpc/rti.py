@@ -139,6 +139,9 @@ class MultipleShootingSQP:
         self._stall_speeds = np.clip([settings.stall_speed, -settings.stall_speed],
                                      self.input_lower[0], self.input_upper[0])
         self._stall_distance = np.full(layout.n_robots, settings.stall_distance)
+        horizon_time = self.sample_time * layout.horizon
+        self.parking_gain = settings.parking_gain * max(
+            1.0, (settings.parking_horizon / horizon_time) ** 2)
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
         # A's entries on the collision rows, in entry order: A z on those rows alone,
@@ -422,7 +425,7 @@ class MultipleShootingSQP:
         """Own robots ``(m,)`` (bool) whose reference is at rest: the parking rule (settings)."""
         s = self.settings
         parking = np.asarray(parking, dtype=bool)
-        self.qp.update_position_weight_scale(np.where(parking, s.parking_gain, 1.0))
+        self.qp.update_position_weight_scale(np.where(parking, self.parking_gain, 1.0))
         self._stall_distance = np.where(parking, s.parking_tolerance, s.stall_distance)
 
     def engaged_robots(self, y: np.ndarray, tolerance: float = 1e-4) -> np.ndarray:

@@ -66,20 +66,26 @@ class SolverSettings:
         turning opens a way around an obstacle. Only the linearization point
         changes; stage 1 stays exact because its heading is measured.
         ``0`` disables.
-    parking_gain, parking_radius, parking_tolerance
+    parking_gain, parking_horizon, parking_radius, parking_reach, parking_tolerance
         Parking rule: a robot whose (scenario) reference is at rest over the
-        whole horizon and at most ``parking_radius`` away has its position
-        weight multiplied by ``parking_gain``, and is linearized at a small
-        speed (as for ``stall_speed``) while farther than
-        ``parking_tolerance`` from it. With the paper's weights the unicycle's
-        optimal plan stops short of a goal that lies to its side: turning
-        costs more input energy over the horizon than the remaining error
-        costs (converged IPOPT stops 0.07-0.17 m short of a goal 0.5-1 m to a
-        robot's side; perturbed swap-6 runs stopped 0.06-0.15 m short). The
-        radius keeps the rule out of encounters that outlast the reference
-        (measured: applied at any distance, head-on costs 756 instead of
-        460). The executed trajectory's cost is still measured with the
-        scenario's weights. ``parking_gain = 1`` disables.
+        whole horizon and within the parking radius, the larger of
+        ``parking_radius`` and ``parking_reach`` times the distance it can
+        travel in ``max(N Ts, parking_horizon)`` (``v_max`` from the bounds;
+        1.2 m with the defaults and the built-in scenarios' bounds; shorter
+        horizons stop farther short), has its position weight
+        multiplied by the parking gain, and is linearized at a small speed
+        (as for ``stall_speed``) while farther than ``parking_tolerance``. The
+        gain is ``parking_gain`` for horizons of ``parking_horizon`` seconds or
+        more and grows as ``(parking_horizon / (N Ts))^2`` below: turning by a
+        given angle within a shorter horizon costs that much more input
+        energy. With the paper's weights the unicycle's optimal plan stops
+        short of a goal that lies to its side, because turning costs more
+        input energy over the horizon than the remaining error costs:
+        converged IPOPT stops 0.07-0.17 m short of a goal 0.5-1 m to a robot's
+        side, perturbed swap-6 runs stopped 0.06-0.15 m short, and with 0.6-1.4 s
+        horizons (``Ts = 0.1 s``) lone robots stopped 0.28-1.06 m short. The
+        executed trajectory's cost is still measured with the scenario's
+        weights. ``parking_gain = 1`` disables.
     gear_cycle_sqp
         RTI only: when a robot that no collision row holds (every multiplier
         of its collision rows below 1e-4) would reverse gear for the second
@@ -118,7 +124,9 @@ class SolverSettings:
     max_normal_turn: float = 0.6
     stall_distance: float = 0.1
     parking_gain: float = 20.0
+    parking_horizon: float = 4.0
     parking_radius: float = 0.25
+    parking_reach: float = 0.5
     parking_tolerance: float = 0.01
     gear_cycle_sqp: bool = True
     time_budget: float = 0.0
@@ -147,7 +155,8 @@ class SolverSettings:
         if not (np.isfinite(self.parking_gain) and self.parking_gain >= 1.0):
             raise ProblemError(f"parking_gain must be finite and >= 1, got {self.parking_gain}")
         for name in ("kkt_tolerance", "slack_penalty", "collision_margin", "stall_speed",
-                     "stall_distance", "parking_radius", "parking_tolerance", "time_budget"):
+                     "stall_distance", "parking_horizon", "parking_radius", "parking_reach",
+                     "parking_tolerance", "time_budget"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ProblemError(f"{name} must be finite and >= 0, got {value}")

@@ -211,13 +211,16 @@ def test_lone_robot_gear_two_cycle_is_iterated_away() -> None:
     assert 0 < m["gear_cycle_samples"] < 0.1 * m["steps"] * sc.n_robots
 
 
-@pytest.mark.parametrize("goal_y", [0.5, 1.0])
-def test_parking_rule_reaches_a_goal_beside_the_robot(goal_y: float) -> None:
-    """With the paper's weights a unicycle stops 0.11-0.13 m short of a goal to its side."""
+@pytest.mark.parametrize(("goal_y", "sample_time", "horizon"),
+                         [(0.5, 0.5, 8), (1.0, 0.5, 8), (0.5, 0.1, 13), (0.8, 0.2, 6)])
+def test_parking_rule_reaches_a_goal_beside_the_robot(goal_y: float, sample_time: float,
+                                                      horizon: int) -> None:
+    """With the paper's weights a unicycle stops short of a goal to its side, the more so
+    the shorter its horizon."""
     from sqpmpc.scenario import parse_scenario
 
     sc = parse_scenario({
-        "name": "goal-beside", "t_end": 20.0, "sample_time": 0.5, "horizon": 8,
+        "name": "goal-beside", "t_end": 30.0, "sample_time": sample_time, "horizon": horizon,
         "weights": {"Q": [1.0, 1.0], "R": [0.5, 0.5]},
         "bounds": {"v": [-0.6, 0.6], "omega": [-0.7853981633974483, 0.7853981633974483]},
         "robots": [{"id": 1, "initial_state": [0.0, 0.0, 0.0], "diameter": 0.3,
