@@ -44,7 +44,7 @@ from sqpmpc.scenario import Scenario, load_scenario
 from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
 
-from .report import render_report
+from .report import publish, render_report
 from .rows import (
     COMMAND,
     DEFAULT_SCENARIOS,
@@ -283,11 +283,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_text = " ".join(sys.argv[1:] if argv is None else argv)
     command = f"{COMMAND} {argv_text}".strip()
     report = render_report(results, info, command, notes)
-    print(report)
-    if output is not None:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        output.write_text(report)
-        log(f"written {output}")
+    publish(report, output)
     return 0
 
 

@@ -37,6 +37,7 @@ from sqpmpc.scenario import Scenario, parse_scenario
 from sqpmpc.simulation import SimulationOptions, simulate
 
 from .compare_ipopt import machine_info
+from .report import publish
 from .rows import GOAL_TOLERANCE
 
 __all__ = ["random_scenario", "run_random", "safety_violations"]
@@ -159,11 +160,7 @@ Machine: {info['CPU']}, {info['cores']}, Python {info['Python']}, OSQP {info['OS
 
 {chr(10).join(lines)}
 """
-    print(report)
-    if not args.no_write:
-        DOC_PATH.parent.mkdir(parents=True, exist_ok=True)
-        DOC_PATH.write_text(report)
-        print(f"written {DOC_PATH}", file=sys.stderr)
+    publish(report, None if args.no_write else DOC_PATH)
     return 0
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -19,7 +21,7 @@ from .rows import (
     ScenarioResult,
 )
 
-__all__ = ["quality_table", "render_report", "targets_summary", "timing_table"]
+__all__ = ["publish", "quality_table", "render_report", "targets_summary", "timing_table"]
 
 
 def _f(value: float | None, digits: int = 3) -> str:
@@ -352,3 +354,12 @@ Row names: {legend}.
 
 {chr(10).join(targets_summary(results))}
 """
+
+
+def publish(report: str, path: Path | None) -> None:
+    """Print a Markdown report and, unless ``path`` is ``None``, write it there."""
+    print(report)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(report)
+        print(f"written {path}", file=sys.stderr)
