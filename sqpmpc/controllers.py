@@ -186,10 +186,11 @@ class _ControllerBase:
         """
         raw = self.reference(t)
         if self.settings.parking_gain != 1.0:
-            spread = np.max(np.abs(raw - raw[:, :1]), axis=(1, 2))
+            spread = np.abs(raw - raw[:, :1])
             to_goal = raw[:, -1] - positions[self.indices]
-            near = np.hypot(to_goal[:, 0], to_goal[:, 1]) <= self.parking_radius
-            self.engine.update_parking((spread <= 1e-9) & near)
+            self.engine.update_parking(
+                (np.max(spread, axis=(1, 2)) <= 1e-9)
+                & (np.hypot(to_goal[:, 0], to_goal[:, 1]) <= self.parking_radius))
         return self.detour.apply(positions, self.last_speed, raw)
 
     def reference(self, t: float) -> np.ndarray:

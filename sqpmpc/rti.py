@@ -139,6 +139,7 @@ class MultipleShootingSQP:
         self._stall_speeds = np.clip([settings.stall_speed, -settings.stall_speed],
                                      self.input_lower[0], self.input_upper[0])
         self._stall_distance = np.full(layout.n_robots, settings.stall_distance)
+        self._parking_key = np.zeros(layout.n_robots, dtype=bool).tobytes()
         horizon_time = self.sample_time * layout.horizon
         self.parking_gain = settings.parking_gain * max(
             1.0, (settings.parking_horizon / horizon_time) ** 2)
@@ -423,8 +424,12 @@ class MultipleShootingSQP:
 
     def update_parking(self, parking: np.ndarray) -> None:
         """Own robots ``(m,)`` (bool) whose reference is at rest: the parking rule (settings)."""
-        s = self.settings
         parking = np.asarray(parking, dtype=bool)
+        key = parking.tobytes()
+        if key == self._parking_key:  # hot path: nothing changed since the last sample
+            return
+        self._parking_key = key
+        s = self.settings
         self.qp.update_position_weight_scale(np.where(parking, self.parking_gain, 1.0))
         self._stall_distance = np.where(parking, s.parking_tolerance, s.stall_distance)
 
