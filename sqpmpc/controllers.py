@@ -2,8 +2,11 @@ r"""Centralized (paper Algorithm 3.1) and decentralized (Algorithm 3.2) NMPC con
 
 Both wrap :class:`sqpmpc.rti.MultipleShootingSQP`. Every sample a controller
 
-1. shifts its previous solution and linearizes around it,
-2. solves the QP (RTI) or iterates (SQP),
+1. shifts its previous solution and linearizes around it (robots near a
+   reference at rest get the parking weights, see ``SolverSettings``),
+2. solves the QP (RTI) or iterates (SQP); in RTI a robot free of collision
+   rows that would reverse gear a second sample in a row has that sample
+   iterated to convergence (``gear_cycle_sqp``),
 3. clips the first input to its bounds and *verifies* it on the nonlinear
    model: the next positions must satisfy the stage-1 collision rows (and
    position bounds). A failed QP, a non-finite output or a failed check applies
