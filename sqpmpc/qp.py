@@ -218,6 +218,7 @@ class SparseQP:
         self._Q_diag = np.zeros(2)
         self._position_scale = np.ones(L.n_robots)
         self._reference_scale = np.zeros((L.n_robots, 1, 2))
+        self._reference_index = L.state_index[:, 1:, :2].ravel()
         self.lower = np.full(L.n_con, -np.inf)
         self.upper = np.full(L.n_con, np.inf)
         self.lower[L.slack_rows] = 0.0
@@ -245,12 +246,9 @@ class SparseQP:
         """
         L = self.layout
         self._P_diag_cost[:] = 0.0
-        self._P_diag_cost[L.state_index[:, 1:, :2]] = 2.0 * np.asarray(Q_diag, float)
         self._P_diag_cost[L.input_index] = 2.0 * np.asarray(R_diag, float)
         self._Q_diag = np.asarray(Q_diag, float)
-        self._position_scale = np.ones(L.n_robots)
-        self._reference_scale = np.broadcast_to(-2.0 * self._Q_diag, (L.n_robots, 1, 2)).copy()
-        self._reference_index = L.state_index[:, 1:, :2].ravel()
+        self._write_position_weights(np.ones(L.n_robots))
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._q_cost[L.n_var - L.n_slack:] = float(slack_penalty)
         self._dirty_P = self._dirty_vec = True
@@ -265,12 +263,16 @@ class SparseQP:
         if np.array_equal(scale, self._position_scale):
             return
         L = self.layout
-        self._position_scale = scale.copy()
-        Q = scale[:, None, None] * self._Q_diag  # (m, 1, 2)
-        self._P_diag_cost[L.state_index[:, 1:, :2]] = 2.0 * Q
-        self._reference_scale = -2.0 * Q
+        self._write_position_weights(scale)
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._dirty_P = True
+
+    def _write_position_weights(self, scale: np.ndarray) -> None:
+        """Position weights :math:`s_r Q` into ``P``'s cost diagonal and the reference scale."""
+        Q = scale[:, None, None] * self._Q_diag  # (m, 1, 2)
+        self._position_scale = scale.copy()
+        self._P_diag_cost[self.layout.state_index[:, 1:, :2]] = 2.0 * Q
+        self._reference_scale = -2.0 * Q
 
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
