@@ -17,7 +17,12 @@ import sys
 from sqpmpc.controllers import CentralizedController
 from sqpmpc.scenario import Scenario
 
-from .control import ControllerNode, SampleStates, controller_settings
+from .control import (
+    ControllerNode,
+    SampleStates,
+    add_controller_arguments,
+    controller_settings,
+)
 from .node import add_common_arguments, open_node, scenario_from_args, setup_logging
 
 __all__ = ["CentralNode", "build_parser", "main"]
@@ -53,12 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``python -m services.central``."""
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     add_common_arguments(parser)
-    parser.add_argument("--timeout", type=float, default=5.0, help="unused; for symmetry, s")
-    parser.add_argument("--qp-time-limit", type=float, default=0.0,
-                        help="bound on one QP solve, s (0: none); real-time runs pass a "
-                             "fraction of Ts, a QP out of time is a counted fallback")
-    parser.add_argument("--startup-timeout", type=float, default=None,
-                        help="give up when no state came within this time, s (default: wait)")
+    add_controller_arguments(parser, "unused; for symmetry, s")
     return parser
 
 

@@ -25,9 +25,20 @@ from sqpmpc.settings import SolverSettings
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import POLL, Node
 
-__all__ = ["ControllerNode", "SampleStates", "controller_settings"]
+__all__ = ["ControllerNode", "SampleStates", "add_controller_arguments", "controller_settings"]
 
 log = logging.getLogger(__name__)
+
+
+def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str) -> None:
+    """The options both controller services take (read by :func:`controller_settings`)."""
+    parser.add_argument("--timeout", type=float, default=5.0, help=timeout_help)
+    parser.add_argument("--qp-time-limit", type=float, default=0.0,
+                        help="bound on one QP solve and on one sample's iterations, s (0: "
+                             "none); real-time runs pass a fraction of Ts, a QP out of time "
+                             "is a counted fallback")
+    parser.add_argument("--startup-timeout", type=float, default=None,
+                        help="give up when no state came within this time, s (default: wait)")
 
 
 def controller_settings(args: argparse.Namespace) -> SolverSettings:

@@ -31,7 +31,12 @@ from sqpmpc.controllers import DecentralizedController, PlanMessage
 from sqpmpc.errors import ProblemError
 from sqpmpc.scenario import Scenario
 
-from .control import ControllerNode, SampleStates, controller_settings
+from .control import (
+    ControllerNode,
+    SampleStates,
+    add_controller_arguments,
+    controller_settings,
+)
 from .messages import Message, PlanMsg, encode
 from .node import add_common_arguments, fail, open_node, scenario_from_args, setup_logging
 
@@ -140,13 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mode", choices=("shared", "paper"), default="shared",
                         help="decentralized mode of the controller (default shared)")
     add_common_arguments(parser)
-    parser.add_argument("--timeout", type=float, default=5.0,
-                        help="longest wait for a neighbour's plan in lockstep, s")
-    parser.add_argument("--qp-time-limit", type=float, default=0.0,
-                        help="bound on one QP solve, s (0: none); real-time runs pass a "
-                             "fraction of Ts, a QP out of time is a counted fallback")
-    parser.add_argument("--startup-timeout", type=float, default=None,
-                        help="give up when no state came within this time, s (default: wait)")
+    add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
     return parser
 
 
