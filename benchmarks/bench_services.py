@@ -42,8 +42,8 @@ ROOT = Path(__file__).resolve().parent.parent
 __all__ = ["circle_swap_toml", "main"]
 
 
-def circle_swap_toml(n: int = 8, radius: float = 4.0, sample_time: float = 0.05,
-                     t_end: float = 60.0, horizon: int = 8) -> str:
+def circle_swap_toml(n: int = 8, radius: float = 4.0, sample_time: float = 0.1,
+                     t_end: float = 60.0, horizon: int = 20) -> str:
     """A scenario (TOML text): ``n`` robots on a circle, each going to the opposite point."""
     lines = [
         f'name = "circle-swap-{n}"', f"t_end = {t_end!r}", f"sample_time = {sample_time!r}",
