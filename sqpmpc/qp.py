@@ -55,6 +55,16 @@ class OSQPSettings:
     QP is solved again with this ``qpsolvers`` backend (``"clarabel"``,
     default) and its solution is used (and warm-starts OSQP next time);
     ``"none"`` turns the rescue off.
+
+    ``scaling``: one Ruiz equilibration pass instead of OSQP's 10. The data of
+    these QPs are already of order one (unit collision normals, weights and
+    Jacobians of order one), and every sample's matrix update re-scales the
+    matrices before the numeric refactorization. Measured side by side on the
+    benchmark scenarios: 7-12 % less controller time per sample (paper-s2
+    centralized median 0.486 -> 0.435 ms), the same centralized closed loops
+    to 0.1 %, and no loss in the liveness and random-scenario benchmarks.
+    No scaling at all (0) was as fast but changed the head-on centralized
+    closed loop from 460 to 611.
     """
 
     eps_abs: float = 1e-5
@@ -65,7 +75,7 @@ class OSQPSettings:
     rho: float = 0.1
     sigma: float = 1e-6
     alpha: float = 1.6
-    scaling: int = 10
+    scaling: int = 1
     check_termination: int = 10
     time_limit: float = 0.0
     accept_inaccurate: bool = True

@@ -192,7 +192,12 @@ def test_touching_pair_turns_and_slides_past_instead_of_waiting() -> None:
 
 def test_lone_robot_gear_two_cycle_is_iterated_away() -> None:
     """crossing-4 with initial states off by 1 mm (seed 1): one robot, alone after the
-    crossing, alternates forward-left / reverse-right plans under plain RTI."""
+    crossing, alternates forward-left / reverse-right plans under plain RTI.
+
+    The cycle is one numerical path of a chaotic closed loop: it was found with
+    OSQP's 10 scaling passes (the default before 1), so both runs use them. With
+    one pass no seed from 0 to 39 of this family cycles.
+    """
     import dataclasses
 
     sc = load_scenario("crossing-4")
@@ -200,12 +205,14 @@ def test_lone_robot_gear_two_cycle_is_iterated_away() -> None:
     robots = tuple(dataclasses.replace(r, initial_state=tuple(map(float, x0[i])))
                    for i, r in enumerate(sc.robots))
     sc = sc.with_changes(robots=robots)
-    plain = simulate(sc, "decentralized", SolverSettings(gear_cycle_sqp=False))
+    osqp = OSQPSettings(scaling=10)
+    plain = simulate(sc, "decentralized", SolverSettings(gear_cycle_sqp=False, osqp=osqp))
     m_plain = compute_metrics(plain)
     assert m_plain["max_final_position_error"] > 1.0
     speeds = plain.inputs[-12:, 2, 0]  # the stuck robot: the speed flips sign every sample
     assert np.all(speeds[1:] * speeds[:-1] < 0)
-    m = compute_metrics(simulate(sc, "decentralized"))
+    assert np.abs(speeds).min() > 0.05  # a real gear cycle, not a robot at rest
+    m = compute_metrics(simulate(sc, "decentralized", SolverSettings(osqp=osqp)))
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["max_final_position_error"] <= 0.05
     assert 0 < m["gear_cycle_samples"] < 0.1 * m["steps"] * sc.n_robots
