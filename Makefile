@@ -24,6 +24,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.compare_ipopt
 	$(BIN)/python -m benchmarks.liveness
 	$(BIN)/python -m benchmarks.random_scenarios
+	$(BIN)/python -m benchmarks.decomposition
 	$(BIN)/python -m benchmarks.bench_services
 
 clean:

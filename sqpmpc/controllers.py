@@ -28,6 +28,7 @@ full distance as an obstacle.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
@@ -56,6 +57,9 @@ __all__ = [
 ]
 
 DecentralizedMode = Literal["shared", "paper"]
+
+log = logging.getLogger(__name__)
+_paper_mode_warned = False
 
 
 @dataclass(frozen=True)
@@ -412,6 +416,8 @@ class DecentralizedController(_ControllerBase):
             max_turn=settings.max_normal_turn, margin=settings.collision_margin,
         )
         self.collisions.stage_one_rule_for_obstacles = mode == "shared"
+        if mode == "paper":
+            _warn_paper_mode()
         self.published: PlanMessage | None = None
 
     def _safe(self, states: np.ndarray, next_state: np.ndarray) -> bool:
@@ -512,3 +518,14 @@ class DecentralizedController(_ControllerBase):
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0].copy(),
                                      out.predicted_inputs[0].copy())
         return out
+
+
+def _warn_paper_mode() -> None:
+    """Log once per process that ``"paper"`` mode has no collision guarantee."""
+    global _paper_mode_warned
+    if not _paper_mode_warned:
+        _paper_mode_warned = True
+        log.warning("decentralized mode 'paper' (the seed paper's literal scheme, for "
+                    "comparison) has no collision guarantee: robots avoid each other's "
+                    "previous plans, and every built-in scenario collides with it "
+                    "(docs/decomposition.md); use 'shared' (default) to be safe")
