@@ -48,13 +48,15 @@ class OSQPSettings:
     ``time_limit`` (s, 0 for none) bounds a solve for real-time use: a QP that
     runs out of time is a failed QP, and the controller applies its fallback.
 
+    ``time_limit``: seconds a solve may take, or ``None``.
+
     ``rescue_solver``: ADMM can need tens of thousands of iterations on the
     ill-conditioned QPs of robots pressed against each other (measured: up to
     97,000 where the interior-point solver Clarabel needs about 1 ms). When
     OSQP stops without a solution for any reason but the time limit, the same
     QP is solved again with this ``qpsolvers`` backend (``"clarabel"``,
     default) and its solution is used (and warm-starts OSQP next time);
-    ``"none"`` turns the rescue off.
+    ``None`` turns the rescue off.
 
     ``scaling``: one Ruiz equilibration pass instead of OSQP's 10. The data of
     these QPs are already of order one (unit collision normals, weights and
@@ -77,19 +79,23 @@ class OSQPSettings:
     alpha: float = 1.6
     scaling: int = 1
     check_termination: int = 10
-    time_limit: float = 0.0
+    time_limit: float | None = None
     accept_inaccurate: bool = True
-    rescue_solver: str = "clarabel"
+    rescue_solver: str | None = "clarabel"
 
     def __post_init__(self) -> None:
-        if self.rescue_solver != "none" and self.rescue_solver not in qpsolvers.available_solvers:
+        if self.rescue_solver is not None and (
+                self.rescue_solver not in qpsolvers.available_solvers):
             raise ProblemError(
-                f"OSQPSettings.rescue_solver must be 'none' or an installed qpsolvers backend "
+                f"OSQPSettings.rescue_solver must be None or an installed qpsolvers backend "
                 f"({', '.join(qpsolvers.available_solvers)}), got {self.rescue_solver!r}")
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.type in ("float", "int") and not (np.isfinite(value) and value >= 0):
+            if f.type in ("float", "int", "float | None") and value is not None and not (
+                    isinstance(value, int | float) and np.isfinite(value) and value >= 0):
                 raise ProblemError(f"OSQPSettings.{f.name} must be finite and >= 0, got {value}")
+        if self.time_limit == 0.0:
+            raise ProblemError("OSQPSettings.time_limit must be > 0 s (or None for no limit)")
 
     def to_osqp(self) -> dict[str, object]:
         """Keyword arguments for ``OSQP.setup``."""
@@ -107,7 +113,7 @@ class OSQPSettings:
             "verbose": False,
             "warm_starting": True,
         }
-        if self.time_limit > 0.0:
+        if self.time_limit is not None:
             kwargs["time_limit"] = self.time_limit
         return kwargs
 
@@ -381,6 +387,15 @@ class SparseQP:
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._dirty_P = self._dirty_vec = True
 
+    def mark_changed(self, matrix: bool = True, vectors: bool = True) -> None:
+        """Tell the QP that ``A_values`` (``matrix``) or ``lower``/``upper`` were written directly.
+
+        The engine's compiled kernels write into views of these arrays; the
+        next :meth:`solve` pushes what was marked.
+        """
+        self._dirty_A = self._dirty_A or matrix
+        self._dirty_vec = self._dirty_vec or vectors
+
     # -------------------------------------------------------------- matrices
     def matrices(self) -> tuple[sp.csc_matrix, np.ndarray, sp.csc_matrix, np.ndarray, np.ndarray]:
         """Current ``(P (upper triangle), q, A, l, u)`` as new objects."""
@@ -465,7 +480,7 @@ class SparseQP:
         status = str(info.status)
         rescued = False
         rescue_time = 0.0
-        if (not (finite and ok_status) and self.settings.rescue_solver != "none"
+        if (not (finite and ok_status) and self.settings.rescue_solver is not None
                 and info.status_val != _TIME_LIMIT):
             t_rescue = time.perf_counter()
             rescue = solve_interior_point(*self.matrices(), solver=self.settings.rescue_solver)

@@ -35,11 +35,11 @@ from typing import Literal, Protocol
 import numpy as np
 
 from .errors import ProblemError
+from .kernels import euler_linearize, euler_rollout
 from .layout import QPLayout
 from .model import (
     discrete_dynamics,
     discrete_jacobians,
-    euler_linearization_values,
     weighted_dynamics_hessian,
 )
 from .qp import QPResult, SparseQP
@@ -51,7 +51,8 @@ __all__ = ["CollisionRows", "IterationReport", "MultipleShootingSQP"]
 class CollisionRows(Protocol):
     """What the iteration needs from a collision model (see :mod:`sqpmpc.collision`)."""
 
-    def rows(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+    def write_rows(self, states: np.ndarray, A_out: np.ndarray,
+                   lower_out: np.ndarray) -> None: ...
 
 
 @dataclass
@@ -135,14 +136,7 @@ class MultipleShootingSQP:
         self.samples = 0
         self._initial_index = np.ascontiguousarray(layout.state_index[:, 0])
         self._speed_index = np.ascontiguousarray(layout.input_index[:, :, 0])
-        # linearization speeds of stalled robots heading towards / away from their goal
-        self._stall_speeds = np.clip([settings.stall_speed, -settings.stall_speed],
-                                     self.input_lower[0], self.input_upper[0])
-        self._stall_distance = np.full(layout.n_robots, settings.stall_distance)
-        self._parking_key = np.zeros(layout.n_robots, dtype=bool).tobytes()
-        horizon_time = self.sample_time * layout.horizon
-        self.parking_gain = settings.parking_gain * max(
-            1.0, (settings.parking_horizon / horizon_time) ** 2)
+        self._build_views()
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
         # A's entries on the collision rows, in entry order: A z on those rows alone,
@@ -166,6 +160,29 @@ class MultipleShootingSQP:
                           (layout.position_rows, 1), (layout.internal_rows, 1),
                           (layout.external_rows, 2), (slack_rows_int, 1), (slack_rows_ext, 2)):
             _shift_indexed(self._shift_y, idx, axis)
+
+    def _build_views(self) -> None:
+        """Views into the QP's value arrays that the compiled kernels write."""
+        L, qp = self.layout, self.qp
+        sl = L.A_slices
+        m, N, E, P = L.n_robots, L.horizon, L.n_external, L.n_pairs
+
+        def rows(index: np.ndarray) -> slice:
+            flat = index.ravel()
+            if flat.size and not np.array_equal(flat, np.arange(flat[0], flat[0] + flat.size)):
+                raise ProblemError("internal error: QP row block is not contiguous")
+            return slice(int(flat[0]), int(flat[0]) + flat.size) if flat.size else slice(0, 0)
+
+        self._init_rows = rows(L.init_rows)
+        dyn = rows(L.dyn_rows)
+        self._dyn_A = qp.A_values[sl["dyn_A"]]
+        self._dyn_B = qp.A_values[sl["dyn_B"]]
+        self._dyn_lower, self._dyn_upper = qp.lower[dyn], qp.upper[dyn]
+        self._internal_A = qp.A_values[sl["internal"]].reshape(P, N, 4)
+        self._internal_lower = qp.lower[rows(L.internal_rows)].reshape(P, N)
+        self._external_A = qp.A_values[sl["external"]].reshape(m, E, N, 2)
+        self._external_lower = qp.lower[rows(L.external_rows)].reshape(m, E, N)
+        self._block = L.block_size
 
     # ------------------------------------------------------------ iterate
     @property
@@ -195,12 +212,7 @@ class MultipleShootingSQP:
         """
         L = self.layout
         u = np.clip(np.asarray(inputs, float), self.input_lower, self.input_upper)
-        states = np.empty((L.n_robots, L.horizon + 1, 3))
-        states[:, 0] = initial_states
-        for i in range(L.horizon):
-            states[:, i + 1] = discrete_dynamics(
-                states[:, i], u[:, i], self.sample_time, self.settings.discretization
-            )
+        states = self.rollout(np.asarray(initial_states, float), u)
         self.z = L.join_primal(states, u)
         self.y = np.zeros(L.n_con)
         self.samples = 0 if converge_first else max(self.samples, 1)
@@ -217,6 +229,38 @@ class MultipleShootingSQP:
         self.z[last_state] = last
         self.y = self.y[self._shift_y]
 
+    def start_sample(self, initial_states: np.ndarray) -> None:
+        """The guess of a sample: the shifted iterate (zero inputs at the first) from ``x0``."""
+        if self.z is None:
+            L = self.layout
+            self.set_guess(initial_states, np.zeros((L.n_robots, L.horizon, 2)))
+        self.z[self._initial_index] = initial_states
+
+    def guess_speeds(self) -> np.ndarray:
+        """Speeds ``(m, N)`` of the current iterate, a writable view (the linearization point)."""
+        L = self.layout
+        return self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
+            :, 3:5 * L.horizon:5]
+
+    def first_speeds(self) -> np.ndarray:
+        """First planned speed ``(m,)`` of each own robot in the current iterate (a copy)."""
+        return self.z[self._speed_index[:, 0]]
+
+    def update_position_weight_scale(self, scale: np.ndarray) -> None:
+        """Per-robot factor ``(m,)`` on the position weight ``Q`` (see :class:`SparseQP`)."""
+        self.qp.update_position_weight_scale(scale)
+
+    def rollout(self, initial_states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """States ``(m, N+1, 3)`` of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``."""
+        if self.settings.discretization == "euler":
+            out = np.empty((inputs.shape[0], inputs.shape[1] + 1, 3))
+            euler_rollout(initial_states, np.ascontiguousarray(inputs), self.sample_time, out)
+            return out
+        from .model import rollout
+
+        return np.swapaxes(rollout(initial_states, np.swapaxes(inputs, 0, 1), self.sample_time,
+                                   self.settings.discretization), 0, 1)
+
     def _linearize(
         self,
         z: np.ndarray,
@@ -224,35 +268,39 @@ class MultipleShootingSQP:
         internal: CollisionRows | None,
         external: CollisionRows | None,
     ) -> None:
-        L, s = self.layout, self.settings
-        states, inputs = L.split_primal(z)
+        """Write the QP of the iterate ``z``: dynamics, initial state, collision rows, curvature."""
+        L, s, qp = self.layout, self.settings, self.qp
         N = L.horizon
         if s.discretization == "euler":
-            self.qp.update_dynamics_values(
-                *euler_linearization_values(states[:, :N], inputs, self.sample_time))
+            euler_linearize(z, L.n_robots, N, self._block, self.sample_time, self._dyn_A,
+                            self._dyn_B, self._dyn_lower, self._dyn_upper)
+            qp.mark_changed()
+            states = None
         else:
-            nxt, A_k, B_k = discrete_jacobians(
-                states[:, :N], inputs, self.sample_time, s.discretization
-            )
-            c_k = (
-                nxt
-                - np.einsum("mnij,mnj->mni", A_k, states[:, :N])
-                - np.einsum("mnij,mnj->mni", B_k, inputs)
-            )
-            self.qp.update_dynamics(A_k, B_k, c_k)
-        self.qp.update_initial_state(initial_states)
-        if internal is not None:
-            self.qp.update_internal_collisions(*internal.rows(states))
-        if external is not None:
-            self.qp.update_external_collisions(*external.rows(states))
+            states, inputs = L.split_primal(z)
+            nxt, A_k, B_k = discrete_jacobians(states[:, :N], inputs, self.sample_time,
+                                               s.discretization)
+            c_k = (nxt - np.einsum("mnij,mnj->mni", A_k, states[:, :N])
+                   - np.einsum("mnij,mnj->mni", B_k, inputs))
+            qp.update_dynamics(A_k, B_k, c_k)
+        flat = initial_states.ravel()
+        qp.lower[self._init_rows] = flat
+        qp.upper[self._init_rows] = flat
+        if internal is not None or external is not None:
+            if states is None:
+                states = z[L.state_index]
+            if internal is not None:
+                internal.write_rows(states, self._internal_A, self._internal_lower)
+            if external is not None:
+                external.write_rows(states, self._external_A, self._external_lower)
         if s.hessian == "exact":
+            states, inputs = L.split_primal(z)
             lam = self.y[L.dyn_rows]
-            H = -weighted_dynamics_hessian(
-                states[:, :N], inputs, lam, self.sample_time, s.discretization
-            )
+            H = -weighted_dynamics_hessian(states[:, :N], inputs, lam, self.sample_time,
+                                           s.discretization)
             w, V = np.linalg.eigh(H)
             H = np.einsum("...ij,...j,...kj->...ik", V, np.maximum(w, 0.0), V)
-            self.qp.update_curvature(H, z)
+            qp.update_curvature(H, z)
 
     # ------------------------------------------------------------ NLP values
     def _cost(self, z: np.ndarray) -> tuple[float, np.ndarray]:
@@ -347,7 +395,7 @@ class MultipleShootingSQP:
         """
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
-        if deadline is None and s.time_budget > 0.0:
+        if deadline is None and s.time_budget is not None:
             deadline = t_start + s.time_budget
         initial_states = np.asarray(initial_states, float)
         if initial_states.shape != (L.n_robots, 3) or not np.isfinite(initial_states).all():
@@ -355,8 +403,7 @@ class MultipleShootingSQP:
                 f"initial_states must be finite with shape ({L.n_robots}, 3), "
                 f"got {initial_states.shape}"
             )
-        if self.z is None:
-            self.set_guess(initial_states, np.zeros((L.n_robots, L.horizon, 2)))
+        self.start_sample(initial_states)
         sqp = (iteration_scheme or s.iteration_scheme) == "sqp"
         if max_iterations is None:
             if self.samples == 0:
@@ -369,9 +416,6 @@ class MultipleShootingSQP:
         # kept from a past encounter, 1000+, made every line search backtrack ~17 times)
         self.merit_weight = 1.0
         z = self.z.copy()
-        z[self._initial_index] = initial_states
-        if s.stall_speed > 0.0:
-            self._repair_stalled(z, initial_states, reference)
         y = self.y.copy()
         assembly = qp_time = osqp_time = 0.0
         kkt = float("nan")
@@ -379,7 +423,7 @@ class MultipleShootingSQP:
         iterations = qp_iters = 0
         status = "not run"
         last: QPResult | None = None
-        check_kkt = sqp or np.isfinite(s.rti_kkt_threshold)
+        check_kkt = sqp or s.rti_kkt_threshold is not None
         tol = s.kkt_tolerance if sqp else s.rti_kkt_threshold
         while True:
             t0 = time.perf_counter()
@@ -422,17 +466,6 @@ class MultipleShootingSQP:
         return IterationReport(True, iterations, kkt, converged, status, assembly, qp_time,
                                osqp_time, time.perf_counter() - t_start, qp_iters, last)
 
-    def update_parking(self, parking: np.ndarray) -> None:
-        """Own robots ``(m,)`` (bool) whose reference is at rest: the parking rule (settings)."""
-        parking = np.asarray(parking, dtype=bool)
-        key = parking.tobytes()
-        if key == self._parking_key:  # hot path: nothing changed since the last sample
-            return
-        self._parking_key = key
-        s = self.settings
-        self.qp.update_position_weight_scale(np.where(parking, self.parking_gain, 1.0))
-        self._stall_distance = np.where(parking, s.parking_tolerance, s.stall_distance)
-
     def engaged_robots(self, y: np.ndarray, tolerance: float = 1e-4) -> np.ndarray:
         """Own robots with an active collision row (``|y_i| > tolerance``), ``(m,)`` bool."""
         L = self.layout
@@ -443,23 +476,6 @@ class MultipleShootingSQP:
         if L.n_external:
             engaged |= np.abs(y[L.external_rows]).max(axis=(1, 2)) > tolerance
         return engaged
-
-    def _repair_stalled(self, z: np.ndarray, initial_states: np.ndarray,
-                        reference: np.ndarray) -> None:
-        """Move the linearization speed of stalled robots away from zero (see settings)."""
-        s = self.settings
-        slow = np.maximum.reduce(np.abs(z[self._speed_index]), axis=1) < s.stall_speed
-        if not np.count_nonzero(slow):  # hot path: every robot's guess moves
-            return
-        to_goal = reference[:, -1] - initial_states[:, :2]
-        far = np.hypot(to_goal[:, 0], to_goal[:, 1]) > self._stall_distance
-        stalled = far & slow
-        if not np.count_nonzero(stalled):
-            return
-        ahead = (to_goal[:, 0] * np.cos(initial_states[:, 2])
-                 + to_goal[:, 1] * np.sin(initial_states[:, 2])) >= 0.0
-        speed = np.where(ahead, *self._stall_speeds)
-        z[self._speed_index[stalled]] = speed[stalled, None]
 
     def _line_search(self, z: np.ndarray, res: QPResult, initial_states: np.ndarray) -> float:
         """Armijo backtracking on the L1 merit function; returns the step length."""

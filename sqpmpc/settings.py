@@ -1,31 +1,39 @@
-"""Settings of the RTI/SQP iteration and of the rules around it (one frozen dataclass).
+"""Settings of the controllers: the iteration, the collision rows, the rules, OSQP.
 
-:class:`SolverSettings` gathers what both schemes share: the iteration
-(RTI or SQP, Hessian, discretization, tolerances), the collision rows
-(margin, slack price, keep-right rotation, normal turn limit) and the rules
-that keep the closed loop live (stall repair, parking, gear cycle, detour),
-plus the OSQP settings. Values are validated on construction; a bad value
-raises :class:`~sqpmpc.errors.ProblemError` naming the field.
+:class:`SolverSettings` is one frozen dataclass shared by both schemes:
+
+- the iteration (:mod:`sqpmpc.rti`): RTI or SQP, Hessian, discretization,
+  tolerances, the first sample's SQP start and the per-sample time budget;
+- the collision rows (:mod:`sqpmpc.collision`): margin and slack price (the
+  safety rows themselves are always on);
+- the liveness rules (:mod:`sqpmpc.liveness`), a tuple of rule objects: a
+  rule is on when it is in the tuple (:func:`sqpmpc.registry.select_rules`);
+- OSQP (:class:`sqpmpc.qp.OSQPSettings`).
+
+Values are validated on construction; a bad value raises
+:class:`~sqpmpc.errors.ProblemError` naming the field. No value means "off":
+options that can be absent are ``None``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
-from .deadlock import DetourSettings
 from .errors import ProblemError
 from .model import DISCRETIZATIONS
 from .qp import OSQPSettings
+from .registry import check_rules, default_rules
+from .rules import Rule
 
 __all__ = ["SolverSettings"]
 
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Settings of the RTI/SQP iteration shared by both schemes.
+    """Settings shared by both schemes.
 
     Attributes
     ----------
@@ -34,77 +42,31 @@ class SolverSettings:
     hessian
         ``"gauss-newton"`` or ``"exact"`` (PSD-projected dynamics curvature).
     discretization
-        ``"euler"`` (paper eq. 3) or ``"rk4"``.
+        Prediction model: ``"euler"`` (paper eq. 3) or ``"rk4"``.
     max_sqp_iterations
         Iteration cap of SQP mode.
     kkt_tolerance
         KKT residual (infinity norm) at which SQP stops.
     first_sample_iterations
-        SQP iterations allowed at the first sample (a converged start for RTI).
+        SQP iterations at the first sample (a converged start for RTI).
     rti_kkt_threshold
-        In RTI mode, extra iterations are done while the KKT residual after the
-        QP step exceeds this value (``inf`` disables), at most ``rti_max_iterations``.
+        RTI: extra iterations while the KKT residual after the QP step
+        exceeds this value, at most ``rti_max_iterations``; ``None``: never.
+    rti_max_iterations
+        See ``rti_kkt_threshold``.
     slack_penalty
         Price of the L1 slacks of collision rows on stages 2..N (exact penalty).
     collision_margin
-        Added to every required distance in the QP (covers solver tolerance), m.
-    keep_right_angle, keep_right_growth, keep_right_max
-        Symmetry-breaking rotation of the collision normals: stage ``i`` (1..N)
-        is rotated by ``min(keep_right_angle + (i - 1) keep_right_growth,
-        keep_right_max)`` rad. Growing angles make the predicted hyperplanes turn,
-        so robots held in a standoff see room to their right in later stages.
-    max_normal_turn
-        Largest turn of a pair's collision normal between consecutive stages, rad:
-        predictions that tunnel through each other between two samples would
-        otherwise flip the hyperplane (see :func:`sqpmpc.collision.limit_turning`).
-    stall_speed, stall_distance
-        Controllability repair: a robot whose guess has every ``|v| < stall_speed``
-        while its stage-N reference is farther than ``stall_distance`` is
-        linearized at ``v = ±stall_speed`` (towards the reference) instead. At
-        ``v = 0`` the linearized unicycle cannot move sideways (``A`` loses its
-        heading-position coupling), so a stopped robot would never see that
-        turning opens a way around an obstacle. Only the linearization point
-        changes; stage 1 stays exact because its heading is measured.
-        ``0`` disables.
-    parking_gain, parking_horizon, parking_radius, parking_reach, parking_tolerance
-        Parking rule: a robot whose (scenario) reference is at rest over the
-        whole horizon and within the parking radius, the larger of
-        ``parking_radius`` and ``parking_reach`` times the distance it can
-        travel in ``max(N Ts, parking_horizon)`` (``v_max`` from the bounds;
-        1.2 m with the defaults and the built-in scenarios' bounds; shorter
-        horizons stop farther short), has its position weight
-        multiplied by the parking gain, and is linearized at a small speed
-        (as for ``stall_speed``) while farther than ``parking_tolerance``. The
-        gain is ``parking_gain`` for horizons of ``parking_horizon`` seconds or
-        more and grows as ``(parking_horizon / (N Ts))^2`` below: turning by a
-        given angle within a shorter horizon costs that much more input
-        energy. With the paper's weights the unicycle's optimal plan stops
-        short of a goal that lies to its side, because turning costs more
-        input energy over the horizon than the remaining error costs:
-        converged IPOPT stops 0.07-0.17 m short of a goal 0.5-1 m to a robot's
-        side, perturbed swap-6 runs stopped 0.06-0.15 m short, and with 0.6-1.4 s
-        horizons (``Ts = 0.1 s``) lone robots stopped 0.28-1.06 m short. The
-        executed trajectory's cost is still measured with the scenario's
-        weights. ``parking_gain = 1`` disables.
-    gear_cycle_sqp
-        RTI only: when a robot that no collision row holds (every multiplier
-        of its collision rows below 1e-4) would reverse gear for the second
-        sample in a row (applied speeds ``+, -`` then ``+``, or ``-, +`` then
-        ``-``, each above ``stall_speed / 10`` in size), the sample is iterated
-        to convergence (SQP with line search, from the RTI step). One QP
-        linearized at a plan of the other gear can land on the mirror plan,
-        and the loop then alternates forward-left / reverse-right plans for
-        ever (measured: a lone robot of a perturbed crossing-4 run, 40 samples,
-        1.69 m from its goal). The trigger needs two reversals in a row, so an
-        ordinary single gear change costs nothing; robots in an encounter are
-        left to RTI because the converged OCP is what stands off in symmetric
-        encounters.
+        Added to every required distance in the QP rows (covers solver
+        tolerance), m.
     time_budget
-        Wall-clock seconds the iterations of one sample may take (0: no
-        limit). Iterating (SQP mode, the first sample, a gear-cycle sample)
-        starts no new QP once it is spent and keeps the last iterate; the
-        first QP always runs. For real time, with ``osqp.time_limit``
-        bounding each QP.
+        Wall-clock seconds the iterations of one sample may take, or ``None``.
+        Iterating (SQP, the first sample, a sample a rule asks to converge)
+        starts no new QP once it is spent; the first QP always runs.
+    rules
+        The liveness rules, applied in registry order (default: all).
+    osqp
+        OSQP settings.
     """
 
     iteration_scheme: Literal["rti", "sqp"] = "rti"
@@ -113,50 +75,58 @@ class SolverSettings:
     max_sqp_iterations: int = 50
     kkt_tolerance: float = 1e-5
     first_sample_iterations: int = 30
-    rti_kkt_threshold: float = float("inf")
+    rti_kkt_threshold: float | None = None
     rti_max_iterations: int = 1
     slack_penalty: float = 50.0
     collision_margin: float = 1e-3
-    keep_right_angle: float = 0.3
-    keep_right_growth: float = 0.0
-    keep_right_max: float = 1.0
-    stall_speed: float = 0.05
-    max_normal_turn: float = 0.6
-    stall_distance: float = 0.1
-    parking_gain: float = 20.0
-    parking_horizon: float = 4.0
-    parking_radius: float = 0.25
-    parking_reach: float = 0.5
-    parking_tolerance: float = 0.01
-    gear_cycle_sqp: bool = True
-    time_budget: float = 0.0
+    time_budget: float | None = None
+    rules: tuple[Rule, ...] = field(default_factory=default_rules)
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
-    detour: DetourSettings = field(default_factory=DetourSettings)
-
-    def keep_right_angles(self, horizon: int) -> np.ndarray:
-        """Per-stage rotation angles ``(N,)`` of the collision normals, rad."""
-        i = np.arange(horizon)
-        return np.minimum(self.keep_right_angle + i * self.keep_right_growth, self.keep_right_max)
 
     def __post_init__(self) -> None:
         if self.iteration_scheme not in ("rti", "sqp"):
             raise ProblemError(
-                f"iteration_scheme must be 'rti' or 'sqp', got {self.iteration_scheme!r}"
-            )
+                f"iteration_scheme must be 'rti' or 'sqp', got {self.iteration_scheme!r}")
         if self.hessian not in ("gauss-newton", "exact"):
             raise ProblemError(f"hessian must be 'gauss-newton' or 'exact', got {self.hessian!r}")
         if self.discretization not in DISCRETIZATIONS:
             raise ProblemError(
-                f"discretization must be one of {DISCRETIZATIONS}, got {self.discretization!r}"
-            )
+                f"discretization must be one of {DISCRETIZATIONS}, got {self.discretization!r}")
         for name in ("max_sqp_iterations", "first_sample_iterations", "rti_max_iterations"):
-            if int(getattr(self, name)) < 1:
-                raise ProblemError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not (np.isfinite(self.parking_gain) and self.parking_gain >= 1.0):
-            raise ProblemError(f"parking_gain must be finite and >= 1, got {self.parking_gain}")
-        for name in ("kkt_tolerance", "slack_penalty", "collision_margin", "stall_speed",
-                     "stall_distance", "parking_horizon", "parking_radius", "parking_reach",
-                     "parking_tolerance", "time_budget"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ProblemError(f"{name} must be finite and >= 0, got {value}")
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ProblemError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("kkt_tolerance", "slack_penalty", "collision_margin"):
+            _check_nonnegative(name, getattr(self, name))
+        for name in ("rti_kkt_threshold", "time_budget"):
+            value = getattr(self, name)
+            if value is not None:
+                _check_nonnegative(name, value)
+        if not isinstance(self.osqp, OSQPSettings):
+            raise ProblemError(f"osqp must be OSQPSettings, got {type(self.osqp).__name__}")
+        object.__setattr__(self, "rules", check_rules(tuple(self.rules)))
+
+    def rule(self, name: str) -> Rule | None:
+        """The rule named ``name`` if it is on, else ``None``."""
+        return next((r for r in self.rules if r.name == name), None)
+
+    def without(self, *names: str) -> SolverSettings:
+        """These settings with the named rules removed (unknown names refused)."""
+        from .registry import RULES
+
+        unknown = [n for n in names if n not in RULES and self.rule(n) is None]
+        if unknown:
+            raise ProblemError(f"unknown rule(s) {', '.join(map(repr, unknown))}; the rules "
+                               f"are {', '.join(RULES)}")
+        return replace(self, rules=tuple(r for r in self.rules if r.name not in names))
+
+    def with_rule(self, rule: Rule) -> SolverSettings:
+        """These settings with ``rule`` added, or replacing the rule of the same name."""
+        return replace(self, rules=tuple(r for r in self.rules if r.name != rule.name)
+                       + (rule,))
+
+
+def _check_nonnegative(name: str, value: object) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (
+            np.isfinite(value) and value >= 0):
+        raise ProblemError(f"{name} must be finite and >= 0, got {value!r}")

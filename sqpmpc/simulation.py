@@ -162,6 +162,14 @@ class ClosedLoopSimulation:
             bar.close()
         return self.record()
 
+    def counters(self) -> dict[str, int]:
+        """The controllers' counters summed (engine and rules, see ``sqpmpc rules``)."""
+        total: dict[str, int] = {}
+        for c in self.controllers:
+            for key, value in c.counters().items():
+                total[key] = total.get(key, 0) + int(value)
+        return total
+
     def record(self) -> RunRecord:
         """The record of what has been simulated so far (partial if interrupted)."""
         k = self.k
@@ -173,8 +181,8 @@ class ClosedLoopSimulation:
             "discretization": self.settings.discretization,
             "plant_discretization": self.plant_method,
             "qp_iterations_total": int(self.qp_iterations),
-            "qp_rescues": int(sum(c.engine.qp.rescue_count for c in self.controllers)),
-            "gear_cycle_samples": int(sum(c.gear_cycle_samples for c in self.controllers)),
+            "counters": self.counters(),
+            "rules": [r.name for r in self.settings.rules],
             "sqp_iterations_total": int(self.sqp_iterations[:k].sum()),
             "dropped_messages": int(self.dropped_messages),
             "timing_breakdown_s": {key: float(v) for key, v in self.timing.items()},

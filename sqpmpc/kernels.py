@@ -1,0 +1,343 @@
+r"""Compiled kernels of the per-sample hot path (numba, cached on disk).
+
+Every kernel works on plain float arrays and writes its results into arrays
+the caller owns (views into the QP's value arrays where possible), so a
+sample makes a handful of kernel calls instead of hundreds of small NumPy
+operations. The arithmetic is the same as the NumPy reference implementations
+in :mod:`sqpmpc.model` and :mod:`sqpmpc.collision` (tested against them).
+
+Compilation happens once per machine: ``cache=True`` stores the machine code
+next to this file (``__pycache__``), and :func:`warm_up` compiles or loads
+every kernel at controller construction, so neither the real-time loop nor a
+service's first sample pays for it. ``python -m sqpmpc.kernels`` prints the
+time :func:`warm_up` takes (on a fresh install it compiles, later it loads).
+
+Conventions: positions are ``(x, y)``, states ``(x, y, psi)``, inputs
+``(v, omega)``; ``N`` is the horizon; a QP robot block is laid out
+``(chi_0, u_0, chi_1, ..., u_{N-1}, chi_N)`` (see :mod:`sqpmpc.layout`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numba
+import numpy as np
+
+from .liveness import hold_touching_rows, limit_turning
+
+__all__ = [
+    "euler_linearize",
+    "euler_rollout",
+    "euler_step",
+    "pair_rows",
+    "pairs_keep_distance",
+    "shared_rows",
+    "warm_up",
+]
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def euler_step(states: np.ndarray, inputs: np.ndarray, h: float, out: np.ndarray) -> None:
+    r"""Euler step (paper eq. 3) of ``(K, 3)`` states under ``(K, 2)`` inputs into ``out``.
+
+    :math:`x^+ = x + (T_s v)\cos\psi`, :math:`y^+ = y + (T_s v)\sin\psi`,
+    :math:`\psi^+ = \psi + T_s\omega`.
+    """
+    for k in range(states.shape[0]):
+        psi = states[k, 2]
+        hv = h * inputs[k, 0]
+        out[k, 0] = states[k, 0] + hv * math.cos(psi)
+        out[k, 1] = states[k, 1] + hv * math.sin(psi)
+        out[k, 2] = psi + h * inputs[k, 1]
+
+
+@_jit
+def euler_rollout(initial: np.ndarray, inputs: np.ndarray, h: float, out: np.ndarray) -> None:
+    """States ``out (m, N+1, 3)`` of applying ``inputs (m, N, 2)`` from ``initial (m, 3)``.
+
+    Step by step, exactly as :func:`euler_step` (and so as the Euler plant).
+    """
+    m, N = inputs.shape[0], inputs.shape[1]
+    for r in range(m):
+        x, y, psi = initial[r, 0], initial[r, 1], initial[r, 2]
+        out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = x, y, psi
+        for i in range(N):
+            hv = h * inputs[r, i, 0]
+            x = x + hv * math.cos(psi)
+            y = y + hv * math.sin(psi)
+            psi = psi + h * inputs[r, i, 1]
+            out[r, i + 1, 0], out[r, i + 1, 1], out[r, i + 1, 2] = x, y, psi
+
+
+@_jit
+def euler_linearize(z: np.ndarray, m: int, N: int, block: int, h: float,
+                    dyn_A: np.ndarray, dyn_B: np.ndarray, dyn_lower: np.ndarray,
+                    dyn_upper: np.ndarray) -> None:
+    r"""Euler linearization at ``z`` written into the QP's dynamics values.
+
+    Row block :math:`\chi_{i+1} - A_i\chi_i - B_i u_i = c_i` with
+    :math:`A_i = I + T_s\,\partial f/\partial\chi`, :math:`B_i = T_s\,\partial f/\partial u`
+    and :math:`c_i = T_s\bar v\bar\psi(\sin\bar\psi, -\cos\bar\psi, 0)`.
+    ``dyn_A``/``dyn_B`` receive ``-A``/``-B`` at the pattern entries
+    (:data:`sqpmpc.layout.A_PATTERN`, ``B_PATTERN``), ``(m N 5,)`` each;
+    ``dyn_lower``/``dyn_upper`` ``(m N 3,)`` receive ``c``.
+    """
+    for r in range(m):
+        for i in range(N):
+            base = r * block + i * 5
+            psi = z[base + 2]
+            hv = h * z[base + 3]
+            c = math.cos(psi)
+            s = math.sin(psi)
+            k = (r * N + i) * 5
+            dyn_A[k] = -1.0
+            dyn_A[k + 1] = -1.0
+            dyn_A[k + 2] = -1.0
+            dyn_A[k + 3] = -((-hv) * s)
+            dyn_A[k + 4] = -(hv * c)
+            dyn_B[k] = -(h * c)
+            dyn_B[k + 1] = -0.0
+            dyn_B[k + 2] = -(h * s)
+            dyn_B[k + 3] = -0.0
+            dyn_B[k + 4] = -h
+            hvpsi = hv * psi
+            j = (r * N + i) * 3
+            c0 = hvpsi * s
+            c1 = (-hvpsi) * c
+            dyn_lower[j] = c0
+            dyn_upper[j] = c0
+            dyn_lower[j + 1] = c1
+            dyn_upper[j + 1] = c1
+            dyn_lower[j + 2] = 0.0
+            dyn_upper[j + 2] = 0.0
+
+
+@_jit
+def _unit(dx: float, dy: float, fx: float, fy: float) -> tuple[float, float]:
+    """``(dx, dy) / |(dx, dy)|``, or the fallback ``(fx, fy)`` below 1e-9 m."""
+    d = math.hypot(dx, dy)
+    if d > 1e-9:
+        return dx / d, dy / d
+    return fx, fy
+
+
+@_jit
+def _stage_normals(gx: float, gy: float, a_pred: np.ndarray, b_pred: np.ndarray,
+                   rotation: np.ndarray, max_turn: float, normals: np.ndarray
+                   ) -> tuple[float, float]:
+    """Stage normals ``(N, 2)`` of a pair: Taylor normals, turn limit, rotation.
+
+    ``(gx, gy)`` is the current offset (this robot minus the other),
+    ``a_pred``/``b_pred`` ``(N, 2+)`` the predicted positions of stages 1..N,
+    ``rotation (N, 2)`` the per-stage ``(cos, sin)`` of the keep-right tilt
+    and ``max_turn < 0`` skips the turn limit. Returns the current unit normal.
+    """
+    n0x, n0y = _unit(gx, gy, 1.0, 0.0)
+    N = normals.shape[0]
+    for i in range(N):
+        nx, ny = _unit(a_pred[i, 0] - b_pred[i, 0], a_pred[i, 1] - b_pred[i, 1], n0x, n0y)
+        normals[i, 0], normals[i, 1] = nx, ny
+    if max_turn >= 0.0:
+        limit_turning(n0x, n0y, normals, max_turn)
+    for i in range(N):
+        c, s = rotation[i, 0], rotation[i, 1]
+        x, y = normals[i, 0], normals[i, 1]
+        normals[i, 0] = x * c + y * (-s)
+        normals[i, 1] = x * s + y * c
+    return n0x, n0y
+
+
+@_jit
+def pair_rows(pairs: np.ndarray, now: np.ndarray, states: np.ndarray, required: np.ndarray,
+              rotation: np.ndarray, max_turn: float, A_out: np.ndarray,
+              lower_out: np.ndarray, normals: np.ndarray) -> int:
+    r"""Centralized pair rows :math:`n^\top(p_a - p_b) \ge d` into the QP (stages 1..N).
+
+    Parameters
+    ----------
+    pairs
+        ``(P, 2)`` local robot indices.
+    now
+        ``(m, 2)`` measured positions (the stage-1 safety rule).
+    states
+        ``(m, N+1, 3)`` linearization point.
+    required
+        ``(P,)`` required distances plus margin.
+    rotation, max_turn
+        Keep-right ``(N, 2)`` (cos, sin) per stage; turn limit (``< 0``: none).
+    A_out, lower_out
+        ``(P, N, 4)`` values ``(n, -n)`` and ``(P, N)`` right-hand sides.
+    normals
+        ``(N, 2)`` scratch.
+
+    Returns
+    -------
+    int
+        Rows whose stage-1 normal was replaced by the current one (stage-1 rule).
+    """
+    overrides = 0
+    N = normals.shape[0]
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        gx, gy = now[a, 0] - now[b, 0], now[a, 1] - now[b, 1]
+        n0x, n0y = _stage_normals(gx, gy, states[a, 1:], states[b, 1:], rotation, max_turn,
+                                  normals)
+        d = required[p]
+        gap = normals[0, 0] * gx + normals[0, 1] * gy
+        if not gap >= d:
+            normals[0, 0], normals[0, 1] = n0x, n0y
+            overrides += 1
+            gap = n0x * gx + n0y * gy
+        for i in range(N):
+            nx, ny = normals[i, 0], normals[i, 1]
+            A_out[p, i, 0], A_out[p, i, 1] = nx, ny
+            A_out[p, i, 2], A_out[p, i, 3] = -nx, -ny
+            lower_out[p, i] = d
+        lower_out[p, 0] = min(d, gap)
+    return overrides
+
+
+@_jit
+def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
+                other_pred: np.ndarray, shared: np.ndarray, required: np.ndarray,
+                true_distance: np.ndarray, rotation: np.ndarray, max_turn: float,
+                A_out: np.ndarray, lower_out: np.ndarray, check_normals: np.ndarray,
+                check_rhs: np.ndarray, touching: np.ndarray) -> int:
+    r"""Shared-responsibility rows of one robot against its neighbours (decentralized).
+
+    For every slot ``e`` with ``shared[e]``: the common hyperplane of the two
+    exchanged predictions, half the distance each (see
+    :class:`sqpmpc.collision.ExternalCollisionModel`), with the stage-1 offset
+    clipped so that both current positions stay on their sides. Other slots
+    get zero normals and ``-inf`` bounds (no constraint).
+
+    Parameters
+    ----------
+    me, others_now
+        ``(2,)`` and ``(E, 2)`` measured positions.
+    own_pred, other_pred
+        ``(N, 2+)`` and ``(E, N, 2+)`` predicted positions of stages 1..N.
+    shared
+        ``(E,)`` bool.
+    required, true_distance
+        ``(E,)`` distances with and without the margin.
+    rotation, max_turn
+        As in :func:`pair_rows`.
+    A_out, lower_out
+        ``(E, N, 2)`` normals and ``(E, N)`` right-hand sides of the rows.
+    check_normals, check_rhs
+        ``(E, 2)``, ``(E,)``: the first-stage check of the true distance
+        (``n^T p >= rhs``); ``-inf`` for slots that are not shared.
+    touching
+        ``(E,)`` bool out: the pair is inside the margin band.
+
+    Returns
+    -------
+    int
+        Stage-1 normals replaced by the current one.
+    """
+    overrides = 0
+    E, N = shared.shape[0], A_out.shape[1]
+    mx, my = me[0], me[1]
+    for e in range(E):
+        touching[e] = False
+        if not shared[e]:
+            for i in range(N):
+                A_out[e, i, 0] = 0.0
+                A_out[e, i, 1] = 0.0
+                lower_out[e, i] = -np.inf
+            check_normals[e, 0] = 0.0
+            check_normals[e, 1] = 0.0
+            check_rhs[e] = -np.inf
+            continue
+        ox, oy = others_now[e, 0], others_now[e, 1]
+        gx, gy = mx - ox, my - oy
+        n = A_out[e]
+        n0x, n0y = _stage_normals(gx, gy, own_pred, other_pred[e], rotation, max_turn, n)
+        d = required[e]
+        half = 0.5 * d
+        gap = n[0, 0] * gx + n[0, 1] * gy
+        if not gap >= d:
+            n[0, 0], n[0, 1] = n0x, n0y
+            overrides += 1
+            gap = n0x * gx + n0y * gy
+        for i in range(N):
+            cx = 0.5 * (own_pred[i, 0] + other_pred[e, i, 0])
+            cy = 0.5 * (own_pred[i, 1] + other_pred[e, i, 1])
+            lower_out[e, i] = n[i, 0] * cx + n[i, 1] * cy
+        n1x, n1y = n[0, 0], n[0, 1]
+        lo = (n1x * ox + n1y * oy) + half
+        n1_me = n1x * mx + n1y * my
+        hi = n1_me - half
+        c0 = min(max(lower_out[e, 0], lo), max(lo, hi))
+        lower_out[e, 0] = c0
+        for i in range(N):
+            lower_out[e, i] = lower_out[e, i] + half
+        lower_out[e, 0] = min(lower_out[e, 0], n1_me)
+        touching[e] = gap < d
+        D = true_distance[e]
+        check_normals[e, 0], check_normals[e, 1] = n1x, n1y
+        if gap >= d:
+            check_rhs[e] = c0 + 0.5 * D
+        else:
+            mid = n1x * (0.5 * (mx + ox)) + n1y * (0.5 * (my + oy))
+            check_rhs[e] = mid + 0.5 * min(D, gap)
+    return overrides
+
+
+@_jit
+def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
+                        required: np.ndarray) -> bool:
+    r"""Whether every pair keeps ``required`` along the straight segments of one sample.
+
+    With both robots moving on straight segments at constant speed, the
+    relative position is :math:`r(s) = r_0 + s(r_1 - r_0)`, whose smallest norm
+    on :math:`s\in[0,1]` is at :math:`s^* = \mathrm{clip}(-r_0^\top\Delta/\|\Delta\|^2)`.
+    """
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        r0x, r0y = now[a, 0] - now[b, 0], now[a, 1] - now[b, 1]
+        dx = (nxt[a, 0] - nxt[b, 0]) - r0x
+        dy = (nxt[a, 1] - nxt[b, 1]) - r0y
+        den = dx * dx + dy * dy
+        s = 0.0
+        if den > 0.0:
+            s = min(max(-(r0x * dx + r0y * dy) / den, 0.0), 1.0)
+        if math.hypot(r0x + s * dx, r0y + s * dy) < required[p]:
+            return False
+    return True
+
+
+def warm_up() -> float:
+    """Compile (first time on a machine) or load every kernel; returns the seconds taken."""
+    t0 = time.perf_counter()
+    x = np.zeros((2, 3))
+    u = np.zeros((2, 2))
+    euler_step(x, u, 0.1, np.empty((2, 3)))
+    euler_rollout(x, np.zeros((2, 2, 2)), 0.1, np.empty((2, 3, 3)))
+    z = np.zeros(2 * 13)
+    euler_linearize(z, 2, 2, 13, 0.1, np.empty(20), np.empty(20), np.empty(12), np.empty(12))
+    rot = np.tile([1.0, 0.0], (2, 1))
+    pairs = np.array([[0, 1]], dtype=np.int64)
+    states = np.zeros((2, 3, 3))
+    states[1, :, 0] = 1.0
+    pair_rows(pairs, x[:, :2].copy(), states, np.ones(1), rot, 0.6, np.empty((1, 2, 4)),
+              np.empty((1, 2)), np.empty((2, 2)))
+    pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1))
+    touching = np.zeros(1, dtype=np.bool_)
+    A = np.empty((1, 2, 2))
+    lo = np.empty((1, 2))
+    shared_rows(np.zeros(2), np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
+                np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
+                np.empty((1, 2)), np.empty(1), touching)
+    hold_touching_rows(np.zeros(2), touching, A, lo)
+    limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
+    return time.perf_counter() - t0
+
+
+if __name__ == "__main__":
+    print(f"sqpmpc kernels ready in {warm_up():.3f} s")

@@ -1,0 +1,435 @@
+r"""The built-in liveness rules (see :mod:`sqpmpc.rules` for the interface).
+
+Exact symmetry (head-on pairs, swaps, crossings) gives local NMPC standoff
+equilibria, and plain RTI has a few more ways to stop short or to cycle. Each
+rule below addresses one of them, deterministically and alike in every robot,
+so that the decentralized robots stay consistent with each other. None of
+them touches safety (the rows stay inner approximations with a hard stage 1,
+every first input is verified): a rule chooses among safe motions.
+
+=================  ==============================================================
+rule               what it does
+=================  ==============================================================
+``keep-right``     rotates every collision normal by ``angle`` (per-stage growth
+                   optional): the hyperplanes tilt so each robot sees room on
+                   its right and symmetric pairs pass each other
+``turn-limit``     a pair's normal turns at most ``max_turn`` between stages:
+                   predictions that tunnel through each other between two
+                   samples would otherwise flip the hyperplane
+``touching-pairs`` decentralized: a pair inside the margin band repeats its
+                   stage-1 row on stage 2, so the plan turns first instead of
+                   "wait, then go" every sample
+``stall-repair``   a robot whose guess has every ``|v| < speed`` while its goal is
+                   farther than ``distance`` is linearized at ``v = +-speed``:
+                   at ``v = 0`` the linearized unicycle cannot move sideways
+``parking``        a robot near a reference at rest gets ``gain`` times its
+                   position weight and a small linearization speed, so it does
+                   not stop short of a goal beside it
+``gear-cycle``     RTI: a robot no collision row holds that would reverse gear a
+                   second sample in a row has that sample iterated to convergence
+``detour``         a robot blocked by a neighbour for ``patience`` samples heads
+                   for a point to the right of it for ``hold`` samples
+=================  ==============================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from .errors import ProblemError
+from .rules import RowGeometry, Rule, RuleContext, RuleInstance, SampleView, check_positive
+
+__all__ = ["Detour", "GearCycle", "KeepRight", "Parking", "StallRepair", "TouchingPairs",
+           "TurnLimit", "hold_touching_rows", "limit_turning"]
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+# ----------------------------------------------------------------------------- geometry
+
+
+class _KeepRightInstance(RuleInstance):
+    rule: KeepRight
+
+    def configure_rows(self, geometry: RowGeometry) -> None:
+        r = self.rule
+        i = np.arange(self.context.horizon)
+        angles = np.minimum(r.angle + i * r.growth, r.max_angle)
+        geometry.rotation = np.ascontiguousarray(np.stack((np.cos(angles), np.sin(angles)), -1))
+
+
+@dataclass(frozen=True)
+class KeepRight(Rule):
+    """Rotate the collision normals clockwise-facing by ``angle`` rad (stage ``i``:
+    ``min(angle + (i - 1) growth, max_angle)``)."""
+
+    name = "keep-right"
+    summary = "tilt every collision normal by 0.3 rad so symmetric encounters pass on the right"
+    instance = _KeepRightInstance
+    angle: float = 0.3
+    growth: float = 0.0
+    max_angle: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_positive(self, "angle", "max_angle")
+        check_positive(self, "growth", allow_zero=True)
+        if self.angle >= np.pi / 2 or self.max_angle >= np.pi / 2:
+            raise ProblemError(f"rule 'keep-right': angle and max_angle must be below pi/2, "
+                               f"got {self.angle}, {self.max_angle}")
+
+
+class _TurnLimitInstance(RuleInstance):
+    rule: TurnLimit
+
+    def configure_rows(self, geometry: RowGeometry) -> None:
+        geometry.max_turn = self.rule.max_turn
+
+
+@dataclass(frozen=True)
+class TurnLimit(Rule):
+    """A pair's collision normal turns at most ``max_turn`` rad between stages."""
+
+    name = "turn-limit"
+    summary = "a pair's collision normal turns at most 0.6 rad from one stage to the next"
+    instance = _TurnLimitInstance
+    max_turn: float = 0.6
+
+    def __post_init__(self) -> None:
+        check_positive(self, "max_turn")
+        if self.max_turn >= np.pi:
+            raise ProblemError(f"rule 'turn-limit': max_turn must be below pi, "
+                               f"got {self.max_turn}")
+
+
+class _TouchingInstance(RuleInstance):
+    def configure_rows(self, geometry: RowGeometry) -> None:
+        geometry.hold_touching = True
+
+
+@dataclass(frozen=True)
+class TouchingPairs(Rule):
+    """Decentralized: a pair inside the margin band keeps its stage-1 row on stage 2."""
+
+    name = "touching-pairs"
+    summary = "decentralized: touching pairs repeat the stage-1 row on stage 2 (turn, then go)"
+    instance = _TouchingInstance
+
+
+@_jit
+def limit_turning(n0x: float, n0y: float, normals: np.ndarray, max_turn: float) -> None:
+    r"""Limit the turn of a pair's normal between consecutive stages (in place).
+
+    ``normals (N, 2)`` are the unit normals of stages 1..N; stage 0 is the
+    current normal ``(n0x, n0y)``. A normal turning by more than ``max_turn``
+    from the previous (already limited) one is replaced by the previous one
+    rotated by ``max_turn`` towards it (counter-clockwise when exactly
+    opposite). See :class:`sqpmpc.liveness.TurnLimit`.
+    """
+    cos_max = math.cos(max_turn)
+    c, s = math.cos(max_turn), math.sin(max_turn)
+    px, py = n0x, n0y
+    for i in range(normals.shape[0]):
+        cx, cy = normals[i, 0], normals[i, 1]
+        if px * cx + py * cy < cos_max:
+            if px * cy - py * cx < 0.0:
+                cx, cy = c * px + s * py, -s * px + c * py
+            else:
+                cx, cy = c * px - s * py, s * px + c * py
+            normals[i, 0], normals[i, 1] = cx, cy
+        px, py = cx, cy
+
+
+@_jit
+def hold_touching_rows(me: np.ndarray, touching: np.ndarray, A_out: np.ndarray,
+                     lower_out: np.ndarray) -> None:
+    """Touching pairs (``touching (E,)``) repeat the stage-1 row on stage 2, in place."""
+    if A_out.shape[1] < 2:
+        return
+    for e in range(touching.shape[0]):
+        if touching[e]:
+            A_out[e, 1, 0], A_out[e, 1, 1] = A_out[e, 0, 0], A_out[e, 0, 1]
+            lower_out[e, 1] = A_out[e, 0, 0] * me[0] + A_out[e, 0, 1] * me[1]
+
+
+# ----------------------------------------------------------------- linearization point
+
+
+@_jit
+def _repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
+                   only: np.ndarray, slow: float, distance: float, ahead_speed: float,
+                   back_speed: float) -> int:
+    """Set the guess speeds of stalled robots to ``ahead_speed``/``back_speed``; count them.
+
+    A robot (``only[r]``) is stalled when every ``|speeds[r]| < slow`` and its
+    goal is farther than ``distance``; it is linearized moving towards the goal
+    (forward if the goal is not behind its heading).
+    """
+    repaired = 0
+    for r in range(speeds.shape[0]):
+        if not only[r]:
+            continue
+        fastest = 0.0
+        for i in range(speeds.shape[1]):
+            fastest = max(fastest, abs(speeds[r, i]))
+        if not fastest < slow:
+            continue
+        gx, gy = goals[r, 0] - states[r, 0], goals[r, 1] - states[r, 1]
+        if not np.hypot(gx, gy) > distance:
+            continue
+        ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
+        speeds[r, :] = ahead_speed if ahead else back_speed
+        repaired += 1
+    return repaired
+
+
+class _StallInstance(RuleInstance):
+    rule: StallRepair
+    counter_names = ("stall_repairs",)
+
+    def __init__(self, rule: StallRepair, context: RuleContext) -> None:
+        super().__init__(rule, context)
+        lo, up = context.scenario.bounds.input_lower()[0], context.scenario.bounds.input_upper()[0]
+        self._ahead, self._back = (float(np.clip(s, lo, up)) for s in (rule.speed, -rule.speed))
+        self._all = np.ones(context.own.size, dtype=np.bool_)
+
+    def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
+        self.counts["stall_repairs"] += _repair_speeds(
+            speeds, view.references[:, -1], view.own_states, self._all, self.rule.speed,
+            self.rule.distance, self._ahead, self._back)
+
+
+@dataclass(frozen=True)
+class StallRepair(Rule):
+    """Linearize a stalled robot (every guess ``|v| < speed``, goal farther than
+    ``distance``) at ``v = +-speed`` towards its goal."""
+
+    name = "stall-repair"
+    summary = "linearize a stopped robot far from its goal at a small speed (v = 0 cannot steer)"
+    instance = _StallInstance
+    speed: float = 0.05
+    distance: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_positive(self, "speed", "distance")
+
+
+@_jit
+def _parking_mask(raw: np.ndarray, positions: np.ndarray, radius: float,
+                  out: np.ndarray) -> bool:
+    """Robots whose reference rests over the horizon within ``radius``; whether it changed."""
+    changed = False
+    for r in range(raw.shape[0]):
+        rest = True
+        for i in range(raw.shape[1]):
+            if abs(raw[r, i, 0] - raw[r, 0, 0]) > 1e-9 or abs(raw[r, i, 1] - raw[r, 0, 1]) > 1e-9:
+                rest = False
+                break
+        near = np.hypot(raw[r, -1, 0] - positions[r, 0], raw[r, -1, 1] - positions[r, 1])
+        park = rest and near <= radius
+        if park != out[r]:
+            changed = True
+            out[r] = park
+    return changed
+
+
+class _ParkingInstance(RuleInstance):
+    rule: Parking
+    counter_names = ("parked_samples", "parking_repairs")
+
+    def __init__(self, rule: Parking, context: RuleContext) -> None:
+        super().__init__(rule, context)
+        horizon_time = context.horizon * context.sample_time
+        self.gain = rule.gain * max(1.0, (rule.horizon / horizon_time) ** 2)
+        self.radius = max(rule.radius,
+                          rule.reach * context.max_speed * max(horizon_time, rule.horizon))
+        lo, up = context.scenario.bounds.input_lower()[0], context.scenario.bounds.input_upper()[0]
+        self._ahead, self._back = (float(np.clip(s, lo, up)) for s in (rule.speed, -rule.speed))
+        self.parking = np.zeros(context.own.size, dtype=np.bool_)
+
+    def shape_references(self, view: SampleView) -> None:
+        if _parking_mask(view.scenario_references, view.own_states, self.radius, self.parking):
+            self.context.engine.update_position_weight_scale(
+                np.where(self.parking, self.gain, 1.0))
+        self.counts["parked_samples"] += int(np.count_nonzero(self.parking))
+
+    def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
+        self.counts["parking_repairs"] += _repair_speeds(
+            speeds, view.references[:, -1], view.own_states, self.parking, self.rule.speed,
+            self.rule.tolerance, self._ahead, self._back)
+
+
+@dataclass(frozen=True)
+class Parking(Rule):
+    r"""Weigh the position of a robot near a reference at rest ``gain`` times more.
+
+    The parking radius is the larger of ``radius`` and ``reach`` times the
+    distance the robot travels in ``max(N Ts, horizon)`` at full speed (1.2 m
+    for the built-in bounds); the gain grows as ``(horizon / (N Ts))^2`` below
+    ``horizon`` seconds, since turning within a shorter horizon costs that much
+    more input energy. With the paper's weights the optimal plan stops short
+    of a goal to the robot's side (converged IPOPT stops 0.07-0.17 m short).
+    A parking robot whose guess is at rest farther than ``tolerance`` from its
+    goal is linearized at ``+-speed``, as in ``stall-repair``.
+    """
+
+    name = "parking"
+    summary = "near a resting reference: 20x position weight and a small linearization speed"
+    instance = _ParkingInstance
+    gain: float = 20.0
+    horizon: float = 4.0
+    radius: float = 0.25
+    reach: float = 0.5
+    tolerance: float = 0.01
+    speed: float = 0.05
+
+    def __post_init__(self) -> None:
+        check_positive(self, "gain", "horizon", "radius", "reach", "tolerance", "speed")
+        if self.gain <= 1.0:
+            raise ProblemError(f"rule 'parking': gain must be > 1 (remove the rule to turn it "
+                               f"off), got {self.gain}")
+
+
+# ------------------------------------------------------------------------- after solve
+
+
+class _GearCycleInstance(RuleInstance):
+    rule: GearCycle
+    counter_names = ("gear_cycle_samples",)
+
+    def __init__(self, rule: GearCycle, context: RuleContext) -> None:
+        super().__init__(rule, context)
+        self._rti = context.iteration_scheme == "rti"
+
+    def after_solve(self, view: SampleView) -> bool:
+        if not self._rti:
+            return False
+        eps = self.rule.min_speed
+        engine = self.context.engine
+        v = engine.first_speeds()
+        v1, v2 = view.applied[:, 0], view.applied_before[:, 0]
+        moving = (np.abs(v) > eps) & (np.abs(v1) > eps) & (np.abs(v2) > eps)
+        cycle = moving & (np.sign(v) == np.sign(v2)) & (np.sign(v) != np.sign(v1))
+        if not np.count_nonzero(cycle) or not np.count_nonzero(
+                cycle & ~engine.engaged_robots(engine.y)):
+            return False
+        self.counts["gear_cycle_samples"] += 1
+        return True
+
+
+@dataclass(frozen=True)
+class GearCycle(Rule):
+    """RTI: iterate a sample to convergence when a robot no collision row holds would
+    reverse gear a second sample in a row (speeds above ``min_speed``)."""
+
+    name = "gear-cycle"
+    summary = "RTI: converge the sample (SQP) when a free robot reverses gear twice in a row"
+    instance = _GearCycleInstance
+    min_speed: float = 0.005
+
+    def __post_init__(self) -> None:
+        check_positive(self, "min_speed")
+
+
+# ------------------------------------------------------------------------------ detour
+
+
+class _DetourInstance(RuleInstance):
+    rule: Detour
+    counter_names = ("detour_activations",)
+
+    def __init__(self, rule: Detour, context: RuleContext) -> None:
+        super().__init__(rule, context)
+        m = context.own.size
+        self.patience = rule.patience_centralized if context.scheme == "centralized" \
+            else rule.patience
+        self.required = context.scenario.required_distances()
+        self.own_required = self.required[context.own]
+        self.blocked_for = np.zeros(m, dtype=np.int64)
+        self.active_for = np.zeros(m, dtype=np.int64)
+        self.blocker = np.full(m, -1, dtype=np.int64)
+        self._rows = np.arange(m)
+        self._cos_cone = np.cos(rule.cone)
+        self._turn = np.array([[np.cos(rule.angle), -np.sin(rule.angle)],
+                               [np.sin(rule.angle), np.cos(rule.angle)]])
+
+    def shape_references(self, view: SampleView) -> None:
+        r = self.rule
+        positions = view.positions
+        if positions.shape[0] < 2:
+            return
+        slow = np.abs(view.applied[:, 0]) < r.speed
+        if not np.count_nonzero(slow) and not np.count_nonzero(self.active_for):
+            self.blocked_for[:] = 0  # hot path: nobody is a candidate or on a detour
+            return
+        own = self.context.own
+        reference = view.references
+        p = positions[own]
+        goal = reference[:, -1] - p
+        goal_dist = np.hypot(goal[:, 0], goal[:, 1])
+        candidates = slow & (goal_dist > r.reach)
+        rel = positions[None, :, :] - p[:, None, :]
+        dist = np.hypot(rel[..., 0], rel[..., 1])
+        dist[self._rows, own] = np.inf
+        along = rel[..., 0] * goal[:, None, 0] + rel[..., 1] * goal[:, None, 1]
+        cos = along / np.maximum(dist * goal_dist[:, None], 1e-12)
+        blocking = (dist < self.own_required + r.reach) & (cos > self._cos_cone)
+        blocked = candidates & blocking.any(axis=1)
+        self.blocked_for = np.where(blocked, self.blocked_for + 1, 0)
+        closest = np.argmin(np.where(blocking, dist, np.inf), axis=1)
+        start = blocked & (self.blocked_for >= self.patience)
+        self.counts["detour_activations"] += int(np.count_nonzero(start & (self.active_for == 0)))
+        self.blocker = np.where(start, closest, self.blocker)
+        self.active_for = np.where(start, r.hold, np.maximum(self.active_for - 1, 0))
+        active = np.flatnonzero(self.active_for > 0)
+        if not active.size:
+            return
+        out = reference.copy()
+        for i in active:
+            b = self.blocker[i]
+            away = p[i] - positions[b]
+            away = away / max(np.hypot(*away), 1e-12)
+            target = positions[b] + r.radius_factor * self.required[own[i], b] * (
+                self._turn @ away)
+            out[i] = target
+        view.references = out
+
+
+@dataclass(frozen=True)
+class Detour(Rule):
+    r"""Right-hand detour around a blocking neighbour.
+
+    A robot is *blocked* when its last applied speed is below ``speed`` and a
+    neighbour closer than the required distance plus ``reach`` lies within
+    ``cone`` of the direction to its stage-N reference, which is farther than
+    ``reach``. After ``patience`` blocked samples (``patience_centralized``
+    for the centralized controller, whose joint optimization resolves most
+    encounters itself) its reference on every stage becomes, for ``hold``
+    samples (renewed while blocked), the point at ``radius_factor`` times the
+    required distance from the blocker, ``angle`` to the right of the
+    direction from the blocker to itself: two robots doing so pass on their
+    right.
+    """
+
+    name = "detour"
+    summary = "a robot blocked by a neighbour heads for a point to its right for a few samples"
+    instance = _DetourInstance
+    speed: float = 0.05
+    reach: float = 0.3
+    cone: float = float(np.deg2rad(75.0))
+    patience: int = 2
+    patience_centralized: int = 8
+    hold: int = 6
+    radius_factor: float = 2.0
+    angle: float = float(np.deg2rad(60.0))
+
+    def __post_init__(self) -> None:
+        check_positive(self, "speed", "reach", "cone", "patience", "patience_centralized",
+                       "hold", "radius_factor", "angle")
+        for name in ("patience", "patience_centralized", "hold"):
+            if not isinstance(getattr(self, name), int):
+                raise ProblemError(f"rule 'detour': {name} must be an integer, "
+                                   f"got {getattr(self, name)!r}")
