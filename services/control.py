@@ -19,6 +19,7 @@ import numpy as np
 
 from sqpmpc.controllers import CentralizedController, DecentralizedController
 from sqpmpc.qp import OSQPSettings
+from sqpmpc.registry import add_rule_arguments, rules_from_arguments
 from sqpmpc.scenario import Scenario
 from sqpmpc.settings import SolverSettings
 
@@ -39,16 +40,19 @@ def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str)
                              "is a counted fallback")
     parser.add_argument("--startup-timeout", type=float, default=None,
                         help="give up when no state came within this time, s (default: wait)")
+    add_rule_arguments(parser)
 
 
 def controller_settings(args: argparse.Namespace) -> SolverSettings:
-    """The library's default settings; ``--qp-time-limit`` bounds each QP and the sample.
+    """The library's default settings with the chosen rules; ``--qp-time-limit`` bounds
+    each QP and the sample.
 
     The same value is the sample's ``time_budget``: iterations (the first
-    sample's SQP, a gear-cycle sample) start no new QP once it is spent.
+    sample's SQP, a sample a rule asks to converge) start no new QP once it is spent.
     """
-    limit = float(args.qp_time_limit)
-    return SolverSettings(time_budget=limit, osqp=OSQPSettings(time_limit=limit))
+    limit = float(args.qp_time_limit) or None
+    return SolverSettings(time_budget=limit, osqp=OSQPSettings(time_limit=limit),
+                          rules=rules_from_arguments(args))
 
 
 @dataclass
@@ -124,9 +128,8 @@ class ControllerNode(Node):
     def publish_cmd(self, robot_id: int, sample: int, u: np.ndarray, compute_time: float,
                     fallback: str | None) -> None:
         """Publish one robot's input for ``sample``."""
-        c = self.controller
         msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid,
-                     c.engine.qp.rescue_count, c.gear_cycle_samples)
+                     self.controller.counters())
         self.bus.put(encode(msg), "robot", robot_id, "cmd")
 
     def run(self) -> int:

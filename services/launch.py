@@ -35,6 +35,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from sqpmpc.errors import ProblemError
+from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
+
 from .node import install_signal_handlers, scenario_from_args
 from .plant import summarize
 
@@ -157,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--pin-cpus", action="store_true",
                         help="pin each controller to one CPU (round robin)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
+    add_rule_arguments(parser)
     return parser
 
 
@@ -177,9 +181,9 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     if args.no_plots:
         plant.append("--no-plots")
     cmds = [("plant", plant)]
-    controller_extra: list[str] = []
+    controller_extra: list[str] = rule_arguments(args)
     if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback
-        controller_extra = ["--qp-time-limit", repr(0.4 * sample_time)]
+        controller_extra += ["--qp-time-limit", repr(0.4 * sample_time)]
     for name, port in zip(names, ports[1:], strict=True):
         net = ["--listen", f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *controller_extra]
         if name == "central":
@@ -200,6 +204,11 @@ def main(argv: list[str] | None = None) -> int:
     run = args.run or f"run-{os.getpid()}-{secrets.token_hex(3)}"
     args.run = run
     scenario = scenario_from_args(PROG, args)  # exits 2 with one message on bad input
+    try:
+        rules_from_arguments(args)  # refused here once, not by every child
+    except ProblemError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
     stop = threading.Event()

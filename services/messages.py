@@ -18,8 +18,9 @@ type       fields (besides ``v`` and ``type``)
            lockstep), ``scenario`` str (digest of the scenario and its overrides)
 ``cmd``    ``id`` int, ``sample`` int >= 0, ``u`` [v, omega], ``compute_time`` float >= 0 (s),
            ``fallback`` str or nil, ``invalid`` int >= 0 (messages the sender dropped);
-           optional ``qp_rescues``, ``gear_cycle_samples`` int >= 0 (the sending
-           controller's totals so far, 0 when absent)
+           optional ``counters`` {str: int >= 0} (the sending controller's totals so far:
+           engine and rule counters, ``sqpmpc rules``; at most 64 entries; empty when
+           absent)
 ``plan``   ``id`` int, ``sample`` int >= 0, ``t`` float (time t_k), ``stamp`` float (sender's wall
            clock, Unix s), ``states`` (N+1) x 3, ``inputs`` N x 2
 ``done``   ``sample`` int (samples simulated), ``completed`` bool
@@ -82,8 +83,7 @@ class CmdMsg:
     compute_time: float
     fallback: str | None = None
     invalid: int = 0
-    qp_rescues: int = 0
-    gear_cycle_samples: int = 0
+    counters: dict[str, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,8 +137,8 @@ def encode(msg: Message) -> bytes:
     elif isinstance(msg, CmdMsg):
         body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
                 "compute_time": float(msg.compute_time), "fallback": msg.fallback,
-                "invalid": int(msg.invalid), "qp_rescues": int(msg.qp_rescues),
-                "gear_cycle_samples": int(msg.gear_cycle_samples)}
+                "invalid": int(msg.invalid),
+                "counters": {str(k): int(v) for k, v in (msg.counters or {}).items()}}
     elif isinstance(msg, PlanMsg):
         body = {"type": "plan", "id": int(msg.id), "sample": int(msg.sample), "t": float(msg.t),
                 "stamp": float(msg.stamp), "states": _floats(msg.states),
@@ -237,9 +237,7 @@ def decode(payload: bytes, horizon: int) -> Message:
         if compute_time < 0.0:
             raise InvalidMessage(f"'compute_time' must be >= 0, got {compute_time}")
         return CmdMsg(_int(body, "id"), _int(body, "sample", 0), _array(body, "u", (2,)),
-                      compute_time, fallback, _int(body, "invalid", 0),
-                      *(_int(body, key, 0) if key in body else 0
-                        for key in ("qp_rescues", "gear_cycle_samples")))
+                      compute_time, fallback, _int(body, "invalid", 0), _counters(body))
     if kind == "plan":
         return PlanMsg(_int(body, "id"), _int(body, "sample", 0), _float(body, "t"),
                        _float(body, "stamp"), _array(body, "states", (horizon + 1, 3)),
@@ -250,6 +248,19 @@ def decode(payload: bytes, horizon: int) -> Message:
             raise InvalidMessage("'completed' must be a boolean")
         return DoneMsg(_int(body, "sample", 0), completed)
     raise InvalidMessage(f"unknown message type {kind!r}")
+
+
+def _counters(body: dict[str, Any]) -> dict[str, int]:
+    """The optional ``counters`` map of a cmd: at most 64 str keys, int values >= 0."""
+    counters = body.get("counters", {})
+    if not isinstance(counters, dict) or len(counters) > 64:
+        raise InvalidMessage("'counters' must be a map of at most 64 entries")
+    out: dict[str, int] = {}
+    for key, value in counters.items():
+        if not isinstance(key, str) or len(key) > 64 or type(value) is not int or value < 0:
+            raise InvalidMessage("'counters' must map names to integers >= 0")
+        out[key] = value
+    return out
 
 
 class MessageValidator:

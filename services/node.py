@@ -103,11 +103,14 @@ _N = TypeVar("_N")
 
 
 def open_node(prog: str, factory: Callable[[], _N]) -> _N:
-    """``factory()`` (which opens a Zenoh session); a bad endpoint exits with status 2."""
+    """``factory()`` (which opens a Zenoh session); a bad endpoint or bad controller
+    options (``--rules``, ...) exit with status 2 and one message."""
     try:
         return factory()
     except zenoh.ZError as exc:
         fail(prog, f"cannot open the Zenoh session: {str(exc).split(' at /')[0]}")
+    except ProblemError as exc:
+        fail(prog, str(exc))
 
 
 def scenario_digest(scenario: Scenario) -> str:

@@ -28,6 +28,7 @@ import logging
 import signal
 import sys
 import time
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -83,7 +84,7 @@ class PlantNode(Node):
         self._missing: set[int] = set()
         self.solver_failures = 0
         self.reported_invalid: dict[str, int] = {}
-        self.reported_counts: dict[str, tuple[int, int]] = {}  # (QP rescues, gear-cycle samples)
+        self.reported_counts: dict[str, dict[str, int]] = {}  # each controller's counters
         self.loop_wall = 0.0
         self.running = False
         self.sample_walls: list[float] = []
@@ -114,7 +115,7 @@ class PlantNode(Node):
             return
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
         self.reported_invalid[sender] = msg.invalid
-        self.reported_counts[sender] = (msg.qp_rescues, msg.gear_cycle_samples)
+        self.reported_counts[sender] = msg.counters or {}
         if msg.sample < self.k:
             self.late_commands += 1
         else:
@@ -208,8 +209,7 @@ class PlantNode(Node):
             "lockstep_timeouts": int(self.timeouts),
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
-            "qp_rescues": int(sum(c[0] for c in self.reported_counts.values())),
-            "gear_cycle_samples": int(sum(c[1] for c in self.reported_counts.values())),
+            "counters": _summed(self.reported_counts.values()),
             "interrupted": signal.Signals(sig).name if sig else None,
             "plant_discretization": self.method,
             "sample_loop_wall_s": float(self.loop_wall),
@@ -296,3 +296,12 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:
+    """Counters of several controllers added up by name."""
+    total: dict[str, int] = {}
+    for c in counters:
+        for key, value in c.items():
+            total[key] = total.get(key, 0) + int(value)
+    return total

@@ -14,10 +14,9 @@ import sys
 import time
 from pathlib import Path
 
-from .deadlock import DetourSettings
 from .errors import ProblemError, ScenarioError
 from .metrics import write_run
-from .qp import OSQPSettings
+from .registry import add_rule_arguments, describe_rules, rules_from_arguments
 from .scenario import builtin_scenario_names, load_scenario
 from .settings import SolverSettings
 from .simulation import ClosedLoopSimulation, SimulationOptions
@@ -43,31 +42,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="one QP per sample (rti, default) or SQP to convergence")
     run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
     run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
-    run.add_argument("--keep-right-angle", type=float, default=None,
-                     help="symmetry-breaking rotation of collision normals, rad")
-    run.add_argument("--keep-right-growth", type=float, default=None,
-                     help="growth of the rotation per stage, rad")
     run.add_argument("--collision-margin", type=float, default=None,
                      help="added to every required distance in the QP, m (default 0.001); "
                           "raise it to cover a plant that differs from the prediction model")
     run.add_argument("--slack-penalty", type=float, default=None,
                      help="L1 price of collision slacks on stages 2..N")
-    run.add_argument("--detour-patience", type=int, default=None,
-                     help="blocked samples before the right-hand detour starts")
-    run.add_argument("--no-detour", action="store_true", help="disable the detour rule")
-    run.add_argument("--max-normal-turn", type=float, default=None,
-                     help="largest turn of a pair's normal between stages, rad")
-    run.add_argument("--stall-speed", type=float, default=None,
-                     help="linearization speed for stalled robots, m/s (0 disables)")
-    run.add_argument("--parking-gain", type=float, default=None,
-                     help="position-weight factor near a resting reference (1 disables)")
-    run.add_argument("--no-gear-cycle-sqp", action="store_true",
-                     help="never iterate a gear 2-cycle to convergence")
+    add_rule_arguments(run)
     run.add_argument("--message-drop", type=float, default=0.0,
                      help="decentralized: probability that a plan message is lost")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     run.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     sub.add_parser("list", help="list the built-in scenarios")
+    sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
     return parser
 
 
@@ -92,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "list":
         print("\n".join(builtin_scenario_names()))
         return 0
+    if args.command == "rules":
+        print(describe_rules())
+        return 0
     try:
         scenario = load_scenario(args.scenario)
         base = SolverSettings()
@@ -99,23 +88,11 @@ def main(argv: list[str] | None = None) -> int:
             iteration_scheme=args.iteration,
             hessian=args.hessian,
             discretization=args.discretization,
-            keep_right_angle=base.keep_right_angle if args.keep_right_angle is None
-            else args.keep_right_angle,
-            keep_right_growth=base.keep_right_growth if args.keep_right_growth is None
-            else args.keep_right_growth,
             collision_margin=base.collision_margin if args.collision_margin is None
             else args.collision_margin,
             slack_penalty=base.slack_penalty if args.slack_penalty is None
             else args.slack_penalty,
-            detour=DetourSettings(enabled=not args.no_detour) if args.detour_patience is None
-            else DetourSettings(enabled=not args.no_detour, patience=args.detour_patience,
-                                patience_centralized=args.detour_patience),
-            max_normal_turn=base.max_normal_turn if args.max_normal_turn is None
-            else args.max_normal_turn,
-            stall_speed=base.stall_speed if args.stall_speed is None else args.stall_speed,
-            parking_gain=base.parking_gain if args.parking_gain is None else args.parking_gain,
-            gear_cycle_sqp=not args.no_gear_cycle_sqp,
-            osqp=OSQPSettings(),
+            rules=rules_from_arguments(args),
         )
         options = SimulationOptions(decentralized_mode=args.decentralized_mode,
                                     message_drop_probability=args.message_drop,

@@ -216,6 +216,7 @@ class ExternalCollisionModel:
         self._shared_mask = np.zeros(E, dtype=np.bool_)
         self._any_shared = self._any_obstacle = self._any_missing = False
         self._avoid = np.zeros(E, dtype=np.bool_)
+        self._kinds_key = b""
 
     def set_sample(self, current_self: np.ndarray, current_others: np.ndarray,
                    own_prediction: np.ndarray, other_predictions: np.ndarray,
@@ -234,12 +235,15 @@ class ExternalCollisionModel:
         kinds
             ``(E,)`` slot kinds (:data:`SHARED`, ...).
         """
-        self.kind = kinds
-        np.equal(kinds, SHARED, out=self._shared_mask)
-        self._any_shared = bool(self._shared_mask.any())
-        self._any_obstacle = bool((kinds == OBSTACLE).any())
-        self._any_missing = bool((kinds == MISSING).any())
-        self._avoid = (kinds == OBSTACLE) | (kinds == MISSING)
+        key = kinds.tobytes()
+        if key != self._kinds_key:  # the slot kinds rarely change: masks only then
+            self._kinds_key = key
+            self.kind = kinds.copy()
+            np.equal(kinds, SHARED, out=self._shared_mask)
+            self._any_shared = bool(self._shared_mask.any())
+            self._any_obstacle = bool((kinds == OBSTACLE).any())
+            self._any_missing = bool((kinds == MISSING).any())
+            self._avoid = (kinds == OBSTACLE) | (kinds == MISSING)
         self.current_self = np.ascontiguousarray(current_self, dtype=float)
         self.current_others = np.ascontiguousarray(current_others, dtype=float)
         self.obstacles = other_predictions

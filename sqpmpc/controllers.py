@@ -258,16 +258,22 @@ class DecentralizedController(ControllerPipeline):
                                                           method)[1:]
         shared = self.mode == "shared"
         kinds = self._kinds
+        preds = self._other_predictions
         missing = 0
         for e, jid in self._neighbours:
             plan = plans.get(jid)
-            if plan is not None and (not shared or plan.sample == sample - 1) and \
-                    self._fill_from_plan(self._other_predictions[e], plan, sample, recent):
-                kinds[e] = SHARED if shared else OBSTACLE
-                continue
+            if plan is not None:
+                if plan.sample == sample - 1 and plan.states.shape[0] == N + 1:
+                    preds[e, :N - 1] = plan.states[2:]  # the usual case, inline
+                    recent.append((preds[e], plan.states[-1], plan.inputs[-1]))
+                    kinds[e] = SHARED if shared else OBSTACLE
+                    continue
+                if not shared and self._fill_from_plan(preds[e], plan, sample, recent):
+                    kinds[e] = OBSTACLE
+                    continue
             j = self.others[e]
             prev = None if previous_states is None else previous_states[j]
-            self._other_predictions[e] = predict_from_states(states[j], prev, N, h, method)[1:]
+            preds[e] = predict_from_states(states[j], prev, N, h, method)[1:]
             kinds[e] = MISSING if shared else OBSTACLE
             missing += 1
         if recent:

@@ -25,7 +25,7 @@ import time
 import numba
 import numpy as np
 
-from .liveness import hold_touching_rows, limit_turning
+from .liveness import hold_touching_rows, limit_turning, warm_up_rules
 
 __all__ = [
     "euler_linearize",
@@ -335,7 +335,7 @@ def warm_up() -> float:
                 np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
                 np.empty((1, 2)), np.empty(1), touching)
     hold_touching_rows(np.zeros(2), touching, A, lo)
-    limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
+    warm_up_rules()
     return time.perf_counter() - t0
 
 

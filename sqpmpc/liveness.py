@@ -44,7 +44,7 @@ from .errors import ProblemError
 from .rules import RowGeometry, Rule, RuleContext, RuleInstance, SampleView, check_positive
 
 __all__ = ["Detour", "GearCycle", "KeepRight", "Parking", "StallRepair", "TouchingPairs",
-           "TurnLimit", "hold_touching_rows", "limit_turning"]
+           "TurnLimit", "hold_touching_rows", "limit_turning", "warm_up_rules"]
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -198,8 +198,8 @@ class _StallInstance(RuleInstance):
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
         self.counts["stall_repairs"] += _repair_speeds(
-            speeds, view.references[:, -1], view.own_states, self._all, self.rule.speed,
-            self.rule.distance, self._ahead, self._back)
+            speeds, np.ascontiguousarray(view.references[:, -1]), view.own_states, self._all,
+            self.rule.speed, self.rule.distance, self._ahead, self._back)
 
 
 @dataclass(frozen=True)
@@ -258,8 +258,8 @@ class _ParkingInstance(RuleInstance):
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
         self.counts["parking_repairs"] += _repair_speeds(
-            speeds, view.references[:, -1], view.own_states, self.parking, self.rule.speed,
-            self.rule.tolerance, self._ahead, self._back)
+            speeds, np.ascontiguousarray(view.references[:, -1]), view.own_states, self.parking,
+            self.rule.speed, self.rule.tolerance, self._ahead, self._back)
 
 
 @dataclass(frozen=True)
@@ -296,6 +296,18 @@ class Parking(Rule):
 # ------------------------------------------------------------------------- after solve
 
 
+@_jit
+def _reversing(v: np.ndarray, v1: np.ndarray, v2: np.ndarray, eps: float,
+               out: np.ndarray) -> int:
+    """Robots whose plan reverses gear a second sample in a row (speeds above ``eps``)."""
+    count = 0
+    for r in range(v.shape[0]):
+        moving = abs(v[r]) > eps and abs(v1[r]) > eps and abs(v2[r]) > eps
+        out[r] = moving and np.sign(v[r]) == np.sign(v2[r]) and np.sign(v[r]) != np.sign(v1[r])
+        count += out[r]
+    return count
+
+
 class _GearCycleInstance(RuleInstance):
     rule: GearCycle
     counter_names = ("gear_cycle_samples",)
@@ -303,18 +315,17 @@ class _GearCycleInstance(RuleInstance):
     def __init__(self, rule: GearCycle, context: RuleContext) -> None:
         super().__init__(rule, context)
         self._rti = context.iteration_scheme == "rti"
+        self._cycle = np.zeros(context.own.size, dtype=np.bool_)
 
     def after_solve(self, view: SampleView) -> bool:
         if not self._rti:
             return False
-        eps = self.rule.min_speed
         engine = self.context.engine
-        v = engine.first_speeds()
-        v1, v2 = view.applied[:, 0], view.applied_before[:, 0]
-        moving = (np.abs(v) > eps) & (np.abs(v1) > eps) & (np.abs(v2) > eps)
-        cycle = moving & (np.sign(v) == np.sign(v2)) & (np.sign(v) != np.sign(v1))
-        if not np.count_nonzero(cycle) or not np.count_nonzero(
-                cycle & ~engine.engaged_robots(engine.y)):
+        if not _reversing(engine.first_speeds(), np.ascontiguousarray(view.applied[:, 0]),
+                          np.ascontiguousarray(view.applied_before[:, 0]),
+                          self.rule.min_speed, self._cycle):
+            return False
+        if not np.count_nonzero(self._cycle & ~engine.engaged_robots(engine.y)):
             return False
         self.counts["gear_cycle_samples"] += 1
         return True
@@ -334,7 +345,65 @@ class GearCycle(Rule):
         check_positive(self, "min_speed")
 
 
+def warm_up_rules() -> None:
+    """Compile or load the rules' kernels with the array layouts the pipeline passes."""
+    speeds = np.zeros((2, 6))[:, ::2]  # a strided view, as the iterate's speeds
+    states = np.zeros((2, 3))
+    _repair_speeds(speeds, np.ones((2, 2)), states, np.ones(2, dtype=np.bool_), 0.05, 0.1,
+                   0.05, -0.05)
+    _parking_mask(np.zeros((2, 3, 2)), np.zeros((2, 3)), 1.0, np.zeros(2, dtype=np.bool_))
+    limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
+    hold_touching_rows(np.zeros(2), np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
+                       np.zeros((1, 2)))
+    _reversing(np.zeros(2), np.zeros(2), np.zeros(2), 0.005, np.zeros(2, dtype=np.bool_))
+    i = np.zeros(2, dtype=np.int64)
+    _detour_step(np.zeros((3, 2)), np.arange(2), np.zeros((2, 2)), np.ones((2, 2)),
+                 np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())
+
+
 # ------------------------------------------------------------------------------ detour
+
+
+@_jit
+def _detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
+                 goals: np.ndarray, required: np.ndarray, speed: float, reach: float,
+                 cos_cone: float, patience: int, hold: int, blocked_for: np.ndarray,
+                 active_for: np.ndarray, blocker: np.ndarray) -> int:
+    """Advance the detour state of the own robots by one sample; returns new activations.
+
+    ``required (m, n)`` are the own robots' required distances to everyone and
+    ``goals (m, 2)`` their stage-N references; the state arrays ``(m,)`` are
+    updated in place (see :class:`Detour`).
+    """
+    activations = 0
+    for r in range(own.shape[0]):
+        i = own[r]
+        px, py = positions[i, 0], positions[i, 1]
+        gx, gy = goals[r, 0] - px, goals[r, 1] - py
+        goal_dist = np.hypot(gx, gy)
+        blocked = False
+        closest = -1
+        best = np.inf
+        if abs(applied[r, 0]) < speed and goal_dist > reach:
+            for j in range(positions.shape[0]):
+                if j == i:
+                    continue
+                rx, ry = positions[j, 0] - px, positions[j, 1] - py
+                d = np.hypot(rx, ry)
+                cos = (rx * gx + ry * gy) / max(d * goal_dist, 1e-12)
+                if d < required[r, j] + reach and cos > cos_cone:
+                    blocked = True
+                    if d < best:
+                        best, closest = d, j
+        blocked_for[r] = blocked_for[r] + 1 if blocked else 0
+        if blocked and blocked_for[r] >= patience:
+            if active_for[r] == 0:
+                activations += 1
+            blocker[r] = closest
+            active_for[r] = hold
+        else:
+            active_for[r] = max(active_for[r] - 1, 0)
+    return activations
 
 
 class _DetourInstance(RuleInstance):
@@ -351,7 +420,6 @@ class _DetourInstance(RuleInstance):
         self.blocked_for = np.zeros(m, dtype=np.int64)
         self.active_for = np.zeros(m, dtype=np.int64)
         self.blocker = np.full(m, -1, dtype=np.int64)
-        self._rows = np.arange(m)
         self._cos_cone = np.cos(rule.cone)
         self._turn = np.array([[np.cos(rule.angle), -np.sin(rule.angle)],
                                [np.sin(rule.angle), np.cos(rule.angle)]])
@@ -361,40 +429,22 @@ class _DetourInstance(RuleInstance):
         positions = view.positions
         if positions.shape[0] < 2:
             return
-        slow = np.abs(view.applied[:, 0]) < r.speed
-        if not np.count_nonzero(slow) and not np.count_nonzero(self.active_for):
-            self.blocked_for[:] = 0  # hot path: nobody is a candidate or on a detour
-            return
-        own = self.context.own
-        reference = view.references
-        p = positions[own]
-        goal = reference[:, -1] - p
-        goal_dist = np.hypot(goal[:, 0], goal[:, 1])
-        candidates = slow & (goal_dist > r.reach)
-        rel = positions[None, :, :] - p[:, None, :]
-        dist = np.hypot(rel[..., 0], rel[..., 1])
-        dist[self._rows, own] = np.inf
-        along = rel[..., 0] * goal[:, None, 0] + rel[..., 1] * goal[:, None, 1]
-        cos = along / np.maximum(dist * goal_dist[:, None], 1e-12)
-        blocking = (dist < self.own_required + r.reach) & (cos > self._cos_cone)
-        blocked = candidates & blocking.any(axis=1)
-        self.blocked_for = np.where(blocked, self.blocked_for + 1, 0)
-        closest = np.argmin(np.where(blocking, dist, np.inf), axis=1)
-        start = blocked & (self.blocked_for >= self.patience)
-        self.counts["detour_activations"] += int(np.count_nonzero(start & (self.active_for == 0)))
-        self.blocker = np.where(start, closest, self.blocker)
-        self.active_for = np.where(start, r.hold, np.maximum(self.active_for - 1, 0))
-        active = np.flatnonzero(self.active_for > 0)
+        self.counts["detour_activations"] += _detour_step(
+            positions, self.context.own, view.applied,
+            np.ascontiguousarray(view.references[:, -1]), self.own_required, r.speed, r.reach,
+            self._cos_cone, self.patience, r.hold, self.blocked_for, self.active_for,
+            self.blocker)
+        active = np.flatnonzero(self.active_for)
         if not active.size:
             return
-        out = reference.copy()
+        own = self.context.own
+        out = view.references.copy()
         for i in active:
             b = self.blocker[i]
-            away = p[i] - positions[b]
+            away = positions[own[i]] - positions[b]
             away = away / max(np.hypot(*away), 1e-12)
-            target = positions[b] + r.radius_factor * self.required[own[i], b] * (
+            out[i] = positions[b] + r.radius_factor * self.required[own[i], b] * (
                 self._turn @ away)
-            out[i] = target
         view.references = out
 
 

@@ -174,8 +174,8 @@ class ControllerPipeline:
         self._predict_neighbours(sample, states, plans or {}, previous_states)
         # 3. rules shape the references
         raw = self._references.positions(t + self._stage_offsets)
-        view = SampleView(sample, t, states[:, :2], own, raw, raw, self._applied,
-                          self._applied_before)
+        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]), own, raw, raw,
+                          self._applied, self._applied_before)
         for rule in self._reference_rules:
             rule.shape_references(view)
         # 4. shift, then rules shape the linearization point

@@ -7,6 +7,8 @@ benchmarks' "rules off") goes through :func:`select_rules`.
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 from collections.abc import Iterable, Sequence
 
 from .errors import ProblemError
@@ -16,7 +18,11 @@ from .rules import Rule
 __all__ = [
     "RULES",
     "SAFETY_ROWS",
+    "add_rule_arguments",
     "check_rules",
+    "rule_arguments",
+    "rules_from_arguments",
+    "set_rule_parameters",
     "default_rules",
     "describe_rules",
     "rule_names",
@@ -31,12 +37,12 @@ RULES: dict[str, type[Rule]] = {
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.collision`).
 SAFETY_ROWS: dict[str, str] = {
-    "inner-approximation": "every collision row is a separating hyperplane n'(p_j - p_l) >= d, "
-                           "which implies the true distance",
-    "stage-one-override": "a stage-1 normal that would make the current configuration "
-                          "infeasible is replaced by the current one: stopping stays feasible",
-    "missing-neighbour-reach": "a neighbour without a fresh plan is kept at d plus what it "
-                               "can travel in one sample on stage 1 (or not approached)",
+    "inner-approximation": "rows are separating hyperplanes n'(p_j - p_l) >= d: they imply "
+                           "the distance",
+    "stage-one-override": "a stage-1 row that the current positions violate uses their "
+                          "normal: stopping stays feasible",
+    "missing-neighbour-reach": "a neighbour without a fresh plan: stage 1 keeps d plus its "
+                               "one-sample reach",
 }
 
 
@@ -100,3 +106,67 @@ def describe_rules() -> str:
     lines.append("safety rows (always on):")
     lines += [f"  {name:<{width}}  {text}" for name, text in SAFETY_ROWS.items()]
     return "\n".join(lines)
+
+
+def set_rule_parameters(rules: Sequence[Rule], assignments: Iterable[str],
+                        option: str = "--rule-param") -> tuple[Rule, ...]:
+    """Rules with parameters changed by ``RULE.FIELD=VALUE`` assignments (validated).
+
+    The value is parsed as the field's current type (int, float or bool).
+    """
+    by_name = {r.name: r for r in rules}
+    for text in assignments:
+        target, sep, raw = text.partition("=")
+        rule_name, dot, field = target.strip().partition(".")
+        if not sep or not dot:
+            raise ProblemError(f"{option}: expected RULE.FIELD=VALUE, got {text!r}")
+        if rule_name not in by_name:
+            raise ProblemError(f"{option}: rule {rule_name!r} is not on (rules on: "
+                               f"{', '.join(by_name) or 'none'})")
+        rule = by_name[rule_name]
+        fields = rule.parameters()
+        if field not in fields:
+            raise ProblemError(f"{option}: rule {rule_name!r} has no parameter {field!r} "
+                               f"(parameters: {', '.join(fields) or 'none'})")
+        current = fields[field]
+        try:
+            if isinstance(current, bool):
+                if raw.strip().lower() not in ("true", "false"):
+                    raise ValueError(raw)
+                value: object = raw.strip().lower() == "true"
+            else:
+                value = type(current)(raw)
+        except ValueError:
+            raise ProblemError(f"{option}: {rule_name}.{field} must be a "
+                               f"{type(current).__name__}, got {raw!r}") from None
+        by_name[rule_name] = dataclasses.replace(rule, **{field: value})
+    return check_rules(list(by_name.values()))
+
+
+def add_rule_arguments(parser: argparse.ArgumentParser) -> None:
+    """The rule options every command takes (read by :func:`rules_from_arguments`)."""
+    group = parser.add_argument_group("rules (sqpmpc rules lists them)")
+    group.add_argument("--rules", default=None, metavar="NAME,NAME",
+                       help="the liveness rules to use, comma-separated, or 'none' "
+                            "(default: all)")
+    group.add_argument("--without", action="append", default=[], metavar="NAME",
+                       help="remove one rule (repeatable)")
+    group.add_argument("--rule-param", action="append", default=[], metavar="RULE.FIELD=VALUE",
+                       help="set a rule's parameter, e.g. keep-right.angle=0.1 (repeatable)")
+
+
+def rules_from_arguments(args: argparse.Namespace) -> tuple[Rule, ...]:
+    """The rules chosen by :func:`add_rule_arguments`' options."""
+    names = None if args.rules is None else args.rules.split(",")
+    rules = select_rules(names, args.without, option="--rules")
+    return set_rule_parameters(rules, args.rule_param)
+
+
+def rule_arguments(args: argparse.Namespace) -> list[str]:
+    """The rule options of ``args`` as command-line words (to hand to a child process)."""
+    words: list[str] = [] if args.rules is None else ["--rules", args.rules]
+    for name in args.without:
+        words += ["--without", name]
+    for text in args.rule_param:
+        words += ["--rule-param", text]
+    return words

@@ -35,7 +35,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from .errors import ProblemError
-from .kernels import euler_linearize, euler_rollout
+from .kernels import euler_linearize, euler_rollout, euler_step
 from .layout import QPLayout
 from .model import (
     discrete_dynamics,
@@ -223,8 +223,12 @@ class MultipleShootingSQP:
             return
         L = self.layout
         last_state = L.state_index[:, -1]
-        last = discrete_dynamics(self.z[last_state], self.z[L.input_index[:, -1]],
-                                 self.sample_time, self.settings.discretization)
+        x, u = self.z[last_state], self.z[L.input_index[:, -1]]
+        if self.settings.discretization == "euler":
+            last = np.empty_like(x)
+            euler_step(x, u, self.sample_time, last)
+        else:
+            last = discrete_dynamics(x, u, self.sample_time, self.settings.discretization)
         self.z = self.z[self._shift_z]
         self.z[last_state] = last
         self.y = self.y[self._shift_y]

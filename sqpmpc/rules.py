@@ -28,6 +28,7 @@ built-in rules is :mod:`sqpmpc.registry`; their implementations are in
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
@@ -210,7 +211,7 @@ class Rule:
 
     def parameters(self) -> dict[str, object]:
         """The rule's parameters by name."""
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 def check_positive(rule: Rule, *names: str, allow_zero: bool = False) -> None:
