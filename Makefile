@@ -14,10 +14,12 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
+	$(BIN)/python -m sqpmpc.kernels
 	$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized --out runs/demo
 
 test: $(STAMP)
 	$(BIN)/ruff check sqpmpc services tests benchmarks
+	$(BIN)/python -m sqpmpc.kernels
 	$(BIN)/pytest -q
 
 bench: $(STAMP)

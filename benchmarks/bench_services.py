@@ -114,7 +114,8 @@ def bench_realtime(out: Path, duration: float, sample_time: float, horizon: int)
           f", by robot {m['missed_deadlines_by_robot']}, late commands {m['late_commands']}")
     print(f"  collisions {m['collisions']} (between samples {m['intersample_collisions']}), "
           f"min clearance {m['min_clearance']:.4g} m, solver failures {m['solver_failures']}, "
-          f"QP rescues {m['qp_rescues']}, controller time per sample (sum over robots) "
+          f"QP rescues {m['counters'].get('qp_rescues', 0)}, "
+          f"controller time per sample (sum over robots) "
           f"median {st['median_ms']:.2f} ms, p99 {st['p99_ms']:.2f} ms, max {st['max_ms']:.2f} ms")
     err = m["max_final_position_error"]
     print(f"  horizon N = {horizon} ({horizon * m['sample_time']:.2f} s): largest final distance "

@@ -271,8 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"kkt_tolerance {defaults.kkt_tolerance:g}, max_sqp_iterations "
             f"{defaults.max_sqp_iterations}, OSQP eps_abs/eps_rel {defaults.osqp.eps_abs:g}/"
             f"{defaults.osqp.eps_rel:g}, collision_margin {defaults.collision_margin:g} m, "
-            f"keep_right_angle {defaults.keep_right_angle:g} rad, detour rule "
-            f"{'on' if defaults.detour.enabled else 'off'}, slack_penalty "
+            f"rules {', '.join(r.name for r in defaults.rules)}, slack_penalty "
             f"{defaults.slack_penalty:g}"),
         "repetitions (RTI, IPOPT)": f"{repeats}, best kept",
         "SQP rows on": "all scenarios" if sqp is None else (", ".join(sqp) or "none"),

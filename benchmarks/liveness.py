@@ -5,7 +5,9 @@ symmetric, and the closed loop is chaotic there: one run that arrives proves
 little. This benchmark runs each of them from the nominal initial states and
 from ``--seeds`` perturbed ones (independent Gaussian noise of ``--noise`` m on
 every position and ``--noise`` rad on every heading; one block per value), with
-sqpmpc's rules (keep-right rotation and detour) on and, for contrast, off, and
+sqpmpc's rules (``sqpmpc rules``) all on, without the two symmetry breakers
+(keep-right and detour) and with no rule at all, for contrast (the registry's
+names, :func:`sqpmpc.registry.select_rules`), and
 counts the runs in which every robot ends within 0.05 m of its goal, the
 collisions at and between samples, the fallbacks, the OSQP rescues and the
 samples iterated to convergence by the gear-cycle rule.
@@ -26,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.deadlock import DetourSettings
 from sqpmpc.metrics import compute_metrics
+from sqpmpc.registry import select_rules
 from sqpmpc.scenario import Scenario, load_scenario
 from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import simulate
@@ -42,7 +44,8 @@ DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "liveness.md"
 SCENARIOS = ("swap-6", "crossing-4", "head-on")
 RULES = {
     "rules on (default)": SolverSettings(),
-    "rules off": SolverSettings(keep_right_angle=0.0, detour=DetourSettings(enabled=False)),
+    "without keep-right, detour": SolverSettings().without("keep-right", "detour"),
+    "no rules": SolverSettings(rules=select_rules(["none"])),
 }
 
 
@@ -72,8 +75,8 @@ def run_family(scenario: Scenario, scheme: str, settings: SolverSettings, seeds:
         collisions += int(m["collisions"])
         between += int(m["intersample_collisions"])
         fallbacks += int(m["solver_failures"])
-        rescues += int(m.get("qp_rescues", 0))
-        gear_cycles += int(m.get("gear_cycle_samples", 0))
+        rescues += int(m["counters"].get("qp_rescues", 0))
+        gear_cycles += int(m["counters"].get("gear_cycle_samples", 0))
         if not ok:
             failed.append(f"{seed}: {err:.2f} m")
     return {"runs": seeds + 1, "arrived": arrived, "worst": worst, "collisions": collisions,
@@ -120,10 +123,10 @@ Each family is the nominal scenario (seed 0) plus {args.seeds} runs whose initia
 positions and headings carry independent Gaussian noise of the *noise* column, in
 m and rad ({", ".join(f"{n:g}" for n in args.noise)}). The scenarios are exactly
 symmetric, so the nominal run alone can arrive by luck; the perturbed runs measure
-how much of the arrival is the rules' doing. *Rules*: the keep-right rotation of the
-collision normals and the right-hand detour (`sqpmpc.deadlock`); *off* disables
-both. The parking and gear-cycle rules (`SolverSettings`) stay on in both: they fix
-stopping short of a goal and an RTI oscillation, not standoffs. Collisions are
+how much of the arrival is the rules' doing. *Rules* (`sqpmpc rules`): all on (the
+default); without the two symmetry breakers, the keep-right rotation of the collision
+normals and the right-hand detour (the others, which fix stopping short of a goal and
+an RTI oscillation, stay on); and no rule at all. Collisions are
 counted over all runs of a family, at the samples and along the straight segments
 between them.
 

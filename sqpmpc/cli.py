@@ -101,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ScenarioError, ProblemError) as exc:
         print(f"sqpmpc: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before the run started: nothing to write
+        print("sqpmpc: interrupted before the run started", file=sys.stderr)
+        return 130
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
     status = 0

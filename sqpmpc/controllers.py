@@ -153,7 +153,7 @@ class CentralizedController(ControllerPipeline):
         RK4 the path is an arc; the chord is then an approximation.)
         """
         p = np.ascontiguousarray(next_states[:, :2])
-        if not self.collisions.first_input_safe(self.collisions.current_positions, p):
+        if not self.collisions.first_input_safe(np.ascontiguousarray(states[:, :2]), p):
             return False
         return self._in_position_bounds(p)
 

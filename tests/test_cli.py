@@ -69,13 +69,31 @@ def test_bad_input_gives_one_clear_error_and_status_2(tmp_path: Path, what: str,
     assert not (tmp_path / "o").exists()
 
 
-def test_bad_parking_gain_is_refused_by_name(tmp_path: Path) -> None:
-    proc = run_cli("run", "head-on", "--scheme", "centralized", "--parking-gain", "0.5",
+@pytest.mark.parametrize(("args", "needles"), [
+    (["--rule-param", "parking.gain=0.5"], ["parking", "gain", "0.5"]),
+    (["--rule-param", "parking.gain=fast"], ["parking.gain", "fast"]),
+    (["--without", "parkin"], ["--without", "parkin"]),
+    (["--rules", "detour,nope"], ["--rules", "nope"]),
+    (["--without", "detour", "--rule-param", "detour.hold=3"], ["--rule-param", "detour"]),
+])
+def test_bad_rule_options_are_refused_by_name(tmp_path: Path, args: list[str],
+                                              needles: list[str]) -> None:
+    proc = run_cli("run", "head-on", "--scheme", "centralized", *args,
                    "--out", str(tmp_path / "o"))
     assert proc.returncode == 2
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "parking_gain" in lines[0] and "0.5" in lines[0]
+    assert len(lines) == 1 and all(n in lines[0] for n in needles), lines
     assert not (tmp_path / "o").exists()
+
+
+def test_rules_subcommand_lists_every_rule_and_safety_row() -> None:
+    from sqpmpc.registry import SAFETY_ROWS, rule_names
+
+    proc = run_cli("rules")
+    assert proc.returncode == 0
+    lines = proc.stdout.splitlines()
+    for name in [*rule_names(), *SAFETY_ROWS]:
+        assert sum(line.split()[0] == name for line in lines if line.startswith("  ")) == 1
 
 
 def test_overlapping_robots_are_refused(tmp_path: Path) -> None:

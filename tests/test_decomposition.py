@@ -9,6 +9,7 @@ import pytest
 
 from benchmarks.decomposition import OraclePredictionSimulation
 from sqpmpc import controllers
+from sqpmpc.collision import SHARED
 from sqpmpc.controllers import DecentralizedController
 from sqpmpc.metrics import compute_metrics
 from sqpmpc.scenario import load_scenario
@@ -24,11 +25,14 @@ def test_oracle_plans_reach_every_robot_unshifted() -> None:
     plan = sim.oracle.step(sim.t[k], x)
     sim.hand_out(k, plan)
     for j, c in enumerate(sim.controllers):
-        preds, kinds = c._predictions(k, x, sim._plans, sim.states[k - 1])
-        assert kinds == ["shared"] * (sim.scenario.n_robots - 1)
-        np.testing.assert_allclose(preds[0], plan.predicted_states[j], rtol=0, atol=1e-12)
-        for row, other in enumerate(c.others, start=1):
-            np.testing.assert_allclose(preds[row], plan.predicted_states[other], rtol=0, atol=1e-12)
+        c._predict_neighbours(k, x, sim._plans, sim.states[k - 1])
+        assert c.collisions.kind.tolist() == [SHARED] * (sim.scenario.n_robots - 1)
+        # predictions of stages 1..N
+        np.testing.assert_allclose(c._own_prediction, plan.predicted_states[j][1:], rtol=0,
+                                   atol=1e-12)
+        for e, other in enumerate(c.others):
+            np.testing.assert_allclose(c._other_predictions[e],
+                                       plan.predicted_states[other][1:], rtol=0, atol=1e-12)
     sim.step()
     assert compute_metrics(sim.record())["collisions"] == 0
 

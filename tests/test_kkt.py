@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from sqpmpc.controllers import CentralizedController
-from sqpmpc.deadlock import DetourSettings
 from sqpmpc.model import discrete_dynamics
 from sqpmpc.qp import OSQPSettings
 from sqpmpc.scenario import load_scenario
@@ -73,11 +72,10 @@ def test_sqp_solution_satisfies_nlp_kkt_conditions() -> None:
     t = sim.t[sim.k]
     settings = SolverSettings(
         iteration_scheme="sqp", kkt_tolerance=1e-9, max_sqp_iterations=200,
-        first_sample_iterations=200, keep_right_angle=0.0, stall_speed=0.0,
-        detour=DetourSettings(enabled=False),
+        first_sample_iterations=200,
         osqp=OSQPSettings(eps_abs=1e-11, eps_rel=1e-11, max_iter=200000, polishing=True,
                           accept_inaccurate=False),
-    )
+    ).without("keep-right", "stall-repair", "detour")
     ctrl = CentralizedController(sc, settings)
     out = ctrl.step(t, x_meas)
     assert out.fallback is None

@@ -262,7 +262,7 @@ def test_matrix_free_products_equal_the_csc_matrix() -> None:
     np.testing.assert_allclose(layout.A_transpose_times(values, y), A.T @ y, atol=1e-12)
 
 
-def _stopped_qp(rescue_solver: str) -> tuple[SparseQP, dict]:
+def _stopped_qp(rescue_solver: str | None) -> tuple[SparseQP, dict]:
     """A random QP whose OSQP solve stops after 5 ADMM iterations, unsolved."""
     layout = QPLayout(2, N, np.array([(0, 1)]), 1, True)
     settings = OSQPSettings(max_iter=5, accept_inaccurate=False, rescue_solver=rescue_solver)
@@ -273,7 +273,7 @@ def _stopped_qp(rescue_solver: str) -> tuple[SparseQP, dict]:
 
 
 def test_a_stopped_osqp_solve_is_rescued_by_the_interior_point_solver() -> None:
-    qp, d = _stopped_qp("none")
+    qp, d = _stopped_qp(None)
     res = qp.solve()
     assert not res.success and res.status == "maximum iterations reached"
     assert qp.rescue_count == 0

@@ -67,7 +67,7 @@ def test_round_trip_is_bit_exact():
 
     cmd = CmdMsg(3, 7, np.array([0.1 / 3, -math.pi / 7]), 0.00123, "brake", 4)
     back = decode(encode(cmd), N)
-    assert back == CmdMsg(3, 7, back.u, 0.00123, "brake", 4)
+    assert back == CmdMsg(3, 7, back.u, 0.00123, "brake", 4, {})
     assert np.array_equal(back.u, cmd.u)
 
     assert decode(encode(DoneMsg(80, True)), N) == DoneMsg(80, True)
@@ -179,20 +179,21 @@ def test_wrong_types_in_a_plan_are_refused(field, value):
         decode(_raw(body), N)
 
 
-def test_cmd_counters_round_trip_and_default_to_zero():
-    cmd = CmdMsg(3, 7, np.array([0.1, -0.2]), 1e-4, "brake", 2, qp_rescues=5,
-                 gear_cycle_samples=9)
+def test_cmd_counters_round_trip_and_default_to_empty():
+    cmd = CmdMsg(3, 7, np.array([0.1, -0.2]), 1e-4, "brake", 2,
+                 counters={"qp_rescues": 5, "gear_cycle_samples": 9})
     back = decode(encode(cmd), N)
-    assert (back.qp_rescues, back.gear_cycle_samples, back.invalid) == (5, 9, 2)
+    assert back.counters == {"qp_rescues": 5, "gear_cycle_samples": 9} and back.invalid == 2
     body = _body(cmd)
-    del body["qp_rescues"], body["gear_cycle_samples"]  # an older sender
-    back = decode(_raw(body), N)
-    assert (back.qp_rescues, back.gear_cycle_samples) == (0, 0)
+    del body["counters"]  # an older sender
+    assert decode(_raw(body), N).counters == {}
 
 
 @pytest.mark.parametrize("field,value", [
     ("compute_time", -1.0), ("fallback", 3), ("invalid", -2), ("u", None),
-    ("qp_rescues", -1), ("gear_cycle_samples", 1.5),
+    ("counters", {"qp_rescues": -1}), ("counters", {"gear_cycle_samples": 1.5}),
+    ("counters", {"x" * 65: 1}), ("counters", {str(i): 1 for i in range(65)}),
+    ("counters", [1, 2]),
 ])
 def test_wrong_values_in_a_cmd_are_refused(field, value):
     body = _body(CmdMsg(1, 0, np.zeros(2), 0.0))
