@@ -267,6 +267,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+
+def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:
+    """Counters of several controllers added up by name."""
+    total: dict[str, int] = {}
+    for c in counters:
+        for key, value in c.items():
+            total[key] = total.get(key, 0) + int(value)
+    return total
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (0 completed, 128+signal, 1 otherwise)."""
     args = build_parser().parse_args(argv)
@@ -297,11 +307,3 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     sys.exit(main())
 
-
-def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:
-    """Counters of several controllers added up by name."""
-    total: dict[str, int] = {}
-    for c in counters:
-        for key, value in c.items():
-            total[key] = total.get(key, 0) + int(value)
-    return total
