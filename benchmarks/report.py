@@ -49,12 +49,20 @@ def _cost_cell(row: RowResult, ref: RowResult | None) -> str:
     return f"{ratio:.3f} (<= {target:g}: {_mark(ratio <= target)})"
 
 
+def _time_target(row: RowResult) -> float:
+    """IPOPT / RTI time ratio target: 10 on paper-s2 centralized, 5 elsewhere."""
+    if row.spec.scheme == "centralized" and not row.spec.settings and (
+            row.scenario_name == TIMING_SCENARIO):
+        return TARGETS["rti_time_ratio_central"]
+    return TARGETS["rti_time_ratio"]
+
+
 def _time_cell(row: RowResult, ref: RowResult) -> str:
     if row.spec.kind == "ipopt":
         return "1 (reference)"
     ratio = ref.total_time_s / row.total_time_s
     if row.spec.kind == "rti":
-        target = TARGETS["rti_time_ratio"]
+        target = _time_target(row)
         return f"{ratio:.1f} (>= {target:g}: {_mark(ratio >= target)})"
     return f"{ratio:.2f}"
 
@@ -95,7 +103,7 @@ def timing_table(results: Sequence[ScenarioResult]) -> str:
     """Markdown table: where the sqpmpc controller time goes, mean per controller step."""
     head = ("| scenario | controller | controller steps | assembly ms | QP update + solve ms | "
             "of which OSQP solve ms | rest ms | whole controller ms | "
-            "controller / OSQP solve (<= 1.5) |")
+            "controller / OSQP solve | RTI: controller / (QP update + solve) (<= 1.3) |")
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
     for res in results:
         for row in res.rows:
@@ -104,12 +112,15 @@ def timing_table(results: Sequence[ScenarioResult]) -> str:
             t, n = row.timing, row.controller_steps
             rest = t["total_s"] - t["assembly_s"] - t["qp_s"]
             ratio = t["total_s"] / t["osqp_solve_s"] if t["osqp_solve_s"] > 0 else float("inf")
+            qp_ratio = t["total_s"] / t["qp_s"] if t["qp_s"] > 0 else float("inf")
+            qp_cell = (f"{qp_ratio:.2f} ({_mark(qp_ratio <= TARGETS['qp_overhead'])})"
+                       if row.spec.kind == "rti" else f"{qp_ratio:.2f}")
             ms = 1e3 / n
             lines.append(
                 f"| {res.scenario.name} | {row.spec.label} | {n} | "
                 f"{t['assembly_s'] * ms:.4f} | {t['qp_s'] * ms:.4f} | "
                 f"{t['osqp_solve_s'] * ms:.4f} | {rest * ms:.4f} | {t['total_s'] * ms:.4f} | "
-                f"{ratio:.2f} ({_mark(ratio <= TARGETS['osqp_overhead'])}) |")
+                f"{ratio:.2f} | {qp_cell} |")
     return "\n".join(lines)
 
 
@@ -200,10 +211,10 @@ def targets_summary(results: Sequence[ScenarioResult]) -> list[str]:
                         _Value(name, short, ratio, ratio <= target, seg.at_goal))
             if row.spec.kind == "rti":
                 r = ref.total_time_s / row.total_time_s
-                time_ratio.append(_Value(name, short, r, r >= TARGETS["rti_time_ratio"]))
-            if row.timing is not None and row.timing["osqp_solve_s"] > 0:
-                r = row.timing["total_s"] / row.timing["osqp_solve_s"]
-                overhead.append(_Value(name, short, r, r <= TARGETS["osqp_overhead"]))
+                time_ratio.append(_Value(name, short, r, r >= _time_target(row)))
+            if row.spec.kind == "rti" and row.timing is not None and row.timing["qp_s"] > 0:
+                r = row.timing["total_s"] / row.timing["qp_s"]
+                overhead.append(_Value(name, short, r, r <= TARGETS["qp_overhead"]))
             if (row.spec.kind == "rti" and name == TIMING_SCENARIO and not row.spec.settings
                     and row.spec.scheme == "centralized"):
                 v = row.median_sample_ms
@@ -220,15 +231,17 @@ def targets_summary(results: Sequence[ScenarioResult]) -> list[str]:
                       "centralized, inter-sample safe (ratio)", cost_seg["rti"])
     lines += _verdict(f"SQP closed-loop cost <= {TARGETS['sqp_cost_ratio']:g} x IPOPT "
                       "centralized, inter-sample safe (ratio)", cost_seg["sqp"])
-    lines += _verdict(f"RTI controller time >= {TARGETS['rti_time_ratio']:g} x less than "
-                      "IPOPT's (IPOPT total / RTI total, all controllers)", time_ratio, 1)
+    lines += _verdict(f"RTI controller time >= {TARGETS['rti_time_ratio_central']:g} x less "
+                      f"than IPOPT's on {TIMING_SCENARIO} centralized and >= "
+                      f"{TARGETS['rti_time_ratio']:g} x elsewhere (IPOPT total / RTI total, "
+                      "all controllers)", time_ratio, 1)
     lines += _verdict(f"median centralized RTI sample on {TIMING_SCENARIO} <= "
                       f"{TARGETS['central_median_ms']:g} ms (ms)", central)
     lines += _verdict(f"median decentralized per-robot sample <= "
                       f"{TARGETS['decentral_median_ms']:g} ms (largest per-robot median, ms)",
                       decentral)
-    lines += _verdict(f"whole controller time <= {TARGETS['osqp_overhead']:g} x OSQP's own "
-                      "solve time (ratio)", overhead, 2)
+    lines += _verdict(f"RTI: whole controller time <= {TARGETS['qp_overhead']:g} x the QP's "
+                      "update + solve wall time (ratio)", overhead, 2)
     lines += _verdict(f"sqpmpc: every robot ends within {GOAL_TOLERANCE:g} m of its goal "
                       "(max final error, m)", goals)
     lines += _verdict(f"IPOPT: every robot ends within {GOAL_TOLERANCE:g} m of its goal "

@@ -26,8 +26,10 @@ import numba
 import numpy as np
 
 from .liveness import hold_touching_rows, limit_turning, warm_up_rules
+from .references import _harmonic_positions
 
 __all__ = [
+    "all_finite",
     "euler_linearize",
     "euler_rollout",
     "euler_step",
@@ -38,6 +40,15 @@ __all__ = [
 ]
 
 _jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def all_finite(values: np.ndarray) -> bool:
+    """Whether every entry of the 1-D array ``values`` is finite (no NaN, no inf)."""
+    for v in values:
+        if not math.isfinite(v):
+            return False
+    return True
 
 
 @_jit
@@ -315,6 +326,7 @@ def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
 def warm_up() -> float:
     """Compile (first time on a machine) or load every kernel; returns the seconds taken."""
     t0 = time.perf_counter()
+    all_finite(np.zeros(3))
     x = np.zeros((2, 3))
     u = np.zeros((2, 2))
     euler_step(x, u, 0.1, np.empty((2, 3)))
@@ -336,6 +348,7 @@ def warm_up() -> float:
                 np.empty((1, 2)), np.empty(1), touching)
     hold_touching_rows(np.zeros(2), touching, A, lo)
     warm_up_rules()
+    _harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     return time.perf_counter() - t0
 
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import ProblemError
-from .kernels import warm_up
+from .kernels import all_finite, warm_up
 from .layout import QPLayout
 from .references import ReferenceSet
 from .rti import CollisionRows, IterationReport, MultipleShootingSQP
@@ -166,7 +166,7 @@ class ControllerPipeline:
         t0 = time.perf_counter()
         # 1. measure
         states = np.asarray(states, dtype=float)
-        if states.shape != (self._n, 3) or not np.isfinite(states).all():
+        if states.shape != (self._n, 3) or not all_finite(states.ravel()):
             raise ProblemError(f"states must be finite with shape ({self._n}, 3), "
                                f"got {states.shape}")
         own = states[self.indices]
@@ -242,7 +242,7 @@ class ControllerPipeline:
         if report.success:
             plan_u = engine.inputs()
             np.clip(plan_u[:, 0], self.input_lower, self.input_upper, out=plan_u[:, 0])
-            if np.isfinite(plan_u).all():
+            if all_finite(plan_u.ravel()):
                 plan_x = engine.rollout(own, plan_u)  # stage 1 is the next state exactly
                 if self._safe(own, plan_x[:, 1]):
                     return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
@@ -250,7 +250,7 @@ class ControllerPipeline:
         fallback, plan_u, plan_x = "brake", None, None
         if shifted is not None:
             candidate = np.clip(shifted, self.input_lower, self.input_upper)
-            if np.isfinite(candidate).all():
+            if all_finite(candidate.ravel()):
                 candidate_x = engine.rollout(own, candidate)
                 if self._safe(own, candidate_x[:, 1]):
                     fallback, plan_u, plan_x = "shifted-plan", candidate, candidate_x

@@ -26,6 +26,7 @@ import qpsolvers
 import scipy.sparse as sp
 
 from .errors import ProblemError, SolverError
+from .kernels import all_finite
 from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
 
 __all__ = ["OSQPSettings", "QPResult", "SparseQP", "solve_interior_point"]
@@ -473,7 +474,7 @@ class SparseQP:
             raise KeyboardInterrupt
         x = np.array(solution.x, dtype=float, copy=True)
         y = np.array(solution.y, dtype=float, copy=True)
-        finite = x.size == self.layout.n_var and np.isfinite(x).all() and np.isfinite(y).all()
+        finite = x.size == self.layout.n_var and all_finite(x) and all_finite(y)
         ok_status = info.status_val == _SOLVED_EXACTLY or (
             self.settings.accept_inaccurate and info.status_val in _SOLVED
         )

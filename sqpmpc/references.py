@@ -29,6 +29,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from .errors import ScenarioError
@@ -136,6 +137,22 @@ def _real_vector(value: Any, n: int | None, key: str, what: str,
 
 def _as_time(t: float | np.ndarray) -> np.ndarray:
     return np.asarray(t, dtype=np.float64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _harmonic_positions(coeffs: np.ndarray, times: np.ndarray, out: np.ndarray) -> None:
+    """Harmonic references ``coeffs (m, 7)`` (omega, c, s, k of x and y) at ``times (T,)``.
+
+    The same arithmetic as :meth:`HarmonicReference.position`:
+    ``c + s sin(omega t) + k cos(omega t)``.
+    """
+    for r in range(coeffs.shape[0]):
+        w = coeffs[r, 0]
+        for i in range(times.shape[0]):
+            wt = w * times[i]
+            sn, cs = np.sin(wt), np.cos(wt)
+            out[r, i, 0] = coeffs[r, 1] + coeffs[r, 2] * sn + coeffs[r, 3] * cs
+            out[r, i, 1] = coeffs[r, 4] + coeffs[r, 5] * sn + coeffs[r, 6] * cs
 
 
 # ---------------------------------------------------------------------------
@@ -339,6 +356,7 @@ class ReferenceSet:
         coeffs = np.array([(r.omega,) + r.x + r.y for r in self.references
                            if isinstance(r, HarmonicReference)]).reshape(-1, 7)
         self._coeffs = tuple(coeffs[:, i:i + 1] for i in range(7))
+        self._coeff_table = np.ascontiguousarray(coeffs)
         self._points = slice(None) if len(points) == m else np.array(points, dtype=np.int64)
         self._n_points = len(points)
         self._point_xy = np.array([self.references[i].position_xy for i in points]
@@ -348,6 +366,9 @@ class ReferenceSet:
         """Positions ``(m, T, 2)`` of every reference at ``times (T,)``, m."""
         times = _as_time(times)
         out = np.empty((len(self.references),) + times.shape + (2,))
+        if self._n_harmonic == len(self.references) and times.ndim == 1:
+            _harmonic_positions(self._coeff_table, times, out)  # hot path: one kernel
+            return out
         if self._n_harmonic:
             omega, cx, sx, kx, cy, sy, ky = self._coeffs
             wt = omega * times

@@ -35,7 +35,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from .errors import ProblemError
-from .kernels import euler_linearize, euler_rollout, euler_step
+from .kernels import all_finite, euler_linearize, euler_rollout, euler_step
 from .layout import QPLayout
 from .model import (
     discrete_dynamics,
@@ -402,7 +402,7 @@ class MultipleShootingSQP:
         if deadline is None and s.time_budget is not None:
             deadline = t_start + s.time_budget
         initial_states = np.asarray(initial_states, float)
-        if initial_states.shape != (L.n_robots, 3) or not np.isfinite(initial_states).all():
+        if initial_states.shape != (L.n_robots, 3) or not all_finite(initial_states.ravel()):
             raise ProblemError(
                 f"initial_states must be finite with shape ({L.n_robots}, 3), "
                 f"got {initial_states.shape}"
