@@ -1,5 +1,6 @@
 # sqpmpc: `make demo` runs the distributed demo, `make test` the checks.
 # Both create the virtual environment .venv from pyproject.toml on first use.
+# The tests run the compiled kernels with bounds checks (an index error instead of a crash).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -19,8 +20,8 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check sqpmpc services tests benchmarks
-	$(BIN)/python -m sqpmpc.kernels
-	$(BIN)/pytest -q
+	NUMBA_BOUNDSCHECK=1 $(BIN)/python -m sqpmpc.kernels
+	NUMBA_BOUNDSCHECK=1 $(BIN)/pytest -q
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.compare_ipopt

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import pair_rows, pairs_keep_distance, shared_rows
+from .kernels import obstacle_rows, pair_rows, pairs_keep_distance, shared_rows
 from .liveness import hold_touching_rows
 from .rules import RowGeometry
 
@@ -263,37 +263,14 @@ class ExternalCollisionModel:
         lower_out[0] = self.fixed_rhs
         overrides = self._shared_overrides
         if self._any_obstacle or self._any_missing:
-            overrides += self._avoid_rows(states[0, 1:, :2], A_out[0], lower_out[0])
+            overrides += self._avoid_rows(states[0, 1:], A_out[0], lower_out[0])
         self.stage_one_overrides = overrides
 
     def _avoid_rows(self, own: np.ndarray, normals: np.ndarray, rhs: np.ndarray) -> int:
-        """Obstacle and missing slots, relinearized at the own positions ``own (N, 2)``."""
-        obst = self._avoid
-        me = self.current_self
-        o = self.obstacles[obst, :, :2]
-        gap_now = me - self.current_others[obst]
-        n0 = _unit(gap_now, _X_AXIS)
-        n = _unit(own[None] - o, n0[:, None, :])
-        c, s = self.geometry.rotation[:, 0], self.geometry.rotation[:, 1]
-        n = np.stack((n[..., 0] * c - n[..., 1] * s, n[..., 0] * s + n[..., 1] * c), axis=-1)
-        overrides = 0
-        req = self.required[obst]
-        if self.stage_one_rule_for_obstacles:  # the stage-one-override safety row
-            keeps = _dot(n[:, 0], gap_now) >= req
-            overrides = int(keeps.size - np.count_nonzero(keeps))
-            n[:, 0] = np.where(keeps[:, None], n[:, 0], n0)
-        normals[obst] = n
-        rhs[obst] = _dot(n, o) + req[:, None]
-        if self._any_missing:  # the missing-neighbour-reach safety row
-            missing = self.kind == MISSING
-            others = self.current_others[missing]
-            gap_now = me - others
-            n0 = _unit(gap_now, _X_AXIS)
-            keep = self.required[missing] + self.reach
-            normals[missing, 0] = n0
-            rhs[missing, 0] = np.where(_dot(n0, gap_now) >= keep, _dot(n0, others) + keep,
-                                       _dot(n0, me))
-        return overrides
+        """Obstacle and missing slots, relinearized at the own stages 1..N ``own (N, 2+)``."""
+        return obstacle_rows(self.current_self, self.current_others, own, self.obstacles,
+                             self.kind, self.required, self.reach, self.geometry.rotation,
+                             self.stage_one_rule_for_obstacles, normals, rhs)
 
     def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12) -> bool:
         """Whether this robot's next position ``(2,)`` keeps every true distance.

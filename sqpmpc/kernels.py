@@ -30,6 +30,10 @@ from .references import _harmonic_positions
 
 __all__ = [
     "all_finite",
+    "euler_defect_l1",
+    "kkt_residual",
+    "obstacle_rows",
+    "rows_shortfall",
     "euler_linearize",
     "euler_rollout",
     "euler_step",
@@ -301,6 +305,121 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
 
 
 @_jit
+def obstacle_rows(me: np.ndarray, others_now: np.ndarray, own: np.ndarray,
+                  obstacles: np.ndarray, kinds: np.ndarray, required: np.ndarray,
+                  reach: float, rotation: np.ndarray, stage_one_rule: bool,
+                  A_out: np.ndarray, lower_out: np.ndarray) -> int:
+    r"""Rows of the obstacle (kind 2) and missing (kind 3) slots at the own iterate.
+
+    Each such neighbour's prediction is a moving obstacle: the full distance
+    :math:`n^	op p \ge n^	op o + d` with :math:`n` the rotated unit direction
+    from the obstacle to the own predicted position (``own (N, 2+)``, stages
+    1..N). With ``stage_one_rule`` a stage-1 normal that the current positions
+    violate is replaced by the current one (``stage-one-override``). Missing
+    slots then get the ``missing-neighbour-reach`` stage-1 row: keep
+    :math:`d + r` from the neighbour's current position if the current gap
+    allows, else do not approach. Other slots are left as they are. Returns
+    the number of stage-1 overrides.
+    """
+    overrides = 0
+    N = A_out.shape[1]
+    mx, my = me[0], me[1]
+    for e in range(kinds.shape[0]):
+        if kinds[e] != 2 and kinds[e] != 3:
+            continue
+        gx, gy = mx - others_now[e, 0], my - others_now[e, 1]
+        n0x, n0y = _unit(gx, gy, 1.0, 0.0)
+        d = required[e]
+        for i in range(N):
+            nx, ny = _unit(own[i, 0] - obstacles[e, i, 0], own[i, 1] - obstacles[e, i, 1],
+                           n0x, n0y)
+            c, sn = rotation[i, 0], rotation[i, 1]
+            A_out[e, i, 0] = nx * c - ny * sn
+            A_out[e, i, 1] = nx * sn + ny * c
+        if stage_one_rule and not A_out[e, 0, 0] * gx + A_out[e, 0, 1] * gy >= d:
+            A_out[e, 0, 0], A_out[e, 0, 1] = n0x, n0y
+            overrides += 1
+        for i in range(N):
+            lower_out[e, i] = (A_out[e, i, 0] * obstacles[e, i, 0]
+                               + A_out[e, i, 1] * obstacles[e, i, 1]) + d
+        if kinds[e] == 3:
+            keep = d + reach
+            A_out[e, 0, 0], A_out[e, 0, 1] = n0x, n0y
+            if n0x * gx + n0y * gy >= keep:
+                lower_out[e, 0] = (n0x * others_now[e, 0] + n0y * others_now[e, 1]) + keep
+            else:
+                lower_out[e, 0] = n0x * mx + n0y * my
+    return overrides
+
+
+@_jit
+def euler_defect_l1(z: np.ndarray, initial: np.ndarray, m: int, N: int, block: int,
+                    h: float) -> float:
+    r"""L1 norm of the Euler dynamics defects and of the initial-state defect at ``z``.
+
+    :math:`\sum_i \|\chi_{i+1} - f_d(\chi_i, u_i)\|_1 + \|\chi_0 - \chi(k)\|_1`
+    over the own robots (the merit function's nonlinear constraints).
+    """
+    total = 0.0
+    for r in range(m):
+        base = r * block
+        for k in range(3):
+            total += abs(z[base + k] - initial[r, k])
+        for i in range(N):
+            b = base + 5 * i
+            psi = z[b + 2]
+            hv = h * z[b + 3]
+            total += abs(z[b + 5] - (z[b] + hv * math.cos(psi)))
+            total += abs(z[b + 6] - (z[b + 1] + hv * math.sin(psi)))
+            total += abs(z[b + 7] - (psi + h * z[b + 4]))
+    return total
+
+
+@_jit
+def rows_shortfall(A_values: np.ndarray, entries: np.ndarray, entry_rows: np.ndarray,
+                   entry_cols: np.ndarray, z: np.ndarray, lower: np.ndarray,
+                   rows: np.ndarray, scratch: np.ndarray) -> float:
+    """``sum_j max(l_j - (A z)_j, 0)`` over the rows ``rows``, from their entries of ``A``."""
+    scratch[:] = 0.0
+    for k in range(entries.shape[0]):
+        scratch[entry_rows[k]] += A_values[entries[k]] * z[entry_cols[k]]
+    total = 0.0
+    for j in range(rows.shape[0]):
+        total += max(lower[rows[j]] - scratch[j], 0.0)
+    return total
+
+
+@_jit
+def kkt_residual(A_values: np.ndarray, A_rows: np.ndarray, A_cols: np.ndarray,
+                 z: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 P_diag: np.ndarray, q: np.ndarray, Az: np.ndarray, ATy: np.ndarray) -> float:
+    r"""KKT residual of :math:`\min 	frac12 z^	op \mathrm{diag}(P) z + q^	op z`,
+    :math:`l \le Az \le u` at ``(z, y)`` (OSQP's sign convention).
+
+    The largest of the stationarity :math:`\|Pz + q + A^	op y\|_\infty`, the
+    primal violation, the complementarity :math:`|y_i|\,\mathrm{dist}_i` on
+    finite bounds and any multiplier pushing against an infinite bound.
+    """
+    Az[:] = 0.0
+    ATy[:] = 0.0
+    for k in range(A_values.shape[0]):
+        a = A_values[k]
+        Az[A_rows[k]] += a * z[A_cols[k]]
+        ATy[A_cols[k]] += a * y[A_rows[k]]
+    worst = 0.0
+    for j in range(z.shape[0]):
+        worst = max(worst, abs(P_diag[j] * z[j] + q[j] + ATy[j]))
+    for i in range(Az.shape[0]):
+        lo, up, ax, yi = lower[i], upper[i], Az[i], y[i]
+        worst = max(worst, lo - ax, ax - up)
+        if yi < 0.0:
+            worst = max(worst, abs(-yi * (ax - lo)) if math.isfinite(lo) else -yi)
+        elif yi > 0.0:
+            worst = max(worst, abs(yi * (up - ax)) if math.isfinite(up) else yi)
+    return worst
+
+
+@_jit
 def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
                         required: np.ndarray) -> bool:
     r"""Whether every pair keeps ``required`` along the straight segments of one sample.
@@ -347,6 +466,13 @@ def warm_up() -> float:
                 np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
                 np.empty((1, 2)), np.empty(1), touching)
     hold_touching_rows(np.zeros(2), touching, A, lo)
+    obstacle_rows(np.zeros(2), np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
+                  np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
+    euler_defect_l1(z, x, 2, 2, 13, 0.1)
+    idx = np.zeros(1, dtype=np.int64)
+    rows_shortfall(np.ones(3), idx, idx, idx, z, np.ones(3), idx, np.zeros(1))
+    kkt_residual(np.ones(1), idx, idx, z, np.ones(3), np.ones(3), np.ones(3), z, z,
+                 np.zeros(3), np.zeros(26))
     warm_up_rules()
     _harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     return time.perf_counter() - t0

@@ -35,7 +35,15 @@ from typing import Literal, Protocol
 import numpy as np
 
 from .errors import ProblemError
-from .kernels import all_finite, euler_linearize, euler_rollout, euler_step
+from .kernels import (
+    all_finite,
+    euler_defect_l1,
+    euler_linearize,
+    euler_rollout,
+    euler_step,
+    kkt_residual,
+    rows_shortfall,
+)
 from .layout import QPLayout
 from .model import (
     discrete_dynamics,
@@ -144,9 +152,13 @@ class MultipleShootingSQP:
         local = np.full(layout.n_con, -1, dtype=np.int64)
         local[self._collision_rows] = np.arange(self._collision_rows.size)
         on_rows = local[layout.A_rows] >= 0
-        self._collision_entries = np.flatnonzero(on_rows)
-        self._collision_entry_rows = local[layout.A_rows[on_rows]]
-        self._collision_entry_cols = layout.A_cols[on_rows]
+        self._collision_entries = np.ascontiguousarray(np.flatnonzero(on_rows), dtype=np.int64)
+        self._collision_entry_rows = np.ascontiguousarray(local[layout.A_rows[on_rows]])
+        self._collision_entry_cols = np.ascontiguousarray(layout.A_cols[on_rows])
+        self._collision_rows = np.ascontiguousarray(self._collision_rows, dtype=np.int64)
+        self._row_scratch = np.zeros(self._collision_rows.size)
+        self._Az = np.zeros(layout.n_con)
+        self._ATy = np.zeros(layout.n_var)
         first_slack = layout.n_var - layout.n_slack
         slack_rows_int = layout.slack_rows[layout.slack_internal_index - first_slack]
         slack_rows_ext = layout.slack_rows[layout.slack_external_index - first_slack]
@@ -326,19 +338,19 @@ class MultipleShootingSQP:
         lets full steps be accepted.
         """
         L = self.layout
-        states, inputs = L.split_primal(z)
-        defect = states[:, 1:] - discrete_dynamics(
-            states[:, :-1], inputs, self.sample_time, self.settings.discretization
-        )
-        # add.reduce is ndarray.sum without its Python wrapper (the same sums)
-        total = (np.add.reduce(np.abs(defect), axis=None)
-                 + np.add.reduce(np.abs(states[:, 0] - initial_states), axis=None))
+        if self.settings.discretization == "euler":
+            total = euler_defect_l1(z, initial_states, L.n_robots, L.horizon, self._block,
+                                    self.sample_time)
+        else:
+            states, inputs = L.split_primal(z)
+            defect = states[:, 1:] - discrete_dynamics(
+                states[:, :-1], inputs, self.sample_time, self.settings.discretization)
+            total = float(np.abs(defect).sum() + np.abs(states[:, 0] - initial_states).sum())
         rows = self._collision_rows
         if rows.size:
-            weights = (self.qp.A_values[self._collision_entries]
-                       * z[self._collision_entry_cols])
-            Az = np.bincount(self._collision_entry_rows, weights, minlength=rows.size)
-            total += np.add.reduce(np.maximum(self.qp.lower[rows] - Az, 0.0), axis=None)
+            total += rows_shortfall(self.qp.A_values, self._collision_entries,
+                                    self._collision_entry_rows, self._collision_entry_cols,
+                                    z, self.qp.lower, rows, self._row_scratch)
         return float(total)
 
     def kkt_residual(self, z: np.ndarray, y: np.ndarray) -> float:
@@ -350,23 +362,9 @@ class MultipleShootingSQP:
         :math:`\|\nabla f + J^\top y\|_\infty`, the primal violation and the
         complementarity :math:`|y_i|\,\mathrm{dist}_i`.
         """
-        _, grad = self._cost(z)
-        L, A_values = self.layout, self.qp.A_values
-        Az = L.A_times(A_values, z)
-        stat = np.abs(grad + L.A_transpose_times(A_values, y)).max()
-        lo, up = self.qp.lower, self.qp.upper
-        prim = np.maximum(np.maximum(lo - Az, Az - up), 0.0).max()
-        # complementarity on finite bounds; a multiplier pushing against an infinite
-        # bound is dual infeasible and counted below
-        gap_lo = np.where(np.isfinite(lo), Az - lo, 0.0)
-        gap_up = np.where(np.isfinite(up), up - Az, 0.0)
-        comp_lo = np.where(y < 0, -y * gap_lo, 0.0)
-        comp_up = np.where(y > 0, y * gap_up, 0.0)
-        comp = np.maximum(np.abs(comp_lo), np.abs(comp_up)).max()
-        # multipliers on rows with no finite bound in their direction are infeasible duals
-        wrong = np.where((y < 0) & ~np.isfinite(lo), -y, 0.0) + np.where(
-            (y > 0) & ~np.isfinite(up), y, 0.0)
-        return float(max(stat, prim, comp, wrong.max(initial=0.0)))
+        L, qp = self.layout, self.qp
+        return float(kkt_residual(qp.A_values, L.A_rows, L.A_cols, z, y, qp.lower, qp.upper,
+                                  qp._P_diag_cost, qp._q_cost, self._Az, self._ATy))
 
     # ------------------------------------------------------------ solve
     def solve(

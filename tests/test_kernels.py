@@ -1,0 +1,122 @@
+"""The compiled kernels against the NumPy reference implementations of the same maths."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sqpmpc import kernels
+from sqpmpc.collision import segment_distances
+from sqpmpc.layout import A_PATTERN, B_PATTERN, QPLayout
+from sqpmpc.model import discrete_dynamics, discrete_jacobians, rollout
+
+RNG = np.random.default_rng(7)
+
+
+def _states_inputs(m: int, N: int) -> tuple[np.ndarray, np.ndarray]:
+    x = RNG.normal(size=(m, N + 1, 3))
+    u = RNG.normal(size=(m, N, 2))
+    return x, u
+
+
+def test_euler_step_and_rollout_match_the_model() -> None:
+    x, u = _states_inputs(3, 7)
+    out = np.empty((3, 3))
+    kernels.euler_step(x[:, 0], u[:, 0], 0.3, out)
+    np.testing.assert_allclose(out, discrete_dynamics(x[:, 0], u[:, 0], 0.3), rtol=0,
+                               atol=1e-14)
+    traj = np.empty((3, 8, 3))
+    kernels.euler_rollout(np.ascontiguousarray(x[:, 0]), u, 0.3, traj)
+    ref = np.swapaxes(rollout(x[:, 0], np.swapaxes(u, 0, 1), 0.3), 0, 1)
+    np.testing.assert_allclose(traj, ref, rtol=0, atol=1e-12)
+    # stage 1 of a rollout is exactly one step (what the plant applies)
+    np.testing.assert_array_equal(traj[:, 1], out)
+
+
+def test_euler_linearization_writes_the_jacobians_of_the_model() -> None:
+    m, N, h = 2, 5, 0.4
+    layout = QPLayout(m, N)
+    x, u = _states_inputs(m, N)
+    z = layout.join_primal(x, u)
+    dyn_A, dyn_B = np.empty(m * N * 5), np.empty(m * N * 5)
+    lo, up = np.empty(m * N * 3), np.empty(m * N * 3)
+    kernels.euler_linearize(z, m, N, layout.block_size, h, dyn_A, dyn_B, lo, up)
+    nxt, A_k, B_k = discrete_jacobians(x[:, :N], u, h)
+    np.testing.assert_allclose(-dyn_A.reshape(m, N, 5), A_k[:, :, A_PATTERN[0], A_PATTERN[1]],
+                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(-dyn_B.reshape(m, N, 5), B_k[:, :, B_PATTERN[0], B_PATTERN[1]],
+                               rtol=0, atol=1e-14)
+    c = (nxt - np.einsum("mnij,mnj->mni", A_k, x[:, :N]) - np.einsum("mnij,mnj->mni", B_k, u))
+    np.testing.assert_allclose(lo.reshape(m, N, 3), c, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(lo, up)
+
+
+def test_pair_rows_are_unit_normals_and_keep_stopping_feasible() -> None:
+    m, N = 4, 6
+    states = RNG.normal(scale=2.0, size=(m, N + 1, 3))
+    now = np.ascontiguousarray(states[:, 0, :2])
+    pairs = np.array([[0, 1], [0, 2], [1, 3], [2, 3]], dtype=np.int64)
+    required = np.full(4, 0.5)
+    rotation = np.tile([np.cos(0.3), np.sin(0.3)], (N, 1))
+    A, lo = np.empty((4, N, 4)), np.empty((4, N))
+    kernels.pair_rows(pairs, now, states, required, rotation, 0.6, A, lo, np.empty((N, 2)))
+    np.testing.assert_allclose(np.hypot(A[..., 0], A[..., 1]), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(A[..., 2:], -A[..., :2])
+    # standing still satisfies stage 1 (the stage-one-override safety row)
+    gap = now[pairs[:, 0]] - now[pairs[:, 1]]
+    assert np.all(np.einsum("pi,pi->p", A[:, 0, :2], gap) >= lo[:, 0] - 1e-12)
+
+
+def test_pairs_keep_distance_is_the_segment_distance() -> None:
+    now = RNG.normal(size=(5, 2))
+    nxt = now + RNG.normal(scale=0.5, size=(5, 2))
+    pairs = np.array([[i, j] for i in range(5) for j in range(i + 1, 5)], dtype=np.int64)
+    d = segment_distances(now[pairs[:, 0]] - now[pairs[:, 1]],
+                          nxt[pairs[:, 0]] - nxt[pairs[:, 1]])
+    assert kernels.pairs_keep_distance(pairs, now, nxt, d - 1e-9)
+    worst = int(np.argmin(d))
+    assert not kernels.pairs_keep_distance(pairs[worst:worst + 1], now, nxt,
+                                           d[worst:worst + 1] + 1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_kkt_residual_kernel_matches_the_formula(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, k, nnz = 6, 5, 12
+    rows, cols = rng.integers(0, k, nnz), rng.integers(0, n, nnz)
+    vals = rng.normal(size=nnz)
+    z, y = rng.normal(size=n), rng.normal(size=k)
+    lo, up = rng.normal(size=k) - 1.0, rng.normal(size=k) + 1.0
+    lo[0], up[1] = -np.inf, np.inf
+    P, q = rng.uniform(0.1, 1, size=n), rng.normal(size=n)
+    Az = np.bincount(rows, vals * z[cols], minlength=k)
+    ATy = np.bincount(cols, vals * y[rows], minlength=n)
+    stat = np.abs(P * z + q + ATy).max()
+    prim = np.maximum(np.maximum(lo - Az, Az - up), 0.0).max()
+    comp = max(np.where((y < 0) & np.isfinite(lo), np.abs(y * (Az - lo)), 0).max(),
+               np.where((y > 0) & np.isfinite(up), np.abs(y * (up - Az)), 0).max())
+    wrong = max(np.where((y < 0) & ~np.isfinite(lo), -y, 0).max(),
+                np.where((y > 0) & ~np.isfinite(up), y, 0).max())
+    got = kernels.kkt_residual(vals, rows.astype(np.int64), cols.astype(np.int64), z, y, lo,
+                               up, P, q, np.empty(k), np.empty(n))
+    assert got == pytest.approx(max(stat, prim, comp, wrong), rel=1e-12)
+
+
+def test_euler_defect_is_zero_on_a_rollout_and_counts_the_initial_state() -> None:
+    m, N, h = 2, 4, 0.2
+    layout = QPLayout(m, N)
+    x, u = _states_inputs(m, N)
+    x = np.swapaxes(rollout(x[:, 0], np.swapaxes(u, 0, 1), h), 0, 1)
+    z = layout.join_primal(x, u)
+    x0 = np.ascontiguousarray(x[:, 0])
+    assert kernels.euler_defect_l1(z, x0, m, N, layout.block_size, h) == pytest.approx(
+        0.0, abs=1e-12)
+    shifted = x0 + 0.1
+    assert kernels.euler_defect_l1(z, shifted, m, N, layout.block_size, h) == pytest.approx(
+        0.6, abs=1e-12)
+
+
+def test_all_finite() -> None:
+    assert kernels.all_finite(np.zeros(4))
+    assert not kernels.all_finite(np.array([0.0, np.nan]))
+    assert not kernels.all_finite(np.array([np.inf, 0.0]))
