@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import obstacle_rows, pair_rows, pairs_keep_distance, shared_rows
+from .kernels import halfplanes_hold, obstacle_rows, pair_rows, pairs_keep_distance, shared_rows
 from .liveness import hold_touching_rows
 from .rules import RowGeometry
 
@@ -282,8 +282,8 @@ class ExternalCollisionModel:
         along the whole segment, or standing still.
         """
         p = position
-        if self._any_shared and np.count_nonzero(
-                self.check_normals @ p < self.check_rhs - tolerance):
+        if self._any_shared and not halfplanes_hold(self.check_normals, self.check_rhs,
+                                                    float(p[0]), float(p[1]), tolerance):
             return False
         if self._any_obstacle:
             obst = self.kind == OBSTACLE

@@ -27,7 +27,7 @@ import numpy as np
 
 from .collision import MISSING, OBSTACLE, SHARED, ExternalCollisionModel, PairwiseCollisionModel
 from .errors import ProblemError
-from .kernels import euler_step
+from .kernels import shift_plan
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
 from .pipeline import ControllerPipeline, ControlOutput, braking_input
@@ -223,20 +223,19 @@ class DecentralizedController(ControllerPipeline):
         return (self.collisions.first_stage_safe(next_state[0, :2])
                 and self._in_position_bounds(next_state[:, :2]))
 
-    def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int,
-                        recent: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> bool:
+    def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int) -> bool:
         """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan of an earlier sample.
 
-        A plan of ``k - 1`` (the usual case) supplies stages 1..N-1 directly; its
-        last stage is extrapolated later, for all such plans at once (``recent``).
+        A plan of ``k - 1`` (the usual case) is shifted by one stage, holding its
+        last input (one kernel call); older ones by :func:`predict_from_plan`.
+        Returns ``False`` for a plan that cannot be used (from the future, too old).
         """
-        N = self.horizon
-        if sample - plan.sample == 1 and plan.states.shape[0] == N + 1:
-            out[:N - 1] = plan.states[2:]
-            recent.append((out, plan.states[-1], plan.inputs[-1]))
+        N, h, method = self.horizon, self.sample_time, self.settings.discretization
+        if (sample - plan.sample == 1 and method == "euler" and plan.states.shape[0] == N + 1
+                and plan.states.flags.c_contiguous and plan.inputs.flags.c_contiguous):
+            shift_plan(plan.states, plan.inputs, h, out)
             return True
-        pred = predict_from_plan(plan, sample, N, self.sample_time,
-                                 self.settings.discretization)
+        pred = predict_from_plan(plan, sample, N, h, method)
         if pred is None:
             return False
         out[:] = pred[1:]
@@ -251,9 +250,8 @@ class DecentralizedController(ControllerPipeline):
         fallback (input estimated from two states) and its slot is *missing*.
         """
         N, h, method = self.horizon, self.sample_time, self.settings.discretization
-        recent: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         if self.published is None or not self._fill_from_plan(self._own_prediction,
-                                                                self.published, sample, recent):
+                                                                self.published, sample):
             self._own_prediction[:] = predict_from_states(states[self.index], None, N, h,
                                                           method)[1:]
         shared = self.mode == "shared"
@@ -262,31 +260,17 @@ class DecentralizedController(ControllerPipeline):
         missing = 0
         for e, jid in self._neighbours:
             plan = plans.get(jid)
-            if plan is not None:
-                if plan.sample == sample - 1 and plan.states.shape[0] == N + 1:
-                    preds[e, :N - 1] = plan.states[2:]  # the usual case, inline
-                    recent.append((preds[e], plan.states[-1], plan.inputs[-1]))
-                    kinds[e] = SHARED if shared else OBSTACLE
-                    continue
-                if not shared and self._fill_from_plan(preds[e], plan, sample, recent):
-                    kinds[e] = OBSTACLE
-                    continue
+            if plan is not None and (not shared or plan.sample == sample - 1) and (
+                    self._fill_from_plan(preds[e], plan, sample)):
+                kinds[e] = SHARED if shared else OBSTACLE
+                continue
             j = self.others[e]
             prev = None if previous_states is None else previous_states[j]
             preds[e] = predict_from_states(states[j], prev, N, h, method)[1:]
             kinds[e] = MISSING if shared else OBSTACLE
             missing += 1
-        if recent:
-            last = np.array([r[1] for r in recent])
-            inputs = np.array([r[2] for r in recent])
-            if method == "euler":
-                nxt = np.empty_like(last)
-                euler_step(last, inputs, h, nxt)
-            else:
-                nxt = discrete_dynamics(last, inputs, h, method)
-            for (out, _, _), x in zip(recent, nxt, strict=True):
-                out[N - 1] = x
-        self.counts["fallback_neighbours"] += missing
+        if missing:
+            self.counts["fallback_neighbours"] += missing
         self.collisions.set_sample(states[self.index, :2], states[self.others, :2],
                                    self._own_prediction, self._other_predictions, kinds)
 

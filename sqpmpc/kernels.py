@@ -30,9 +30,13 @@ from .references import _harmonic_positions
 
 __all__ = [
     "all_finite",
+    "clip_and_roll_out",
+    "clip_bounds",
+    "halfplanes_hold",
     "euler_defect_l1",
     "kkt_residual",
     "obstacle_rows",
+    "shift_plan",
     "rows_shortfall",
     "euler_linearize",
     "euler_rollout",
@@ -53,6 +57,15 @@ def all_finite(values: np.ndarray) -> bool:
         if not math.isfinite(v):
             return False
     return True
+
+
+@_jit
+def clip_bounds(lower: np.ndarray, upper: np.ndarray, infinity: float, lower_out: np.ndarray,
+                upper_out: np.ndarray) -> None:
+    """``lower``/``upper`` clipped to ``[-infinity, infinity]`` (OSQP's infinity) into the outs."""
+    for i in range(lower.shape[0]):
+        lower_out[i] = max(lower[i], -infinity)
+        upper_out[i] = min(upper[i], infinity)
 
 
 @_jit
@@ -86,6 +99,52 @@ def euler_rollout(initial: np.ndarray, inputs: np.ndarray, h: float, out: np.nda
             y = y + hv * math.sin(psi)
             psi = psi + h * inputs[r, i, 1]
             out[r, i + 1, 0], out[r, i + 1, 1], out[r, i + 1, 2] = x, y, psi
+
+
+@_jit
+def shift_plan(states: np.ndarray, inputs: np.ndarray, h: float, out: np.ndarray) -> None:
+    """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan ``(N+1, 3)``, ``(N, 2)`` of ``k-1``.
+
+    Stages 1..N-1 are the plan's stages 2..N; stage N holds its last input for
+    one more Euler step.
+    """
+    N = out.shape[0]
+    for i in range(N - 1):
+        out[i, 0], out[i, 1], out[i, 2] = states[i + 2, 0], states[i + 2, 1], states[i + 2, 2]
+    psi = states[N, 2]
+    hv = h * inputs[N - 1, 0]
+    out[N - 1, 0] = states[N, 0] + hv * math.cos(psi)
+    out[N - 1, 1] = states[N, 1] + hv * math.sin(psi)
+    out[N - 1, 2] = psi + h * inputs[N - 1, 1]
+
+
+@_jit
+def clip_and_roll_out(initial: np.ndarray, inputs: np.ndarray, lower: np.ndarray,
+                      upper: np.ndarray, h: float, out: np.ndarray) -> bool:
+    """Clip the first input of ``inputs (m, N, 2)`` to its bounds in place, then roll out.
+
+    Returns ``False`` (and rolls nothing out) if any input is not finite;
+    otherwise ``out (m, N+1, 3)`` holds :func:`euler_rollout` of the clipped plan.
+    """
+    for r in range(inputs.shape[0]):
+        for i in range(inputs.shape[1]):
+            for j in range(2):
+                if not math.isfinite(inputs[r, i, j]):
+                    return False
+        for j in range(2):
+            inputs[r, 0, j] = min(max(inputs[r, 0, j], lower[j]), upper[j])
+    euler_rollout(initial, inputs, h, out)
+    return True
+
+
+@_jit
+def halfplanes_hold(normals: np.ndarray, rhs: np.ndarray, x: float, y: float,
+                    tolerance: float) -> bool:
+    """Whether the point ``(x, y)`` satisfies every ``normals[e] . p >= rhs[e] - tolerance``."""
+    for e in range(normals.shape[0]):
+        if normals[e, 0] * x + normals[e, 1] * y < rhs[e] - tolerance:
+            return False
+    return True
 
 
 @_jit
@@ -446,10 +505,14 @@ def warm_up() -> float:
     """Compile (first time on a machine) or load every kernel; returns the seconds taken."""
     t0 = time.perf_counter()
     all_finite(np.zeros(3))
+    clip_bounds(np.zeros(3), np.zeros(3), 1e30, np.zeros(3), np.zeros(3))
     x = np.zeros((2, 3))
     u = np.zeros((2, 2))
     euler_step(x, u, 0.1, np.empty((2, 3)))
     euler_rollout(x, np.zeros((2, 2, 2)), 0.1, np.empty((2, 3, 3)))
+    shift_plan(np.zeros((3, 3)), np.zeros((2, 2)), 0.1, np.empty((2, 3)))
+    clip_and_roll_out(x, np.zeros((2, 2, 2)), -np.ones(2), np.ones(2), 0.1, np.empty((2, 3, 3)))
+    halfplanes_hold(np.zeros((1, 2)), np.zeros(1), 0.0, 0.0, 1e-12)
     z = np.zeros(2 * 13)
     euler_linearize(z, 2, 2, 13, 0.1, np.empty(20), np.empty(20), np.empty(12), np.empty(12))
     rot = np.tile([1.0, 0.0], (2, 1))

@@ -434,9 +434,9 @@ class _DetourInstance(RuleInstance):
             np.ascontiguousarray(view.references[:, -1]), self.own_required, r.speed, r.reach,
             self._cos_cone, self.patience, r.hold, self.blocked_for, self.active_for,
             self.blocker)
-        active = np.flatnonzero(self.active_for)
-        if not active.size:
+        if not self.active_for.any():
             return
+        active = np.flatnonzero(self.active_for)
         own = self.context.own
         out = view.references.copy()
         for i in active:

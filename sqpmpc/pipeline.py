@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import ProblemError
-from .kernels import all_finite, warm_up
+from .kernels import all_finite, clip_and_roll_out, warm_up
 from .layout import QPLayout
 from .references import ReferenceSet
 from .rti import CollisionRows, IterationReport, MultipleShootingSQP
@@ -131,6 +131,7 @@ class ControllerPipeline:
                              or np.isfinite(self.position_upper).any())
         self.horizon = scenario.horizon
         self.sample_time = scenario.sample_time
+        self._euler = settings.discretization == "euler"
         self.engine = MultipleShootingSQP(
             layout, scenario.sample_time, np.asarray(scenario.weights.Q),
             np.asarray(scenario.weights.R), self.input_lower, self.input_upper,
@@ -241,12 +242,18 @@ class ControllerPipeline:
         engine = self.engine
         if report.success:
             plan_u = engine.inputs()
-            np.clip(plan_u[:, 0], self.input_lower, self.input_upper, out=plan_u[:, 0])
-            if all_finite(plan_u.ravel()):
-                plan_x = engine.rollout(own, plan_u)  # stage 1 is the next state exactly
-                if self._safe(own, plan_x[:, 1]):
-                    return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
-                                         time.perf_counter() - t0)
+            if self._euler:  # clip, check and roll out in one kernel
+                plan_x = np.empty((plan_u.shape[0], self.horizon + 1, 3))
+                finite = clip_and_roll_out(own, plan_u, self.input_lower, self.input_upper,
+                                           self.sample_time, plan_x)
+            else:
+                np.clip(plan_u[:, 0], self.input_lower, self.input_upper, out=plan_u[:, 0])
+                finite = all_finite(plan_u.ravel())
+                plan_x = engine.rollout(own, plan_u) if finite else None
+            # stage 1 of the rollout is exactly the next state of the first input
+            if finite and self._safe(own, plan_x[:, 1]):
+                return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
+                                     time.perf_counter() - t0)
         fallback, plan_u, plan_x = "brake", None, None
         if shifted is not None:
             candidate = np.clip(shifted, self.input_lower, self.input_upper)

@@ -26,7 +26,7 @@ import qpsolvers
 import scipy.sparse as sp
 
 from .errors import ProblemError, SolverError
-from .kernels import all_finite
+from .kernels import all_finite, clip_bounds
 from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
 
 __all__ = ["OSQPSettings", "QPResult", "SparseQP", "solve_interior_point"]
@@ -240,6 +240,9 @@ class SparseQP:
         self.upper = np.full(L.n_con, np.inf)
         self.lower[L.slack_rows] = 0.0
         self.lower[L.internal_rows] = -np.inf
+        self._lower_osqp = np.zeros(L.n_con)  # the bounds clipped to OSQP's infinity
+        self._upper_osqp = np.zeros(L.n_con)
+        self._no_curvature = True
         self._solver: osqp.OSQP | None = None
         self._core: object | None = None
         self.use_osqp_wrapper = False
@@ -373,6 +376,7 @@ class SparseQP:
         self._P_diag_curvature[:] = 0.0
         off = CURV_PATTERN[0] != CURV_PATTERN[1]
         self._q_curvature[:] = 0.0
+        self._no_curvature = blocks is None
         if blocks is None:
             self.P_values[L.P_curv_slice] = 0.0
         else:
@@ -421,8 +425,10 @@ class SparseQP:
         elif self._core is not None and not self.use_osqp_wrapper:
             core = self._core
             if self._dirty_vec:
-                core.update_data_vec(q=self.q, l=np.maximum(self.lower, -_OSQP_INFINITY),
-                                     u=np.minimum(self.upper, _OSQP_INFINITY))
+                q = self._q_cost if self._no_curvature else self.q
+                clip_bounds(self.lower, self.upper, _OSQP_INFINITY, self._lower_osqp,
+                            self._upper_osqp)
+                core.update_data_vec(q=q, l=self._lower_osqp, u=self._upper_osqp)
             if self._dirty_P or self._dirty_A:
                 core.update_data_mat(
                     P_x=self.P_values[L.P_order_inverse] if self._dirty_P else None, P_i=None,

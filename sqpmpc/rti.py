@@ -417,8 +417,7 @@ class MultipleShootingSQP:
         # a new NLP every sample: the L1 merit weight follows its own multipliers (a weight
         # kept from a past encounter, 1000+, made every line search backtrack ~17 times)
         self.merit_weight = 1.0
-        z = self.z.copy()
-        y = self.y.copy()
+        z, y = self.z, self.y  # never written in place: iterates are new arrays
         assembly = qp_time = osqp_time = 0.0
         kkt = float("nan")
         converged = False
