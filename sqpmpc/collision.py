@@ -257,8 +257,17 @@ class ExternalCollisionModel:
             hold_touching_rows(self.current_self, self.touching, self.fixed_normals,
                                self.fixed_rhs)
 
-    def write_rows(self, states: np.ndarray, A_out: np.ndarray, lower_out: np.ndarray) -> None:
-        """Rows at the own iterate ``states (1, N+1, 3)`` into ``(1, E, N, 2)``, ``(1, E, N)``."""
+    @property
+    def needs_states(self) -> bool:
+        """Whether :meth:`write_rows` reads the iterate (obstacle or missing slots)."""
+        return self._any_obstacle or self._any_missing
+
+    def write_rows(self, states: np.ndarray | None, A_out: np.ndarray,
+                   lower_out: np.ndarray) -> None:
+        """Rows at the own iterate ``states (1, N+1, 3)`` into ``(1, E, N, 2)``, ``(1, E, N)``.
+
+        ``states`` may be ``None`` when :attr:`needs_states` is false.
+        """
         A_out[0] = self.fixed_normals
         lower_out[0] = self.fixed_rhs
         overrides = self._shared_overrides

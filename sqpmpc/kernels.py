@@ -36,7 +36,9 @@ __all__ = [
     "euler_defect_l1",
     "kkt_residual",
     "obstacle_rows",
+    "shift_iterate",
     "shift_plan",
+    "write_reference",
     "rows_shortfall",
     "euler_linearize",
     "euler_rollout",
@@ -145,6 +147,42 @@ def halfplanes_hold(normals: np.ndarray, rhs: np.ndarray, x: float, y: float,
         if normals[e, 0] * x + normals[e, 1] * y < rhs[e] - tolerance:
             return False
     return True
+
+
+@_jit
+def write_reference(q: np.ndarray, reference: np.ndarray, scale: np.ndarray,
+                    block: int) -> None:
+    r"""Linear cost of the positions of stages 1..N: :math:`q_p = -2 Q_r r` into ``q``.
+
+    ``reference (m, N, 2)``; ``scale (m, 1, 2)`` holds :math:`-2 Q_r` per robot.
+    """
+    for r in range(reference.shape[0]):
+        for i in range(reference.shape[1]):
+            k = r * block + 5 * (i + 1)
+            q[k] = scale[r, 0, 0] * reference[r, i, 0]
+            q[k + 1] = scale[r, 0, 1] * reference[r, i, 1]
+
+
+@_jit
+def shift_iterate(z: np.ndarray, y: np.ndarray, z_order: np.ndarray, y_order: np.ndarray,
+                  m: int, N: int, block: int, h: float, z_out: np.ndarray,
+                  y_out: np.ndarray) -> None:
+    """Iterate and multipliers shifted by one stage (gathers ``z_order``, ``y_order``).
+
+    The new last state of each robot is the Euler step of its old last state
+    under its held last input.
+    """
+    for i in range(z_order.shape[0]):
+        z_out[i] = z[z_order[i]]
+    for i in range(y_order.shape[0]):
+        y_out[i] = y[y_order[i]]
+    for r in range(m):
+        last = r * block + 5 * N
+        psi = z[last + 2]
+        hv = h * z[last - 2]
+        z_out[last] = z[last] + hv * math.cos(psi)
+        z_out[last + 1] = z[last + 1] + hv * math.sin(psi)
+        z_out[last + 2] = psi + h * z[last - 1]
 
 
 @_jit
@@ -532,6 +570,9 @@ def warm_up() -> float:
     obstacle_rows(np.zeros(2), np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
                   np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
     euler_defect_l1(z, x, 2, 2, 13, 0.1)
+    write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13)
+    order = np.arange(26)
+    shift_iterate(z, z, order, order, 2, 2, 13, 0.1, np.empty(26), np.empty(26))
     idx = np.zeros(1, dtype=np.int64)
     rows_shortfall(np.ones(3), idx, idx, idx, z, np.ones(3), idx, np.zeros(1))
     kkt_residual(np.ones(1), idx, idx, z, np.ones(3), np.ones(3), np.ones(3), z, z,

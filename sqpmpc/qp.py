@@ -26,7 +26,7 @@ import qpsolvers
 import scipy.sparse as sp
 
 from .errors import ProblemError, SolverError
-from .kernels import all_finite, clip_bounds
+from .kernels import all_finite, clip_bounds, write_reference
 from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
 
 __all__ = ["OSQPSettings", "QPResult", "SparseQP", "solve_interior_point"]
@@ -235,7 +235,6 @@ class SparseQP:
         self._Q_diag = np.zeros(2)
         self._position_scale = np.ones(L.n_robots)
         self._reference_scale = np.zeros((L.n_robots, 1, 2))
-        self._reference_index = L.state_index[:, 1:, :2].ravel()
         self.lower = np.full(L.n_con, -np.inf)
         self.upper = np.full(L.n_con, np.inf)
         self.lower[L.slack_rows] = 0.0
@@ -296,7 +295,7 @@ class SparseQP:
 
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
-        self._q_cost[self._reference_index] = (self._reference_scale * reference).ravel()
+        write_reference(self._q_cost, reference, self._reference_scale, self.layout.block_size)
         self._dirty_vec = True
 
     def update_initial_state(self, initial_states: np.ndarray) -> None:

@@ -40,9 +40,9 @@ from .kernels import (
     euler_defect_l1,
     euler_linearize,
     euler_rollout,
-    euler_step,
     kkt_residual,
     rows_shortfall,
+    shift_iterate,
 )
 from .layout import QPLayout
 from .model import (
@@ -234,13 +234,15 @@ class MultipleShootingSQP:
         if self.z is None:
             return
         L = self.layout
+        if self.settings.discretization == "euler":
+            z, y = np.empty_like(self.z), np.empty_like(self.y)
+            shift_iterate(self.z, self.y, self._shift_z, self._shift_y, L.n_robots, L.horizon,
+                          self._block, self.sample_time, z, y)
+            self.z, self.y = z, y
+            return
         last_state = L.state_index[:, -1]
         x, u = self.z[last_state], self.z[L.input_index[:, -1]]
-        if self.settings.discretization == "euler":
-            last = np.empty_like(x)
-            euler_step(x, u, self.sample_time, last)
-        else:
-            last = discrete_dynamics(x, u, self.sample_time, self.settings.discretization)
+        last = discrete_dynamics(x, u, self.sample_time, self.settings.discretization)
         self.z = self.z[self._shift_z]
         self.z[last_state] = last
         self.y = self.y[self._shift_y]
@@ -303,7 +305,7 @@ class MultipleShootingSQP:
         qp.lower[self._init_rows] = flat
         qp.upper[self._init_rows] = flat
         if internal is not None or external is not None:
-            if states is None:
+            if states is None and (internal is not None or external.needs_states):
                 states = z[L.state_index]
             if internal is not None:
                 internal.write_rows(states, self._internal_A, self._internal_lower)
