@@ -219,9 +219,14 @@ class StallRepair(Rule):
 
 @_jit
 def _parking_mask(raw: np.ndarray, positions: np.ndarray, radius: float,
-                  out: np.ndarray) -> bool:
-    """Robots whose reference rests over the horizon within ``radius``; whether it changed."""
+                  out: np.ndarray) -> int:
+    """Robots whose reference rests over the horizon within ``radius`` into ``out``.
+
+    Returns the number of parking robots, negated minus one if the mask changed
+    (``-1 - count``), so one call tells both.
+    """
     changed = False
+    count = 0
     for r in range(raw.shape[0]):
         rest = True
         for i in range(raw.shape[1]):
@@ -230,10 +235,11 @@ def _parking_mask(raw: np.ndarray, positions: np.ndarray, radius: float,
                 break
         near = np.hypot(raw[r, -1, 0] - positions[r, 0], raw[r, -1, 1] - positions[r, 1])
         park = rest and near <= radius
+        count += park
         if park != out[r]:
             changed = True
             out[r] = park
-    return changed
+    return -1 - count if changed else count
 
 
 class _ParkingInstance(RuleInstance):
@@ -251,10 +257,13 @@ class _ParkingInstance(RuleInstance):
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
 
     def shape_references(self, view: SampleView) -> None:
-        if _parking_mask(view.scenario_references, view.own_states, self.radius, self.parking):
+        parked = _parking_mask(view.scenario_references, view.own_states, self.radius,
+                               self.parking)
+        if parked < 0:  # the mask changed: new weights
+            parked = -1 - parked
             self.context.engine.update_position_weight_scale(
                 np.where(self.parking, self.gain, 1.0))
-        self.counts["parked_samples"] += int(np.count_nonzero(self.parking))
+        self.counts["parked_samples"] += parked
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
         self.counts["parking_repairs"] += _repair_speeds(

@@ -152,7 +152,6 @@ class SampleView:
     references: np.ndarray
     applied: np.ndarray
     applied_before: np.ndarray
-    extra: dict[str, object] = field(default_factory=dict)
 
 
 class RuleInstance:
