@@ -1,0 +1,44 @@
+"""Small synthetic set-ups shared by the per-rule tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sqpmpc.controllers import CentralizedController
+from sqpmpc.rules import SampleView
+from sqpmpc.scenario import Scenario, parse_scenario
+from sqpmpc.settings import SolverSettings
+
+__all__ = ["fleet", "only", "view"]
+
+
+def fleet(starts: list[list[float]], goals: list[list[float]], horizon: int = 8,
+          sample_time: float = 0.5, t_end: float = 30.0) -> Scenario:
+    """Robots at ``starts`` (x, y, psi) with point references at ``goals``, paper bounds."""
+    return parse_scenario({
+        "name": "synthetic", "t_end": t_end, "sample_time": sample_time, "horizon": horizon,
+        "weights": {"Q": [1.0, 1.0], "R": [0.5, 0.5]},
+        "bounds": {"v": [-0.6, 0.6], "omega": [-0.785, 0.785]},
+        "robots": [{"id": i + 1, "initial_state": s, "diameter": 0.3,
+                    "reference": {"type": "point", "position": g}}
+                   for i, (s, g) in enumerate(zip(starts, goals, strict=True))],
+    })
+
+
+def view(ctrl: CentralizedController, states: np.ndarray, applied: np.ndarray | None = None,
+         applied_before: np.ndarray | None = None, t: float = 0.0,
+         sample: int = 5) -> SampleView:
+    """The sample view the pipeline would build for ``states (n, 3)``."""
+    m = ctrl.indices.size
+    refs = ctrl.reference(t)
+    zeros = np.zeros((m, 2))
+    return SampleView(sample, t, np.ascontiguousarray(states[:, :2]), states[ctrl.indices],
+                      refs, refs, zeros if applied is None else applied,
+                      zeros if applied_before is None else applied_before)
+
+
+def only(*names: str) -> SolverSettings:
+    """Settings with only the named rules."""
+    from sqpmpc.registry import select_rules
+
+    return SolverSettings(rules=select_rules(list(names)))

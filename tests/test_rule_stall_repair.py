@@ -1,0 +1,57 @@
+"""Rule ``stall-repair``: a stopped robot far from its goal is linearized at a small speed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sqpmpc.controllers import CentralizedController
+from sqpmpc.errors import ProblemError
+from sqpmpc.liveness import StallRepair
+from tests.rule_helpers import fleet, only, view
+
+
+def _repair(start: list[float], goal: list[float], speeds: np.ndarray,
+            rule: StallRepair | None = None) -> tuple[np.ndarray, int]:
+    sc = fleet([start], [goal])
+    settings = only("stall-repair") if rule is None else only().with_rule(rule)
+    ctrl = CentralizedController(sc, settings)
+    inst = ctrl.rule("stall-repair")
+    out = np.array(speeds, dtype=float)
+    inst.shape_guess(view(ctrl, sc.initial_states()), out)
+    return out, ctrl.counters()["stall_repairs"]
+
+
+def test_stopped_robot_with_its_goal_ahead_is_linearized_forwards() -> None:
+    speeds, count = _repair([0, 0, 0], [2, 0.5], np.zeros((1, 8)))
+    np.testing.assert_array_equal(speeds, 0.05)
+    assert count == 1
+
+
+def test_stopped_robot_with_its_goal_behind_is_linearized_backwards() -> None:
+    speeds, _ = _repair([0, 0, 0], [-2, 0.5], np.zeros((1, 8)))
+    np.testing.assert_array_equal(speeds, -0.05)
+
+
+@pytest.mark.parametrize(("goal", "speeds"), [
+    ([0.05, 0.0], np.zeros((1, 8))),  # goal within the distance: at rest is right
+    ([2.0, 0.0], np.full((1, 8), 0.2)),  # a moving guess is not stalled
+    ([2.0, 0.0], np.r_[np.zeros(7), 0.06][None]),  # one stage above the speed is enough
+])
+def test_robots_that_are_not_stalled_are_left_alone(goal: list[float],
+                                                    speeds: np.ndarray) -> None:
+    out, count = _repair([0, 0, 0], goal, speeds)
+    np.testing.assert_array_equal(out, speeds)
+    assert count == 0
+
+
+def test_speed_is_clipped_to_the_bounds() -> None:
+    speeds, _ = _repair([0, 0, 0], [3, 0], np.zeros((1, 8)), StallRepair(speed=2.0))
+    np.testing.assert_array_equal(speeds, 0.6)
+
+
+@pytest.mark.parametrize("changes", [{"speed": 0.0}, {"distance": -1.0},
+                                     {"speed": float("inf")}])
+def test_bad_parameters_are_refused_by_name(changes: dict[str, float]) -> None:
+    with pytest.raises(ProblemError, match="stall-repair"):
+        StallRepair(**changes)

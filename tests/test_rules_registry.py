@@ -1,0 +1,93 @@
+"""The rule registry: names, selection, requirements, and the engine without each rule."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from sqpmpc.errors import ProblemError
+from sqpmpc.metrics import compute_metrics
+from sqpmpc.registry import (
+    RULES,
+    SAFETY_ROWS,
+    describe_rules,
+    rule_names,
+    select_rules,
+    set_rule_parameters,
+)
+from sqpmpc.rules import Rule
+from sqpmpc.scenario import load_scenario
+from sqpmpc.settings import SolverSettings
+from sqpmpc.simulation import simulate
+
+
+@dataclass(frozen=True)
+class NeedsDetour(Rule):
+    """A test-local rule that requires another."""
+
+    name = "needs-detour"
+    summary = "test only"
+    requires = ("detour",)
+
+
+def test_describe_lists_every_rule_and_safety_row_once() -> None:
+    lines = describe_rules().splitlines()
+    for name in [*RULES, *SAFETY_ROWS]:
+        assert sum(line.split()[0] == name for line in lines if line.startswith("  ")) == 1
+
+
+def test_selection() -> None:
+    assert [r.name for r in select_rules(None)] == rule_names()
+    assert select_rules(["none"]) == ()
+    assert [r.name for r in select_rules(["detour", "keep-right"])] == ["keep-right", "detour"]
+    assert "detour" not in [r.name for r in select_rules(None, without=["detour"])]
+
+
+@pytest.mark.parametrize(("names", "without", "needle"), [
+    (["nope"], [], "--rules: unknown rule 'nope'"),
+    (None, ["nope"], "--without: unknown rule 'nope'"),
+    (["detour", "detour"], [], "listed twice"),
+])
+def test_bad_selections_are_refused_by_name(names: list[str] | None, without: list[str],
+                                            needle: str) -> None:
+    with pytest.raises(ProblemError, match=needle):
+        select_rules(names, without)
+
+
+def test_a_rule_needing_another_is_refused_without_it() -> None:
+    with pytest.raises(ProblemError, match="'needs-detour' requires 'detour'"):
+        SolverSettings(rules=(NeedsDetour(),))
+    settings = SolverSettings(rules=(NeedsDetour(), *select_rules(["detour"])))
+    assert settings.rule("needs-detour") is not None
+    with pytest.raises(ProblemError, match="requires 'detour'"):
+        settings.without("detour")
+
+
+def test_rule_parameters_by_assignment() -> None:
+    rules = set_rule_parameters(select_rules(None), ["keep-right.angle=0.1", "detour.hold=3"])
+    by_name = {r.name: r for r in rules}
+    assert by_name["keep-right"].angle == 0.1 and by_name["detour"].hold == 3
+    for bad, needle in [("keep-right.angle", "RULE.FIELD=VALUE"),
+                        ("keep-right.nope=1", "no parameter 'nope'"),
+                        ("keep-right.angle=x", "must be a float"),
+                        ("keep-right.angle=-1", "angle must be finite and > 0")]:
+        with pytest.raises(ProblemError, match=needle):
+            set_rule_parameters(select_rules(None), [bad])
+
+
+@pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
+@pytest.mark.parametrize("removed", [*rule_names(), "all"])
+def test_engine_runs_safely_without_each_rule(removed: str, scheme: str) -> None:
+    settings = SolverSettings(rules=()) if removed == "all" else SolverSettings().without(
+        removed)
+    for name in ("head-on", "crossing-4"):
+        sc = load_scenario(name).with_changes(t_end=12.0)
+        m = compute_metrics(simulate(sc, scheme, settings))
+        assert m["completed"]
+        assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+        assert m["input_bound_violations"] == 0
+        assert np.isfinite(m["closed_loop_cost"])
+        if removed in ("detour", "all"):  # a removed rule counts nothing
+            assert "detour_activations" not in m["counters"]
