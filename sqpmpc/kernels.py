@@ -37,6 +37,7 @@ __all__ = [
     "kkt_residual",
     "obstacle_rows",
     "shift_iterate",
+    "stage_one_override",
     "shift_plan",
     "write_reference",
     "rows_shortfall",
@@ -264,6 +265,23 @@ def _stage_normals(gx: float, gy: float, a_pred: np.ndarray, b_pred: np.ndarray,
 
 
 @_jit
+def stage_one_override(normals: np.ndarray, n0x: float, n0y: float, gx: float, gy: float,
+                       d: float) -> tuple[float, int]:
+    r"""The ``stage-one-override`` safety row, in place on ``normals (N, 2)``.
+
+    If the stage-1 normal does not keep the current offset ``(gx, gy)`` at
+    ``d`` (:math:`n_1^\top g < d`), it is replaced by the current unit normal
+    ``(n0x, n0y)``, so that standing still satisfies stage 1. Returns the
+    projected current gap :math:`n_1^\top g` and 1 if the row was overridden.
+    """
+    gap = normals[0, 0] * gx + normals[0, 1] * gy
+    if gap >= d:
+        return gap, 0
+    normals[0, 0], normals[0, 1] = n0x, n0y
+    return n0x * gx + n0y * gy, 1
+
+
+@_jit
 def pair_rows(pairs: np.ndarray, now: np.ndarray, states: np.ndarray, required: np.ndarray,
               rotation: np.ndarray, max_turn: float, A_out: np.ndarray,
               lower_out: np.ndarray, normals: np.ndarray) -> int:
@@ -299,11 +317,8 @@ def pair_rows(pairs: np.ndarray, now: np.ndarray, states: np.ndarray, required: 
         n0x, n0y = _stage_normals(gx, gy, states[a, 1:], states[b, 1:], rotation, max_turn,
                                   normals)
         d = required[p]
-        gap = normals[0, 0] * gx + normals[0, 1] * gy
-        if not gap >= d:
-            normals[0, 0], normals[0, 1] = n0x, n0y
-            overrides += 1
-            gap = n0x * gx + n0y * gy
+        gap, overridden = stage_one_override(normals, n0x, n0y, gx, gy, d)
+        overrides += overridden
         for i in range(N):
             nx, ny = normals[i, 0], normals[i, 1]
             A_out[p, i, 0], A_out[p, i, 1] = nx, ny
@@ -372,11 +387,8 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
         n0x, n0y = _stage_normals(gx, gy, own_pred, other_pred[e], rotation, max_turn, n)
         d = required[e]
         half = 0.5 * d
-        gap = n[0, 0] * gx + n[0, 1] * gy
-        if not gap >= d:
-            n[0, 0], n[0, 1] = n0x, n0y
-            overrides += 1
-            gap = n0x * gx + n0y * gy
+        gap, overridden = stage_one_override(n, n0x, n0y, gx, gy, d)
+        overrides += overridden
         for i in range(N):
             cx = 0.5 * (own_pred[i, 0] + other_pred[e, i, 0])
             cy = 0.5 * (own_pred[i, 1] + other_pred[e, i, 1])
@@ -433,9 +445,8 @@ def obstacle_rows(me: np.ndarray, others_now: np.ndarray, own: np.ndarray,
             c, sn = rotation[i, 0], rotation[i, 1]
             A_out[e, i, 0] = nx * c - ny * sn
             A_out[e, i, 1] = nx * sn + ny * c
-        if stage_one_rule and not A_out[e, 0, 0] * gx + A_out[e, 0, 1] * gy >= d:
-            A_out[e, 0, 0], A_out[e, 0, 1] = n0x, n0y
-            overrides += 1
+        if stage_one_rule:
+            overrides += stage_one_override(A_out[e], n0x, n0y, gx, gy, d)[1]
         for i in range(N):
             lower_out[e, i] = (A_out[e, i, 0] * obstacles[e, i, 0]
                                + A_out[e, i, 1] * obstacles[e, i, 1]) + d

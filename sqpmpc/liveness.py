@@ -192,8 +192,8 @@ class _StallInstance(RuleInstance):
 
     def __init__(self, rule: StallRepair, context: RuleContext) -> None:
         super().__init__(rule, context)
-        lo, up = context.scenario.bounds.input_lower()[0], context.scenario.bounds.input_upper()[0]
-        self._ahead, self._back = (float(np.clip(s, lo, up)) for s in (rule.speed, -rule.speed))
+        self._ahead = context.speed_within_bounds(rule.speed)
+        self._back = context.speed_within_bounds(-rule.speed)
         self._all = np.ones(context.own.size, dtype=np.bool_)
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
@@ -252,8 +252,8 @@ class _ParkingInstance(RuleInstance):
         self.gain = rule.gain * max(1.0, (rule.horizon / horizon_time) ** 2)
         self.radius = max(rule.radius,
                           rule.reach * context.max_speed * max(horizon_time, rule.horizon))
-        lo, up = context.scenario.bounds.input_lower()[0], context.scenario.bounds.input_upper()[0]
-        self._ahead, self._back = (float(np.clip(s, lo, up)) for s in (rule.speed, -rule.speed))
+        self._ahead = context.speed_within_bounds(rule.speed)
+        self._back = context.speed_within_bounds(-rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
 
     def shape_references(self, view: SampleView) -> None:

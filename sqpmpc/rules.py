@@ -117,6 +117,11 @@ class RuleContext:
         """``Ts``, s."""
         return self.scenario.sample_time
 
+    def speed_within_bounds(self, speed: float) -> float:
+        """``speed`` clipped to the bounds of ``v``, m/s."""
+        b = self.scenario.bounds
+        return float(np.clip(speed, b.input_lower()[0], b.input_upper()[0]))
+
     @property
     def max_speed(self) -> float:
         """Largest ``|v|`` the bounds allow, m/s."""
