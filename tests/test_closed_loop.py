@@ -161,6 +161,7 @@ def test_first_stage_checks_of_a_pair_together_keep_the_true_distance(
     assert dist.min() >= min(D, 2 * half) - 1e-12
 
 
+@pytest.mark.parametrize("seed", [1, 2])
 def test_perturbed_crossing_arrives_safely_with_consistent_counters(seed: int) -> None:
     """crossing-4 with initial states off by 1 mm: invariants only (the path is chaotic)."""
     import dataclasses
