@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.liveness
 	$(BIN)/python -m benchmarks.random_scenarios
 	$(BIN)/python -m benchmarks.decomposition
+	$(BIN)/python -m benchmarks.qp_backends
 	$(BIN)/python -m benchmarks.bench_services
 
 clean:
