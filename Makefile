@@ -5,6 +5,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# bounds-checked kernels, cached apart from the fast ones (numba's cache ignores the flag)
+CHECKED := NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(VENV)/numba-cache-checked
 
 .PHONY: demo test lint bench clean
 
@@ -20,8 +22,8 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check sqpmpc services tests benchmarks
-	NUMBA_BOUNDSCHECK=1 $(BIN)/python -m sqpmpc.kernels
-	NUMBA_BOUNDSCHECK=1 $(BIN)/pytest -q
+	$(CHECKED) $(BIN)/python -m sqpmpc.kernels
+	$(CHECKED) $(BIN)/pytest -q
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.compare_ipopt
