@@ -14,7 +14,8 @@ For every scenario it runs the closed loop with
   primal-only warm start shows how much the closed loop of this non-convex
   problem depends on which local optimum IPOPT lands in;
 - sqpmpc RTI centralized / decentralized, SQP centralized / decentralized
-  (``iteration_scheme="sqp"``) and RTI centralized with ``hessian="exact"``,
+  (``iteration_scheme="sqp"``), RTI centralized with ``hessian="exact"`` and RTI
+  with the PIQP backend (``qp_solver="piqp"``),
   all with the library's default settings,
 
 and prints two tables (quality and time, where the time goes) and the targets

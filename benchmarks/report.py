@@ -144,6 +144,8 @@ _SHORT = {
     "sqpmpc SQP centralized": "SQP-c",
     "sqpmpc SQP decentralized": "SQP-d",
     "sqpmpc RTI centralized, exact Hessian": "RTI-c-exact",
+    "sqpmpc RTI centralized, PIQP": "RTI-c-piqp",
+    "sqpmpc RTI decentralized, PIQP": "RTI-d-piqp",
 }
 
 

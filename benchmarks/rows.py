@@ -87,6 +87,8 @@ ROWS: tuple[RowSpec, ...] = (
     RowSpec("sqpmpc SQP decentralized", "sqp", "decentralized", {"iteration_scheme": "sqp"}),
     RowSpec("sqpmpc RTI centralized, exact Hessian", "rti", "centralized",
             {"hessian": "exact"}),
+    RowSpec("sqpmpc RTI centralized, PIQP", "rti", "centralized", {"qp_solver": "piqp"}),
+    RowSpec("sqpmpc RTI decentralized, PIQP", "rti", "decentralized", {"qp_solver": "piqp"}),
 )
 
 

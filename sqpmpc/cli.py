@@ -42,6 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="one QP per sample (rti, default) or SQP to convergence")
     run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
     run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
+    run.add_argument("--qp-solver", choices=("osqp", "piqp"), default="osqp",
+                     help="QP backend (default osqp; docs/qp-backends.md compares them)")
     run.add_argument("--collision-margin", type=float, default=None,
                      help="added to every required distance in the QP, m (default 0.001); "
                           "raise it to cover a plant that differs from the prediction model")
@@ -93,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
             slack_penalty=base.slack_penalty if args.slack_penalty is None
             else args.slack_penalty,
             rules=rules_from_arguments(args),
+            qp_solver=args.qp_solver,
         )
         options = SimulationOptions(decentralized_mode=args.decentralized_mode,
                                     message_drop_probability=args.message_drop,

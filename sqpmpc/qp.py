@@ -29,7 +29,13 @@ from .errors import ProblemError, SolverError
 from .kernels import all_finite, clip_bounds, write_reference
 from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
 
-__all__ = ["OSQPSettings", "QPResult", "SparseQP", "solve_interior_point"]
+__all__ = ["PIQP_MAX_ITER", "QP_SOLVERS", "OSQPSettings", "QPResult", "SparseQP",
+           "solve_interior_point"]
+
+#: QP backends of :class:`SparseQP`.
+QP_SOLVERS = ("osqp", "piqp")
+#: PIQP's iteration cap (an interior-point method needs about 10 here).
+PIQP_MAX_ITER = 250
 
 _SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
 _SOLVED_EXACTLY = osqp.SolverStatus.OSQP_SOLVED
@@ -218,17 +224,33 @@ class SparseQP:
     ``use_osqp_wrapper = True``, or an OSQP build whose wrapper lacks that
     object, uses the public ``osqp.OSQP`` methods instead.
 
+    With ``solver="piqp"`` the same interface solves with PIQP
+    (:mod:`sqpmpc.piqp_backend`, in-place updates, no warm start); the
+    tolerances and the rescue of ``settings`` apply to it too.
+
     Parameters
     ----------
     layout
         Index maps and sparsity.
     settings
-        OSQP settings.
+        OSQP settings (tolerances and rescue also for PIQP).
+    solver
+        ``"osqp"`` (default) or ``"piqp"``.
     """
 
-    def __init__(self, layout: QPLayout, settings: OSQPSettings | None = None) -> None:
+    def __init__(self, layout: QPLayout, settings: OSQPSettings | None = None,
+                 solver: str = "osqp") -> None:
+        if solver not in QP_SOLVERS:
+            raise ProblemError(f"qp_solver must be one of {QP_SOLVERS}, got {solver!r}")
         self.layout = layout
         self.settings = settings or OSQPSettings()
+        self.solver_name = solver
+        self._piqp = None
+        if solver == "piqp":
+            from .piqp_backend import PIQPBackend
+
+            self._piqp = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
+                                     PIQP_MAX_ITER)
         L = layout
         self.A_values = np.zeros(L.A_nnz)
         sl = L.A_slices
@@ -420,6 +442,35 @@ class SparseQP:
         )
 
     # ----------------------------------------------------------------- solve
+    def _rescue(self, x: np.ndarray, y: np.ndarray, status: str
+                ) -> tuple[np.ndarray, np.ndarray, str, bool, float]:
+        """The same QP by the rescue solver: ``(x, y, status, rescued, seconds)``."""
+        if self.settings.rescue_solver is None:
+            return x, y, status, False, 0.0
+        t0 = time.perf_counter()
+        rescue = solve_interior_point(*self.matrices(), solver=self.settings.rescue_solver)
+        spent = time.perf_counter() - t0
+        if rescue is None:
+            return x, y, f"{status}; {self.settings.rescue_solver} found no solution either", \
+                False, spent
+        self.rescue_count += 1
+        return (*rescue, f"solved by {self.settings.rescue_solver} ({status})", True, spent)
+
+    def _solve_piqp(self, t0: float) -> QPResult:
+        """The PIQP backend's solve (all values handed over, no warm start)."""
+        q = self._q_cost if self._no_curvature else self.q
+        sol = self._piqp.solve(self.P_values, q, self.A_values, self.lower, self.upper)
+        self._dirty_P = self._dirty_A = self._dirty_vec = False
+        x, y = sol.x, sol.y
+        ok = sol.solved and all_finite(x) and all_finite(y)
+        status, rescued, rescue_time = sol.status, False, 0.0
+        if not ok:
+            x, y, status, rescued, rescue_time = self._rescue(x, y, f"PIQP: {status}")
+            ok = rescued
+        return QPResult(ok, status, x, y, sol.objective, sol.primal_residual,
+                        sol.dual_residual, sol.iterations, sol.solve_time + rescue_time,
+                        time.perf_counter() - t0, {"rescued": float(rescued)})
+
     def _push(self) -> None:
         L = self.layout
         if self._solver is None:
@@ -466,6 +517,8 @@ class SparseQP:
             non-finite output.
         """
         t0 = time.perf_counter()
+        if self._piqp is not None:
+            return self._solve_piqp(t0)
         try:
             self._push()
             if self._core is not None and not self.use_osqp_wrapper:
@@ -494,18 +547,9 @@ class SparseQP:
         status = str(info.status)
         rescued = False
         rescue_time = 0.0
-        if (not (finite and ok_status) and self.settings.rescue_solver is not None
-                and info.status_val != _TIME_LIMIT):
-            t_rescue = time.perf_counter()
-            rescue = solve_interior_point(*self.matrices(), solver=self.settings.rescue_solver)
-            rescue_time = time.perf_counter() - t_rescue
-            if rescue is not None:
-                x, y = rescue
-                finite = ok_status = rescued = True
-                status = f"solved by {self.settings.rescue_solver} (OSQP: {status})"
-                self.rescue_count += 1
-            else:
-                status = f"{status}; {self.settings.rescue_solver} found no solution either"
+        if not (finite and ok_status) and info.status_val != _TIME_LIMIT:
+            x, y, status, rescued, rescue_time = self._rescue(x, y, status)
+            finite = ok_status = rescued
             wall = time.perf_counter() - t0
         return QPResult(
             success=bool(finite and ok_status),

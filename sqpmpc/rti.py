@@ -133,7 +133,7 @@ class MultipleShootingSQP:
         self.settings = settings
         self.input_lower = np.asarray(input_lower, float)
         self.input_upper = np.asarray(input_upper, float)
-        self.qp = SparseQP(layout, settings.osqp)
+        self.qp = SparseQP(layout, settings.osqp, settings.qp_solver)
         self.qp.update_cost_weights(Q_diag, R_diag, settings.slack_penalty)
         self.qp.update_input_bounds(self.input_lower, self.input_upper)
         if layout.position_bounds:

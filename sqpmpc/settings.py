@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import ProblemError
 from .model import DISCRETIZATIONS
-from .qp import OSQPSettings
+from .qp import QP_SOLVERS, OSQPSettings
 from .registry import check_rules, default_rules
 from .rules import Rule
 
@@ -65,8 +65,10 @@ class SolverSettings:
         starts no new QP once it is spent; the first QP always runs.
     rules
         The liveness rules, applied in registry order (default: all).
+    qp_solver
+        QP backend: ``"osqp"`` (default) or ``"piqp"`` (:mod:`sqpmpc.piqp_backend`).
     osqp
-        OSQP settings.
+        OSQP settings (its tolerances and rescue apply to PIQP too).
     """
 
     iteration_scheme: Literal["rti", "sqp"] = "rti"
@@ -81,6 +83,7 @@ class SolverSettings:
     collision_margin: float = 1e-3
     time_budget: float | None = None
     rules: tuple[Rule, ...] = field(default_factory=default_rules)
+    qp_solver: str = "osqp"
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
 
     def __post_init__(self) -> None:
@@ -102,6 +105,8 @@ class SolverSettings:
             value = getattr(self, name)
             if value is not None:
                 _check_nonnegative(name, value)
+        if self.qp_solver not in QP_SOLVERS:
+            raise ProblemError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
         if not isinstance(self.osqp, OSQPSettings):
             raise ProblemError(f"osqp must be OSQPSettings, got {type(self.osqp).__name__}")
         object.__setattr__(self, "rules", check_rules(tuple(self.rules)))
