@@ -57,7 +57,15 @@ def stage_times(scenario: str, scheme: str) -> dict[str, np.ndarray]:
     ctrl._count = _timed(ctrl._count, logs["_count"])
     ctrl._publish = _timed(ctrl._publish, logs["_publish"])
     ctrl.engine.shift = _timed(ctrl.engine.shift, logs["shift"])
-    ctrl.engine.solve = _timed(ctrl.engine.solve, logs["solve"])
+    qp_log: list[float] = []
+    solve = ctrl.engine.solve
+
+    def solve_and_log_qp(*args: object, **kwargs: object) -> object:
+        report = solve(*args, **kwargs)
+        qp_log.append(report.qp_time)
+        return report
+
+    ctrl.engine.solve = _timed(solve_and_log_qp, logs["solve"])
     for rule in ctrl.rules:
         for hook in ("shape_references", "shape_guess", "after_solve"):
             if hook in type(rule).__dict__:
@@ -66,11 +74,11 @@ def stage_times(scenario: str, scheme: str) -> dict[str, np.ndarray]:
     samples.update({"QP update + solve": [], "whole sample": []})
     while sim.k < sim.scenario.steps:
         before = {name: len(log) for name, log in logs.items()}
-        qp = sim.timing["qp_s"]
+        qp = len(qp_log)
         sim.step()
         for name, log in logs.items():
             samples[name].append(sum(log[before[name]:]))
-        samples["QP update + solve"].append(sim.timing["qp_s"] - qp)
+        samples["QP update + solve"].append(sum(qp_log[qp:]))
         samples["whole sample"].append(sim.solve_times[sim.k - 1, 0])
     return {name: np.array(v[1:]) for name, v in samples.items()}
 
