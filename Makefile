@@ -31,6 +31,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.random_scenarios
 	$(BIN)/python -m benchmarks.decomposition
 	$(BIN)/python -m benchmarks.qp_backends
+	$(BIN)/python -m benchmarks.fleet
 	$(BIN)/python -m benchmarks.bench_services
 
 clean:

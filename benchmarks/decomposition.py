@@ -48,6 +48,7 @@ from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions, simulate
 
 from .compare_ipopt import machine_info
 from .report import publish
+from .rows import DEFAULT_SCENARIOS
 
 __all__ = ["OraclePredictionSimulation", "main"]
 
@@ -119,7 +120,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.decomposition",
                                      description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenarios", nargs="+", default=builtin_scenario_names())
+    parser.add_argument("--scenarios", nargs="+", default=list(DEFAULT_SCENARIOS),
+                        help=f"built-in names or files (the fleets swap-16, swap-64 are "
+                             f"benchmarks.fleet's; built-ins: "
+                             f"{', '.join(builtin_scenario_names())})")
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()

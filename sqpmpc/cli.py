@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from .errors import ProblemError, ScenarioError
+from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
 from .registry import add_rule_arguments, describe_rules, rules_from_arguments
 from .scenario import builtin_scenario_names, load_scenario
@@ -55,6 +56,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     run.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     sub.add_parser("list", help="list the built-in scenarios")
+    gen = sub.add_parser("generate", help="write a fleet scenario file (swap, random "
+                                          "crossings, grid-to-grid)")
+    gen.add_argument("kind", choices=FLEET_KINDS,
+                     help="swap: antipodal swap on a circle; crossings: random starts and "
+                          "goals (seeded); grid: a grid sent to the mirrored grid")
+    gen.add_argument("--robots", type=int, help="swap, crossings: number of robots")
+    gen.add_argument("--seed", type=int, help="crossings: random seed")
+    gen.add_argument("--rows", type=int, help="grid: rows")
+    gen.add_argument("--cols", type=int, help="grid: columns")
+    gen.add_argument("--spacing", type=float,
+                     help="crossings, grid: smallest distance between robots, m")
+    gen.add_argument("--gap", type=float, help="grid: distance between the two grids, m")
+    gen.add_argument("--sample-time", type=float, default=0.5, help="Ts, s (default 0.5)")
+    gen.add_argument("--horizon", type=int, default=8, help="N (default 8)")
+    gen.add_argument("--diameter", type=float, default=0.3, help="robot diameter, m")
+    gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
     return parser
 
@@ -73,6 +90,52 @@ def _summary(metrics: dict) -> str:
     )
 
 
+_GENERATE_OPTIONS = {"swap": ("robots",), "crossings": ("robots", "seed", "spacing"),
+                     "grid": ("rows", "cols", "spacing", "gap")}
+_REQUIRED = {"swap": ("robots",), "crossings": ("robots", "seed"), "grid": ("rows", "cols")}
+
+
+def _generate(args: argparse.Namespace) -> int:
+    """``sqpmpc generate``: write the scenario file, or refuse with one message (status 2)."""
+    kind = args.kind
+    given = [k for k in ("robots", "seed", "rows", "cols", "spacing", "gap")
+             if getattr(args, k) is not None]
+    wrong = [k for k in given if k not in _GENERATE_OPTIONS[kind]]
+    missing = [k for k in _REQUIRED[kind] if getattr(args, k) is None]
+    try:
+        if wrong:
+            raise ProblemError(f"--{wrong[0]} does not apply to '{kind}' (it takes "
+                               f"{', '.join('--' + k for k in _GENERATE_OPTIONS[kind])})")
+        if missing:
+            raise ProblemError(f"'{kind}' needs --{missing[0]}")
+        common = {"sample_time": args.sample_time, "horizon": args.horizon,
+                  "diameter": args.diameter}
+        extra = {k: getattr(args, k) for k in ("spacing", "gap") if getattr(args, k) is not None}
+        if kind == "swap":
+            scenario = antipodal_swap(args.robots, **common)
+        elif kind == "crossings":
+            scenario = random_crossings(args.robots, args.seed, **common, **extra)
+        else:
+            scenario = grid_to_grid(args.rows, args.cols, **extra, **common)
+    except (ProblemError, ScenarioError) as exc:
+        print(f"sqpmpc generate: error: {exc}", file=sys.stderr)
+        return 2
+    text = scenario.to_toml()
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+    except OSError as exc:
+        print(f"sqpmpc generate: error: cannot write {args.out}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 2
+    print(f"wrote {args.out} ({scenario.name}: {scenario.n_robots} robots, "
+          f"t_end {scenario.t_end:g} s)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -83,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "rules":
         print(describe_rules())
         return 0
+    if args.command == "generate":
+        return _generate(args)
     try:
         scenario = load_scenario(args.scenario)
         base = SolverSettings()
