@@ -35,6 +35,7 @@ rule               what it does
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numba
@@ -80,6 +81,9 @@ class KeepRight(Rule):
         if self.angle >= np.pi / 2 or self.max_angle >= np.pi / 2:
             raise ProblemError(f"rule 'keep-right': angle and max_angle must be below pi/2, "
                                f"got {self.angle}, {self.max_angle}")
+        if self.angle > self.max_angle:
+            raise ProblemError(f"rule 'keep-right': angle ({self.angle}) must not exceed "
+                               f"max_angle ({self.max_angle}), which caps every stage")
 
 
 class _TurnLimitInstance(RuleInstance):
@@ -166,7 +170,9 @@ def _repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
 
     A robot (``only[r]``) is stalled when every ``|speeds[r]| < slow`` and its
     goal is farther than ``distance``; it is linearized moving towards the goal
-    (forward if the goal is not behind its heading).
+    (forward if the goal is not behind its heading), unless the bounds make
+    that speed 0. ``slow`` is at most the repair speeds' size, so a robot
+    already at the (clipped) repair speed is not "stalled".
     """
     repaired = 0
     for r in range(speeds.shape[0]):
@@ -181,7 +187,10 @@ def _repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
         if not np.hypot(gx, gy) > distance:
             continue
         ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
-        speeds[r, :] = ahead_speed if ahead else back_speed
+        speed = ahead_speed if ahead else back_speed
+        if speed == 0.0:  # the bounds forbid that direction: nothing to repair
+            continue
+        speeds[r, :] = speed
         repaired += 1
     return repaired
 
@@ -194,12 +203,13 @@ class _StallInstance(RuleInstance):
         super().__init__(rule, context)
         self._ahead = context.speed_within_bounds(rule.speed)
         self._back = context.speed_within_bounds(-rule.speed)
+        self._slow = min(rule.speed, max(abs(self._ahead), abs(self._back)))
         self._all = np.ones(context.own.size, dtype=np.bool_)
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
         self.counts["stall_repairs"] += _repair_speeds(
             speeds, np.ascontiguousarray(view.references[:, -1]), view.own_states, self._all,
-            self.rule.speed, self.rule.distance, self._ahead, self._back)
+            self._slow, self.rule.distance, self._ahead, self._back)
 
 
 @dataclass(frozen=True)
@@ -254,6 +264,7 @@ class _ParkingInstance(RuleInstance):
                           rule.reach * context.max_speed * max(horizon_time, rule.horizon))
         self._ahead = context.speed_within_bounds(rule.speed)
         self._back = context.speed_within_bounds(-rule.speed)
+        self._slow = min(rule.speed, max(abs(self._ahead), abs(self._back)))
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
 
     def shape_references(self, view: SampleView) -> None:
@@ -268,7 +279,7 @@ class _ParkingInstance(RuleInstance):
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
         self.counts["parking_repairs"] += _repair_speeds(
             speeds, np.ascontiguousarray(view.references[:, -1]), view.own_states, self.parking,
-            self.rule.speed, self.rule.tolerance, self._ahead, self._back)
+            self._slow, self.rule.tolerance, self._ahead, self._back)
 
 
 @dataclass(frozen=True)
@@ -489,6 +500,6 @@ class Detour(Rule):
         check_positive(self, "speed", "reach", "cone", "patience", "patience_centralized",
                        "hold", "radius_factor", "angle")
         for name in ("patience", "patience_centralized", "hold"):
-            if not isinstance(getattr(self, name), int):
+            if not isinstance(getattr(self, name), numbers.Integral):
                 raise ProblemError(f"rule 'detour': {name} must be an integer, "
                                    f"got {getattr(self, name)!r}")

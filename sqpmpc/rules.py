@@ -29,6 +29,7 @@ built-in rules is :mod:`sqpmpc.registry`; their implementations are in
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
@@ -222,8 +223,8 @@ def check_positive(rule: Rule, *names: str, allow_zero: bool = False) -> None:
     """Refuse non-finite or non-positive parameters, naming the rule and the field."""
     for name in names:
         value = getattr(rule, name)
-        ok = isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(
-            value) and (value >= 0 if allow_zero else value > 0)
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_) and bool(
+            np.isfinite(value)) and (value >= 0 if allow_zero else value > 0)
         if not ok:
             bound = ">= 0" if allow_zero else "> 0"
             raise ProblemError(f"rule {rule.name!r}: {name} must be finite and {bound}, "

@@ -60,3 +60,15 @@ def test_centralized_rows_use_the_rotated_normal() -> None:
 def test_bad_parameters_are_refused_by_name(changes: dict[str, float]) -> None:
     with pytest.raises(ProblemError, match="keep-right"):
         KeepRight(**changes)
+
+
+def test_an_angle_above_the_cap_is_refused() -> None:
+    with pytest.raises(ProblemError, match="must not exceed max_angle"):
+        KeepRight(angle=1.0, max_angle=0.5)
+
+
+def test_numpy_numbers_are_accepted_as_parameters() -> None:
+    from sqpmpc.liveness import Detour
+
+    assert KeepRight(angle=np.float64(0.2)).angle == 0.2
+    assert Detour(patience=np.int64(3), speed=np.float32(0.3)).patience == 3

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -55,3 +57,22 @@ def test_speed_is_clipped_to_the_bounds() -> None:
 def test_bad_parameters_are_refused_by_name(changes: dict[str, float]) -> None:
     with pytest.raises(ProblemError, match="stall-repair"):
         StallRepair(**changes)
+
+
+def test_forward_only_bounds_never_repair_backwards_nor_count_it() -> None:
+    sc = fleet([[0, 0, 0]], [[-2, 0]])
+    sc = sc.with_changes(bounds=dataclasses.replace(sc.bounds, v=(0.0, 0.6)))
+    ctrl = CentralizedController(sc, only("stall-repair"))
+    speeds = np.zeros((1, sc.horizon))
+    ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
+    np.testing.assert_array_equal(speeds, 0.0)
+    assert ctrl.counters()["stall_repairs"] == 0
+
+
+def test_a_robot_at_the_clipped_repair_speed_is_not_stalled() -> None:
+    sc = fleet([[0, 0, 0]], [[2, 0]])
+    sc = sc.with_changes(bounds=dataclasses.replace(sc.bounds, v=(-0.03, 0.03)))
+    ctrl = CentralizedController(sc, only("stall-repair"))
+    speeds = np.full((1, sc.horizon), 0.03)  # full speed under these bounds
+    ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
+    assert ctrl.counters()["stall_repairs"] == 0
