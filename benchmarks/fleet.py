@@ -7,7 +7,10 @@ Usage (from the repository root)::
 
 Every swap is :func:`sqpmpc.fleets.antipodal_swap` (radius ``3 sqrt(n/6)`` m:
 the density of ``swap-6``; ``Ts = 0.5 s``, ``N = 8``; ``t_end`` three times the
-straight trip at full speed). Each run gets a wall-clock budget (``--budget``
+straight trip at full speed), run centralized, decentralized with one collision
+slot per other robot (the default), and decentralized with ``--slots``
+neighbour slots (``SolverSettings.neighbour_slots``). Each run gets a wall-clock
+budget (``--budget``
 seconds); a run that exceeds it is stopped and reported with the sample it
 reached: that is where a scheme stops fitting on this machine. Measured per
 run: per-robot step time (median and p99 over every controller call; the
@@ -28,6 +31,7 @@ import numpy as np
 
 from sqpmpc.fleets import antipodal_swap
 from sqpmpc.metrics import compute_metrics
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
@@ -40,10 +44,11 @@ DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "fleet.md"
 SIZES = (4, 8, 16, 32, 64)
 
 
-def run_swap(n: int, scheme: str, budget: float) -> dict[str, object]:
+def run_swap(n: int, scheme: str, budget: float,
+             slots: int | None = None) -> dict[str, object]:
     """One antipodal swap of ``n`` robots, stopped after ``budget`` wall-clock seconds."""
     sc = antipodal_swap(n)
-    sim = ClosedLoopSimulation(sc, scheme)
+    sim = ClosedLoopSimulation(sc, scheme, SolverSettings(neighbour_slots=slots))
     t0 = time.perf_counter()
     while sim.k < sc.steps and time.perf_counter() - t0 < budget:
         sim.step()
@@ -75,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
     parser.add_argument("--budget", type=float, default=120.0,
                         help="wall-clock seconds per run before it is stopped (default 120)")
+    parser.add_argument("--slots", type=int, default=8,
+                        help="neighbour slots of the third configuration (default 8)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
@@ -82,12 +89,15 @@ def main(argv: list[str] | None = None) -> int:
             "largest sample ms | QP iterations per QP | arrived | min clearance m "
             "(between samples) | collisions | rescues | fallbacks |")
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
+    configs = [("centralized", None), ("decentralized", None),
+               ("decentralized", args.slots)]
     for n in args.sizes:
-        for scheme in ("centralized", "decentralized"):
-            r = run_swap(n, scheme, args.budget)
+        for scheme, slots in configs:
+            r = run_swap(n, scheme, args.budget, slots)
             stopped = "" if r["steps"] == r["of"] else f" (stopped after {r['wall']:.0f} s)"
+            label = scheme if slots is None else f"{scheme}, {slots} neighbour slots"
             lines.append(
-                f"| {n} | {scheme} | {r['steps']} of {r['of']}{stopped} | "
+                f"| {n} | {label} | {r['steps']} of {r['of']}{stopped} | "
                 f"{r['median_ms']:.2f} | {r['p99_ms']:.2f} | {r['sample_max_ms']:.1f} | "
                 f"{r['qp_iterations']:.0f} | {r['arrived']}/{n} | {r['clearance']:.4f} "
                 f"({r['between']:.4f}) | {r['collisions']} | {r['rescues']} | "
@@ -97,9 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     report = f"""# Fleets: antipodal swaps of {args.sizes[0]} to {args.sizes[-1]} robots
 
 Reproduce: `python -m benchmarks.fleet --sizes {' '.join(map(str, args.sizes))} --budget
-{args.budget:g}` (module docstring: what is measured). Swaps at the density of `swap-6`
-(radius 3 sqrt(n/6) m), Ts 0.5 s, N 8, t_end three times the straight trip; every run
-gets {args.budget:g} s of wall clock and is stopped there ("samples run").
+{args.budget:g} --slots {args.slots}` (module docstring: what is measured). Swaps at the
+density of `swap-6` (radius 3 sqrt(n/6) m), Ts 0.5 s, N 8, t_end three times the straight
+trip; every run gets {args.budget:g} s of wall clock and is stopped there ("samples run").
 
 Machine: {info['CPU']}, {info['cores']}, Python {info['Python']}, OSQP {info['OSQP']};
 {info['date']}; wall time {time.perf_counter() - t0:.0f} s.

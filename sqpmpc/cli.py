@@ -43,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="one QP per sample (rti, default) or SQP to convergence")
     run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
     run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
+    run.add_argument("--neighbour-slots", type=int, default=None,
+                     help="decentralized: collision slots per robot, filled with the nearest "
+                          "neighbours within reach (default: one per other robot)")
     run.add_argument("--qp-solver", choices=("osqp", "piqp"), default="osqp",
                      help="QP backend (default osqp; docs/qp-backends.md compares them)")
     run.add_argument("--collision-margin", type=float, default=None,
@@ -161,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
             else args.slack_penalty,
             rules=rules_from_arguments(args),
             qp_solver=args.qp_solver,
+            neighbour_slots=args.neighbour_slots,
         )
         options = SimulationOptions(decentralized_mode=args.decentralized_mode,
                                     message_drop_probability=args.message_drop,

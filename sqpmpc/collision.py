@@ -217,6 +217,25 @@ class ExternalCollisionModel:
         self._any_shared = self._any_obstacle = self._any_missing = False
         self._avoid = np.zeros(E, dtype=np.bool_)
         self._kinds_key = b""
+        self._margin = float(margin)
+        self.unslotted = np.zeros((0, 2))
+        self.unslotted_distance = np.zeros(0)
+
+    def set_required(self, required: np.ndarray) -> None:
+        """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
+        self.safe_distance = np.asarray(required, dtype=float)
+        self.required = self.safe_distance + self._margin
+
+    def set_unslotted(self, positions: np.ndarray, required: np.ndarray) -> None:
+        """Neighbours within reach that got no slot: current positions ``(U, 2)``, distances.
+
+        The first-stage check keeps ``required + reach`` from each along the
+        whole segment, or accepts standing still (as for a missing neighbour):
+        whatever such a neighbour does within its bounds, the pair keeps its
+        distance over the sample.
+        """
+        self.unslotted = np.asarray(positions, dtype=float).reshape(-1, 2)
+        self.unslotted_distance = np.asarray(required, dtype=float)
 
     def set_sample(self, current_self: np.ndarray, current_others: np.ndarray,
                    own_prediction: np.ndarray, other_predictions: np.ndarray,
@@ -287,8 +306,9 @@ class ExternalCollisionModel:
         Shared slots: the check of the class notes; the current position also
         satisfies it and a half-plane is convex, so the whole straight segment
         does. Obstacle slots: the true distance to the neighbour's predicted
-        stage 1. Missing slots: the true distance plus the neighbour's reach,
-        along the whole segment, or standing still.
+        stage 1. Missing slots and neighbours within reach without a slot: the
+        true distance plus the neighbour's reach, along the whole segment, or
+        standing still.
         """
         p = position
         if self._any_shared and not halfplanes_hold(self.check_normals, self.check_rhs,
@@ -299,11 +319,17 @@ class ExternalCollisionModel:
             d = p - self.obstacles[obst, 0, :2]
             if (np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance).any():
                 return False
-        if self._any_missing and np.hypot(*(p - self.current_self)) > 1e-12:
+        moved = np.hypot(*(p - self.current_self)) > 1e-12
+        if self._any_missing and moved:
             missing = self.kind == MISSING
             others = self.current_others[missing]
             keep = self.safe_distance[missing] + self.reach
             if (segment_distances(self.current_self - others, p - others)
                     < keep - tolerance).any():
+                return False
+        if self.unslotted.shape[0] and moved:
+            others = self.unslotted
+            if (segment_distances(self.current_self - others, p - others)
+                    < self.unslotted_distance + self.reach - tolerance).any():
                 return False
         return True

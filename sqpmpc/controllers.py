@@ -25,7 +25,14 @@ from typing import Literal
 
 import numpy as np
 
-from .collision import MISSING, OBSTACLE, SHARED, ExternalCollisionModel, PairwiseCollisionModel
+from .collision import (
+    MISSING,
+    OBSTACLE,
+    OFF,
+    SHARED,
+    ExternalCollisionModel,
+    PairwiseCollisionModel,
+)
 from .errors import ProblemError
 from .kernels import shift_plan
 from .layout import QPLayout
@@ -193,28 +200,38 @@ class DecentralizedController(ControllerPipeline):
             raise ProblemError(f"decentralized mode must be 'shared' or 'paper', got {mode!r}")
         index = scenario.index_of(robot_id)
         others = np.array([i for i in range(scenario.n_robots) if i != index], dtype=np.int64)
-        layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64), others.size,
+        slots = others.size if settings.neighbour_slots is None else min(
+            others.size, settings.neighbour_slots)
+        layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64), slots,
                           _has_position_bounds(scenario))
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
         self.index = index
         self.others = others
         self.other_ids = scenario.ids[others]
-        self._neighbours = list(enumerate(self.other_ids.tolist()))
+        self.slots = slots
+        self._selecting = settings.neighbour_slots is not None
+        # slot e holds neighbour self._slot_index[e] (scenario index; fixed without selection)
+        self._slot_index = others[:slots].copy()
+        self._neighbours = list(enumerate(self.other_ids[:slots].tolist()))
         self.mode = mode
         self.required = scenario.required_distances()[index, others]
         N = scenario.horizon
+        v_max = max(abs(self.input_lower[0]), abs(self.input_upper[0]))
+        # beyond this, a neighbour cannot come within its distance over the horizon
+        self.interaction_radius = (self.required + settings.collision_margin
+                                   + 2.0 * v_max * N * scenario.sample_time)
         self.collisions = ExternalCollisionModel(
-            self.required, N, self.geometry,
-            reach=scenario.sample_time * max(abs(self.input_lower[0]), abs(self.input_upper[0])),
+            self.required[:slots], N, self.geometry, reach=scenario.sample_time * v_max,
             margin=settings.collision_margin, stage_one_rule_for_obstacles=mode == "shared",
         )
         self._rows = {"external": self.collisions}
         self._overrides_source = [self.collisions]
         self.counts["fallback_neighbours"] = 0
+        self.counts["unslotted_neighbours"] = 0
         self._own_prediction = np.zeros((N, 3))
-        self._other_predictions = np.zeros((others.size, N, 3))
-        self._kinds = np.zeros(others.size, dtype=np.int8)
+        self._other_predictions = np.zeros((slots, N, 3))
+        self._kinds = np.zeros(slots, dtype=np.int8)
         if mode == "paper":
             _warn_paper_mode()
         self.published: PlanMessage | None = None
@@ -250,6 +267,8 @@ class DecentralizedController(ControllerPipeline):
         fallback (input estimated from two states) and its slot is *missing*.
         """
         N, h, method = self.horizon, self.sample_time, self.settings.discretization
+        if self._selecting:
+            self._select_neighbours(states)
         if self.published is None or not self._fill_from_plan(self._own_prediction,
                                                                 self.published, sample):
             self._own_prediction[:] = predict_from_states(states[self.index], None, N, h,
@@ -264,15 +283,42 @@ class DecentralizedController(ControllerPipeline):
                     self._fill_from_plan(preds[e], plan, sample)):
                 kinds[e] = SHARED if shared else OBSTACLE
                 continue
-            j = self.others[e]
+            j = self._slot_index[e]
             prev = None if previous_states is None else previous_states[j]
             preds[e] = predict_from_states(states[j], prev, N, h, method)[1:]
             kinds[e] = MISSING if shared else OBSTACLE
             missing += 1
         if missing:
             self.counts["fallback_neighbours"] += missing
-        self.collisions.set_sample(states[self.index, :2], states[self.others, :2],
+        self.collisions.set_sample(states[self.index, :2], states[self._slot_index, :2],
                                    self._own_prediction, self._other_predictions, kinds)
+
+    def _select_neighbours(self, states: np.ndarray) -> None:
+        """Fill the slots with the nearest neighbours within the interaction radius.
+
+        A neighbour farther than its required distance plus margin plus
+        ``2 v_max N Ts`` cannot come within that distance over the horizon
+        (each robot moves at most ``v_max N Ts``), so it gets no row. The
+        nearest of the others get the slots (free slots are off); those within
+        the radius left without a slot are handed to the first-input check,
+        which keeps their distance plus their one-sample reach, or stands still.
+        """
+        me = states[self.index, :2]
+        gap = states[self.others, :2] - me
+        dist = np.hypot(gap[:, 0], gap[:, 1])
+        near = np.flatnonzero(dist <= self.interaction_radius)
+        order = near[np.argsort(dist[near], kind="stable")]
+        chosen, rest = order[:self.slots], order[self.slots:]
+        used = chosen.size
+        self._slot_index[:used] = self.others[chosen]
+        self._slot_index[used:] = self.index  # free slots: off (their position is unused)
+        self._neighbours = list(zip(range(used), self.other_ids[chosen].tolist(), strict=True))
+        self._kinds[used:] = OFF
+        required = np.zeros(self.slots)
+        required[:used] = self.required[chosen]
+        self.collisions.set_required(required)
+        self.collisions.set_unslotted(states[self.others[rest], :2], self.required[rest])
+        self.counts["unslotted_neighbours"] += int(rest.size)
 
     def _publish(self, sample: int, out: ControlOutput) -> None:
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0],

@@ -65,6 +65,12 @@ class SolverSettings:
         starts no new QP once it is spent; the first QP always runs.
     rules
         The liveness rules, applied in registry order (default: all).
+    neighbour_slots
+        Decentralized: the collision slots of a robot's QP, filled every sample
+        with the nearest neighbours that can come within their distance over the
+        horizon (``None``: one slot per other robot, always filled). Neighbours
+        within reach left without a slot are kept safe by the first-input
+        check (:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`).
     qp_solver
         QP backend: ``"osqp"`` (default) or ``"piqp"`` (:mod:`sqpmpc.piqp_backend`).
     osqp
@@ -83,6 +89,7 @@ class SolverSettings:
     collision_margin: float = 1e-3
     time_budget: float | None = None
     rules: tuple[Rule, ...] = field(default_factory=default_rules)
+    neighbour_slots: int | None = None
     qp_solver: str = "osqp"
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
 
@@ -105,6 +112,12 @@ class SolverSettings:
             value = getattr(self, name)
             if value is not None:
                 _check_nonnegative(name, value)
+        if self.neighbour_slots is not None and (
+                isinstance(self.neighbour_slots, bool)
+                or not isinstance(self.neighbour_slots, int | np.integer)
+                or self.neighbour_slots < 1):
+            raise ProblemError(f"neighbour_slots must be an integer >= 1 or None, got "
+                               f"{self.neighbour_slots!r}")
         if self.qp_solver not in QP_SOLVERS:
             raise ProblemError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
         if not isinstance(self.osqp, OSQPSettings):
