@@ -34,6 +34,7 @@ import numpy as np
 
 from sqpmpc.metrics import compute_metrics
 from sqpmpc.scenario import Scenario, parse_scenario
+from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import SimulationOptions, simulate
 
 from .compare_ipopt import machine_info
@@ -92,14 +93,15 @@ def safety_violations(metrics: dict) -> int:
             + int(metrics["input_bound_violations"]))
 
 
-def run_random(seed: int, scheme: str, t_end: float | None = None) -> dict:
+def run_random(seed: int, scheme: str, t_end: float | None = None,
+               settings: SolverSettings | None = None) -> dict:
     """Metrics of one closed loop of random scenario ``seed`` (``t_end`` overrides)."""
     scenario = random_scenario(seed)
     if t_end is not None:
         scenario = scenario.with_changes(t_end=t_end)
     drop = 0.2 if scheme == "decentralized" and seed % 3 == 0 else 0.0
     options = SimulationOptions(message_drop_probability=drop, seed=seed)
-    metrics = compute_metrics(simulate(scenario, scheme, options=options))
+    metrics = compute_metrics(simulate(scenario, scheme, settings, options=options))
     metrics["message_drop_probability"] = drop
     return metrics
 

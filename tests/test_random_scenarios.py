@@ -27,3 +27,15 @@ def test_random_closed_loops_are_safe(seed: int, scheme: str) -> None:
     assert safety_violations(m) == 0, m
     assert m["min_clearance"] >= 0.0
     assert m["state_bound_violations"] == 0
+
+
+@pytest.mark.parametrize("seed", [0, 3, 5, 8, 11])
+def test_random_closed_loops_with_two_neighbour_slots_are_safe(seed: int) -> None:
+    """Fewer slots than neighbours in reach: the first-input check keeps the rest safe."""
+    from sqpmpc.settings import SolverSettings
+
+    sc = random_scenario(seed)
+    m = run_random(seed, "decentralized", t_end=min(sc.t_end, 150 * sc.sample_time),
+                   settings=SolverSettings(neighbour_slots=2))
+    assert safety_violations(m) == 0, m
+    assert m["min_clearance"] >= 0.0
