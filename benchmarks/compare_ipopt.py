@@ -57,7 +57,7 @@ from .rows import (
     ScenarioResult,
 )
 
-__all__ = ["build_parser", "compare", "machine_info", "main", "run_row"]
+__all__ = ["build_parser", "compare", "machine_info", "machine_line", "main", "run_row"]
 
 
 # ------------------------------------------------------------------------------ running
@@ -170,6 +170,14 @@ def compare(scenarios: Sequence[str], sqp_scenarios: Sequence[str] | None = None
 
 
 # ------------------------------------------------------------------------------ machine
+
+
+def machine_line(started: float) -> str:
+    """The reports' machine line: CPU, cores, versions, date and wall time since ``started``."""
+    info = machine_info()
+    return (f"Machine: {info['CPU']}, {info['cores']}, Python {info['Python']}, "
+            f"OSQP {info['OSQP']};\n{info['date']}; wall time "
+            f"{time.perf_counter() - started:.0f} s.")
 
 
 def machine_info() -> dict[str, str]:

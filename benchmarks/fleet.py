@@ -34,7 +34,7 @@ from sqpmpc.metrics import compute_metrics
 from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation
 
-from .compare_ipopt import machine_info
+from .compare_ipopt import machine_line
 from .report import publish
 from .rows import GOAL_TOLERANCE
 
@@ -103,7 +103,6 @@ def main(argv: list[str] | None = None) -> int:
                 f"({r['between']:.4f}) | {r['collisions']} | {r['rescues']} | "
                 f"{r['fallbacks']} |")
             print(lines[-1], file=sys.stderr)
-    info = machine_info()
     report = f"""# Fleets: antipodal swaps of {args.sizes[0]} to {args.sizes[-1]} robots
 
 Reproduce: `python -m benchmarks.fleet --sizes {' '.join(map(str, args.sizes))} --budget
@@ -111,8 +110,7 @@ Reproduce: `python -m benchmarks.fleet --sizes {' '.join(map(str, args.sizes))} 
 density of `swap-6` (radius 3 sqrt(n/6) m), Ts 0.5 s, N 8, t_end three times the straight
 trip; every run gets {args.budget:g} s of wall clock and is stopped there ("samples run").
 
-Machine: {info['CPU']}, {info['cores']}, Python {info['Python']}, OSQP {info['OSQP']};
-{info['date']}; wall time {time.perf_counter() - t0:.0f} s.
+{machine_line(t0)}
 
 {chr(10).join(lines)}
 """

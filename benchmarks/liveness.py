@@ -34,7 +34,7 @@ from sqpmpc.scenario import Scenario, load_scenario
 from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import simulate
 
-from .compare_ipopt import machine_info
+from .compare_ipopt import machine_line
 from .report import publish
 from .rows import GOAL_TOLERANCE
 
@@ -112,7 +112,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                         f"{', '.join(r['failed']) or '-'} |")
                 print(line, file=sys.stderr, flush=True)
                 lines.append(line)
-    info = machine_info()
     command = "python -m benchmarks.liveness " + " ".join(
         sys.argv[1:] if argv is None else argv)
     report = f"""# Liveness under perturbation
@@ -130,8 +129,7 @@ an RTI oscillation, stay on); and no rule at all. Collisions are
 counted over all runs of a family, at the samples and along the straight segments
 between them.
 
-Machine: {info['CPU']}, {info['cores']}, Python {info['Python']}, OSQP {info['OSQP']};
-{info['date']}; wall time {time.perf_counter() - t0:.0f} s.
+{machine_line(t0)}
 
 {chr(10).join(lines)}
 """
