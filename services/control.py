@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.controllers import CentralizedController, DecentralizedController
-from sqpmpc.qp import OSQPSettings
+from sqpmpc.qp import QP_SOLVERS, OSQPSettings
 from sqpmpc.registry import add_rule_arguments, rules_from_arguments
 from sqpmpc.scenario import Scenario
 from sqpmpc.settings import SolverSettings
@@ -40,6 +40,11 @@ def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str)
                              "is a counted fallback")
     parser.add_argument("--startup-timeout", type=float, default=None,
                         help="give up when no state came within this time, s (default: wait)")
+    parser.add_argument("--neighbour-slots", type=int, default=None,
+                        help="decentralized: collision slots per robot, filled with the "
+                             "nearest neighbours within reach (default: one per robot)")
+    parser.add_argument("--qp-solver", choices=QP_SOLVERS, default="osqp",
+                        help="QP backend (default osqp)")
     add_rule_arguments(parser)
 
 
@@ -52,7 +57,8 @@ def controller_settings(args: argparse.Namespace) -> SolverSettings:
     """
     limit = float(args.qp_time_limit) or None
     return SolverSettings(time_budget=limit, osqp=OSQPSettings(time_limit=limit),
-                          rules=rules_from_arguments(args))
+                          rules=rules_from_arguments(args),
+                          neighbour_slots=args.neighbour_slots, qp_solver=args.qp_solver)
 
 
 @dataclass

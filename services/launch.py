@@ -37,6 +37,7 @@ from pathlib import Path
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
+from sqpmpc.settings import SolverSettings
 
 from .node import install_signal_handlers, scenario_from_args
 from .plant import summarize
@@ -160,6 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--pin-cpus", action="store_true",
                         help="pin each controller to one CPU (round robin)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
+    parser.add_argument("--neighbour-slots", type=int, default=None,
+                        help="decentralized: collision slots per robot (default: one per robot)")
+    parser.add_argument("--qp-solver", choices=("osqp", "piqp"), default="osqp",
+                        help="QP backend of the controllers (default osqp)")
     add_rule_arguments(parser)
     return parser
 
@@ -181,7 +186,9 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     if args.no_plots:
         plant.append("--no-plots")
     cmds = [("plant", plant)]
-    controller_extra: list[str] = rule_arguments(args)
+    controller_extra: list[str] = [*rule_arguments(args), "--qp-solver", args.qp_solver]
+    if args.neighbour_slots is not None:
+        controller_extra += ["--neighbour-slots", str(args.neighbour_slots)]
     if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback
         controller_extra += ["--qp-time-limit", repr(0.4 * sample_time)]
     for name, port in zip(names, ports[1:], strict=True):
@@ -206,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     scenario = scenario_from_args(PROG, args)  # exits 2 with one message on bad input
     try:
         rules_from_arguments(args)  # refused here once, not by every child
+        SolverSettings(neighbour_slots=args.neighbour_slots, qp_solver=args.qp_solver)
     except ProblemError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
