@@ -14,8 +14,8 @@ For every scenario it runs the closed loop with
   primal-only warm start shows how much the closed loop of this non-convex
   problem depends on which local optimum IPOPT lands in;
 - sqpmpc RTI centralized / decentralized, SQP centralized / decentralized
-  (``iteration_scheme="sqp"``), RTI centralized with ``hessian="exact"`` and RTI
-  with the PIQP backend (``qp_solver="piqp"``),
+  (``iteration_scheme="sqp"``), RTI centralized with ``hessian="exact"``, RTI
+  with the PIQP backend (``qp_solver="piqp"``) and RTI decentralized with DAQP,
   all with the library's default settings,
 
 and prints two tables (quality and time, where the time goes) and the targets

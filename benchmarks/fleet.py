@@ -17,7 +17,8 @@ run: per-robot step time (median and p99 over every controller call; the
 centralized controller is one "robot" that plans for all), the largest sample
 (sum over controllers), QP iterations per QP, arrivals (robots within 0.05 m
 of their goals at the last simulated sample), the smallest clearance at and
-between samples, QP rescues and fallbacks.
+between samples, QP rescues and fallbacks. Then ``--crossings`` seeded random
+crossings of ``--crossing-robots`` robots (decentralized, ``--slots`` slots).
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.fleets import antipodal_swap
+from sqpmpc.fleets import antipodal_swap, random_crossings
 from sqpmpc.metrics import compute_metrics
+from sqpmpc.scenario import Scenario
 from sqpmpc.settings import SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation
 
@@ -44,10 +46,10 @@ DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "fleet.md"
 SIZES = (4, 8, 16, 32, 64)
 
 
-def run_swap(n: int, scheme: str, budget: float,
-             slots: int | None = None) -> dict[str, object]:
-    """One antipodal swap of ``n`` robots, stopped after ``budget`` wall-clock seconds."""
-    sc = antipodal_swap(n)
+def run_swap(n: int, scheme: str, budget: float, slots: int | None = None,
+             scenario: Scenario | None = None) -> dict[str, object]:
+    """One antipodal swap of ``n`` robots (or ``scenario``), stopped after ``budget`` s."""
+    sc = antipodal_swap(n) if scenario is None else scenario
     sim = ClosedLoopSimulation(sc, scheme, SolverSettings(neighbour_slots=slots))
     t0 = time.perf_counter()
     while sim.k < sc.steps and time.perf_counter() - t0 < budget:
@@ -82,6 +84,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="wall-clock seconds per run before it is stopped (default 120)")
     parser.add_argument("--slots", type=int, default=8,
                         help="neighbour slots of the third configuration (default 8)")
+    parser.add_argument("--crossings", type=int, default=10,
+                        help="seeds of random crossings to run (decentralized, --slots)")
+    parser.add_argument("--crossing-robots", type=int, default=32)
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
@@ -103,6 +108,23 @@ def main(argv: list[str] | None = None) -> int:
                 f"({r['between']:.4f}) | {r['collisions']} | {r['rescues']} | "
                 f"{r['fallbacks']} |")
             print(lines[-1], file=sys.stderr)
+    crossings = [head.replace("| robots |", "| seed |"), lines[1]]
+    for seed in range(args.crossings):
+        sc = random_crossings(args.crossing_robots, seed)
+        r = run_swap(sc.n_robots, "decentralized", args.budget, args.slots, sc)
+        stopped = "" if r["steps"] == r["of"] else f" (stopped after {r['wall']:.0f} s)"
+        crossings.append(
+            f"| {seed} | decentralized, {args.slots} neighbour slots | {r['steps']} of "
+            f"{r['of']}{stopped} | {r['median_ms']:.2f} | {r['p99_ms']:.2f} | "
+            f"{r['sample_max_ms']:.1f} | {r['qp_iterations']:.0f} | "
+            f"{r['arrived']}/{sc.n_robots} | {r['clearance']:.4f} ({r['between']:.4f}) | "
+            f"{r['collisions']} | {r['rescues']} | {r['fallbacks']} |")
+        print(crossings[-1], file=sys.stderr)
+    crossing_section = "" if not args.crossings else f"""
+## Random crossings of {args.crossing_robots} robots (`sqpmpc generate crossings`)
+
+{chr(10).join(crossings)}
+"""
     report = f"""# Fleets: antipodal swaps of {args.sizes[0]} to {args.sizes[-1]} robots
 
 Reproduce: `python -m benchmarks.fleet --sizes {' '.join(map(str, args.sizes))} --budget
@@ -113,7 +135,7 @@ trip; every run gets {args.budget:g} s of wall clock and is stopped there ("samp
 {machine_line(t0)}
 
 {chr(10).join(lines)}
-"""
+{crossing_section}"""
     publish(report, None if args.no_write else DOC_PATH)
     return 0
 

@@ -146,6 +146,7 @@ _SHORT = {
     "sqpmpc RTI centralized, exact Hessian": "RTI-c-exact",
     "sqpmpc RTI centralized, PIQP": "RTI-c-piqp",
     "sqpmpc RTI decentralized, PIQP": "RTI-d-piqp",
+    "sqpmpc RTI decentralized, DAQP": "RTI-d-daqp",
 }
 
 

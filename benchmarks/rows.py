@@ -89,6 +89,7 @@ ROWS: tuple[RowSpec, ...] = (
             {"hessian": "exact"}),
     RowSpec("sqpmpc RTI centralized, PIQP", "rti", "centralized", {"qp_solver": "piqp"}),
     RowSpec("sqpmpc RTI decentralized, PIQP", "rti", "decentralized", {"qp_solver": "piqp"}),
+    RowSpec("sqpmpc RTI decentralized, DAQP", "rti", "decentralized", {"qp_solver": "daqp"}),
 )
 
 

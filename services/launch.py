@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sqpmpc.errors import ProblemError
+from sqpmpc.qp import QP_SOLVERS
 from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
 from sqpmpc.settings import SolverSettings
 
@@ -163,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
     parser.add_argument("--neighbour-slots", type=int, default=None,
                         help="decentralized: collision slots per robot (default: one per robot)")
-    parser.add_argument("--qp-solver", choices=("osqp", "piqp"), default="osqp",
+    parser.add_argument("--qp-solver", choices=QP_SOLVERS, default="osqp",
                         help="QP backend of the controllers (default osqp)")
     add_rule_arguments(parser)
     return parser

@@ -17,6 +17,7 @@ from pathlib import Path
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
+from .qp import QP_SOLVERS
 from .registry import add_rule_arguments, describe_rules, rules_from_arguments
 from .scenario import builtin_scenario_names, load_scenario
 from .settings import SolverSettings
@@ -46,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--neighbour-slots", type=int, default=None,
                      help="decentralized: collision slots per robot, filled with the nearest "
                           "neighbours within reach (default: one per other robot)")
-    run.add_argument("--qp-solver", choices=("osqp", "piqp"), default="osqp",
+    run.add_argument("--qp-solver", choices=QP_SOLVERS, default="osqp",
                      help="QP backend (default osqp; docs/qp-backends.md compares them)")
     run.add_argument("--collision-margin", type=float, default=None,
                      help="added to every required distance in the QP, m (default 0.001); "

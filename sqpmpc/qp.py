@@ -33,7 +33,7 @@ __all__ = ["PIQP_MAX_ITER", "QP_SOLVERS", "OSQPSettings", "QPResult", "SparseQP"
            "solve_interior_point"]
 
 #: QP backends of :class:`SparseQP`.
-QP_SOLVERS = ("osqp", "piqp")
+QP_SOLVERS = ("osqp", "piqp", "daqp")
 #: PIQP's iteration cap (an interior-point method needs about 10 here).
 PIQP_MAX_ITER = 250
 
@@ -225,8 +225,10 @@ class SparseQP:
     object, uses the public ``osqp.OSQP`` methods instead.
 
     With ``solver="piqp"`` the same interface solves with PIQP
-    (:mod:`sqpmpc.piqp_backend`, in-place updates, no warm start); the
-    tolerances and the rescue of ``settings`` apply to it too.
+    (:mod:`sqpmpc.piqp_backend`, in-place updates, no warm start), with
+    ``solver="daqp"`` with DAQP (:mod:`sqpmpc.daqp_backend`, dense, hot-started
+    from the previous active set); the rescue of ``settings`` applies to both,
+    the tolerances to PIQP.
 
     Parameters
     ----------
@@ -235,7 +237,7 @@ class SparseQP:
     settings
         OSQP settings (tolerances and rescue also for PIQP).
     solver
-        ``"osqp"`` (default) or ``"piqp"``.
+        ``"osqp"`` (default), ``"piqp"`` or ``"daqp"``.
     """
 
     def __init__(self, layout: QPLayout, settings: OSQPSettings | None = None,
@@ -245,12 +247,16 @@ class SparseQP:
         self.layout = layout
         self.settings = settings or OSQPSettings()
         self.solver_name = solver
-        self._piqp = None
+        self._piqp = self._daqp = None
         if solver == "piqp":
             from .piqp_backend import PIQPBackend
 
             self._piqp = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
                                      PIQP_MAX_ITER)
+        elif solver == "daqp":
+            from .daqp_backend import DAQPBackend
+
+            self._daqp = DAQPBackend(layout)
         L = layout
         self.A_values = np.zeros(L.A_nnz)
         sl = L.A_slices
@@ -471,6 +477,21 @@ class SparseQP:
                         sol.dual_residual, sol.iterations, sol.solve_time + rescue_time,
                         time.perf_counter() - t0, {"rescued": float(rescued)})
 
+    def _solve_daqp(self, t0: float) -> QPResult:
+        """The DAQP backend's solve (hot-started from the previous active set)."""
+        q = self._q_cost if self._no_curvature else self.q
+        x, y, solved, status, iterations, seconds = self._daqp.solve(
+            self.P_values, q, self.A_values, self.lower, self.upper, self._dirty_P)
+        self._dirty_P = self._dirty_A = self._dirty_vec = False
+        ok = solved and x.size == self.layout.n_var and all_finite(x) and all_finite(y)
+        rescued, rescue_time = False, 0.0
+        if not ok:
+            x, y, status, rescued, rescue_time = self._rescue(x, y, status)
+            ok = rescued
+        return QPResult(ok, status, x, y, float("nan"), float("nan"), float("nan"),
+                        iterations, seconds + rescue_time, time.perf_counter() - t0,
+                        {"rescued": float(rescued)})
+
     def _push(self) -> None:
         L = self.layout
         if self._solver is None:
@@ -519,6 +540,8 @@ class SparseQP:
         t0 = time.perf_counter()
         if self._piqp is not None:
             return self._solve_piqp(t0)
+        if self._daqp is not None:
+            return self._solve_daqp(t0)
         try:
             self._push()
             if self._core is not None and not self.use_osqp_wrapper:

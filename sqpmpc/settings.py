@@ -72,7 +72,8 @@ class SolverSettings:
         within reach left without a slot are kept safe by the first-input
         check (:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`).
     qp_solver
-        QP backend: ``"osqp"`` (default) or ``"piqp"`` (:mod:`sqpmpc.piqp_backend`).
+        QP backend: ``"osqp"`` (default), ``"piqp"`` (:mod:`sqpmpc.piqp_backend`) or
+        ``"daqp"`` (:mod:`sqpmpc.daqp_backend`).
     osqp
         OSQP settings (its tolerances and rescue apply to PIQP too).
     """

@@ -227,10 +227,11 @@ def test_centralized_controller_refuses_bad_state_shapes() -> None:
         ctrl.step(0.0, np.full((4, 3), np.nan))
 
 
+@pytest.mark.parametrize("solver", ["piqp", "daqp"])
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
-def test_piqp_backend_closed_loop_is_safe_and_arrives(scheme: str) -> None:
+def test_other_qp_backends_closed_loops_are_safe_and_arrive(scheme: str, solver: str) -> None:
     sc = load_scenario("swap-6")
-    m = compute_metrics(simulate(sc, scheme, SolverSettings(qp_solver="piqp")))
+    m = compute_metrics(simulate(sc, scheme, SolverSettings(qp_solver=solver)))
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["input_bound_violations"] == 0
     assert m["max_final_position_error"] <= 0.05
