@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+from . import __version__
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
@@ -31,6 +32,7 @@ log = logging.getLogger("sqpmpc")
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``sqpmpc`` command."""
     parser = argparse.ArgumentParser(prog="sqpmpc", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"sqpmpc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a closed loop in one process")
     names = ", ".join(builtin_scenario_names())

@@ -146,3 +146,10 @@ def test_every_kind_of_bad_file_exits_2_with_one_message(
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and str(path) in lines[0] and key in lines[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_version_is_printed() -> None:
+    from sqpmpc import __version__
+
+    proc = run_cli("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"sqpmpc {__version__}"
