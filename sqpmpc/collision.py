@@ -66,8 +66,6 @@ __all__ = [
 #: Slot kinds of :class:`ExternalCollisionModel`.
 OFF, SHARED, OBSTACLE, MISSING = 0, 1, 2, 3
 
-_X_AXIS = np.array([1.0, 0.0])
-
 
 def segment_distances(start: np.ndarray, end: np.ndarray) -> np.ndarray:
     r"""Smallest norm of :math:`r(s) = r_0 + s\,(r_1 - r_0)` over :math:`s \in [0, 1]`.
@@ -99,13 +97,6 @@ def segment_distances(start: np.ndarray, end: np.ndarray) -> np.ndarray:
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot products of 2-D vectors ``(..., 2)`` (broadcast)."""
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
-
-
-def _unit(d: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Unit vectors of ``d (..., 2)``; ``fallback`` where ``|d|`` is below 1e-9 m."""
-    dist = np.hypot(d[..., 0], d[..., 1])
-    safe = dist > 1e-9
-    return np.where(safe[..., None], d / np.where(safe, dist, 1.0)[..., None], fallback)
 
 
 class PairwiseCollisionModel:

@@ -144,7 +144,6 @@ class CentralizedController(ControllerPipeline):
         self.collisions = PairwiseCollisionModel(pairs, required, settings.collision_margin,
                                                  self.geometry)
         self._rows = {"internal": self.collisions}
-        self._overrides_source = [self.collisions]
         self._sample = 0
 
     def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
@@ -217,7 +216,7 @@ class DecentralizedController(ControllerPipeline):
         self.mode = mode
         self.required = scenario.required_distances()[index, others]
         N = scenario.horizon
-        v_max = max(abs(self.input_lower[0]), abs(self.input_upper[0]))
+        v_max = self.context.max_speed
         # beyond this, a neighbour cannot come within its distance over the horizon
         self.interaction_radius = (self.required + settings.collision_margin
                                    + 2.0 * v_max * N * scenario.sample_time)
@@ -226,7 +225,6 @@ class DecentralizedController(ControllerPipeline):
             margin=settings.collision_margin, stage_one_rule_for_obstacles=mode == "shared",
         )
         self._rows = {"external": self.collisions}
-        self._overrides_source = [self.collisions]
         self.counts["fallback_neighbours"] = 0
         self.counts["unslotted_neighbours"] = 0
         self._own_prediction = np.zeros((N, 3))

@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from .layout import QPLayout
+from .qp import BackendSolution
 
 __all__ = ["DAQPBackend"]
 
@@ -62,9 +63,9 @@ class DAQPBackend:
         self.setup_count = 0
 
     def solve(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
-              lower: np.ndarray, upper: np.ndarray, P_changed: bool
-              ) -> tuple[np.ndarray, np.ndarray, bool, str, int, float]:
-        """``(x, y, solved, status, iterations, seconds)`` of the QP with these values."""
+              lower: np.ndarray, upper: np.ndarray, P_changed: bool) -> BackendSolution:
+        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them);
+        ``H`` is rewritten only when ``P_changed``."""
         L = self.layout
         if P_changed or self.model is None:
             self.H[self._P_rows, self._P_cols] = P_values
@@ -84,5 +85,5 @@ class DAQPBackend:
         x, _, flag, info = self.model.solve()
         elapsed = time.perf_counter() - t0
         y = np.asarray(info["lam"], dtype=float).copy()
-        return (np.asarray(x, dtype=float).copy(), y, flag == 1, f"DAQP exit flag {flag}",
-                int(info["iterations"]), elapsed)
+        return BackendSolution(np.asarray(x, dtype=float).copy(), y, flag == 1,
+                               f"DAQP exit flag {flag}", int(info["iterations"]), elapsed)

@@ -195,15 +195,25 @@ def _repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
     return repaired
 
 
+def _repair_speeds_within_bounds(context: RuleContext, speed: float
+                                 ) -> tuple[float, float, float]:
+    """Forward and backward repair speeds clipped to the bounds, and the "stalled" threshold.
+
+    The threshold is at most the repair speeds' size, so a robot already at the
+    (clipped) repair speed is not stalled.
+    """
+    ahead = context.speed_within_bounds(speed)
+    back = context.speed_within_bounds(-speed)
+    return ahead, back, min(speed, max(abs(ahead), abs(back)))
+
+
 class _StallInstance(RuleInstance):
     rule: StallRepair
     counter_names = ("stall_repairs",)
 
     def __init__(self, rule: StallRepair, context: RuleContext) -> None:
         super().__init__(rule, context)
-        self._ahead = context.speed_within_bounds(rule.speed)
-        self._back = context.speed_within_bounds(-rule.speed)
-        self._slow = min(rule.speed, max(abs(self._ahead), abs(self._back)))
+        self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self._all = np.ones(context.own.size, dtype=np.bool_)
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
@@ -262,9 +272,7 @@ class _ParkingInstance(RuleInstance):
         self.gain = rule.gain * max(1.0, (rule.horizon / horizon_time) ** 2)
         self.radius = max(rule.radius,
                           rule.reach * context.max_speed * max(horizon_time, rule.horizon))
-        self._ahead = context.speed_within_bounds(rule.speed)
-        self._back = context.speed_within_bounds(-rule.speed)
-        self._slow = min(rule.speed, max(abs(self._ahead), abs(self._back)))
+        self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
 
     def shape_references(self, view: SampleView) -> None:

@@ -33,7 +33,6 @@ __all__ = [
     "continuous_dynamics",
     "discrete_dynamics",
     "discrete_jacobians",
-    "euler_linearization_values",
     "weighted_dynamics_hessian",
     "estimate_input",
     "rollout",
@@ -201,41 +200,6 @@ def discrete_jacobians(
             D_u = c_i * h * dk_u
     nxt = states + (h / 6.0) * acc
     return nxt, eye + (h / 6.0) * acc_x, (h / 6.0) * acc_u
-
-
-def euler_linearization_values(
-    states: np.ndarray, inputs: np.ndarray, sample_time: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    r"""Euler linearization written directly in the QP's pattern order (hot path).
-
-    With :math:`f` linear in :math:`u`, the affine term of
-    :math:`\chi^+ \approx A\chi + Bu + c` is
-    :math:`c = -T_s J_\chi \bar\chi = T_s \bar v\bar\psi(\sin\bar\psi, -\cos\bar\psi, 0)`.
-
-    Returns
-    -------
-    tuple of np.ndarray
-        ``A`` entries ``(..., 5)`` at (0,0), (1,1), (2,2), (0,2), (1,2); ``B`` entries
-        ``(..., 5)`` at (0,0), (0,1), (1,0), (1,1), (2,1); and ``c`` ``(..., 3)``.
-    """
-    h = float(sample_time)
-    psi = states[..., 2]
-    hv = h * inputs[..., 0]
-    c, s = np.cos(psi), np.sin(psi)
-    shape = psi.shape
-    A = np.empty(shape + (5,))
-    A[..., :3] = 1.0
-    np.multiply(-hv, s, out=A[..., 3])
-    np.multiply(hv, c, out=A[..., 4])
-    B = np.zeros(shape + (5,))
-    np.multiply(h, c, out=B[..., 0])
-    np.multiply(h, s, out=B[..., 2])
-    B[..., 4] = h
-    off = np.zeros(shape + (3,))
-    hvpsi = hv * psi
-    np.multiply(hvpsi, s, out=off[..., 0])
-    np.multiply(-hvpsi, c, out=off[..., 1])
-    return A, B, off
 
 
 def weighted_dynamics_hessian(

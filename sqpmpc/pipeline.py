@@ -30,6 +30,7 @@ The scheme-specific parts are three methods of the controllers in
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -47,14 +48,10 @@ from .settings import SolverSettings
 
 __all__ = ["ControlOutput", "ControllerPipeline", "braking_input", "kernel_warm_up_seconds"]
 
-_WARM_UP: list[float] = []
-
-
+@functools.cache
 def kernel_warm_up_seconds() -> float:
     """Seconds this process spent compiling or loading the kernels (once per process)."""
-    if not _WARM_UP:
-        _WARM_UP.append(warm_up())
-    return _WARM_UP[0]
+    return warm_up()
 
 
 @dataclass
@@ -156,8 +153,7 @@ class ControllerPipeline:
         self._applied = np.zeros((m, 2))
         self._applied_before = np.zeros((m, 2))
         self._n = scenario.n_robots
-        self._rows: dict[str, CollisionRows] = {}
-        self._overrides_source: list[CollisionRows] = []
+        self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,
@@ -174,7 +170,7 @@ class ControllerPipeline:
         # 2. predict neighbours
         self._predict_neighbours(sample, states, plans or {}, previous_states)
         # 3. rules shape the references
-        raw = self._references.positions(t + self._stage_offsets)
+        raw = self.reference(t)
         view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]), own, raw, raw,
                           self._applied, self._applied_before)
         for rule in self._reference_rules:
@@ -278,7 +274,7 @@ class ControllerPipeline:
             c["shifted_plan_fallbacks" if out.fallback == "shifted-plan"
               else "brake_fallbacks"] += 1
         c["qp_rescues"] = self.engine.qp.rescue_count
-        for rows in self._overrides_source:
+        for rows in self._rows.values():
             c["stage_one_overrides"] += rows.stage_one_overrides
         self._applied_before = self._applied
         self._applied = out.inputs

@@ -30,25 +30,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from .layout import QPLayout
+from .qp import BackendSolution
 
-__all__ = ["PIQPBackend", "PIQPSolution"]
+__all__ = ["PIQPBackend"]
 
 _INFINITY = 1e30
-
-
-class PIQPSolution:
-    """What one PIQP solve returned (the fields :class:`~sqpmpc.qp.SparseQP` reads)."""
-
-    __slots__ = ("x", "y", "solved", "status", "iterations", "objective", "primal_residual",
-                 "dual_residual", "solve_time")
-
-    def __init__(self, x: np.ndarray, y: np.ndarray, solved: bool, status: str,
-                 iterations: int, objective: float, primal_residual: float,
-                 dual_residual: float, solve_time: float) -> None:
-        self.x, self.y, self.solved, self.status = x, y, solved, status
-        self.iterations, self.objective = iterations, objective
-        self.primal_residual, self.dual_residual = primal_residual, dual_residual
-        self.solve_time = solve_time
 
 
 class PIQPBackend:
@@ -86,9 +72,11 @@ class PIQPBackend:
         self.setup_count = 0
 
     def solve(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
-              lower: np.ndarray, upper: np.ndarray) -> PIQPSolution:
-        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them)."""
-        self.P.data[:] = P_values[self._P_entries]
+              lower: np.ndarray, upper: np.ndarray, P_changed: bool) -> BackendSolution:
+        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them);
+        ``P`` is handed over again only when ``P_changed``."""
+        if P_changed or self.solver is None:
+            self.P.data[:] = P_values[self._P_entries]
         self.A_eq.data[:] = A_values[self._eq_entries]
         self.G.data[:] = A_values[self._g_entries]
         b = upper[self.eq_rows]
@@ -104,7 +92,8 @@ class PIQPBackend:
             self.solver = solver
             self.setup_count += 1
         else:
-            self.solver.update(P=self.P, c=q, A=self.A_eq, b=b, G=self.G, h_l=h_l, h_u=h_u)
+            self.solver.update(P=self.P if P_changed else None, c=q, A=self.A_eq, b=b,
+                               G=self.G, h_l=h_l, h_u=h_u)
         status = self.solver.solve()
         elapsed = time.perf_counter() - t0
         result = self.solver.result
@@ -112,10 +101,10 @@ class PIQPBackend:
         y[self.eq_rows] = result.y
         y[self.ineq_rows] = result.z_u - result.z_l
         info = result.info
-        return PIQPSolution(np.array(result.x, dtype=float), y,
-                            status == self._piqp.PIQP_SOLVED, str(status), int(info.iter),
-                            float(info.primal_obj), float(info.primal_res),
-                            float(info.dual_res), elapsed)
+        return BackendSolution(np.array(result.x, dtype=float), y,
+                               status == self._piqp.PIQP_SOLVED, f"PIQP: {status}",
+                               int(info.iter), elapsed, float(info.primal_obj),
+                               float(info.primal_res), float(info.dual_res))
 
 
 def _block(ids: sp.csr_matrix, rows: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:

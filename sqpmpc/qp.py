@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 import osqp
@@ -29,8 +30,12 @@ from .errors import ProblemError, SolverError
 from .kernels import all_finite, clip_bounds, write_reference
 from .layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
 
-__all__ = ["PIQP_MAX_ITER", "QP_SOLVERS", "OSQPSettings", "QPResult", "SparseQP",
-           "solve_interior_point"]
+if TYPE_CHECKING:
+    from .daqp_backend import DAQPBackend
+    from .piqp_backend import PIQPBackend
+
+__all__ = ["PIQP_MAX_ITER", "QP_SOLVERS", "BackendSolution", "OSQPSettings", "QPResult",
+           "SparseQP", "solve_interior_point"]
 
 #: QP backends of :class:`SparseQP`.
 QP_SOLVERS = ("osqp", "piqp", "daqp")
@@ -131,6 +136,22 @@ class OSQPSettings:
         if self.time_limit is not None:
             kwargs["time_limit"] = self.time_limit
         return kwargs
+
+
+@dataclass(slots=True)
+class BackendSolution:
+    """What one solve of another backend returned (:mod:`sqpmpc.piqp_backend`,
+    :mod:`sqpmpc.daqp_backend`); duals in OSQP's convention."""
+
+    x: np.ndarray
+    y: np.ndarray
+    solved: bool
+    status: str
+    iterations: int
+    solve_time: float
+    objective: float = float("nan")
+    primal_residual: float = float("nan")
+    dual_residual: float = float("nan")
 
 
 @dataclass
@@ -247,16 +268,16 @@ class SparseQP:
         self.layout = layout
         self.settings = settings or OSQPSettings()
         self.solver_name = solver
-        self._piqp = self._daqp = None
+        self._backend: PIQPBackend | DAQPBackend | None = None
         if solver == "piqp":
             from .piqp_backend import PIQPBackend
 
-            self._piqp = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
-                                     PIQP_MAX_ITER)
+            self._backend = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
+                                        PIQP_MAX_ITER)
         elif solver == "daqp":
             from .daqp_backend import DAQPBackend
 
-            self._daqp = DAQPBackend(layout)
+            self._backend = DAQPBackend(layout)
         L = layout
         self.A_values = np.zeros(L.A_nnz)
         sl = L.A_slices
@@ -371,17 +392,6 @@ class SparseQP:
         self.upper[rows] = c_k
         self._dirty_A = self._dirty_vec = True
 
-    def update_dynamics_values(self, A_values: np.ndarray, B_values: np.ndarray,
-                               c_k: np.ndarray) -> None:
-        """Like :meth:`update_dynamics` with ``A``/``B`` given as pattern entries ``(m, N, 5)``."""
-        sl = self.layout.A_slices
-        np.negative(A_values.ravel(), out=self.A_values[sl["dyn_A"]])
-        np.negative(B_values.ravel(), out=self.A_values[sl["dyn_B"]])
-        rows = self.layout.dyn_rows
-        self.lower[rows] = c_k
-        self.upper[rows] = c_k
-        self._dirty_A = self._dirty_vec = True
-
     def update_internal_collisions(self, normals: np.ndarray, rhs: np.ndarray) -> None:
         r"""Rows :math:`n^\top(p_a - p_b) + s \ge b` for pairs ``(P, N, 2)``, ``(P, N)``."""
         if self.layout.n_pairs == 0:
@@ -462,35 +472,21 @@ class SparseQP:
         self.rescue_count += 1
         return (*rescue, f"solved by {self.settings.rescue_solver} ({status})", True, spent)
 
-    def _solve_piqp(self, t0: float) -> QPResult:
-        """The PIQP backend's solve (all values handed over, no warm start)."""
+    def _solve_backend(self, t0: float) -> QPResult:
+        """Solve with the PIQP or DAQP backend; the rescue as for OSQP."""
         q = self._q_cost if self._no_curvature else self.q
-        sol = self._piqp.solve(self.P_values, q, self.A_values, self.lower, self.upper)
+        sol = self._backend.solve(self.P_values, q, self.A_values, self.lower, self.upper,
+                                  self._dirty_P)
         self._dirty_P = self._dirty_A = self._dirty_vec = False
-        x, y = sol.x, sol.y
-        ok = sol.solved and all_finite(x) and all_finite(y)
-        status, rescued, rescue_time = sol.status, False, 0.0
-        if not ok:
-            x, y, status, rescued, rescue_time = self._rescue(x, y, f"PIQP: {status}")
-            ok = rescued
-        return QPResult(ok, status, x, y, sol.objective, sol.primal_residual,
-                        sol.dual_residual, sol.iterations, sol.solve_time + rescue_time,
-                        time.perf_counter() - t0, {"rescued": float(rescued)})
-
-    def _solve_daqp(self, t0: float) -> QPResult:
-        """The DAQP backend's solve (hot-started from the previous active set)."""
-        q = self._q_cost if self._no_curvature else self.q
-        x, y, solved, status, iterations, seconds = self._daqp.solve(
-            self.P_values, q, self.A_values, self.lower, self.upper, self._dirty_P)
-        self._dirty_P = self._dirty_A = self._dirty_vec = False
-        ok = solved and x.size == self.layout.n_var and all_finite(x) and all_finite(y)
+        x, y, status = sol.x, sol.y, sol.status
+        ok = sol.solved and x.size == self.layout.n_var and all_finite(x) and all_finite(y)
         rescued, rescue_time = False, 0.0
         if not ok:
             x, y, status, rescued, rescue_time = self._rescue(x, y, status)
             ok = rescued
-        return QPResult(ok, status, x, y, float("nan"), float("nan"), float("nan"),
-                        iterations, seconds + rescue_time, time.perf_counter() - t0,
-                        {"rescued": float(rescued)})
+        return QPResult(ok, status, x, y, sol.objective, sol.primal_residual,
+                        sol.dual_residual, sol.iterations, sol.solve_time + rescue_time,
+                        time.perf_counter() - t0, {"rescued": float(rescued)})
 
     def _push(self) -> None:
         L = self.layout
@@ -538,10 +534,8 @@ class SparseQP:
             non-finite output.
         """
         t0 = time.perf_counter()
-        if self._piqp is not None:
-            return self._solve_piqp(t0)
-        if self._daqp is not None:
-            return self._solve_daqp(t0)
+        if self._backend is not None:
+            return self._solve_backend(t0)
         try:
             self._push()
             if self._core is not None and not self.use_osqp_wrapper:

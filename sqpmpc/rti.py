@@ -59,6 +59,8 @@ __all__ = ["CollisionRows", "IterationReport", "MultipleShootingSQP"]
 class CollisionRows(Protocol):
     """What the iteration needs from a collision model (see :mod:`sqpmpc.collision`)."""
 
+    stage_one_overrides: int
+
     def write_rows(self, states: np.ndarray, A_out: np.ndarray,
                    lower_out: np.ndarray) -> None: ...
 

@@ -102,21 +102,6 @@ def test_unknown_discretization_is_refused() -> None:
         discrete_dynamics(np.zeros(3), np.zeros(2), 0.1, "midpoint")
 
 
-def test_euler_linearization_values_match_the_jacobians() -> None:
-    from sqpmpc.layout import A_PATTERN, B_PATTERN
-    from sqpmpc.model import euler_linearization_values
-
-    rng = np.random.default_rng(4)
-    x = rng.normal(size=(3, 6, 3))
-    u = rng.normal(size=(3, 6, 2))
-    A_vals, B_vals, c = euler_linearization_values(x, u, 0.5)
-    nxt, A, B = discrete_jacobians(x, u, 0.5, "euler")
-    np.testing.assert_allclose(A_vals, A[..., A_PATTERN[0], A_PATTERN[1]], atol=1e-15)
-    np.testing.assert_allclose(B_vals, B[..., B_PATTERN[0], B_PATTERN[1]], atol=1e-15)
-    affine = nxt - np.einsum("...ij,...j", A, x) - np.einsum("...ij,...j", B, u)
-    np.testing.assert_allclose(c, affine, atol=1e-12)
-
-
 @pytest.mark.parametrize("method", ["euler", "rk4"])
 def test_rollout_equals_repeated_steps(method: str) -> None:
     rng = np.random.default_rng(5)

@@ -157,7 +157,7 @@ def test_update_in_place_equals_rebuild(m, pairs, E, pos, solver) -> None:
     second = random_data(rng, m, pairs, E, layout.n_var)
     apply(qp, second)
     res = qp.solve()
-    backend = {"piqp": qp._piqp, "daqp": qp._daqp}.get(solver, qp)
+    backend = qp._backend or qp
     assert backend.setup_count == 1  # values updated in place, never a second setup
     P_ref, q_ref, A_ref, l_ref, u_ref = dense_qp(m, pairs, E, pos, second)
     P, q, A, lo, up = qp.matrices()
