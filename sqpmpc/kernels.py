@@ -27,6 +27,7 @@ import numpy as np
 
 from .liveness import hold_touching_rows, limit_turning, warm_up_rules
 from .references import _harmonic_positions
+from .roundabout import warm_up_roundabout
 
 __all__ = [
     "all_finite",
@@ -589,6 +590,7 @@ def warm_up() -> float:
     kkt_residual(np.ones(1), idx, idx, z, np.ones(3), np.ones(3), np.ones(3), z, z,
                  np.zeros(3), np.zeros(26))
     warm_up_rules()
+    warm_up_roundabout()
     _harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     return time.perf_counter() - t0
 

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 
 from .errors import ProblemError
 from .liveness import Detour, GearCycle, KeepRight, Parking, StallRepair, TouchingPairs, TurnLimit
+from .roundabout import Roundabout
 from .rules import Rule
 
 __all__ = [
@@ -32,7 +33,8 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, TouchingPairs, Detour, Parking, StallRepair, GearCycle)
+    for cls in (TurnLimit, KeepRight, TouchingPairs, Roundabout, Detour, Parking, StallRepair,
+                GearCycle)
 }
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.collision`).
