@@ -34,7 +34,7 @@ from .collision import (
     PairwiseCollisionModel,
 )
 from .errors import ProblemError
-from .kernels import shift_plan
+from .kernels import nearest_within, shift_plan
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
 from .pipeline import ControllerPipeline, ControlOutput, braking_input
@@ -210,6 +210,8 @@ class DecentralizedController(ControllerPipeline):
         self.other_ids = scenario.ids[others]
         self.slots = slots
         self._selecting = settings.neighbour_slots is not None
+        self._chosen = np.zeros(slots, dtype=np.int64)  # selection scratch (indices into others)
+        self._rest = np.zeros(others.size, dtype=np.int64)
         # slot e holds neighbour self._slot_index[e] (scenario index; fixed without selection)
         self._slot_index = others[:slots].copy()
         self._neighbours = list(enumerate(self.other_ids[:slots].tolist()))
@@ -301,13 +303,10 @@ class DecentralizedController(ControllerPipeline):
         the radius left without a slot are handed to the first-input check,
         which keeps their distance plus their one-sample reach, or stands still.
         """
-        me = states[self.index, :2]
-        gap = states[self.others, :2] - me
-        dist = np.hypot(gap[:, 0], gap[:, 1])
-        near = np.flatnonzero(dist <= self.interaction_radius)
-        order = near[np.argsort(dist[near], kind="stable")]
-        chosen, rest = order[:self.slots], order[self.slots:]
-        used = chosen.size
+        positions = np.ascontiguousarray(states[:, :2])
+        used, extra = nearest_within(positions[self.index], positions, self.others,
+                                     self.interaction_radius, self._chosen, self._rest)
+        chosen, rest = self._chosen[:used], self._rest[:extra]
         self._slot_index[:used] = self.others[chosen]
         self._slot_index[used:] = self.index  # free slots: off (their position is unused)
         self._neighbours = list(zip(range(used), self.other_ids[chosen].tolist(), strict=True))

@@ -36,6 +36,7 @@ __all__ = [
     "halfplanes_hold",
     "euler_defect_l1",
     "kkt_residual",
+    "nearest_within",
     "obstacle_rows",
     "shift_iterate",
     "stage_one_override",
@@ -551,6 +552,38 @@ def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
     return True
 
 
+
+@_jit
+def nearest_within(me: np.ndarray, positions: np.ndarray, others: np.ndarray,
+                   radius: np.ndarray, chosen_out: np.ndarray, rest_out: np.ndarray
+                   ) -> tuple[int, int]:
+    r"""The robots ``others`` within ``radius`` of ``me``, nearest first (stable order).
+
+    ``positions (n, 2)`` are everyone's, ``others (m,)`` the candidates'
+    indices into them and ``radius (m,)`` their radii. The first
+    ``len(chosen_out)`` of them, as indices into ``others``, go to
+    ``chosen_out``, the rest to ``rest_out (m,)``. Returns both counts.
+    """
+    m = others.shape[0]
+    dist = np.empty(m)
+    near = np.empty(m, dtype=np.int64)
+    count = 0
+    for e in range(m):
+        j = others[e]
+        d = math.hypot(positions[j, 0] - me[0], positions[j, 1] - me[1])
+        if d <= radius[e]:
+            near[count] = e
+            dist[count] = d
+            count += 1
+    order = np.argsort(dist[:count], kind="mergesort")
+    used = min(chosen_out.shape[0], count)
+    for s in range(used):
+        chosen_out[s] = near[order[s]]
+    for s in range(used, count):
+        rest_out[s - used] = near[order[s]]
+    return used, count - used
+
+
 def warm_up() -> float:
     """Compile (first time on a machine) or load every kernel; returns the seconds taken."""
     t0 = time.perf_counter()
@@ -582,6 +615,9 @@ def warm_up() -> float:
     obstacle_rows(np.zeros(2), np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
                   np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
     euler_defect_l1(z, x, 2, 2, 13, 0.1)
+    idx = np.zeros(2, dtype=np.int64)
+    nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],
+                   idx.copy())
     write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13)
     order = np.arange(26)
     shift_iterate(z, z, order, order, 2, 2, 13, 0.1, np.empty(26), np.empty(26))

@@ -35,6 +35,9 @@ from .qp import BackendSolution
 __all__ = ["PIQPBackend"]
 
 _INFINITY = 1e30
+_FREE = 1e20
+"""Rows with both bounds beyond this are off: PIQP gets ``0 <= 1`` instead (it warns on
+stderr about rows free on both sides and zeroes them anyway)."""
 
 
 class PIQPBackend:
@@ -80,14 +83,23 @@ class PIQPBackend:
         self.A_eq.data[:] = A_values[self._eq_entries]
         self.G.data[:] = A_values[self._g_entries]
         b = upper[self.eq_rows]
-        h_l = np.maximum(lower[self.ineq_rows], -_INFINITY)
-        h_u = np.minimum(upper[self.ineq_rows], _INFINITY)
+        h_l = lower[self.ineq_rows]
+        h_u = upper[self.ineq_rows]
+        free = (h_l <= -_FREE) & (h_u >= _FREE)
+        if free.any():  # rows that are off (free neighbour slots): 0 in [-1, 1]
+            self.G.data[free[self.G.indices]] = 0.0
+            h_l = np.where(free, -1.0, h_l)
+            h_u = np.where(free, 1.0, h_u)
+        h_l = np.maximum(h_l, -_INFINITY)
+        h_u = np.minimum(h_u, _INFINITY)
         t0 = time.perf_counter()
         if self.solver is None:
             solver = self._piqp.SparseSolver()
             eps_abs, eps_rel, max_iter = self.settings
             solver.settings.eps_abs, solver.settings.eps_rel = eps_abs, eps_rel
             solver.settings.max_iter = max_iter
+            # the QPs of consecutive samples are alike: keep the first Ruiz scaling
+            solver.settings.preconditioner_reuse_on_update = True
             solver.setup(self.P, q, self.A_eq, b, self.G, h_l, h_u)
             self.solver = solver
             self.setup_count += 1

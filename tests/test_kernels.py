@@ -120,3 +120,22 @@ def test_all_finite() -> None:
     assert kernels.all_finite(np.zeros(4))
     assert not kernels.all_finite(np.array([0.0, np.nan]))
     assert not kernels.all_finite(np.array([np.inf, 0.0]))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_nearest_within_matches_a_stable_sort_of_the_distances(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(-5.0, 5.0, (30, 2))
+    positions[7] = positions[3]  # a tie: the stable order keeps 3 before 7
+    others = np.array([i for i in range(30) if i != 0])
+    radius = rng.uniform(2.0, 6.0, others.size)
+    dist = np.hypot(*(positions[others] - positions[0]).T)
+    near = np.flatnonzero(dist <= radius)
+    expected = near[np.argsort(dist[near], kind="stable")]
+    for slots in (0, 3, 8, 40):
+        chosen = np.full(min(slots, others.size), -1, dtype=np.int64)
+        rest = np.full(others.size, -1, dtype=np.int64)
+        used, extra = kernels.nearest_within(positions[0], positions, others, radius, chosen,
+                                             rest)
+        assert used + extra == expected.size
+        np.testing.assert_array_equal(np.concatenate([chosen[:used], rest[:extra]]), expected)
