@@ -49,7 +49,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import halfplanes_hold, obstacle_rows, pair_rows, pairs_keep_distance, shared_rows
+from .kernels import (
+    halfplanes_hold,
+    obstacle_rows,
+    pair_rows,
+    pairs_keep_distance,
+    select_pairs,
+    shared_rows,
+)
 from .liveness import hold_touching_rows
 from .rules import RowGeometry
 
@@ -123,6 +130,14 @@ class PairwiseCollisionModel:
         self.current_positions = np.zeros((0, 2))
         self.stage_one_overrides = 0
         self._scratch = np.empty((geometry.rotation.shape[0], 2))
+        #: ``(P,)`` stages with a row per pair (:func:`select_pairs`); all by default
+        self.stages = np.full(self.pairs.shape[0], geometry.rotation.shape[0], dtype=np.int64)
+
+    def select(self, radius: np.ndarray, slots: int) -> tuple[int, int]:
+        """Neighbour slots for the pair rows at the current positions (see
+        :func:`sqpmpc.kernels.select_pairs`); returns the full and stage-1-only pair counts."""
+        return select_pairs(self.pairs, self.current_positions, radius, slots,
+                            self.geometry.rotation.shape[0], self.stages)
 
     def set_current_positions(self, positions: np.ndarray) -> None:
         """Measured positions ``(m, 2)`` used by the stage-1 rule."""
@@ -134,7 +149,7 @@ class PairwiseCollisionModel:
             return
         self.stage_one_overrides = pair_rows(
             self.pairs, self.current_positions, states, self.required, self.geometry.rotation,
-            self.geometry.kernel_max_turn, A_out, lower_out, self._scratch)
+            self.geometry.kernel_max_turn, A_out, lower_out, self._scratch, self.stages)
 
     def first_input_safe(self, now: np.ndarray, nxt: np.ndarray) -> bool:
         """Every pair keeps its true distance along the straight segments ``now -> nxt``."""

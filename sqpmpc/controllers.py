@@ -145,10 +145,20 @@ class CentralizedController(ControllerPipeline):
                                                  self.geometry)
         self._rows = {"internal": self.collisions}
         self._sample = 0
+        # the neighbour slots of the decentralized scheme, per robot, for the pair rows
+        self.slots = settings.neighbour_slots
+        self.interaction_radius = (required + settings.collision_margin + 2.0
+                                   * self.context.max_speed * scenario.horizon
+                                   * scenario.sample_time)
+        if self.slots is not None:
+            self.counts["stage_one_pairs"] = 0
 
     def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
                             previous_states: np.ndarray | None) -> None:
         self.collisions.set_current_positions(states[:, :2])
+        if self.slots is not None:
+            _, first_only = self.collisions.select(self.interaction_radius, self.slots)
+            self.counts["stage_one_pairs"] += first_only
 
     def _safe(self, states: np.ndarray, next_states: np.ndarray) -> bool:
         """Every pair keeps its distance along the straight segments of the sample.

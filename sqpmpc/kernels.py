@@ -47,6 +47,7 @@ __all__ = [
     "euler_rollout",
     "euler_step",
     "pair_rows",
+    "select_pairs",
     "pairs_keep_distance",
     "shared_rows",
     "warm_up",
@@ -286,7 +287,7 @@ def stage_one_override(normals: np.ndarray, n0x: float, n0y: float, gx: float, g
 @_jit
 def pair_rows(pairs: np.ndarray, now: np.ndarray, states: np.ndarray, required: np.ndarray,
               rotation: np.ndarray, max_turn: float, A_out: np.ndarray,
-              lower_out: np.ndarray, normals: np.ndarray) -> int:
+              lower_out: np.ndarray, normals: np.ndarray, stages: np.ndarray) -> int:
     r"""Centralized pair rows :math:`n^\top(p_a - p_b) \ge d` into the QP (stages 1..N).
 
     Parameters
@@ -305,6 +306,9 @@ def pair_rows(pairs: np.ndarray, now: np.ndarray, states: np.ndarray, required: 
         ``(P, N, 4)`` values ``(n, -n)`` and ``(P, N)`` right-hand sides.
     normals
         ``(N, 2)`` scratch.
+    stages
+        ``(P,)`` how many stages of each pair get a row (``N``: all, ``1``: the
+        first only, ``0``: none); the other rows are off (zero normal, ``-inf``).
 
     Returns
     -------
@@ -315,19 +319,89 @@ def pair_rows(pairs: np.ndarray, now: np.ndarray, states: np.ndarray, required: 
     N = normals.shape[0]
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
+        for i in range(stages[p], N):
+            A_out[p, i, 0] = A_out[p, i, 1] = A_out[p, i, 2] = A_out[p, i, 3] = 0.0
+            lower_out[p, i] = -np.inf
+        if stages[p] == 0:
+            continue
         gx, gy = now[a, 0] - now[b, 0], now[a, 1] - now[b, 1]
         n0x, n0y = _stage_normals(gx, gy, states[a, 1:], states[b, 1:], rotation, max_turn,
                                   normals)
         d = required[p]
         gap, overridden = stage_one_override(normals, n0x, n0y, gx, gy, d)
         overrides += overridden
-        for i in range(N):
+        for i in range(stages[p]):
             nx, ny = normals[i, 0], normals[i, 1]
             A_out[p, i, 0], A_out[p, i, 1] = nx, ny
             A_out[p, i, 2], A_out[p, i, 3] = -nx, -ny
             lower_out[p, i] = d
         lower_out[p, 0] = min(d, gap)
     return overrides
+
+
+@_jit
+def select_pairs(pairs: np.ndarray, positions: np.ndarray, radius: np.ndarray, slots: int,
+                 horizon: int, stages_out: np.ndarray) -> tuple[int, int]:
+    r"""The centralized form of the neighbour slots: how many stages each pair gets.
+
+    A pair farther apart than its ``radius`` (required distance plus margin
+    plus :math:`2 v_{max} N T_s`) cannot come within its distance over the
+    horizon: no row (0). Each robot's ``slots`` nearest pairs within the radius
+    get every stage (``horizon``); a pair within the radius that neither robot
+    chose keeps its stage-1 row (1), so the next sample keeps its distance
+    whatever the plan after it (the first-input check covers every pair).
+
+    Parameters
+    ----------
+    pairs
+        ``(P, 2)`` robot indices.
+    positions
+        ``(m, 2)`` measured positions.
+    radius
+        ``(P,)`` interaction radii.
+    slots, horizon
+        The budget per robot and ``N``.
+    stages_out
+        ``(P,)`` output.
+
+    Returns
+    -------
+    tuple of int
+        Pairs with every stage, pairs with stage 1 only.
+    """
+    P = pairs.shape[0]
+    m = positions.shape[0]
+    dist = np.empty(P)
+    degree = np.zeros(m, dtype=np.int64)
+    for p in range(P):
+        a, b = pairs[p, 0], pairs[p, 1]
+        dist[p] = math.hypot(positions[a, 0] - positions[b, 0], positions[a, 1] - positions[b, 1])
+        near = dist[p] <= radius[p]
+        stages_out[p] = 1 if near else 0
+        if near:
+            degree[a] += 1
+            degree[b] += 1
+    start = np.zeros(m + 1, dtype=np.int64)
+    for r in range(m):
+        start[r + 1] = start[r] + degree[r]
+    members = np.empty(start[m], dtype=np.int64)
+    fill = start[:m].copy()
+    for p in range(P):
+        if stages_out[p]:
+            for r in (pairs[p, 0], pairs[p, 1]):
+                members[fill[r]] = p
+                fill[r] += 1
+    for r in range(m):
+        mine = members[start[r]:start[r + 1]]
+        order = np.argsort(dist[mine], kind="mergesort")
+        for s in range(min(slots, mine.shape[0])):
+            stages_out[mine[order[s]]] = horizon
+    full = 0
+    first = 0
+    for p in range(P):
+        full += stages_out[p] == horizon
+        first += stages_out[p] == 1
+    return full, first
 
 
 @_jit
@@ -602,8 +676,10 @@ def warm_up() -> float:
     pairs = np.array([[0, 1]], dtype=np.int64)
     states = np.zeros((2, 3, 3))
     states[1, :, 0] = 1.0
+    stages = np.full(1, 2, dtype=np.int64)
     pair_rows(pairs, x[:, :2].copy(), states, np.ones(1), rot, 0.6, np.empty((1, 2, 4)),
-              np.empty((1, 2)), np.empty((2, 2)))
+              np.empty((1, 2)), np.empty((2, 2)), stages)
+    select_pairs(pairs, x[:, :2].copy(), np.ones(1), 1, 2, stages)
     pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1))
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))

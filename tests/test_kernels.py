@@ -59,7 +59,8 @@ def test_pair_rows_are_unit_normals_and_keep_stopping_feasible() -> None:
     required = np.full(4, 0.5)
     rotation = np.tile([np.cos(0.3), np.sin(0.3)], (N, 1))
     A, lo = np.empty((4, N, 4)), np.empty((4, N))
-    kernels.pair_rows(pairs, now, states, required, rotation, 0.6, A, lo, np.empty((N, 2)))
+    kernels.pair_rows(pairs, now, states, required, rotation, 0.6, A, lo, np.empty((N, 2)),
+                      np.full(pairs.shape[0], N, dtype=np.int64))
     np.testing.assert_allclose(np.hypot(A[..., 0], A[..., 1]), 1.0, atol=1e-12)
     np.testing.assert_array_equal(A[..., 2:], -A[..., :2])
     # standing still satisfies stage 1 (the stage-one-override safety row)
@@ -139,3 +140,45 @@ def test_nearest_within_matches_a_stable_sort_of_the_distances(seed: int) -> Non
                                              rest)
         assert used + extra == expected.size
         np.testing.assert_array_equal(np.concatenate([chosen[:used], rest[:extra]]), expected)
+
+
+def _select_pairs_reference(pairs: np.ndarray, positions: np.ndarray, radius: np.ndarray,
+                            slots: int, horizon: int) -> np.ndarray:
+    dist = np.hypot(*(positions[pairs[:, 0]] - positions[pairs[:, 1]]).T)
+    stages = np.where(dist <= radius, 1, 0)
+    for r in range(positions.shape[0]):
+        mine = np.flatnonzero(((pairs == r).any(axis=1)) & (dist <= radius))
+        stages[mine[np.argsort(dist[mine], kind="stable")][:slots]] = horizon
+    return stages
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_select_pairs_gives_each_robot_its_nearest_pairs_and_stage_one_to_the_rest(
+        seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    m, N = 12, 6
+    positions = rng.uniform(-4.0, 4.0, (m, 2))
+    pairs = np.array([(a, b) for a in range(m) for b in range(a + 1, m)], dtype=np.int64)
+    radius = rng.uniform(2.0, 5.0, pairs.shape[0])
+    for slots in (1, 3, 20):
+        stages = np.full(pairs.shape[0], -1, dtype=np.int64)
+        full, first = kernels.select_pairs(pairs, positions, radius, slots, N, stages)
+        np.testing.assert_array_equal(
+            stages, _select_pairs_reference(pairs, positions, radius, slots, N))
+        assert (full, first) == (np.count_nonzero(stages == N), np.count_nonzero(stages == 1))
+
+
+def test_pair_rows_beyond_their_stages_are_off() -> None:
+    m, N = 3, 5
+    states = RNG.normal(scale=2.0, size=(m, N + 1, 3))
+    now = np.ascontiguousarray(states[:, 0, :2])
+    pairs = np.array([[0, 1], [0, 2], [1, 2]], dtype=np.int64)
+    rotation = np.tile([1.0, 0.0], (N, 1))
+    A, lo = np.full((3, N, 4), 7.0), np.full((3, N), 7.0)
+    kernels.pair_rows(pairs, now, states, np.full(3, 0.5), rotation, -1.0, A, lo,
+                      np.empty((N, 2)), np.array([N, 1, 0], dtype=np.int64))
+    assert np.all(np.isfinite(lo[0])) and np.all(A[0, :, :2] != 0.0)
+    assert np.isfinite(lo[1, 0]) and np.all(A[1, 0] != 0.0)
+    np.testing.assert_array_equal(A[1, 1:], 0.0)
+    np.testing.assert_array_equal(A[2], 0.0)
+    assert np.all(lo[1, 1:] == -np.inf) and np.all(lo[2] == -np.inf)

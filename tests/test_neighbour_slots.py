@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sqpmpc.collision import OFF, SHARED
-from sqpmpc.controllers import DecentralizedController, PlanMessage
+from sqpmpc.controllers import CentralizedController, DecentralizedController, PlanMessage
 from sqpmpc.errors import ProblemError
 from sqpmpc.fleets import antipodal_swap
 from sqpmpc.metrics import compute_metrics
@@ -78,6 +78,33 @@ def test_a_dense_swap_with_few_slots_stays_safe(slots: int) -> None:
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["input_bound_violations"] == 0
     assert m["counters"]["unslotted_neighbours"] > 0  # the budget was exceeded
+
+
+def test_centralized_pair_rows_use_the_same_selection() -> None:
+    xs = [0.0, 0.5, 1.0, 1.5, 20.0]
+    sc = fleet([[x, 0.0, 0.0] for x in xs], [[x, 5.0] for x in xs])
+    ctrl = CentralizedController(sc, SolverSettings(neighbour_slots=1))
+    layout_rows = ctrl.engine.layout.n_con
+    ctrl._predict_neighbours(0, sc.initial_states(), {}, None)
+    stages = dict(zip(map(tuple, ctrl.pairs.tolist()), ctrl.collisions.stages.tolist(),
+                      strict=True))
+    N = sc.horizon
+    # each robot's nearest pair gets every stage
+    assert stages[(0, 1)] == stages[(1, 2)] == stages[(2, 3)] == N
+    # within reach but nobody's nearest: stage 1 only; beyond reach (20 m): no row
+    assert stages[(0, 2)] == stages[(0, 3)] == stages[(1, 3)] == 1
+    assert all(stages[(a, 4)] == 0 for a in range(4))
+    assert ctrl.counters()["stage_one_pairs"] == 3
+    assert ctrl.engine.layout.n_con == layout_rows  # the pattern holds every pair
+
+
+@pytest.mark.parametrize("slots", [1, 3])
+def test_a_centralized_swap_with_few_pair_slots_stays_safe(slots: int) -> None:
+    sc = antipodal_swap(12)
+    m = compute_metrics(simulate(sc, "centralized", SolverSettings(neighbour_slots=slots)))
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["input_bound_violations"] == 0
+    assert m["counters"]["stage_one_pairs"] > 0  # the budget was exceeded
 
 
 @pytest.mark.parametrize("value", [0, -1, 2.5, True])
