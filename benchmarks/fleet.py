@@ -7,18 +7,25 @@ Usage (from the repository root)::
 
 Every swap is :func:`sqpmpc.fleets.antipodal_swap` (radius ``3 sqrt(n/6)`` m:
 the density of ``swap-6``; ``Ts = 0.5 s``, ``N = 8``; ``t_end`` three times the
-straight trip at full speed), run centralized, decentralized with one collision
-slot per other robot (the default), and decentralized with ``--slots``
-neighbour slots (``SolverSettings.neighbour_slots``). Each run gets a wall-clock
-budget (``--budget``
-seconds); a run that exceeds it is stopped and reported with the sample it
-reached: that is where a scheme stops fitting on this machine. Measured per
-run: per-robot step time (median and p99 over every controller call; the
-centralized controller is one "robot" that plans for all), the largest sample
-(sum over controllers), QP iterations per QP, arrivals (robots within 0.05 m
-of their goals at the last simulated sample), the smallest clearance at and
-between samples, QP rescues and fallbacks. Then ``--crossings`` seeded random
-crossings of ``--crossing-robots`` robots (decentralized, ``--slots`` slots).
+straight trip at full speed), run under several settings (:data:`CONFIGS`):
+the default settings (``"auto"``: OSQP and one collision slot per other robot
+up to :data:`~sqpmpc.settings.FLEET_ROBOTS` robots, PIQP and 8 neighbour
+slots above) for both schemes, and OSQP with 8 slots and OSQP with every
+robot in every QP (the path before fleets) for comparison. Each run gets a
+wall-clock budget (``--budget`` seconds); a run that exceeds it is stopped
+and reported with the sample it reached: that is where a configuration
+stops fitting on this machine. The decentralized default runs are repeated
+(``--repeats``) and their timing columns are the medians over the repeats
+(the machine is shared).
+
+Measured per run: per-robot step time (median, p99 and mean over every
+controller call; the centralized controller is one "robot" that plans for
+all), the largest sample (sum over controllers), QP iterations per QP,
+arrivals (robots within 0.05 m of their goals at the last simulated
+sample), the smallest clearance at and between samples, QP rescues and
+fallbacks. Then the two must-show ratios (per-robot median at the largest
+size over the smallest, p99 over median), then ``--crossings`` seeded
+random crossings of ``--crossing-robots`` robots (decentralized, defaults).
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ import numpy as np
 from sqpmpc.fleets import antipodal_swap, random_crossings
 from sqpmpc.metrics import compute_metrics
 from sqpmpc.scenario import Scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.settings import FLEET_ROBOTS, SolverSettings
 from sqpmpc.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_line
@@ -46,11 +53,26 @@ DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "fleet.md"
 SIZES = (4, 8, 16, 32, 64)
 
 
-def run_swap(n: int, scheme: str, budget: float, slots: int | None = None,
+#: (label, scheme, settings fields, smallest fleet it runs on)
+CONFIGS: tuple[tuple[str, str, dict[str, object], int], ...] = (
+    ("centralized, defaults", "centralized", {}, 0),
+    ("centralized, OSQP, 8 slots", "centralized", {"qp_solver": "osqp", "neighbour_slots": 8},
+     FLEET_ROBOTS + 1),
+    ("decentralized, defaults", "decentralized", {}, 0),
+    ("decentralized, OSQP, 8 slots", "decentralized",
+     {"qp_solver": "osqp", "neighbour_slots": 8}, FLEET_ROBOTS + 1),
+    ("decentralized, PIQP, 8 slots", "decentralized",
+     {"qp_solver": "piqp", "neighbour_slots": 8}, 0),
+    ("decentralized, OSQP, every robot", "decentralized",
+     {"qp_solver": "osqp", "neighbour_slots": None}, FLEET_ROBOTS + 1),
+)
+
+
+def run_swap(n: int, scheme: str, budget: float, settings: SolverSettings | None = None,
              scenario: Scenario | None = None) -> dict[str, object]:
     """One antipodal swap of ``n`` robots (or ``scenario``), stopped after ``budget`` s."""
     sc = antipodal_swap(n) if scenario is None else scenario
-    sim = ClosedLoopSimulation(sc, scheme, SolverSettings(neighbour_slots=slots))
+    sim = ClosedLoopSimulation(sc, scheme, settings or SolverSettings())
     t0 = time.perf_counter()
     while sim.k < sc.steps and time.perf_counter() - t0 < budget:
         sim.step()
@@ -67,12 +89,33 @@ def run_swap(n: int, scheme: str, budget: float, slots: int | None = None,
         "n": n, "scheme": scheme, "steps": sim.k, "of": sc.steps, "wall": wall,
         "median_ms": float(np.median(per_robot) * 1e3) if per_robot.size else float("nan"),
         "p99_ms": float(np.percentile(per_robot, 99) * 1e3) if per_robot.size else float("nan"),
+        "mean_ms": float(np.mean(per_robot) * 1e3) if per_robot.size else float("nan"),
         "sample_max_ms": float(steps.sum(axis=1).max() * 1e3) if steps.size else float("nan"),
         "qp_iterations": sim.qp_iterations / max(qps, 1), "arrived": arrived,
         "clearance": m["min_clearance"], "between": m["intersample_min_clearance"],
         "collisions": m["collisions"] + m["intersample_collisions"],
         "rescues": m["counters"].get("qp_rescues", 0), "fallbacks": m["solver_failures"],
     }
+
+
+def _row(first: object, label: str, r: dict[str, object], n: int) -> str:
+    stopped = "" if r["steps"] == r["of"] else f" (stopped after {r['wall']:.0f} s)"
+    return (f"| {first} | {label} | {r['steps']} of {r['of']}{stopped} | "
+            f"{r['median_ms']:.3f} | {r['p99_ms']:.2f} | {r['mean_ms']:.3f} | "
+            f"{r['sample_max_ms']:.1f} | {r['qp_iterations']:.0f} | {r['arrived']}/{n} | "
+            f"{r['clearance']:.4f} ({r['between']:.4f}) | {r['collisions']} | "
+            f"{r['rescues']} | {r['fallbacks']} |")
+
+
+def _repeated(n: int, scheme: str, budget: float, settings: SolverSettings,
+              repeats: int) -> dict[str, object]:
+    """``repeats`` runs; timing columns are their medians, the rest from the first run."""
+    runs = [run_swap(n, scheme, budget, settings) for _ in range(max(1, repeats))]
+    out = dict(runs[0])
+    for key in ("median_ms", "p99_ms", "mean_ms", "sample_max_ms"):
+        out[key] = float(np.median([r[key] for r in runs]))
+    out["median_spread"] = (min(r["median_ms"] for r in runs), max(r["median_ms"] for r in runs))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,43 +125,56 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
     parser.add_argument("--budget", type=float, default=120.0,
                         help="wall-clock seconds per run before it is stopped (default 120)")
-    parser.add_argument("--slots", type=int, default=8,
-                        help="neighbour slots of the third configuration (default 8)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="runs of each decentralized default swap (default 3)")
     parser.add_argument("--crossings", type=int, default=10,
-                        help="seeds of random crossings to run (decentralized, --slots)")
+                        help="seeds of random crossings to run (decentralized, defaults)")
     parser.add_argument("--crossing-robots", type=int, default=32)
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    head = ("| robots | scheme | samples run | per-robot step median ms | p99 ms | "
+    head = ("| robots | settings | samples run | per-robot step median ms | p99 ms | mean ms | "
             "largest sample ms | QP iterations per QP | arrived | min clearance m "
             "(between samples) | collisions | rescues | fallbacks |")
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
-    configs = [("centralized", None), ("decentralized", None),
-               ("decentralized", args.slots)]
+    results: dict[tuple[str, int], dict[str, object]] = {}
     for n in args.sizes:
-        for scheme, slots in configs:
-            r = run_swap(n, scheme, args.budget, slots)
-            stopped = "" if r["steps"] == r["of"] else f" (stopped after {r['wall']:.0f} s)"
-            label = scheme if slots is None else f"{scheme}, {slots} neighbour slots"
-            lines.append(
-                f"| {n} | {label} | {r['steps']} of {r['of']}{stopped} | "
-                f"{r['median_ms']:.2f} | {r['p99_ms']:.2f} | {r['sample_max_ms']:.1f} | "
-                f"{r['qp_iterations']:.0f} | {r['arrived']}/{n} | {r['clearance']:.4f} "
-                f"({r['between']:.4f}) | {r['collisions']} | {r['rescues']} | "
-                f"{r['fallbacks']} |")
+        for label, scheme, fields, smallest in CONFIGS:
+            if n < smallest:
+                continue
+            settings = SolverSettings(**fields)
+            repeats = args.repeats if label.startswith("decentralized") and (
+                label.endswith("defaults") or "PIQP" in label) else 1
+            r = _repeated(n, scheme, args.budget, settings, repeats)
+            results[label, n] = r
+            lines.append(_row(n, label, r, n))
             print(lines[-1], file=sys.stderr)
+    small, large = min(args.sizes), max(args.sizes)
+    ratios = []
+    for label in ("decentralized, defaults", "decentralized, PIQP, 8 slots"):
+        a, b = results.get((label, small)), results.get((label, large))
+        if a is None or b is None:
+            continue
+        ratios.append(
+            f"- {label}: per-robot median {b['median_ms']:.3f} ms at {large} robots, "
+            f"{a['median_ms']:.3f} ms at {small}: ratio **{b['median_ms'] / a['median_ms']:.2f}**"
+            f" (target <= 1.5; medians over {args.repeats} runs, spread at {large}: "
+            f"{b['median_spread'][0]:.3f}-{b['median_spread'][1]:.3f} ms); p99 / median at "
+            f"{large}: **{b['p99_ms'] / b['median_ms']:.1f}** (target <= 5), at {small}: "
+            f"{a['p99_ms'] / a['median_ms']:.1f}")
+    for label in ("decentralized, defaults",):
+        a = results.get((label, small))
+        b = results.get(("decentralized, PIQP, 8 slots", small))
+        c = results.get((label, large))
+        if a is not None and b is not None and c is not None:
+            ratios.append(
+                f"- the defaults at {large} robots against PIQP with 8 slots at {small} (the "
+                f"same solver and budget): ratio **{c['median_ms'] / b['median_ms']:.2f}**")
     crossings = [head.replace("| robots |", "| seed |"), lines[1]]
     for seed in range(args.crossings):
         sc = random_crossings(args.crossing_robots, seed)
-        r = run_swap(sc.n_robots, "decentralized", args.budget, args.slots, sc)
-        stopped = "" if r["steps"] == r["of"] else f" (stopped after {r['wall']:.0f} s)"
-        crossings.append(
-            f"| {seed} | decentralized, {args.slots} neighbour slots | {r['steps']} of "
-            f"{r['of']}{stopped} | {r['median_ms']:.2f} | {r['p99_ms']:.2f} | "
-            f"{r['sample_max_ms']:.1f} | {r['qp_iterations']:.0f} | "
-            f"{r['arrived']}/{sc.n_robots} | {r['clearance']:.4f} ({r['between']:.4f}) | "
-            f"{r['collisions']} | {r['rescues']} | {r['fallbacks']} |")
+        r = run_swap(sc.n_robots, "decentralized", args.budget, SolverSettings(), sc)
+        crossings.append(_row(seed, "decentralized, defaults", r, sc.n_robots))
         print(crossings[-1], file=sys.stderr)
     crossing_section = "" if not args.crossings else f"""
 ## Random crossings of {args.crossing_robots} robots (`sqpmpc generate crossings`)
@@ -128,13 +184,19 @@ def main(argv: list[str] | None = None) -> int:
     report = f"""# Fleets: antipodal swaps of {args.sizes[0]} to {args.sizes[-1]} robots
 
 Reproduce: `python -m benchmarks.fleet --sizes {' '.join(map(str, args.sizes))} --budget
-{args.budget:g} --slots {args.slots}` (module docstring: what is measured). Swaps at the
+{args.budget:g} --repeats {args.repeats}` (module docstring: what is measured). Swaps at the
 density of `swap-6` (radius 3 sqrt(n/6) m), Ts 0.5 s, N 8, t_end three times the straight
 trip; every run gets {args.budget:g} s of wall clock and is stopped there ("samples run").
+"defaults" are `SolverSettings()`: OSQP with every robot up to {FLEET_ROBOTS} robots, PIQP
+with 8 neighbour slots above.
 
 {machine_line(t0)}
 
 {chr(10).join(lines)}
+
+## The must-show ratios
+
+{chr(10).join(ratios) or "(needs two sizes)"}
 {crossing_section}"""
     publish(report, None if args.no_write else DOC_PATH)
     return 0

@@ -18,10 +18,16 @@ from . import __version__
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
-from .qp import QP_SOLVERS
 from .registry import add_rule_arguments, describe_rules, rules_from_arguments
 from .scenario import builtin_scenario_names, load_scenario
-from .settings import SolverSettings
+from .settings import (
+    FLEET_NEIGHBOUR_SLOTS,
+    FLEET_QP_SOLVER,
+    FLEET_ROBOTS,
+    QP_SOLVER_CHOICES,
+    SolverSettings,
+    neighbour_slots_argument,
+)
 from .simulation import ClosedLoopSimulation, SimulationOptions
 
 __all__ = ["build_parser", "main"]
@@ -46,11 +52,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="one QP per sample (rti, default) or SQP to convergence")
     run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
     run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
-    run.add_argument("--neighbour-slots", type=int, default=None,
-                     help="decentralized: collision slots per robot, filled with the nearest "
-                          "neighbours within reach (default: one per other robot)")
-    run.add_argument("--qp-solver", choices=QP_SOLVERS, default="osqp",
-                     help="QP backend (default osqp; docs/qp-backends.md compares them)")
+    run.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
+                     metavar="N|all|auto",
+                     help="collision slots per robot, filled with the nearest neighbours "
+                          f"within reach; 'all': one per other robot; 'auto' (default): "
+                          f"{FLEET_NEIGHBOUR_SLOTS} on fleets of more than {FLEET_ROBOTS} "
+                          f"robots, else all")
+    run.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
+                     help=f"QP backend; 'auto' (default): osqp up to {FLEET_ROBOTS} robots, "
+                          f"{FLEET_QP_SOLVER} above (docs/qp-backends.md, docs/fleet.md)")
     run.add_argument("--collision-margin", type=float, default=None,
                      help="added to every required distance in the QP, m (default 0.001); "
                           "raise it to cover a plant that differs from the prediction model")

@@ -133,7 +133,7 @@ class CentralizedController(ControllerPipeline):
     scheme = "centralized"
 
     def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
-        settings = settings or SolverSettings()
+        settings = (settings or SolverSettings()).resolved(scenario.n_robots)
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, 0,
@@ -204,7 +204,7 @@ class DecentralizedController(ControllerPipeline):
     def __init__(self, scenario: Scenario, robot_id: int,
                  settings: SolverSettings | None = None,
                  mode: DecentralizedMode = "shared") -> None:
-        settings = settings or SolverSettings()
+        settings = (settings or SolverSettings()).resolved(scenario.n_robots)
         if mode not in ("shared", "paper"):
             raise ProblemError(f"decentralized mode must be 'shared' or 'paper', got {mode!r}")
         index = scenario.index_of(robot_id)

@@ -17,6 +17,7 @@ options that can be absent are ``None``.
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -28,7 +29,17 @@ from .qp import QP_SOLVERS, OSQPSettings
 from .registry import check_rules, default_rules
 from .rules import Rule
 
-__all__ = ["SolverSettings"]
+__all__ = ["FLEET_NEIGHBOUR_SLOTS", "FLEET_QP_SOLVER", "FLEET_ROBOTS", "QP_SOLVER_CHOICES",
+           "SolverSettings", "neighbour_slots_argument"]
+
+#: Scenarios with more robots than this are *fleets* for the ``"auto"`` settings.
+FLEET_ROBOTS = 8
+#: ``neighbour_slots="auto"`` on a fleet.
+FLEET_NEIGHBOUR_SLOTS = 8
+#: ``qp_solver="auto"`` on a fleet (OSQP on smaller problems).
+FLEET_QP_SOLVER = "piqp"
+#: What ``qp_solver`` accepts.
+QP_SOLVER_CHOICES = ("auto", *QP_SOLVERS)
 
 
 @dataclass(frozen=True)
@@ -66,14 +77,23 @@ class SolverSettings:
     rules
         The liveness rules, applied in registry order (default: all).
     neighbour_slots
-        Decentralized: the collision slots of a robot's QP, filled every sample
-        with the nearest neighbours that can come within their distance over the
-        horizon (``None``: one slot per other robot, always filled). Neighbours
-        within reach left without a slot are kept safe by the first-input
-        check (:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`).
+        The collision slots of each robot, filled every sample with the nearest
+        neighbours that can come within their distance over the horizon
+        (``None``: one slot per other robot, always filled). Decentralized: the
+        rows of a robot's QP; neighbours within reach left without a slot are
+        kept safe by the first-input check
+        (:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`).
+        Centralized: each robot's nearest pairs get rows on every stage, the
+        other pairs within reach on stage 1 only
+        (:func:`sqpmpc.kernels.select_pairs`). ``"auto"`` (default):
+        :data:`FLEET_NEIGHBOUR_SLOTS` on scenarios of more than
+        :data:`FLEET_ROBOTS` robots, else ``None``.
     qp_solver
-        QP backend: ``"osqp"`` (default), ``"piqp"`` (:mod:`sqpmpc.piqp_backend`) or
-        ``"daqp"`` (:mod:`sqpmpc.daqp_backend`).
+        QP backend: ``"osqp"``, ``"piqp"`` (:mod:`sqpmpc.piqp_backend`),
+        ``"daqp"`` (:mod:`sqpmpc.daqp_backend`) or ``"auto"`` (default): OSQP on
+        scenarios of up to :data:`FLEET_ROBOTS` robots, :data:`FLEET_QP_SOLVER`
+        above (an interior-point method's time per QP is nearly constant, where
+        OSQP's tail grows with the crowding: ``docs/fleet.md``).
     osqp
         OSQP settings (its tolerances and rescue apply to PIQP too).
     """
@@ -90,8 +110,8 @@ class SolverSettings:
     collision_margin: float = 1e-3
     time_budget: float | None = None
     rules: tuple[Rule, ...] = field(default_factory=default_rules)
-    neighbour_slots: int | None = None
-    qp_solver: str = "osqp"
+    neighbour_slots: int | Literal["auto"] | None = "auto"
+    qp_solver: str = "auto"
     osqp: OSQPSettings = field(default_factory=OSQPSettings)
 
     def __post_init__(self) -> None:
@@ -113,17 +133,35 @@ class SolverSettings:
             value = getattr(self, name)
             if value is not None:
                 _check_nonnegative(name, value)
-        if self.neighbour_slots is not None and (
+        if self.neighbour_slots not in (None, "auto") and (
                 isinstance(self.neighbour_slots, bool)
                 or not isinstance(self.neighbour_slots, int | np.integer)
                 or self.neighbour_slots < 1):
-            raise ProblemError(f"neighbour_slots must be an integer >= 1 or None, got "
+            raise ProblemError(f"neighbour_slots must be an integer >= 1, 'auto' or None, got "
                                f"{self.neighbour_slots!r}")
-        if self.qp_solver not in QP_SOLVERS:
-            raise ProblemError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
+        if self.qp_solver not in QP_SOLVER_CHOICES:
+            raise ProblemError(f"qp_solver must be one of {QP_SOLVER_CHOICES}, "
+                               f"got {self.qp_solver!r}")
         if not isinstance(self.osqp, OSQPSettings):
             raise ProblemError(f"osqp must be OSQPSettings, got {type(self.osqp).__name__}")
         object.__setattr__(self, "rules", check_rules(tuple(self.rules)))
+
+    def qp_solver_for(self, n_robots: int) -> str:
+        """The QP backend for a scenario of ``n_robots`` (``"auto"`` resolved)."""
+        if self.qp_solver != "auto":
+            return self.qp_solver
+        return FLEET_QP_SOLVER if n_robots > FLEET_ROBOTS else "osqp"
+
+    def neighbour_slots_for(self, n_robots: int) -> int | None:
+        """The neighbour slots for a scenario of ``n_robots`` (``"auto"`` resolved)."""
+        if self.neighbour_slots != "auto":
+            return self.neighbour_slots
+        return FLEET_NEIGHBOUR_SLOTS if n_robots > FLEET_ROBOTS else None
+
+    def resolved(self, n_robots: int) -> SolverSettings:
+        """These settings with every ``"auto"`` resolved for a scenario of ``n_robots``."""
+        return replace(self, qp_solver=self.qp_solver_for(n_robots),
+                       neighbour_slots=self.neighbour_slots_for(n_robots))
 
     def rule(self, name: str) -> Rule | None:
         """The rule named ``name`` if it is on, else ``None``."""
@@ -149,3 +187,20 @@ def _check_nonnegative(name: str, value: object) -> None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not (
             np.isfinite(value) and value >= 0):
         raise ProblemError(f"{name} must be finite and >= 0, got {value!r}")
+
+
+def neighbour_slots_argument(text: str) -> int | Literal["auto"] | None:
+    """``--neighbour-slots``: an integer >= 1, ``all`` (``None``) or ``auto``."""
+    word = text.strip().lower()
+    if word == "auto":
+        return "auto"
+    if word == "all":
+        return None
+    try:
+        value = int(word)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, 'all' or 'auto', "
+                                         f"got {text!r}")
+    return value
