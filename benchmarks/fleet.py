@@ -9,9 +9,10 @@ Every swap is :func:`sqpmpc.fleets.antipodal_swap` (radius ``3 sqrt(n/6)`` m:
 the density of ``swap-6``; ``Ts = 0.5 s``, ``N = 8``; ``t_end`` three times the
 straight trip at full speed), run under several settings (:data:`CONFIGS`):
 the default settings (``"auto"``: OSQP and one collision slot per other robot
-up to :data:`~sqpmpc.settings.FLEET_ROBOTS` robots, PIQP and 8 neighbour
-slots above) for both schemes, and OSQP with 8 slots and OSQP with every
-robot in every QP (the path before fleets) for comparison. Each run gets a
+up to :data:`~sqpmpc.settings.FLEET_ROBOTS` robots; above, 8 neighbour slots,
+with PIQP for the decentralized robots and OSQP for the centralized QP) for
+both schemes, and for comparison OSQP with 8 slots, PIQP with 8 slots, and
+OSQP with every robot in every QP (the path before fleets). Each run gets a
 wall-clock budget (``--budget`` seconds); a run that exceeds it is stopped
 and reported with the sample it reached: that is where a configuration
 stops fitting on this machine. The decentralized default runs are repeated
@@ -56,8 +57,8 @@ SIZES = (4, 8, 16, 32, 64)
 #: (label, scheme, settings fields, smallest fleet it runs on)
 CONFIGS: tuple[tuple[str, str, dict[str, object], int], ...] = (
     ("centralized, defaults", "centralized", {}, 0),
-    ("centralized, OSQP, 8 slots", "centralized", {"qp_solver": "osqp", "neighbour_slots": 8},
-     FLEET_ROBOTS + 1),
+    ("centralized, OSQP, every pair", "centralized",
+     {"qp_solver": "osqp", "neighbour_slots": None}, FLEET_ROBOTS + 1),
     ("decentralized, defaults", "decentralized", {}, 0),
     ("decentralized, OSQP, 8 slots", "decentralized",
      {"qp_solver": "osqp", "neighbour_slots": 8}, FLEET_ROBOTS + 1),
@@ -187,8 +188,8 @@ Reproduce: `python -m benchmarks.fleet --sizes {' '.join(map(str, args.sizes))} 
 {args.budget:g} --repeats {args.repeats}` (module docstring: what is measured). Swaps at the
 density of `swap-6` (radius 3 sqrt(n/6) m), Ts 0.5 s, N 8, t_end three times the straight
 trip; every run gets {args.budget:g} s of wall clock and is stopped there ("samples run").
-"defaults" are `SolverSettings()`: OSQP with every robot up to {FLEET_ROBOTS} robots, PIQP
-with 8 neighbour slots above.
+"defaults" are `SolverSettings()`: OSQP with every robot up to {FLEET_ROBOTS} robots; above,
+8 neighbour slots, with PIQP for the decentralized robots and OSQP for the centralized QP.
 
 {machine_line(t0)}
 

@@ -59,8 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
                           f"{FLEET_NEIGHBOUR_SLOTS} on fleets of more than {FLEET_ROBOTS} "
                           f"robots, else all")
     run.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
-                     help=f"QP backend; 'auto' (default): osqp up to {FLEET_ROBOTS} robots, "
-                          f"{FLEET_QP_SOLVER} above (docs/qp-backends.md, docs/fleet.md)")
+                     help=f"QP backend; 'auto' (default): {FLEET_QP_SOLVER} for the "
+                          f"decentralized robots of fleets of more than {FLEET_ROBOTS}, else "
+                          f"osqp (docs/qp-backends.md, docs/fleet.md)")
     run.add_argument("--collision-margin", type=float, default=None,
                      help="added to every required distance in the QP, m (default 0.001); "
                           "raise it to cover a plant that differs from the prediction model")

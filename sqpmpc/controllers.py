@@ -133,7 +133,7 @@ class CentralizedController(ControllerPipeline):
     scheme = "centralized"
 
     def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
-        settings = (settings or SolverSettings()).resolved(scenario.n_robots)
+        settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, 0,

@@ -125,3 +125,5 @@ def test_auto_settings_pick_the_fleet_path_above_the_fleet_size() -> None:
     assert (explicit.qp_solver, explicit.neighbour_slots) == ("daqp", None)
     ctrl = DecentralizedController(antipodal_swap(16), 1)
     assert ctrl.slots == FLEET_NEIGHBOUR_SLOTS and ctrl.settings.qp_solver == FLEET_QP_SOLVER
+    central = CentralizedController(antipodal_swap(16))
+    assert central.slots == FLEET_NEIGHBOUR_SLOTS and central.settings.qp_solver == "osqp"
