@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,11 +34,13 @@ if TYPE_CHECKING:
     from .daqp_backend import DAQPBackend
     from .piqp_backend import PIQPBackend
 
-__all__ = ["PIQP_MAX_ITER", "QP_SOLVERS", "BackendSolution", "OSQPSettings", "QPResult",
+__all__ = ["HANDOVER_ITERATIONS", "PIQP_MAX_ITER", "QP_SOLVERS", "BackendSolution", "OSQPSettings", "QPResult",
            "SparseQP", "solve_interior_point"]
 
 #: QP backends of :class:`SparseQP`.
-QP_SOLVERS = ("osqp", "piqp", "daqp")
+QP_SOLVERS = ("osqp", "piqp", "daqp", "osqp+piqp")
+#: ``"osqp+piqp"``: OSQP iterations before a QP is handed to PIQP.
+HANDOVER_ITERATIONS = 100
 #: PIQP's iteration cap (an interior-point method needs about 10 here).
 PIQP_MAX_ITER = 250
 
@@ -269,11 +271,18 @@ class SparseQP:
         self.settings = settings or OSQPSettings()
         self.solver_name = solver
         self._backend: PIQPBackend | DAQPBackend | None = None
-        if solver == "piqp":
+        self._handover: PIQPBackend | None = None
+        if solver in ("piqp", "osqp+piqp"):
             from .piqp_backend import PIQPBackend
 
-            self._backend = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
-                                        PIQP_MAX_ITER)
+            piqp_backend = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
+                                       PIQP_MAX_ITER)
+            if solver == "piqp":
+                self._backend = piqp_backend
+            else:  # OSQP first, capped; PIQP takes the QPs it leaves
+                self._handover = piqp_backend
+                self.settings = replace(self.settings, max_iter=min(
+                    self.settings.max_iter, HANDOVER_ITERATIONS))
         elif solver == "daqp":
             from .daqp_backend import DAQPBackend
 
@@ -305,6 +314,7 @@ class SparseQP:
         self._dirty_P = self._dirty_A = self._dirty_vec = True
         self.setup_count = 0
         self.rescue_count = 0
+        self.handover_count = 0
 
     # ---------------------------------------------------------------- values
     @property
@@ -564,6 +574,19 @@ class SparseQP:
         status = str(info.status)
         rescued = False
         rescue_time = 0.0
+        iterations = int(info.iter)
+        if not (finite and ok_status) and self._handover is not None and (
+                info.status_val != _TIME_LIMIT):
+            q = self._q_cost if self._no_curvature else self.q
+            sol = self._handover.solve(self.P_values, q, self.A_values, self.lower, self.upper,
+                                       True)
+            self.handover_count += 1
+            rescue_time += sol.solve_time
+            iterations += sol.iterations
+            if sol.solved and all_finite(sol.x) and all_finite(sol.y):
+                x, y, finite, ok_status = sol.x, sol.y, True, True
+                status = f"solved by PIQP after {iterations - sol.iterations} OSQP iterations"
+            wall = time.perf_counter() - t0
         if not (finite and ok_status) and info.status_val != _TIME_LIMIT:
             x, y, status, rescued, rescue_time = self._rescue(x, y, status)
             finite = ok_status = rescued
@@ -576,7 +599,7 @@ class SparseQP:
             objective=float(info.obj_val),
             primal_residual=float(info.prim_res),
             dual_residual=float(info.dual_res),
-            iterations=int(info.iter),
+            iterations=iterations,
             solve_time=float(info.solve_time) + rescue_time,
             wall_time=wall,
             extra={"polish_status": float(info.status_polish),

@@ -90,7 +90,9 @@ class SolverSettings:
         :data:`FLEET_ROBOTS` robots, else ``None``.
     qp_solver
         QP backend: ``"osqp"``, ``"piqp"`` (:mod:`sqpmpc.piqp_backend`),
-        ``"daqp"`` (:mod:`sqpmpc.daqp_backend`) or ``"auto"`` (default):
+        ``"daqp"`` (:mod:`sqpmpc.daqp_backend`), ``"osqp+piqp"`` (OSQP for at
+        most :data:`sqpmpc.qp.HANDOVER_ITERATIONS` iterations, then PIQP, both
+        updated in place) or ``"auto"`` (default):
         :data:`FLEET_QP_SOLVER` for the decentralized robots of a fleet of more
         than :data:`FLEET_ROBOTS` robots (an interior-point method's time per
         QP is nearly constant, where OSQP's tail grows with the crowding:

@@ -8,7 +8,7 @@ import qpsolvers
 import scipy.sparse as sp
 
 from sqpmpc.layout import QPLayout
-from sqpmpc.qp import QP_SOLVERS, OSQPSettings, SparseQP
+from sqpmpc.qp import HANDOVER_ITERATIONS, QP_SOLVERS, OSQPSettings, SparseQP
 
 N = 4
 
@@ -299,6 +299,26 @@ def test_a_stopped_osqp_solve_is_rescued_by_the_interior_point_solver() -> None:
     ref = full.solve()
     assert ref.success
     np.testing.assert_allclose(res.x, ref.x, atol=1e-5)
+
+
+def test_osqp_stopped_at_the_handover_cap_is_finished_by_piqp_in_place() -> None:
+    layout = QPLayout(2, N, np.array([(0, 1)]), 1, True)
+    qp = SparseQP(layout, OSQPSettings(max_iter=5, rescue_solver=None), "osqp+piqp")
+    assert qp.settings.max_iter == 5  # the smaller of the cap and the settings' own
+    capped = SparseQP(layout, OSQPSettings(rescue_solver=None), "osqp+piqp")
+    assert capped.settings.max_iter == HANDOVER_ITERATIONS
+    rng = np.random.default_rng(11)
+    for _ in range(3):  # values change; PIQP is set up once, then updated
+        d = random_data(rng, 2, [(0, 1)], 1, layout.n_var)
+        apply(qp, d)
+        res = qp.solve()
+        assert res.success and "PIQP" in res.status, res.status
+        P_ref, q_ref, A_ref, l_ref, u_ref = dense_qp(2, [(0, 1)], 1, True, d)
+        assert np.abs(P_ref @ res.x + q_ref + A_ref.T @ res.y).max() < 1e-6
+        Az = A_ref @ res.x
+        assert np.all(Az >= l_ref - 1e-6) and np.all(Az <= u_ref + 1e-6)
+    assert qp.handover_count == 3 and qp._handover.setup_count == 1
+    assert qp.rescue_count == 0
 
 
 def test_unknown_rescue_solver_is_refused() -> None:
