@@ -29,6 +29,8 @@ rule               what it does
                    second sample in a row has that sample iterated to convergence
 ``detour``         a robot blocked by a neighbour for ``patience`` samples heads
                    for a point to the right of it for ``hold`` samples
+``roundabout``     (:mod:`sqpmpc.roundabout`) a crowd of robots ahead is passed
+                   counter-clockwise along its right tangent: dense fleets
 =================  ==============================================================
 """
 
