@@ -172,7 +172,8 @@ class ControllerPipeline:
         # 3. rules shape the references
         raw = self.reference(t)
         view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]), own, raw, raw,
-                          self._applied, self._applied_before)
+                          self._applied, self._applied_before,
+                          np.ascontiguousarray(states[:, 2]))
         for rule in self._reference_rules:
             rule.shape_references(view)
         # 4. shift, then rules shape the linearization point

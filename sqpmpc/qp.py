@@ -34,8 +34,8 @@ if TYPE_CHECKING:
     from .daqp_backend import DAQPBackend
     from .piqp_backend import PIQPBackend
 
-__all__ = ["HANDOVER_ITERATIONS", "PIQP_MAX_ITER", "QP_SOLVERS", "BackendSolution", "OSQPSettings", "QPResult",
-           "SparseQP", "solve_interior_point"]
+__all__ = ["HANDOVER_ITERATIONS", "PIQP_MAX_ITER", "QP_SOLVERS", "BackendSolution",
+           "OSQPSettings", "QPResult", "SparseQP", "solve_interior_point"]
 
 #: QP backends of :class:`SparseQP`.
 QP_SOLVERS = ("osqp", "piqp", "daqp", "osqp+piqp")

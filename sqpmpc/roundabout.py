@@ -21,7 +21,12 @@ reference) farther than ``goal_distance``, the *crowd ahead* is the set
 .. math::
 
     \|p_j - p\| \le \min(\text{sense}, \|g - p\|), \qquad
-    \angle(p_j - p,\ g - p) \le \text{cone}.
+    \angle(p_j - p,\ g - p) \le \text{cone}, \qquad
+    \angle(h_j,\ g - p) > \text{along},
+
+with :math:`h_j` robot ``j``'s heading: a robot heading the way this one
+goes is traffic, not a conflict (a formation moving together does not
+circle itself).
 
 When :math:`|C| \ge` ``min_crowd``, the crowd is the disc of centre
 :math:`c = \operatorname{mean}_{j \in C} p_j` and radius
@@ -59,24 +64,25 @@ _jit = numba.njit(cache=True, nogil=True)
 
 
 @_jit
-def roundabout_directions(positions: np.ndarray, own: np.ndarray, goals: np.ndarray,
-                          required: np.ndarray, sense: float, cos_cone: float,
-                          min_crowd: int, goal_distance: float,
-                          directions: np.ndarray) -> int:
+def roundabout_directions(positions: np.ndarray, headings: np.ndarray, own: np.ndarray,
+                          goals: np.ndarray, required: np.ndarray, sense: float,
+                          cos_cone: float, cos_along: float, min_crowd: int,
+                          goal_distance: float, directions: np.ndarray) -> int:
     """The roundabout direction of every own robot, or zeros where the rule is idle.
 
     Parameters
     ----------
-    positions
-        ``(n, 2)`` positions of all robots.
+    positions, headings
+        ``(n, 2)`` positions and ``(n,)`` headings of all robots.
     own
         ``(m,)`` indices of the own robots in ``positions``.
     goals
         ``(m, 2)`` the own robots' goals (stage-``N`` scenario references).
     required
         ``(m, n)`` required distances from the own robots to everyone.
-    sense, cos_cone, min_crowd, goal_distance
-        See :class:`Roundabout` (``cos_cone`` is the cosine of ``cone``).
+    sense, cos_cone, cos_along, min_crowd, goal_distance
+        See :class:`Roundabout` (``cos_cone`` and ``cos_along`` are the cosines
+        of ``cone`` and ``along``).
     directions
         ``(m, 2)`` output: unit directions, or ``(0, 0)`` for robots that
         track their goal.
@@ -110,6 +116,8 @@ def roundabout_directions(positions: np.ndarray, own: np.ndarray, goals: np.ndar
             d = math.hypot(rx, ry)
             if d > reach or rx * ux + ry * uy < d * cos_cone:
                 continue
+            if math.cos(headings[j]) * ux + math.sin(headings[j]) * uy > cos_along:
+                continue  # heading the way this robot goes: traffic, not a conflict
             member[j] = True
             count += 1
             cx += positions[j, 0]
@@ -155,15 +163,21 @@ class _RoundaboutInstance(RuleInstance):
         step = rule.speed_fraction * context.max_speed * context.sample_time
         self.offsets = step * np.arange(1, context.horizon + 1, dtype=float)
         self._cos_cone = math.cos(rule.cone)
+        self._cos_along = math.cos(rule.along)
+        self._no_headings = np.zeros(context.scenario.n_robots)
 
     def shape_references(self, view: SampleView) -> None:
         r = self.rule
         if view.positions.shape[0] <= r.min_crowd:
             return
+        if view.headings is None:  # every robot ahead counts (a cosine never exceeds 2)
+            headings, cos_along = self._no_headings, 2.0
+        else:
+            headings, cos_along = view.headings, self._cos_along
         active = roundabout_directions(
-            view.positions, self.context.own,
+            view.positions, headings, self.context.own,
             np.ascontiguousarray(view.scenario_references[:, -1]), self.required, r.sense,
-            self._cos_cone, r.min_crowd, r.goal_distance, self.directions)
+            self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
         if not active:
             return
         self.counts["roundabout_samples"] += active
@@ -179,7 +193,9 @@ class Roundabout(Rule):
 
     See the module docstring for the rule; ``sense`` (m) is how far ahead a
     robot looks, ``cone`` (rad) the half-angle of "ahead", ``goal_distance``
-    (m) the distance to the goal below which the rule is idle, and
+    (m) the distance to the goal below which the rule is idle, ``along`` (rad)
+    the angle within which a robot heading the way this one goes is traffic
+    rather than a conflict (it does not count in the crowd), and
     ``speed_fraction`` the share of the largest speed the roundabout
     references move at.
     """
@@ -190,16 +206,20 @@ class Roundabout(Rule):
     min_crowd: int = 4
     sense: float = 3.0
     cone: float = float(np.deg2rad(60.0))
+    along: float = float(np.deg2rad(45.0))
     goal_distance: float = 1.0
     speed_fraction: float = 1.0
 
     def __post_init__(self) -> None:
-        check_positive(self, "min_crowd", "sense", "cone", "goal_distance", "speed_fraction")
+        check_positive(self, "min_crowd", "sense", "cone", "along", "goal_distance",
+                       "speed_fraction")
         if not isinstance(self.min_crowd, numbers.Integral):
             raise ProblemError(f"rule 'roundabout': min_crowd must be an integer, "
                                f"got {self.min_crowd!r}")
         if self.cone >= np.pi / 2:
             raise ProblemError(f"rule 'roundabout': cone must be below pi/2, got {self.cone}")
+        if self.along >= np.pi:
+            raise ProblemError(f"rule 'roundabout': along must be below pi, got {self.along}")
         if self.speed_fraction > 1.0:
             raise ProblemError(f"rule 'roundabout': speed_fraction must be at most 1, "
                                f"got {self.speed_fraction}")
@@ -207,5 +227,5 @@ class Roundabout(Rule):
 
 def warm_up_roundabout() -> None:
     """Compile or load the rule's kernel with the array layouts the rule passes."""
-    roundabout_directions(np.zeros((3, 2)), np.arange(2), np.ones((2, 2)), np.ones((2, 3)),
-                          3.0, 0.5, 4, 1.0, np.zeros((2, 2)))
+    roundabout_directions(np.zeros((3, 2)), np.zeros(3), np.arange(2), np.ones((2, 2)),
+                          np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0, np.zeros((2, 2)))

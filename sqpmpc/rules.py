@@ -148,6 +148,8 @@ class SampleView:
         ``(m, N, 2)`` the references the QP will track; a rule may replace it.
     applied, applied_before
         ``(m, 2)`` inputs applied at samples ``k-1`` and ``k-2`` (zeros before).
+    headings
+        ``(n,)`` measured headings of all robots, rad (``None``: not known).
     """
 
     sample: int
@@ -158,6 +160,7 @@ class SampleView:
     references: np.ndarray
     applied: np.ndarray
     applied_before: np.ndarray
+    headings: np.ndarray | None = None
 
 
 class RuleInstance:

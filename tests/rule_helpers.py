@@ -34,7 +34,8 @@ def view(ctrl: CentralizedController, states: np.ndarray, applied: np.ndarray | 
     zeros = np.zeros((m, 2))
     return SampleView(sample, t, np.ascontiguousarray(states[:, :2]), states[ctrl.indices],
                       refs, refs, zeros if applied is None else applied,
-                      zeros if applied_before is None else applied_before)
+                      zeros if applied_before is None else applied_before,
+                      np.ascontiguousarray(states[:, 2]))
 
 
 def only(*names: str) -> SolverSettings:

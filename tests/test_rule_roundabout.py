@@ -26,11 +26,14 @@ DEFAULT = Roundabout()
 
 
 def _directions(positions: list[list[float]], goal: list[float], rule: Roundabout = DEFAULT,
-                required: float = 0.31) -> np.ndarray:
+                required: float = 0.31, headings: np.ndarray | None = None) -> np.ndarray:
     p = np.array(positions, dtype=float)
+    if headings is None:  # everyone but robot 0 faces it (head-on)
+        headings = np.arctan2(p[0, 1] - p[:, 1], p[0, 0] - p[:, 0])
     out = np.full((1, 2), np.nan)
-    roundabout_directions(p, np.array([0]), np.array([goal], dtype=float),
-                          np.full((1, p.shape[0]), required), rule.sense, math.cos(rule.cone),
+    roundabout_directions(p, np.asarray(headings, dtype=float), np.array([0]),
+                          np.array([goal], dtype=float), np.full((1, p.shape[0]), required),
+                          rule.sense, math.cos(rule.cone), math.cos(rule.along),
                           rule.min_crowd, rule.goal_distance, out)
     return out[0]
 
@@ -52,7 +55,8 @@ def test_a_crowd_on_the_path_is_passed_along_its_right_tangent() -> None:
 
 
 @pytest.mark.parametrize("case", ["three ahead", "crowd behind", "crowd beside", "goal near",
-                                  "path clears the crowd", "crowd beyond the goal"])
+                                  "path clears the crowd", "crowd beyond the goal",
+                                  "crowd going the same way"])
 def test_the_rule_is_idle_without_a_crowd_on_the_path(case: str) -> None:
     crowd = np.array(CROWD)
     goal = [8.0, 0.0]
@@ -69,7 +73,10 @@ def test_the_rule_is_idle_without_a_crowd_on_the_path(case: str) -> None:
         crowd = crowd + [1.0, 0.8]
     elif case == "crowd beyond the goal":
         goal = [1.5, 0.0]
-    u = _directions([[0.0, 0.0]] + crowd.tolist(), goal)
+    headings = None
+    if case == "crowd going the same way":  # within 45 degrees of the goal direction
+        headings = np.array([0.0, 0.7, -0.7, 0.3, 0.0])
+    u = _directions([[0.0, 0.0]] + crowd.tolist(), goal, headings=headings)
     np.testing.assert_array_equal(u, [0.0, 0.0])
 
 
@@ -102,7 +109,7 @@ def test_the_references_move_along_the_direction_at_the_reference_speed() -> Non
 
 
 @pytest.mark.parametrize(("field", "value"), [("min_crowd", 0), ("min_crowd", 2.5),
-                                              ("sense", -1.0), ("cone", 1.6),
+                                              ("sense", -1.0), ("cone", 1.6), ("along", 3.2),
                                               ("speed_fraction", 1.5),
                                               ("goal_distance", float("nan"))])
 def test_bad_parameters_are_refused_by_name(field: str, value: float) -> None:
