@@ -99,6 +99,55 @@ def run_swap(n: int, scheme: str, budget: float, settings: SolverSettings | None
     }
 
 
+DESIGN = """## How fleets are handled
+
+**Neighbour slots** (`SolverSettings.neighbour_slots`, `--neighbour-slots`). A robot's QP
+holds a fixed number of collision slots; every sample they are filled with the nearest
+robots within the *interaction radius* `d_jl + margin + 2 v_max N Ts`, and unused slots
+are rows that are off (zero normal, no bound), so the sparsity pattern never changes.
+Why a robot beyond that radius is irrelevant over the horizon: each robot moves at most
+`v_max Ts` per sample, so over the `N` stages of the plan the distance of two robots can
+shrink by at most `2 v_max N Ts`; starting farther apart than `d_jl + margin` plus that,
+every pair of trajectories the two robots can follow within their speed bounds keeps its
+distance at every stage, whatever either plans, so a row between them could never be the
+one that stops a motion. When more robots are within reach than there are slots, the
+nearest get the slots and the rest are handed to the first-input check, which accepts the
+sample's motion only if it keeps `d_jl + v_max Ts` from each of them along the whole
+segment (what they can do within one sample), or else the robot stands still or applies
+its shifted plan: the pair keeps its distance over the sample whatever the unslotted
+robot does (`tests/test_neighbour_slots.py`). The centralized scheme applies the same
+selection to its pair rows: each robot's `slots` nearest pairs within reach get rows on
+every stage, pairs within reach that neither robot chose keep their stage-1 row (the
+sample after next is then covered by the first-input check over every pair), pairs beyond
+reach get none; the pattern still holds every pair and only values change.
+
+**The roundabout rule** (`sqpmpc rules`; `sqpmpc/roundabout.py`). In a dense swap every
+straight path ends in one jam at the centre, which the pairwise rules (keep-right, detour)
+only make rotate slowly in place: before this rule 15/16, 23/32 and 31/64 robots arrived.
+Conflict resolution for many vehicles whose paths cross is classically a roundabout
+(Pallottino, Scordio, Bicchi, Frazzoli, IEEE T-RO 2007, with a proof of liveness): every
+vehicle that meets a conflict zone circles it in the same sense and leaves it where its
+goal lies. Here the zone is sensed, not given: a robot that sees at least 4 robots ahead
+of it (within 3 m, 60 degrees of the direction of its goal) treats them as one disc
+(their centroid, their spread plus the required distance) and, when its straight path
+crosses that disc, heads along the disc's right tangent (inside the disc: around it,
+counter-clockwise). The same deterministic rule in every robot makes them all turn the
+same way, and the crowd becomes a vortex that every robot leaves towards its goal. It
+only shapes references; the rows, the hard stage 1 and the first-input check are as
+before. It never triggers with 3 or fewer other robots, so the paper's scenarios are
+unchanged.
+
+**The solver per problem size** (`qp_solver="auto"`, the default). OSQP's time per QP
+has a long tail on the QPs of crowded robots (hundreds to thousands of ADMM iterations);
+an interior-point method (PIQP) needs about 10 iterations whatever the conditioning, so
+its time per QP is nearly constant. The defaults therefore give the decentralized robots
+of a fleet (more than 8 robots) PIQP with 8 neighbour slots; up to 8 robots everything is
+as before (OSQP, one slot per other robot). The centralized QP of a fleet keeps OSQP,
+whose sparse iterations beat PIQP's factorizations of thousands of rows (swap-32 with 8
+slots: 46 against 186 ms per sample).
+"""
+
+
 def _row(first: object, label: str, r: dict[str, object], n: int) -> str:
     stopped = "" if r["steps"] == r["of"] else f" (stopped after {r['wall']:.0f} s)"
     return (f"| {first} | {label} | {r['steps']} of {r['of']}{stopped} | "
@@ -192,6 +241,9 @@ trip; every run gets {args.budget:g} s of wall clock and is stopped there ("samp
 8 neighbour slots, with PIQP for the decentralized robots and OSQP for the centralized QP.
 
 {machine_line(t0)}
+
+{DESIGN}
+## Swaps
 
 {chr(10).join(lines)}
 

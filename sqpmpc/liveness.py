@@ -217,26 +217,43 @@ class _StallInstance(RuleInstance):
         super().__init__(rule, context)
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self._all = np.ones(context.own.size, dtype=np.bool_)
+        self._still_for = np.zeros(context.own.size, dtype=np.int64)
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
+        goals = np.ascontiguousarray(view.references[:, -1])
+        refs = view.references
+        resting = np.all(np.abs(refs - refs[:, :1]) <= 1e-9, axis=(1, 2))
+        still = (np.abs(view.applied[:, 0]) < self.rule.speed) & resting
+        self._still_for = np.where(still, self._still_for + 1, 0)
+        stuck = self._still_for >= self.rule.patience
+        if stuck.any():  # standing for `patience` samples: whatever the guess plans
+            self.counts["stall_repairs"] += _repair_speeds(
+                speeds, goals, view.own_states, stuck, np.inf, self.rule.distance,
+                self._ahead, self._back)
         self.counts["stall_repairs"] += _repair_speeds(
-            speeds, np.ascontiguousarray(view.references[:, -1]), view.own_states, self._all,
-            self._slow, self.rule.distance, self._ahead, self._back)
+            speeds, goals, view.own_states, ~stuck, self._slow, self.rule.distance,
+            self._ahead, self._back)
 
 
 @dataclass(frozen=True)
 class StallRepair(Rule):
-    """Linearize a stalled robot (every guess ``|v| < speed``, goal farther than
-    ``distance``) at ``v = +-speed`` towards its goal."""
+    """Linearize a stalled robot (every guess ``|v| < speed``; or, with a reference at
+    rest over the horizon, applied ``|v| < speed`` for ``patience`` samples in a row,
+    whatever the guess plans; goal farther than ``distance``) at ``v = +-speed``
+    towards its goal."""
 
     name = "stall-repair"
     summary = "linearize a stopped robot far from its goal at a small speed (v = 0 cannot steer)"
     instance = _StallInstance
     speed: float = 0.05
     distance: float = 0.1
+    patience: int = 10
 
     def __post_init__(self) -> None:
-        check_positive(self, "speed", "distance")
+        check_positive(self, "speed", "distance", "patience")
+        if not isinstance(self.patience, numbers.Integral):
+            raise ProblemError(f"rule 'stall-repair': patience must be an integer, "
+                               f"got {self.patience!r}")
 
 
 @_jit

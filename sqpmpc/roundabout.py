@@ -26,7 +26,9 @@ reference) farther than ``goal_distance``, the *crowd ahead* is the set
 
 with :math:`h_j` robot ``j``'s heading: a robot heading the way this one
 goes is traffic, not a conflict (a formation moving together does not
-circle itself).
+circle itself). A robot within ``goal_distance`` of the point where its
+reference comes to rest has arrived: it is an obstacle to pass (the other
+rules and the rows handle it), not a flow to circle with.
 
 When :math:`|C| \ge` ``min_crowd``, the crowd is the disc of centre
 :math:`c = \operatorname{mean}_{j \in C} p_j` and radius
@@ -64,16 +66,21 @@ _jit = numba.njit(cache=True, nogil=True)
 
 
 @_jit
-def roundabout_directions(positions: np.ndarray, headings: np.ndarray, own: np.ndarray,
-                          goals: np.ndarray, required: np.ndarray, sense: float,
-                          cos_cone: float, cos_along: float, min_crowd: int,
-                          goal_distance: float, directions: np.ndarray) -> int:
+def roundabout_directions(positions: np.ndarray, headings: np.ndarray,
+                          rest_goals: np.ndarray, own: np.ndarray, goals: np.ndarray,
+                          required: np.ndarray, sense: float, cos_cone: float,
+                          cos_along: float, min_crowd: int, goal_distance: float,
+                          directions: np.ndarray) -> int:
     """The roundabout direction of every own robot, or zeros where the rule is idle.
 
     Parameters
     ----------
     positions, headings
         ``(n, 2)`` positions and ``(n,)`` headings of all robots.
+    rest_goals
+        ``(n, 2)`` where each robot's reference comes to rest at the end of the
+        scenario (NaN for references still moving then): a robot within
+        ``goal_distance`` of it has arrived and is not part of a crowd.
     own
         ``(m,)`` indices of the own robots in ``positions``.
     goals
@@ -118,6 +125,9 @@ def roundabout_directions(positions: np.ndarray, headings: np.ndarray, own: np.n
                 continue
             if math.cos(headings[j]) * ux + math.sin(headings[j]) * uy > cos_along:
                 continue  # heading the way this robot goes: traffic, not a conflict
+            if math.hypot(positions[j, 0] - rest_goals[j, 0],
+                          positions[j, 1] - rest_goals[j, 1]) <= goal_distance:
+                continue  # arrived: an obstacle to pass, not a flow to join
             member[j] = True
             count += 1
             cx += positions[j, 0]
@@ -164,6 +174,9 @@ class _RoundaboutInstance(RuleInstance):
         self.offsets = step * np.arange(1, context.horizon + 1, dtype=float)
         self._cos_cone = math.cos(rule.cone)
         self._cos_along = math.cos(rule.along)
+        sc = context.scenario
+        rest = np.hypot(*sc.reference_velocities(sc.t_end).T) == 0.0
+        self.rest_goals = np.where(rest[:, None], sc.reference_positions(sc.t_end), np.nan)
         self._no_headings = np.zeros(context.scenario.n_robots)
 
     def shape_references(self, view: SampleView) -> None:
@@ -175,7 +188,7 @@ class _RoundaboutInstance(RuleInstance):
         else:
             headings, cos_along = view.headings, self._cos_along
         active = roundabout_directions(
-            view.positions, headings, self.context.own,
+            view.positions, headings, self.rest_goals, self.context.own,
             np.ascontiguousarray(view.scenario_references[:, -1]), self.required, r.sense,
             self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
         if not active:
@@ -227,5 +240,6 @@ class Roundabout(Rule):
 
 def warm_up_roundabout() -> None:
     """Compile or load the rule's kernel with the array layouts the rule passes."""
-    roundabout_directions(np.zeros((3, 2)), np.zeros(3), np.arange(2), np.ones((2, 2)),
-                          np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0, np.zeros((2, 2)))
+    roundabout_directions(np.zeros((3, 2)), np.zeros(3), np.full((3, 2), np.nan), np.arange(2),
+                          np.ones((2, 2)), np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0,
+                          np.zeros((2, 2)))

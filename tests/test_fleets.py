@@ -88,3 +88,21 @@ def test_generate_command_writes_a_loadable_file_or_refuses_once(tmp_path: Path)
     assert bad.returncode == 2
     lines = [ln for ln in bad.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "--seed does not apply to 'swap'" in lines[0]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_random_crossing_of_twenty_four_arrives_without_collision(seed: int) -> None:
+    """Decentralized with the default (fleet) settings: 0 collisions at and between
+    samples, every robot within 0.05 m of its goal at the end, counters consistent."""
+    from sqpmpc.metrics import compute_metrics
+    from sqpmpc.simulation import ClosedLoopSimulation
+
+    scenario = random_crossings(24, seed)
+    sim = ClosedLoopSimulation(scenario, "decentralized")
+    record = sim.run()
+    m = compute_metrics(record)
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["input_bound_violations"] == 0
+    goals = scenario.reference_positions(record.t[-1])
+    assert np.all(np.hypot(*(record.states[-1, :, :2] - goals).T) <= 0.05)
+    assert m["counters"]["samples"] == scenario.steps * scenario.n_robots

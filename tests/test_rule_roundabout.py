@@ -26,12 +26,14 @@ DEFAULT = Roundabout()
 
 
 def _directions(positions: list[list[float]], goal: list[float], rule: Roundabout = DEFAULT,
-                required: float = 0.31, headings: np.ndarray | None = None) -> np.ndarray:
+                required: float = 0.31, headings: np.ndarray | None = None,
+                rest_goals: np.ndarray | None = None) -> np.ndarray:
     p = np.array(positions, dtype=float)
     if headings is None:  # everyone but robot 0 faces it (head-on)
         headings = np.arctan2(p[0, 1] - p[:, 1], p[0, 0] - p[:, 0])
     out = np.full((1, 2), np.nan)
-    roundabout_directions(p, np.asarray(headings, dtype=float), np.array([0]),
+    rest = np.full(p.shape, np.nan) if rest_goals is None else np.asarray(rest_goals, float)
+    roundabout_directions(p, np.asarray(headings, dtype=float), rest, np.array([0]),
                           np.array([goal], dtype=float), np.full((1, p.shape[0]), required),
                           rule.sense, math.cos(rule.cone), math.cos(rule.along),
                           rule.min_crowd, rule.goal_distance, out)
@@ -56,7 +58,7 @@ def test_a_crowd_on_the_path_is_passed_along_its_right_tangent() -> None:
 
 @pytest.mark.parametrize("case", ["three ahead", "crowd behind", "crowd beside", "goal near",
                                   "path clears the crowd", "crowd beyond the goal",
-                                  "crowd going the same way"])
+                                  "crowd going the same way", "crowd arrived"])
 def test_the_rule_is_idle_without_a_crowd_on_the_path(case: str) -> None:
     crowd = np.array(CROWD)
     goal = [8.0, 0.0]
@@ -76,7 +78,11 @@ def test_the_rule_is_idle_without_a_crowd_on_the_path(case: str) -> None:
     headings = None
     if case == "crowd going the same way":  # within 45 degrees of the goal direction
         headings = np.array([0.0, 0.7, -0.7, 0.3, 0.0])
-    u = _directions([[0.0, 0.0]] + crowd.tolist(), goal, headings=headings)
+    rest_goals = None
+    if case == "crowd arrived":  # each within 1 m of where its reference rests
+        rest_goals = np.vstack([[np.nan, np.nan], crowd + [0.5, -0.5]])
+    u = _directions([[0.0, 0.0]] + crowd.tolist(), goal, headings=headings,
+                    rest_goals=rest_goals)
     np.testing.assert_array_equal(u, [0.0, 0.0])
 
 

@@ -52,8 +52,42 @@ def test_speed_is_clipped_to_the_bounds() -> None:
     np.testing.assert_array_equal(speeds, 0.6)
 
 
+def test_a_robot_standing_for_its_patience_is_repaired_whatever_its_guess_plans() -> None:
+    """The guess plans to go later (the RTI "wait, then go" of a local minimum); after
+    ``patience`` samples standing with its reference at rest, it is linearized anyway."""
+    sc = fleet([[0.0, 0.0, np.pi]], [[2.0, 0.5]])  # goal behind the heading
+    ctrl = CentralizedController(sc, only().with_rule(StallRepair(patience=3)))
+    inst = ctrl.rule("stall-repair")
+    waiting = np.r_[0.0, np.full(7, 0.6)][None]
+    outs = []
+    for _ in range(3):
+        out = waiting.copy()
+        inst.shape_guess(view(ctrl, sc.initial_states()), out)  # applied v = 0
+        outs.append(out)
+    np.testing.assert_array_equal(outs[0], waiting)
+    np.testing.assert_array_equal(outs[1], waiting)
+    np.testing.assert_array_equal(outs[2], -0.05)  # backwards, towards the goal
+    assert ctrl.counters()["stall_repairs"] == 1
+    # moving (applied v above the speed) resets the count
+    out = waiting.copy()
+    inst.shape_guess(view(ctrl, sc.initial_states(), applied=np.array([[0.3, 0.0]])), out)
+    np.testing.assert_array_equal(out, waiting)
+
+
+def test_patience_needs_a_reference_at_rest() -> None:
+    sc = fleet([[0.0, 0.0, 0.0]], [[2.0, 0.5]])
+    ctrl = CentralizedController(sc, only().with_rule(StallRepair(patience=1)))
+    inst = ctrl.rule("stall-repair")
+    v = view(ctrl, sc.initial_states())
+    v.references = v.references + np.linspace(0.0, 1.0, sc.horizon)[None, :, None]
+    out = np.r_[0.0, np.full(7, 0.6)][None]
+    inst.shape_guess(v, out)
+    assert ctrl.counters()["stall_repairs"] == 0
+
+
 @pytest.mark.parametrize("changes", [{"speed": 0.0}, {"distance": -1.0},
-                                     {"speed": float("inf")}])
+                                     {"speed": float("inf")}, {"patience": 1.5},
+                                     {"patience": 0}])
 def test_bad_parameters_are_refused_by_name(changes: dict[str, float]) -> None:
     with pytest.raises(ProblemError, match="stall-repair"):
         StallRepair(**changes)
