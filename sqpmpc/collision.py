@@ -47,6 +47,8 @@ compiled kernels of :mod:`sqpmpc.kernels`.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .kernels import (
@@ -54,6 +56,7 @@ from .kernels import (
     obstacle_rows,
     pair_rows,
     pairs_keep_distance,
+    segment_keeps_distance,
     select_pairs,
     shared_rows,
 )
@@ -226,6 +229,7 @@ class ExternalCollisionModel:
         self._margin = float(margin)
         self.unslotted = np.zeros((0, 2))
         self.unslotted_distance = np.zeros(0)
+        self._unslotted_keep = np.zeros(0)
 
     def set_required(self, required: np.ndarray) -> None:
         """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
@@ -240,8 +244,9 @@ class ExternalCollisionModel:
         whatever such a neighbour does within its bounds, the pair keeps its
         distance over the sample.
         """
-        self.unslotted = np.asarray(positions, dtype=float).reshape(-1, 2)
+        self.unslotted = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
         self.unslotted_distance = np.asarray(required, dtype=float)
+        self._unslotted_keep = self.unslotted_distance + self.reach
 
     def set_sample(self, current_self: np.ndarray, current_others: np.ndarray,
                    own_prediction: np.ndarray, other_predictions: np.ndarray,
@@ -325,17 +330,16 @@ class ExternalCollisionModel:
             d = p - self.obstacles[obst, 0, :2]
             if (np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance).any():
                 return False
-        moved = np.hypot(*(p - self.current_self)) > 1e-12
+        x0, y0 = float(self.current_self[0]), float(self.current_self[1])
+        x1, y1 = float(p[0]), float(p[1])
+        moved = math.hypot(x1 - x0, y1 - y0) > 1e-12
         if self._any_missing and moved:
             missing = self.kind == MISSING
-            others = self.current_others[missing]
-            keep = self.safe_distance[missing] + self.reach
-            if (segment_distances(self.current_self - others, p - others)
-                    < keep - tolerance).any():
+            if not segment_keeps_distance(
+                    x0, y0, x1, y1, np.ascontiguousarray(self.current_others[missing]),
+                    self.safe_distance[missing] + self.reach, tolerance):
                 return False
-        if self.unslotted.shape[0] and moved:
-            others = self.unslotted
-            if (segment_distances(self.current_self - others, p - others)
-                    < self.unslotted_distance + self.reach - tolerance).any():
-                return False
+        if self.unslotted.shape[0] and moved and not segment_keeps_distance(
+                x0, y0, x1, y1, self.unslotted, self._unslotted_keep, tolerance):
+            return False
         return True

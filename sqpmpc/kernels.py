@@ -34,6 +34,7 @@ __all__ = [
     "clip_and_roll_out",
     "clip_bounds",
     "halfplanes_hold",
+    "segment_keeps_distance",
     "euler_defect_l1",
     "kkt_residual",
     "nearest_within",
@@ -41,6 +42,7 @@ __all__ = [
     "shift_iterate",
     "stage_one_override",
     "shift_plan",
+    "split_rows",
     "write_reference",
     "rows_shortfall",
     "euler_linearize",
@@ -151,6 +153,55 @@ def halfplanes_hold(normals: np.ndarray, rhs: np.ndarray, x: float, y: float,
         if normals[e, 0] * x + normals[e, 1] * y < rhs[e] - tolerance:
             return False
     return True
+
+
+@_jit
+def segment_keeps_distance(x0: float, y0: float, x1: float, y1: float, points: np.ndarray,
+                           keep: np.ndarray, tolerance: float) -> bool:
+    r"""Whether the segment :math:`(x_0, y_0) \to (x_1, y_1)` keeps ``keep[u] - tolerance``
+    from every ``points[u]`` (the point-segment distance, as
+    :func:`sqpmpc.collision.segment_distances`)."""
+    dx, dy = x1 - x0, y1 - y0
+    den = dx * dx + dy * dy
+    for u in range(points.shape[0]):
+        rx, ry = x0 - points[u, 0], y0 - points[u, 1]
+        s = 0.0
+        if den > 0.0:
+            s = min(max(-(rx * dx + ry * dy) / den, 0.0), 1.0)
+        if math.hypot(rx + s * dx, ry + s * dy) < keep[u] - tolerance:
+            return False
+    return True
+
+
+@_jit
+def split_rows(A_values: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               eq_entries: np.ndarray, g_entries: np.ndarray, g_rows: np.ndarray,
+               eq_rows: np.ndarray, ineq_rows: np.ndarray, free: float, infinity: float,
+               A_eq_data: np.ndarray, G_data: np.ndarray, b: np.ndarray, h_l: np.ndarray,
+               h_u: np.ndarray) -> None:
+    r"""The QP's rows as equalities :math:`A_e z = b` and inequalities
+    :math:`h_l \le G z \le h_u` (PIQP's form), values written into the given arrays.
+
+    ``eq_entries``/``g_entries`` map each CSC entry of :math:`A_e`/:math:`G` to
+    its entry in ``A_values``; ``g_rows`` is the row (in :math:`G`) of each
+    entry of :math:`G`. A row with both bounds beyond ``free`` is off: its
+    entries become 0 and its bounds :math:`[-1, 1]`; other bounds are clipped to
+    ``infinity``.
+    """
+    for e in range(eq_entries.shape[0]):
+        A_eq_data[e] = A_values[eq_entries[e]]
+    for r in range(eq_rows.shape[0]):
+        b[r] = upper[eq_rows[r]]
+    for r in range(ineq_rows.shape[0]):
+        lo, up = lower[ineq_rows[r]], upper[ineq_rows[r]]
+        if lo <= -free and up >= free:
+            h_l[r], h_u[r] = -1.0, 1.0
+        else:
+            h_l[r], h_u[r] = max(lo, -infinity), min(up, infinity)
+    for e in range(g_entries.shape[0]):
+        r = ineq_rows[g_rows[e]]
+        off = lower[r] <= -free and upper[r] >= free
+        G_data[e] = 0.0 if off else A_values[g_entries[e]]
 
 
 @_jit
@@ -670,6 +721,10 @@ def warm_up() -> float:
     shift_plan(np.zeros((3, 3)), np.zeros((2, 2)), 0.1, np.empty((2, 3)))
     clip_and_roll_out(x, np.zeros((2, 2, 2)), -np.ones(2), np.ones(2), 0.1, np.empty((2, 3, 3)))
     halfplanes_hold(np.zeros((1, 2)), np.zeros(1), 0.0, 0.0, 1e-12)
+    segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12)
+    one = np.zeros(1, dtype=np.int64)
+    split_rows(np.ones(2), np.zeros(2), np.ones(2), one, one + 1, one, one, one + 1, 1e20, 1e30,
+               np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
     z = np.zeros(2 * 13)
     euler_linearize(z, 2, 2, 13, 0.1, np.empty(20), np.empty(20), np.empty(12), np.empty(12))
     rot = np.tile([1.0, 0.0], (2, 1))

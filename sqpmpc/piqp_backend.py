@@ -29,6 +29,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from .kernels import split_rows
 from .layout import QPLayout
 from .qp import BackendSolution
 
@@ -68,6 +69,10 @@ class PIQPBackend:
                             shape=(L.n_con, L.n_var))
         self.A_eq, self._eq_entries = _block(ids, self.eq_rows)
         self.G, self._g_entries = _block(ids, self.ineq_rows)
+        self._g_rows = np.ascontiguousarray(self.G.indices, dtype=np.int64)
+        self._b = np.zeros(self.eq_rows.size)
+        self._h_l = np.zeros(self.ineq_rows.size)
+        self._h_u = np.zeros(self.ineq_rows.size)
         self.P = L.csc(np.ones(L.P_nnz), "P")
         self._P_entries = np.argsort(L.P_order)  # CSC position -> entry index
         self.settings = (eps_abs, eps_rel, max_iter)
@@ -80,18 +85,10 @@ class PIQPBackend:
         ``P`` is handed over again only when ``P_changed``."""
         if P_changed or self.solver is None:
             self.P.data[:] = P_values[self._P_entries]
-        self.A_eq.data[:] = A_values[self._eq_entries]
-        self.G.data[:] = A_values[self._g_entries]
-        b = upper[self.eq_rows]
-        h_l = lower[self.ineq_rows]
-        h_u = upper[self.ineq_rows]
-        free = (h_l <= -_FREE) & (h_u >= _FREE)
-        if free.any():  # rows that are off (free neighbour slots): 0 in [-1, 1]
-            self.G.data[free[self.G.indices]] = 0.0
-            h_l = np.where(free, -1.0, h_l)
-            h_u = np.where(free, 1.0, h_u)
-        h_l = np.maximum(h_l, -_INFINITY)
-        h_u = np.minimum(h_u, _INFINITY)
+        b, h_l, h_u = self._b, self._h_l, self._h_u
+        split_rows(A_values, lower, upper, self._eq_entries, self._g_entries, self._g_rows,
+                   self.eq_rows, self.ineq_rows, _FREE, _INFINITY, self.A_eq.data, self.G.data,
+                   b, h_l, h_u)
         t0 = time.perf_counter()
         if self.solver is None:
             solver = self._piqp.SparseSolver()

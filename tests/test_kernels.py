@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from sqpmpc import kernels
 from sqpmpc.collision import segment_distances
@@ -182,3 +183,47 @@ def test_pair_rows_beyond_their_stages_are_off() -> None:
     np.testing.assert_array_equal(A[1, 1:], 0.0)
     np.testing.assert_array_equal(A[2], 0.0)
     assert np.all(lo[1, 1:] == -np.inf) and np.all(lo[2] == -np.inf)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_segment_keeps_distance_is_the_segment_distance_test(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-2.0, 2.0, (40, 2))
+    for _ in range(20):
+        a, b = rng.uniform(-2.0, 2.0, 2), rng.uniform(-2.0, 2.0, 2)
+        if _ % 5 == 0:
+            b = a.copy()  # standing still: the point distance
+        keep = rng.uniform(0.1, 1.0, points.shape[0])
+        expected = bool(np.all(segment_distances(a - points, b - points) >= keep - 1e-12))
+        assert kernels.segment_keeps_distance(a[0], a[1], b[0], b[1], points, keep,
+                                              1e-12) == expected
+
+
+def test_split_rows_gives_piqp_equalities_inequalities_and_off_rows() -> None:
+    rng = np.random.default_rng(3)
+    n_rows = 6
+    A = sp.random(n_rows, 5, density=0.6, random_state=4, format="csr")
+    A.data[:] = rng.normal(size=A.nnz)
+    lower = np.array([1.0, -np.inf, -2.0, -np.inf, 0.5, -3.0])
+    upper = np.array([1.0, np.inf, 4.0, 7.0, 0.5, 1e25])
+    eq_rows, ineq_rows = np.array([0, 4]), np.array([1, 2, 3, 5])
+    ids = sp.csr_matrix((np.arange(1, A.nnz + 1, dtype=float), A.nonzero()), shape=A.shape)
+    A_eq_ids, G_ids = ids[eq_rows].tocsc(), ids[ineq_rows].tocsc()
+    eq_entries = A_eq_ids.data.astype(np.int64) - 1
+    g_entries = G_ids.data.astype(np.int64) - 1
+    values = A.tocoo()
+    entry_values = np.zeros(A.nnz)
+    order = np.lexsort((values.col, values.row))  # ids were numbered in this order
+    entry_values[:] = values.data[order]
+    A_eq_data, G_data = np.zeros(eq_entries.size), np.zeros(g_entries.size)
+    b, h_l, h_u = np.zeros(2), np.zeros(4), np.zeros(4)
+    kernels.split_rows(entry_values, lower, upper, eq_entries, g_entries,
+                       G_ids.indices.astype(np.int64), eq_rows, ineq_rows, 1e20, 1e30,
+                       A_eq_data, G_data, b, h_l, h_u)
+    np.testing.assert_array_equal(b, [1.0, 0.5])
+    np.testing.assert_array_equal(h_l, [-1.0, -2.0, -1e30, -3.0])
+    np.testing.assert_array_equal(h_u, [1.0, 4.0, 7.0, 1e25])
+    np.testing.assert_array_equal(A_eq_data, entry_values[eq_entries])
+    off = G_ids.indices == 0  # row 1 of the QP: free on both sides
+    np.testing.assert_array_equal(G_data[off], 0.0)
+    np.testing.assert_array_equal(G_data[~off], entry_values[g_entries][~off])
