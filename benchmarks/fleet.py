@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.fleets import antipodal_swap, random_crossings
+from sqpmpc.fleets import antipodal_swap, grid_to_grid, random_crossings
 from sqpmpc.metrics import compute_metrics
 from sqpmpc.scenario import Scenario
 from sqpmpc.settings import FLEET_ROBOTS, SolverSettings
@@ -55,6 +55,7 @@ __all__ = ["main", "run_swap"]
 
 DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "fleet.md"
 SIZES = (4, 8, 16, 32, 64)
+GRIDS = ((4, 4), (6, 6))
 
 
 #: (label, scheme, settings fields, smallest fleet it runs on)
@@ -136,10 +137,26 @@ of it (within 3 m, 60 degrees of the direction of its goal) treats them as one d
 (their centroid, their spread plus the required distance) and, when its straight path
 crosses that disc, heads along the disc's right tangent (inside the disc: around it,
 counter-clockwise). The same deterministic rule in every robot makes them all turn the
-same way, and the crowd becomes a vortex that every robot leaves towards its goal. It
-only shapes references; the rows, the hard stage 1 and the first-input check are as
-before. It never triggers with 3 or fewer other robots, so the paper's scenarios are
-unchanged.
+same way, and the crowd becomes a vortex that every robot leaves towards its goal. Robots
+heading within 45 degrees of this robot's way are traffic, not a crowd (a formation
+moving together would otherwise circle itself), and robots within 1 m of where their
+reference rests have arrived: obstacles to pass, not a flow to join. It only shapes
+references; the rows, the hard stage 1 and the first-input check are as before. It never
+triggers with 3 or fewer other robots, so the paper's scenarios are unchanged.
+
+**Stall repair with patience.** In random crossings a robot could stand for the rest of
+the run 2.6 m from its goal with nobody within 1.5 m: its RTI iterate planned "stand now,
+go later" every sample (a local minimum of the linearized problem with its goal behind
+it). `stall-repair` now also re-linearizes at a small speed towards the goal a robot that
+has stood for 10 samples with its reference at rest, whatever its guess plans. With it the
+random crossings of 32 robots arrive on seeds 0-29 (8 of the first 10 before). A
+priority rule (of two robots stopped against each other, the larger id steps aside) was
+tried as well and dropped: 29 of 30 seeds against 30 of 30 without it.
+
+**Known limit: grid-to-grid formations.** A formation sent onto a mirrored formation
+(`sqpmpc generate grid`) does not always fill completely: robots that arrive first can
+wall in the deeper goals (the table below). The robots stay safe; what is missing is an
+ordering of the arrivals (goal assignment or sequencing), which no local rule gives.
 
 **The solver per problem size** (`qp_solver="auto"`, the default). OSQP's time per QP
 has a long tail on the QPs of crowded robots (hundreds to thousands of ADMM iterations);
@@ -258,10 +275,20 @@ def main(argv: list[str] | None = None) -> int:
         r = run_swap(sc.n_robots, "decentralized", args.budget, SolverSettings(), sc)
         crossings.append(_row(seed, "decentralized, defaults", r, sc.n_robots))
         print(crossings[-1], file=sys.stderr)
+    grids = [head.replace("| robots |", "| formation |"), lines[1]]
+    for rows, cols in GRIDS:
+        sc = grid_to_grid(rows, cols)
+        r = run_swap(sc.n_robots, "decentralized", args.budget, SolverSettings(), sc)
+        grids.append(_row(f"{rows} x {cols}", "decentralized, defaults", r, sc.n_robots))
+        print(grids[-1], file=sys.stderr)
     crossing_section = "" if not args.crossings else f"""
 ## Random crossings of {args.crossing_robots} robots (`sqpmpc generate crossings`)
 
 {chr(10).join(crossings)}
+
+## Grid-to-grid formations (`sqpmpc generate grid`, the known limit)
+
+{chr(10).join(grids)}
 """
     report = f"""# Fleets: antipodal swaps of {args.sizes[0]} to {args.sizes[-1]} robots
 
