@@ -130,7 +130,7 @@ reach get none; the pattern still holds every pair and only values change.
 straight path ends in one jam at the centre, which the pairwise rules (keep-right, detour)
 only make rotate slowly in place: before this rule 15/16, 23/32 and 31/64 robots arrived.
 Conflict resolution for many vehicles whose paths cross is classically a roundabout
-(Pallottino, Scordio, Bicchi, Frazzoli, IEEE T-RO 2007, with a proof of liveness): every
+(Pallottino, Scordio, Bicchi, Frazzoli, IEEE T-RO 2007, with conditions for liveness): every
 vehicle that meets a conflict zone circles it in the same sense and leaves it where its
 goal lies. Here the zone is sensed, not given: a robot that sees at least 4 robots ahead
 of it (within 3 m, 60 degrees of the direction of its goal) treats them as one disc

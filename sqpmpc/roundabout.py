@@ -8,8 +8,9 @@ classical cure for many vehicles whose paths cross is a *roundabout*: every
 vehicle that meets a conflict zone circles it in the same sense and leaves it
 where its own goal lies (Pallottino, Scordio, Bicchi and Frazzoli,
 "Decentralized cooperative policy for conflict resolution in multivehicle
-systems", IEEE T-RO 23(6), 2007, who prove liveness of such a policy for
-many vehicles; the traffic roundabout is its everyday form). Here the
+systems", IEEE T-RO 23(6), 2007, who give conditions under which such a
+policy is safe and live for many vehicles; the traffic roundabout is its
+everyday form). Here the
 conflict zone is sensed, not given: each robot looks at the robots ahead of
 it, and the same deterministic rule in every robot makes them all turn the
 same way.
