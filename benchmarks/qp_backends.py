@@ -170,8 +170,12 @@ def _split(c: CapturedQP) -> tuple[sp.csc_matrix, np.ndarray, sp.csc_matrix, np.
                                    np.ndarray]:
     eq = c.lower == c.upper
     A = c.A.tocsr()
-    return (A[eq].tocsc(), c.upper[eq], A[~eq].tocsc(), np.maximum(c.lower[~eq], -_INF),
-            np.minimum(c.upper[~eq], _INF))
+    lo, up = c.lower[~eq], c.upper[~eq]
+    free = (lo <= -1e20) & (up >= 1e20)  # off rows, handed over as 0 in [-1, 1] (as the library)
+    G = A[~eq].tocsr()
+    G.data[free[np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))]] = 0.0
+    return (A[eq].tocsc(), c.upper[eq], G.tocsc(), np.where(free, -1.0, np.maximum(lo, -_INF)),
+            np.where(free, 1.0, np.minimum(up, _INF)))
 
 
 def replay_piqp(qps: list[CapturedQP]) -> Replay:
@@ -183,6 +187,7 @@ def replay_piqp(qps: list[CapturedQP]) -> Replay:
 
     solver = piqp.SparseSolver()
     solver.settings.eps_abs = solver.settings.eps_rel = 1e-6
+    solver.settings.preconditioner_reuse_on_update = True  # as the library
     Ae, be, G, hl, hu = _split(qps[0])
     solver.setup(full(qps[0].P), qps[0].q, Ae, be, G, hl, hu)
     parts = [(full(c.P), _split(c)) for c in qps]  # conversions outside the timing
