@@ -197,6 +197,25 @@ def _repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
     return repaired
 
 
+@_jit
+def _standing(references: np.ndarray, applied: np.ndarray, speed: float, patience: int,
+              still_for: np.ndarray, stuck: np.ndarray) -> bool:
+    """Count the samples each robot has applied ``|v| < speed`` with its references
+    ``(m, N, 2)`` at rest (``still_for``, in place); ``stuck`` those at ``patience``."""
+    any_stuck = False
+    for r in range(references.shape[0]):
+        rest = True
+        for i in range(references.shape[1]):
+            if (abs(references[r, i, 0] - references[r, 0, 0]) > 1e-9
+                    or abs(references[r, i, 1] - references[r, 0, 1]) > 1e-9):
+                rest = False
+                break
+        still_for[r] = still_for[r] + 1 if rest and abs(applied[r, 0]) < speed else 0
+        stuck[r] = still_for[r] >= patience
+        any_stuck = any_stuck or stuck[r]
+    return any_stuck
+
+
 def _repair_speeds_within_bounds(context: RuleContext, speed: float
                                  ) -> tuple[float, float, float]:
     """Forward and backward repair speeds clipped to the bounds, and the "stalled" threshold.
@@ -218,15 +237,14 @@ class _StallInstance(RuleInstance):
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self._all = np.ones(context.own.size, dtype=np.bool_)
         self._still_for = np.zeros(context.own.size, dtype=np.int64)
+        self._stuck = np.zeros(context.own.size, dtype=np.bool_)
 
     def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
         goals = np.ascontiguousarray(view.references[:, -1])
-        refs = view.references
-        resting = np.all(np.abs(refs - refs[:, :1]) <= 1e-9, axis=(1, 2))
-        still = (np.abs(view.applied[:, 0]) < self.rule.speed) & resting
-        self._still_for = np.where(still, self._still_for + 1, 0)
-        stuck = self._still_for >= self.rule.patience
-        if stuck.any():  # standing for `patience` samples: whatever the guess plans
+        stuck = self._stuck
+        # standing for `patience` samples with the reference at rest: whatever the guess plans
+        if _standing(view.references, view.applied, self.rule.speed, self.rule.patience,
+                     self._still_for, stuck):
             self.counts["stall_repairs"] += _repair_speeds(
                 speeds, goals, view.own_states, stuck, np.inf, self.rule.distance,
                 self._ahead, self._back)
@@ -399,6 +417,8 @@ def warm_up_rules() -> None:
     _repair_speeds(speeds, np.ones((2, 2)), states, np.ones(2, dtype=np.bool_), 0.05, 0.1,
                    0.05, -0.05)
     _parking_mask(np.zeros((2, 3, 2)), np.zeros((2, 3)), 1.0, np.zeros(2, dtype=np.bool_))
+    _standing(np.zeros((2, 3, 2)), np.zeros((2, 2)), 0.05, 10, np.zeros(2, dtype=np.int64),
+              np.zeros(2, dtype=np.bool_))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
     hold_touching_rows(np.zeros(2), np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
                        np.zeros((1, 2)))
