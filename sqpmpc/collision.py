@@ -42,7 +42,7 @@ distance on its own side of the mid-line: :math:`n^\top p_j \ge c + d/2` and
 stage 1 the offset :math:`c` is clipped so that each current position stays on
 its side. The row geometry (rotation, turn limit, holding) comes from the
 rules through :class:`sqpmpc.rules.RowGeometry`; the rows are built by the
-compiled kernels of :mod:`sqpmpc.kernels`.
+compiled kernels of :mod:`sqpmpc.collision_kernels`.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ import math
 
 import numpy as np
 
-from .kernels import (
+from .collision_kernels import (
     halfplanes_hold,
     obstacle_rows,
     pair_rows,
@@ -138,7 +138,8 @@ class PairwiseCollisionModel:
 
     def select(self, radius: np.ndarray, slots: int) -> tuple[int, int]:
         """Neighbour slots for the pair rows at the current positions (see
-        :func:`sqpmpc.kernels.select_pairs`); returns the full and stage-1-only pair counts."""
+        :func:`sqpmpc.collision_kernels.select_pairs`); returns the full and stage-1-only
+        pair counts."""
         return select_pairs(self.pairs, self.current_positions, radius, slots,
                             self.geometry.rotation.shape[0], self.stages)
 

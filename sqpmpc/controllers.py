@@ -33,8 +33,9 @@ from .collision import (
     ExternalCollisionModel,
     PairwiseCollisionModel,
 )
+from .collision_kernels import nearest_within
 from .errors import ProblemError
-from .kernels import nearest_within, shift_plan
+from .kernels import shift_plan
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
 from .pipeline import ControllerPipeline, ControlOutput, braking_input

@@ -85,7 +85,7 @@ class SolverSettings:
         (:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`).
         Centralized: each robot's nearest pairs get rows on every stage, the
         other pairs within reach on stage 1 only
-        (:func:`sqpmpc.kernels.select_pairs`). ``"auto"`` (default):
+        (:func:`sqpmpc.collision_kernels.select_pairs`). ``"auto"`` (default):
         :data:`FLEET_NEIGHBOUR_SLOTS` on scenarios of more than
         :data:`FLEET_ROBOTS` robots, else ``None``.
     qp_solver

@@ -1,4 +1,5 @@
-"""The compiled kernels against the NumPy reference implementations of the same maths."""
+"""The compiled kernels (model, QP and collision) against the NumPy reference implementations
+of the same maths."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from sqpmpc import kernels
+from sqpmpc import collision_kernels, kernels
 from sqpmpc.collision import segment_distances
 from sqpmpc.layout import A_PATTERN, B_PATTERN, QPLayout
 from sqpmpc.model import discrete_dynamics, discrete_jacobians, rollout
@@ -60,8 +61,8 @@ def test_pair_rows_are_unit_normals_and_keep_stopping_feasible() -> None:
     required = np.full(4, 0.5)
     rotation = np.tile([np.cos(0.3), np.sin(0.3)], (N, 1))
     A, lo = np.empty((4, N, 4)), np.empty((4, N))
-    kernels.pair_rows(pairs, now, states, required, rotation, 0.6, A, lo, np.empty((N, 2)),
-                      np.full(pairs.shape[0], N, dtype=np.int64))
+    collision_kernels.pair_rows(pairs, now, states, required, rotation, 0.6, A, lo,
+                                np.empty((N, 2)), np.full(pairs.shape[0], N, dtype=np.int64))
     np.testing.assert_allclose(np.hypot(A[..., 0], A[..., 1]), 1.0, atol=1e-12)
     np.testing.assert_array_equal(A[..., 2:], -A[..., :2])
     # standing still satisfies stage 1 (the stage-one-override safety row)
@@ -75,9 +76,9 @@ def test_pairs_keep_distance_is_the_segment_distance() -> None:
     pairs = np.array([[i, j] for i in range(5) for j in range(i + 1, 5)], dtype=np.int64)
     d = segment_distances(now[pairs[:, 0]] - now[pairs[:, 1]],
                           nxt[pairs[:, 0]] - nxt[pairs[:, 1]])
-    assert kernels.pairs_keep_distance(pairs, now, nxt, d - 1e-9)
+    assert collision_kernels.pairs_keep_distance(pairs, now, nxt, d - 1e-9)
     worst = int(np.argmin(d))
-    assert not kernels.pairs_keep_distance(pairs[worst:worst + 1], now, nxt,
+    assert not collision_kernels.pairs_keep_distance(pairs[worst:worst + 1], now, nxt,
                                            d[worst:worst + 1] + 1e-9)
 
 
@@ -137,8 +138,8 @@ def test_nearest_within_matches_a_stable_sort_of_the_distances(seed: int) -> Non
     for slots in (0, 3, 8, 40):
         chosen = np.full(min(slots, others.size), -1, dtype=np.int64)
         rest = np.full(others.size, -1, dtype=np.int64)
-        used, extra = kernels.nearest_within(positions[0], positions, others, radius, chosen,
-                                             rest)
+        used, extra = collision_kernels.nearest_within(positions[0], positions, others, radius,
+                                                       chosen, rest)
         assert used + extra == expected.size
         np.testing.assert_array_equal(np.concatenate([chosen[:used], rest[:extra]]), expected)
 
@@ -163,7 +164,7 @@ def test_select_pairs_gives_each_robot_its_nearest_pairs_and_stage_one_to_the_re
     radius = rng.uniform(2.0, 5.0, pairs.shape[0])
     for slots in (1, 3, 20):
         stages = np.full(pairs.shape[0], -1, dtype=np.int64)
-        full, first = kernels.select_pairs(pairs, positions, radius, slots, N, stages)
+        full, first = collision_kernels.select_pairs(pairs, positions, radius, slots, N, stages)
         np.testing.assert_array_equal(
             stages, _select_pairs_reference(pairs, positions, radius, slots, N))
         assert (full, first) == (np.count_nonzero(stages == N), np.count_nonzero(stages == 1))
@@ -176,7 +177,7 @@ def test_pair_rows_beyond_their_stages_are_off() -> None:
     pairs = np.array([[0, 1], [0, 2], [1, 2]], dtype=np.int64)
     rotation = np.tile([1.0, 0.0], (N, 1))
     A, lo = np.full((3, N, 4), 7.0), np.full((3, N), 7.0)
-    kernels.pair_rows(pairs, now, states, np.full(3, 0.5), rotation, -1.0, A, lo,
+    collision_kernels.pair_rows(pairs, now, states, np.full(3, 0.5), rotation, -1.0, A, lo,
                       np.empty((N, 2)), np.array([N, 1, 0], dtype=np.int64))
     assert np.all(np.isfinite(lo[0])) and np.all(A[0, :, :2] != 0.0)
     assert np.isfinite(lo[1, 0]) and np.all(A[1, 0] != 0.0)
@@ -195,7 +196,7 @@ def test_segment_keeps_distance_is_the_segment_distance_test(seed: int) -> None:
             b = a.copy()  # standing still: the point distance
         keep = rng.uniform(0.1, 1.0, points.shape[0])
         expected = bool(np.all(segment_distances(a - points, b - points) >= keep - 1e-12))
-        assert kernels.segment_keeps_distance(a[0], a[1], b[0], b[1], points, keep,
+        assert collision_kernels.segment_keeps_distance(a[0], a[1], b[0], b[1], points, keep,
                                               1e-12) == expected
 
 
