@@ -510,8 +510,10 @@ class _DetourInstance(RuleInstance):
             b = self.blocker[i]
             away = positions[own[i]] - positions[b]
             away = away / max(np.hypot(*away), 1e-12)
-            out[i] = positions[b] + r.radius_factor * self.required[own[i], b] * (
-                self._turn @ away)
+            # still blocked after each `hold` samples of detour: a wider one
+            rounds = max(0, int(self.blocked_for[i]) - self.patience) // r.hold
+            factor = min(r.radius_factor + r.escalation * rounds, r.max_factor)
+            out[i] = positions[b] + factor * self.required[own[i], b] * (self._turn @ away)
         view.references = out
 
 
@@ -528,7 +530,10 @@ class Detour(Rule):
     samples (renewed while blocked), the point at ``radius_factor`` times the
     required distance from the blocker, ``angle`` to the right of the
     direction from the blocker to itself: two robots doing so pass on their
-    right.
+    right. A robot still blocked after each further ``hold`` samples widens
+    its detour by ``escalation`` (up to ``max_factor``): at the default 60
+    degrees and factor 2 the target lies on the pair's mid-line, which two
+    robots pressed together with a third beside them cannot always leave.
     """
 
     name = "detour"
@@ -542,10 +547,16 @@ class Detour(Rule):
     hold: int = 6
     radius_factor: float = 2.0
     angle: float = float(np.deg2rad(60.0))
+    escalation: float = 0.5
+    max_factor: float = 4.0
 
     def __post_init__(self) -> None:
         check_positive(self, "speed", "reach", "cone", "patience", "patience_centralized",
-                       "hold", "radius_factor", "angle")
+                       "hold", "radius_factor", "angle", "max_factor")
+        check_positive(self, "escalation", allow_zero=True)
+        if self.max_factor < self.radius_factor:
+            raise ProblemError(f"rule 'detour': max_factor ({self.max_factor}) must be at "
+                               f"least radius_factor ({self.radius_factor})")
         for name in ("patience", "patience_centralized", "hold"):
             if not isinstance(getattr(self, name), numbers.Integral):
                 raise ProblemError(f"rule 'detour': {name} must be an integer, "

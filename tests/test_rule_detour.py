@@ -65,7 +65,25 @@ def test_centralized_controller_waits_longer() -> None:
     assert inst.patience == Detour().patience_centralized > Detour().patience
 
 
+def test_a_robot_still_blocked_widens_its_detour_each_hold() -> None:
+    ctrl = _decentralized(Detour(patience=2, hold=3, escalation=0.5, max_factor=3.0))
+    inst = ctrl.rule("detour")
+    states = np.array(STARTS)
+    D = ctrl.scenario.required_distances()[0, 1]
+    blocker = states[1, :2]
+    radii = []
+    for _ in range(14):  # never moves: blocked every sample
+        v = view(ctrl, states)
+        inst.shape_references(v)
+        if inst.active_for[0]:
+            radii.append(np.hypot(*(v.references[0, 0] - blocker)) / D)
+    # blocked samples 2-4: factor 2; 5-7: 2.5; 8-10: 3; then capped at max_factor 3
+    np.testing.assert_allclose(radii, [2.0] * 3 + [2.5] * 3 + [3.0] * 7)
+    assert ctrl.counters()["detour_activations"] == 1
+
+
 @pytest.mark.parametrize("changes", [{"patience": 0}, {"hold": 2.5}, {"cone": -1.0},
+                                     {"escalation": -0.1}, {"max_factor": 1.5},
                                      {"radius_factor": float("inf")}])
 def test_bad_parameters_are_refused_by_name(changes: dict[str, float]) -> None:
     with pytest.raises(ProblemError, match="detour"):
