@@ -32,6 +32,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.decomposition
 	$(BIN)/python -m benchmarks.qp_backends
 	$(BIN)/python -m benchmarks.fleet
+	$(BIN)/python -m benchmarks.fleet_services
 	$(BIN)/python -m benchmarks.bench_services
 
 clean:

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.controllers import CentralizedController, DecentralizedController
-from sqpmpc.qp import QP_SOLVERS, OSQPSettings
+from sqpmpc.qp import OSQPSettings
 from sqpmpc.registry import add_rule_arguments, rules_from_arguments
 from sqpmpc.scenario import Scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_argument
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import POLL, Node
@@ -40,11 +40,13 @@ def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str)
                              "is a counted fallback")
     parser.add_argument("--startup-timeout", type=float, default=None,
                         help="give up when no state came within this time, s (default: wait)")
-    parser.add_argument("--neighbour-slots", type=int, default=None,
+    parser.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
+                        metavar="N|all|auto",
                         help="decentralized: collision slots per robot, filled with the "
-                             "nearest neighbours within reach (default: one per robot)")
-    parser.add_argument("--qp-solver", choices=QP_SOLVERS, default="osqp",
-                        help="QP backend (default osqp)")
+                             "nearest neighbours within reach; 'all': one per other robot; "
+                             "'auto' (default): as sqpmpc run")
+    parser.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
+                        help="QP backend (default auto: as sqpmpc run)")
     add_rule_arguments(parser)
 
 

@@ -2,11 +2,15 @@
 
 ``python -m services.launch --scenario S --scheme centralized|decentralized [--out DIR]
 [--mode lockstep|realtime] [--decentralized-mode shared|paper] [--t-end T]
-[--sample-time TS] [--no-plots] [--pin-cpus]``
+[--sample-time TS] [--no-plots] [--pin-cpus] [--neighbour-slots K]
+[--robots-per-process K] [--all-plans]``
 
 Every process is a Zenoh peer on loopback only (multicast scouting off): the
 plant listens on a free port chosen at start, each controller listens on its
-own and connects to the plant (peers find each other through it). The
+own and connects to the plant (peers find each other through it). With
+``--robots-per-process K`` one process hosts K robots' controllers, each with
+its own thread and its own Zenoh session on a free loopback port
+(:func:`services.robot.host`); the default is one process per robot. The
 launcher opens no Zenoh session itself. Each child runs in its own process
 group (in the launcher's session: a terminal's Ctrl-C reaches the launcher
 only, and the children share one scheduling autogroup, which matters on few
@@ -36,9 +40,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.qp import QP_SOLVERS
 from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
-from sqpmpc.settings import SolverSettings
+from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_argument
 
 from .node import install_signal_handlers, scenario_from_args
 from .plant import summarize
@@ -162,10 +165,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--pin-cpus", action="store_true",
                         help="pin each controller to one CPU (round robin)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
-    parser.add_argument("--neighbour-slots", type=int, default=None,
-                        help="decentralized: collision slots per robot (default: one per robot)")
-    parser.add_argument("--qp-solver", choices=QP_SOLVERS, default="osqp",
-                        help="QP backend of the controllers (default osqp)")
+    parser.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
+                        metavar="N|all|auto",
+                        help="decentralized: collision slots per robot; 'all': one per other "
+                             "robot; 'auto' (default): as sqpmpc run")
+    parser.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
+                        help="QP backend of the controllers (default auto: as sqpmpc run)")
+    parser.add_argument("--router", action="store_true",
+                        help="start a Zenoh router (services.router) and run every process as "
+                             "its client instead of peer to peer (one link per session, "
+                             "batched)")
+    parser.add_argument("--robots-per-process", type=int, default=1, metavar="K",
+                        help="decentralized: host K robots' controllers in each process (one "
+                             "thread and one Zenoh session each; default 1: one process per "
+                             "robot)")
+    parser.add_argument("--all-plans", action="store_true",
+                        help="with neighbour slots: every robot receives, decodes and waits "
+                             "for every neighbour's plan (default: only of those that may "
+                             "take one of its slots, services.plans)")
     add_rule_arguments(parser)
     return parser
 
@@ -177,29 +194,45 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     for flag, value in (("--t-end", args.t_end), ("--sample-time", args.sample_time)):
         if value is not None:
             common += [flag, repr(value)]
-    names = ["central"] if args.scheme == "centralized" else [f"robot/{i}" for i in ids]
+    k = args.robots_per_process
+    groups = [ids[j:j + k] for j in range(0, len(ids), k)]
+    names = ["central"] if args.scheme == "centralized" else [
+        "robot/" + ",".join(str(i) for i in g) for g in groups]
     ports = free_ports(1 + len(names))
     plant_ep = f"tcp/127.0.0.1:{ports[0]}"
     plant = [*py, "services.plant", *common, "--listen", plant_ep, "--scheme", args.scheme,
              "--mode", args.mode, "--out", str(out), "--quiet"]
+    if args.router:  # the router listens on the plant's port, every process is its client
+        plant = [*py, "services.plant", *common, "--zenoh-mode", "client", "--connect",
+                 plant_ep, "--scheme", args.scheme, "--mode", args.mode, "--out", str(out),
+                 "--quiet"]
     if args.timeout is not None:
         plant += ["--timeout", repr(args.timeout)]
     if args.no_plots:
         plant.append("--no-plots")
     cmds = [("plant", plant)]
     controller_extra: list[str] = [*rule_arguments(args), "--qp-solver", args.qp_solver]
-    if args.neighbour_slots is not None:
-        controller_extra += ["--neighbour-slots", str(args.neighbour_slots)]
+    slots = args.neighbour_slots
+    controller_extra += ["--neighbour-slots", "all" if slots is None else str(slots)]
+    robot_extra = ["--all-plans"] if args.all_plans else []
     if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback
         controller_extra += ["--qp-time-limit", repr(0.4 * sample_time)]
     for name, port in zip(names, ports[1:], strict=True):
-        net = ["--listen", f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *controller_extra]
+        rids = name.split("/")[1].split(",") if "/" in name else []
+        # several sessions in one process: each listens on a free loopback port of its own
+        listen = ["--listen", f"tcp/127.0.0.1:{port}"] if len(rids) <= 1 else []
+        if args.router:
+            listen = ["--zenoh-mode", "client"]
+        net = [*listen, "--connect", plant_ep, *controller_extra]
         if name == "central":
             cmds.append((name, [*py, "services.central", *common, *net]))
         else:
-            rid = name.split("/")[1]
-            cmds.append((name, [*py, "services.robot", "--id", rid, "--mode",
-                                args.decentralized_mode, *common, *net]))
+            id_args = [a for rid in rids for a in ("--id", rid)]
+            cmds.append((name, [*py, "services.robot", *id_args, "--mode",
+                                args.decentralized_mode, *common, *net, *robot_extra]))
+    if args.router:
+        cmds.insert(0, ("router", [*py, "services.router", "--listen", plant_ep,
+                                   "--log-level", args.log_level]))
     return cmds
 
 
@@ -212,6 +245,10 @@ def main(argv: list[str] | None = None) -> int:
     run = args.run or f"run-{os.getpid()}-{secrets.token_hex(3)}"
     args.run = run
     scenario = scenario_from_args(PROG, args)  # exits 2 with one message on bad input
+    if args.robots_per_process < 1:
+        print(f"{PROG}: error: --robots-per-process must be >= 1, got "
+              f"{args.robots_per_process}", file=sys.stderr)
+        return 2
     try:
         rules_from_arguments(args)  # refused here once, not by every child
         SolverSettings(neighbour_slots=args.neighbour_slots, qp_solver=args.qp_solver)
@@ -238,13 +275,16 @@ def main(argv: list[str] | None = None) -> int:
                 break
             cpu = cpus[(j - 1) % len(cpus)] if args.pin_cpus and cpus and j > 0 else None
             children.append(Child(name, cmd, cpu, env))
-        plant = children[0] if children else None
+        plant = next((c for c in children if c.name == "plant"), None)
+        services = [c for c in children if c.name != "router"]
         while plant is not None and not stop.is_set():
             code = plant.poll()
             if code is not None:
                 status = code
                 break
-            for c in children[1:]:
+            for c in children:
+                if c is plant:
+                    continue
                 code = c.poll()
                 if code not in (None, 0) and not c.reported:
                     c.reported = True
@@ -256,11 +296,14 @@ def main(argv: list[str] | None = None) -> int:
             status = 128 + sig
         else:
             # the plant is done: the controllers leave on its 'done' message
-            if not _wait_all(children, CONTROLLER_GRACE):
+            if not _wait_all(services, CONTROLLER_GRACE):
                 log.warning("controllers still running %.0f s after the plant: stopping them",
                             CONTROLLER_GRACE)
     finally:
-        stop_children(children, {"plant": signal.SIGINT}, PLANT_GRACE)
+        # the router last: the plant's 'done' and the controllers' exits go through it
+        stop_children([c for c in children if c.name != "router"], {"plant": signal.SIGINT},
+                      PLANT_GRACE)
+        stop_children([c for c in children if c.name == "router"], {}, PLANT_GRACE)
     if metrics_file.exists() and metrics_file.stat().st_mtime_ns != before:
         print(summarize(json.loads(metrics_file.read_text())))
         print(f"wrote {out}")

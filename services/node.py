@@ -155,16 +155,19 @@ class Node:
         self.signals: dict[str, int] = {}
         self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode)
 
-    def start(self, subscriptions: list[tuple[object, ...]]) -> None:
+    def start(self, subscriptions: list[tuple[object, ...]], signals: bool = True) -> None:
         """Subscribe, watch liveliness, then declare this process alive (in that order).
 
         A peer that sees the token therefore also knows the subscriptions.
+        ``signals``: install the SIGINT/SIGTERM handlers that set :attr:`stop`
+        (a process hosting several nodes installs them once and shares ``stop``).
         """
         for parts in subscriptions:
             self.bus.subscribe(*parts)
         self.bus.watch_liveliness()
         self.bus.declare_alive(*self.name.split("/"))
-        self.signals = install_signal_handlers(self.stop)
+        if signals:
+            self.signals = install_signal_handlers(self.stop)
 
     def close(self) -> None:
         """Close the Zenoh session."""
@@ -194,7 +197,8 @@ class Node:
             return
         if event.kind != "put":
             return
-        if len(parts) == 3 and parts[0] == "robot":
+        if parts[0] == "robot" and (len(parts) == 3 or (len(parts) == 4 and parts[2] == "plan")):
+            # robot/<id>/<kind>, or robot/<id>/plan/<to>: a plan addressed to robot <to>
             kind, key_id = parts[2], None
             try:
                 key_id = int(parts[1])
@@ -207,12 +211,28 @@ class Node:
             kind, key_id = parts[1], None
         else:
             return
+        if key_id is not None and kind == "plan":
+            try:
+                if self.take_plan(key_id, event.payload):
+                    return
+            except InvalidMessage as exc:
+                self._log_invalid(f"on {event.key}: {exc}")
+                return
         try:
             msg = self.validator.check(event.payload, kind, key_id)
         except InvalidMessage as exc:
             self._log_invalid(f"on {event.key}: {exc}")
             return
         self.on_message(kind, msg)
+
+    def take_plan(self, robot_id: int, payload: bytes) -> bool:
+        """Keep a plan's payload as received, without the full decode (override).
+
+        ``True``: taken (a :class:`~services.plans.PlanStore` checks its header
+        now and its body when used); ``False`` (default): decode and hand it to
+        :meth:`on_message`. Raises :class:`InvalidMessage` to drop it.
+        """
+        return False
 
     def _refused(self, reason: str) -> None:
         self.validator.refuse(reason)

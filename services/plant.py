@@ -11,7 +11,11 @@ states of all robots (one message) and collects one ``cmd`` per robot:
 - ``lockstep``: it advances as soon as every robot whose controller is alive
   has sent its input for ``k``, or after ``--timeout`` seconds;
 - ``realtime``: it advances every ``Ts`` of wall time with the newest valid
-  input received for ``k``.
+  input received for ``k``. Sample 0 is the exception: the robots are at
+  rest and the controllers converge their first plan (several QPs, the
+  settings' ``first_sample_iterations``), so the plant waits for its inputs as
+  in lockstep and starts the wall clock after it (``--timed-start``: sample 0
+  gets ``Ts`` too); ``metrics.json`` records that start as ``start_wall_s``.
 
 A robot without an input (late, timed out, or its controller gone) gets the
 braking input (``v = omega = 0`` clipped to the bounds), counted in
@@ -86,6 +90,8 @@ class PlantNode(Node):
         self.reported_invalid: dict[str, int] = {}
         self.reported_counts: dict[str, dict[str, int]] = {}  # each controller's counters
         self.loop_wall = 0.0
+        self.start_wall = 0.0
+        self.timed_start = bool(getattr(args, "timed_start", False))
         self.running = False
         self.sample_walls: list[float] = []
 
@@ -175,12 +181,15 @@ class PlantNode(Node):
             self.k, self.cmds = k, {}
             self.validator.max_sample = k  # a cmd for a sample not yet published is invalid
             self.publish_states(k)
-            if self.mode == "lockstep":
+            if self.mode == "lockstep" or (k == 0 and not self.timed_start):
                 if not self.wait_until(lambda: all(i in self.cmds for i in self.expected()),
                                        self.timeout) and not self.stop.is_set():
                     self.timeouts += 1
                     log.warning("sample %d: no input from robots %s within %.3g s",
                                 k, sorted(set(self.expected()) - set(self.cmds)), self.timeout)
+                if self.mode == "realtime":  # the clock starts now: Ts for sample 1
+                    self.start_wall = time.perf_counter() - t0
+                    start = time.perf_counter() - ts
             else:
                 deadline = start + (k + 1) * ts
                 self.wait_until(lambda: self.stop.is_set(),
@@ -213,6 +222,7 @@ class PlantNode(Node):
             "interrupted": signal.Signals(sig).name if sig else None,
             "plant_discretization": self.method,
             "sample_loop_wall_s": float(self.loop_wall),
+            "start_wall_s": float(self.start_wall),
             "sample_wall_ms": {
                 "median": float(np.median(walls)) if walls.size else None,
                 "max": float(walls.max()) if walls.size else None,
@@ -264,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="longest wait for the controllers before sample 0, s")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    parser.add_argument("--timed-start", action="store_true",
+                        help="realtime: sample 0 gets Ts too (default: its inputs are waited "
+                             "for as in lockstep, then the wall clock starts)")
     return parser
 
 

@@ -25,9 +25,13 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import threading
 import time
+from contextlib import AbstractContextManager, nullcontext
 
-from sqpmpc.controllers import DecentralizedController, PlanMessage
+import numpy as np
+
+from sqpmpc.controllers import DecentralizedController
 from sqpmpc.errors import ProblemError
 from sqpmpc.scenario import Scenario
 
@@ -38,9 +42,18 @@ from .control import (
     controller_settings,
 )
 from .messages import Message, PlanMsg, encode
-from .node import add_common_arguments, fail, open_node, scenario_from_args, setup_logging
+from .node import (
+    POLL,
+    add_common_arguments,
+    fail,
+    install_signal_handlers,
+    open_node,
+    scenario_from_args,
+    setup_logging,
+)
+from .plans import PlanStore, StepPlans, recipients, slotted
 
-__all__ = ["RobotNode", "build_parser", "main"]
+__all__ = ["RobotNode", "build_parser", "host", "main"]
 
 log = logging.getLogger(__name__)
 PROG = "services.robot"
@@ -55,23 +68,46 @@ class RobotNode(ControllerNode):
         The problem.
     args
         Parsed arguments (see :func:`build_parser`).
+    robot_id
+        The robot (default ``args.id``, or its only element).
     """
 
-    def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
-        self.controller = DecentralizedController(scenario, args.id, controller_settings(args),
-                                                  args.mode)
-        super().__init__(scenario, args, f"robot/{args.id}")
-        self.robot_id = int(args.id)
+    def __init__(self, scenario: Scenario, args: argparse.Namespace,
+                 robot_id: int | None = None) -> None:
+        if robot_id is None:
+            robot_id = args.id[0] if isinstance(args.id, list) else args.id
+        settings = controller_settings(args)
+        self.controller = DecentralizedController(scenario, robot_id, settings, args.mode)
+        super().__init__(scenario, args, f"robot/{robot_id}")
+        self.robot_id = int(robot_id)
         self.neighbours = [i for i in self.ids if i != self.robot_id]
-        self.plans: dict[int, dict[int, PlanMessage]] = {i: {} for i in self.neighbours}
+        # with neighbour slots, a robot receives the plans of the robots that may take one
+        # of its slots (they address them to it) and decodes a plan when a step reads it
+        self.filtering = self.controller.settings.neighbour_slots is not None and not getattr(
+            args, "all_plans", False)  # the settings as resolved for this scenario
+        self.plans = PlanStore(self.validator, self.neighbours, lazy=self.filtering)
+        c = self.controller
+        self._chosen = np.zeros(c.slots, dtype=np.int64)
+        self._rest = np.zeros(c.others.size, dtype=np.int64)
+        v_max = c.context.max_speed
+        self._radius = (scenario.required_distances() + settings.collision_margin
+                        + 2.0 * v_max * scenario.horizon * scenario.sample_time)
+        self._step = 2.0 * v_max * scenario.sample_time
+        self.addressed = 0  # plans sent on robot/<id>/plan/<to>
+        self.step_lock: AbstractContextManager[object] = nullcontext()
         self.fallback_samples = 0
         self.joined = False
         self.waited_for: set[int] = set()  # neighbours alive at this robot's previous step
 
+    def take_plan(self, robot_id: int, payload: bytes) -> bool:
+        if robot_id not in self.plans:
+            return False
+        self.plans.add(robot_id, payload)
+        return True
+
     def on_other(self, kind: str, msg: Message) -> None:
-        if isinstance(msg, PlanMsg) and msg.id != self.robot_id:
-            self.plans[msg.id][msg.sample] = PlanMessage(msg.id, msg.sample, msg.states,
-                                                         msg.inputs)
+        if isinstance(msg, PlanMsg) and msg.id in self.plans:
+            self.plans.add_decoded(msg)
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         super().on_liveliness(name, alive)
@@ -81,22 +117,54 @@ class RobotNode(ControllerNode):
             except ValueError:
                 return
             if rid in self.plans:  # gone: an obstacle from now on
-                self.plans[rid].clear()
+                self.plans.clear(rid)
 
     def _alive_neighbours(self) -> list[int]:
         return [i for i in self.neighbours if f"robot/{i}" in self.alive]
 
-    def _has_plan(self, rid: int, sample: int) -> bool:
-        return any(s >= sample for s in self.plans[rid])
+    def subscriptions(self) -> list[tuple[object, ...]]:
+        """The keys this robot listens to: the plant's, and its neighbours' plans (those
+        addressed to it when filtering)."""
+        plans: list[tuple[object, ...]] = (
+            [("robot", "*", "plan", self.robot_id)] if self.filtering
+            else [("robot", i, "plan") for i in self.neighbours])
+        return [("plant", "state"), ("plant", "done"), *plans]
 
-    def plans_for(self, sample: int) -> dict[int, PlanMessage]:
-        """Per alive neighbour, the newest plan computed before ``sample``."""
-        chosen: dict[int, PlanMessage] = {}
-        for rid in self._alive_neighbours():
-            older = [s for s in self.plans[rid] if s < sample]
-            if older:
-                chosen[rid] = self.plans[rid][max(older)]
-        return chosen
+    def needed(self, states: np.ndarray) -> list[int]:
+        """Neighbours whose plans the step at ``states`` reads.
+
+        With neighbour slots: those the controller gives a slot
+        (:func:`~services.plans.slotted`); without: every neighbour.
+        """
+        if not self.filtering:
+            return self.neighbours
+        return slotted(states, self.controller, self._chosen, self._rest)
+
+    def plans_for(self, sample: int, states: np.ndarray | None = None) -> StepPlans:
+        """Per alive neighbour (those given a slot at ``states`` when filtering), the
+        newest plan computed before ``sample``, decoded when read."""
+        alive = self._alive_neighbours()
+        if states is not None and self.filtering:
+            near = set(self.needed(states))
+            alive = [i for i in alive if i in near]
+        return StepPlans(self.plans, sample, alive)
+
+    def publish_plan(self, msg: PlanMsg, states: np.ndarray) -> None:
+        """Publish this robot's plan on its key and, when filtering, to every robot that
+        may give it a slot at the next sample (:func:`~services.plans.recipients`)."""
+        payload = encode(msg)
+        self.bus.put(payload, "robot", self.robot_id, "plan")
+        if self.filtering:
+            c = self.controller
+            for j in recipients(states, c.index, self._radius, c.slots, self._step):
+                self.bus.put(payload, "robot", self.robot_id, "plan", int(self.ids[j]))
+                self.addressed += 1
+
+    def run(self) -> int:
+        status = super().run()
+        log.info("robot %d: %d plans received, %d decoded, %d sent addressed", self.robot_id,
+                 self.plans.received, self.plans.decoded, self.addressed)
+        return status
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:
         if not self.joined:
@@ -107,64 +175,118 @@ class RobotNode(ControllerNode):
                                    self.timeout):
                 missing = sorted(set(self.neighbours) - set(self._alive_neighbours()))
                 log.warning("robot %d starts without neighbours %s", self.robot_id, missing)
-        # wait for the plan of k - 1 of every neighbour that was there at this robot's
-        # step k - 1 (one that joined since then has none; at the first step: none)
-        def expected() -> list[int]:
-            return [i for i in self._alive_neighbours() if i in self.waited_for]
-
+        needed = self.needed(entry.states)
+        # wait for the plan of k - 1 of every neighbour within reach that was there at this
+        # robot's step k - 1 (one that joined since then has none; at the first step: none)
         if sample > 0 and self.waited_for:
+            pending = [i for i in needed if i in self.waited_for]
+
+            def ready() -> bool:  # O(1) per event: drop the satisfied from the end
+                while pending and (self.plans.has(pending[-1], sample - 1)
+                                   or f"robot/{pending[-1]}" not in self.alive):
+                    pending.pop()
+                return not pending
+
             wait = self.timeout if entry.budget is None else min(self.timeout,
                                                                   0.2 * entry.budget)
-            ok = self.wait_until(lambda: all(self._has_plan(i, sample - 1)
-                                             for i in expected()), wait)
-            if not ok and not self.stop.is_set():
-                late = [i for i in expected() if not self._has_plan(i, sample - 1)]
+            if not self.wait_until(ready, wait) and not self.stop.is_set():
                 log.warning("robot %d sample %d: no plan of sample %d from %s in %.3g s",
-                            self.robot_id, sample, sample - 1, late, wait)
+                            self.robot_id, sample, sample - 1, pending, wait)
         self.waited_for = set(self._alive_neighbours())
-        plans = self.plans_for(sample)
-        if len(plans) < len(self.neighbours):
+        plans = self.plans_for(sample, entry.states)
+        if len(plans) < len(needed):
             self.fallback_samples += 1
-        out = self.controller.step(sample, entry.t, entry.states, plans,
-                                   self.previous_states(sample))
+        with self.step_lock:  # one step at a time in a process hosting several robots
+            out = self.controller.step(sample, entry.t, entry.states, plans,
+                                       self.previous_states(sample))
         plan = self.controller.published
-        self.bus.put(encode(PlanMsg(self.robot_id, sample, entry.t, time.time(), plan.states,
-                                    plan.inputs)), "robot", self.robot_id, "plan")
+        self.publish_plan(PlanMsg(self.robot_id, sample, entry.t, time.time(), plan.states,
+                                  plan.inputs), entry.states)
         self.publish_cmd(self.robot_id, sample, out.inputs[0], out.compute_time, out.fallback)
-        for stored in self.plans.values():  # keep what a later sample may still use
-            for s in [s for s in stored if s < sample - self.scenario.horizon - 1]:
-                del stored[s]
+        self.plans.prune(sample - self.scenario.horizon - 1)  # keep what a later sample may use
         if out.fallback is not None:
             log.debug("robot %d sample %d: fallback %s", self.robot_id, sample, out.fallback)
+
+
+def host(nodes: list[RobotNode]) -> int:
+    """Serve several robots in this process, one thread and one Zenoh session each.
+
+    The signal handlers are installed once and set every node's ``stop``; a
+    node whose loop ends (or fails) closes its session at once, so the others
+    see it go as they would see a process exit. The controllers' steps take
+    turns (one lock): a step is not sliced with the others' by the GIL, so its
+    measured compute time and the QP time limit mean the same as in a process
+    of its own. Returns 0 when every node returned 0, else 1.
+    """
+    stop = threading.Event()
+    signals = install_signal_handlers(stop)
+    step_lock = threading.Lock()
+    for node in nodes:
+        node.stop, node.signals, node.step_lock = stop, signals, step_lock
+        node.start(node.subscriptions(), signals=False)
+    status = dict.fromkeys(range(len(nodes)), 1)
+
+    def serve(j: int) -> None:
+        try:
+            status[j] = nodes[j].run()
+        except Exception:
+            log.exception("%s failed", nodes[j].name)
+        finally:
+            nodes[j].close()
+
+    threads = [threading.Thread(target=serve, args=(j,), name=node.name, daemon=True)
+               for j, node in enumerate(nodes)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        while t.is_alive():
+            t.join(POLL)  # the main thread stays free to run the signal handlers
+    return 0 if all(v == 0 for v in status.values()) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``python -m services.robot``."""
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
-    parser.add_argument("--id", type=int, required=True, help="robot id in the scenario")
+    parser.add_argument("--id", type=int, required=True, action="append",
+                        help="robot id in the scenario; repeated: host several robots in this "
+                             "process (one thread and one Zenoh session each, every session "
+                             "listening on a free loopback port)")
     parser.add_argument("--mode", choices=("shared", "paper"), default="shared",
                         help="decentralized mode of the controller (default shared)")
     add_common_arguments(parser)
     add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
+    parser.add_argument("--all-plans", action="store_true",
+                        help="with neighbour slots: receive, decode and wait for every "
+                             "neighbour's plan (default: only of those that may take a slot, "
+                             "services.plans; every robot of a run must agree)")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     args = build_parser().parse_args(argv)
-    setup_logging(args.log_level, f"robot/{args.id}")
+    ids = list(dict.fromkeys(args.id))
+    setup_logging(args.log_level, "robot/" + ",".join(str(i) for i in ids))
     scenario = scenario_from_args(PROG, args)
     try:
-        scenario.index_of(args.id)
+        for rid in ids:
+            scenario.index_of(rid)
     except ProblemError as exc:
         fail(PROG, str(exc))
-    node = open_node(PROG, lambda: RobotNode(scenario, args))
+    if len(ids) > 1 and args.listen:
+        fail(PROG, "--listen takes one robot: with several --id every session listens on a "
+                   "free loopback port")
+    nodes: list[RobotNode] = []
     try:
-        node.start([("plant", "state"), ("plant", "done"),
-                    *[("robot", i, "plan") for i in node.neighbours]])
-        return node.run()
+        for rid in ids:
+            nodes.append(open_node(PROG, lambda rid=rid: RobotNode(scenario, args, rid)))
+        if len(nodes) == 1:
+            nodes[0].start(nodes[0].subscriptions())
+            return nodes[0].run()
+        return host(nodes)
     finally:
-        node.close()
+        for node in nodes:
+            node.close()
 
 
 if __name__ == "__main__":

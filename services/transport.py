@@ -5,12 +5,16 @@ Key space (version 1, one namespace per run)::
     sqpmpc/@v1/<run>/plant/state         plant -> controllers   (StateMsg, all robots)
     sqpmpc/@v1/<run>/robot/<id>/cmd      controller -> plant    (CmdMsg)
     sqpmpc/@v1/<run>/robot/<id>/plan     robot -> robots        (PlanMsg)
+    sqpmpc/@v1/<run>/robot/<id>/plan/<to> robot -> robot <to>   (PlanMsg, filtered fleets)
     sqpmpc/@v1/<run>/plant/done          plant -> controllers   (DoneMsg)
     sqpmpc/@v1/<run>/alive/plant         liveliness tokens, one per process
     sqpmpc/@v1/<run>/alive/central
     sqpmpc/@v1/<run>/alive/robot/<id>
 
-The plant publishes the states of all robots of a sample in one message: a
+With neighbour slots a robot sends its plan, besides ``robot/<id>/plan``,
+to each robot that may give it a slot at the next sample on
+``robot/<id>/plan/<to>``, and subscribes to ``robot/*/plan/<own id>`` only
+(:mod:`services.plans`). The plant publishes the states of all robots of a sample in one message: a
 consistent snapshot, and one delivery per controller instead of ``n``.
 The ``@v1`` chunk is verbatim: ``**`` does not match it, so wildcard
 subscribers of another version never see these messages.
@@ -18,9 +22,14 @@ subscribers of another version never see these messages.
 Sessions are peers (or clients of a router) with multicast scouting off and
 explicit endpoints. Subscribers use callbacks that only copy the key, kind
 and payload into a thread-safe queue (:class:`Bus.inbox`); all Zenoh calls
-happen on the main thread. Publishers use ``CongestionControl.BLOCK`` (every
-message must arrive) and ``express`` (no batching: a sample's messages are on
-the critical path of the loop).
+happen on the main thread. zenoh-python runs a callback on a Python thread
+of its own, so Zenoh's network threads never wait for the GIL (which matters
+when one process hosts several robots, :func:`services.robot.host`).
+Publishers use ``CongestionControl.BLOCK`` (every message must arrive); a
+peer's are ``express`` (no batching: a sample's messages are on the critical
+path of the loop, and a peer's go to many links), a client's are not: all of
+its traffic shares one link to the router, where batching cuts the cost per
+message several times (measured in ``docs/fleet-services.md``).
 """
 
 from __future__ import annotations
@@ -124,6 +133,7 @@ class Bus:
     def __init__(self, run: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  mode: str = "peer") -> None:
         self.prefix = run_prefix(run)
+        self.express = mode != "client"
         self.inbox: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self.session = zenoh.open(make_config(listen, connect, mode))
         self._subscribers: list[zenoh.Subscriber] = []
@@ -178,7 +188,7 @@ class Bus:
         pub = self._publishers.get(key)
         if pub is None:
             pub = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+                key, congestion_control=zenoh.CongestionControl.BLOCK, express=self.express)
             self._publishers[key] = pub
         pub.put(payload)
 

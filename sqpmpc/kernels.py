@@ -27,7 +27,6 @@ import numba
 import numpy as np
 
 from . import collision_kernels as ck
-from .collision_kernels import nearest_within  # noqa: F401 (services import it from here)
 from .liveness import hold_touching_rows, warm_up_rules
 from .references import _harmonic_positions
 from .roundabout import warm_up_roundabout

@@ -1,0 +1,256 @@
+"""Plan filtering: a robot receives and decodes the plans of the robots that can matter.
+
+A decentralized robot with neighbour slots
+(:attr:`sqpmpc.settings.SolverSettings.neighbour_slots`) reads, at sample
+``k``, the plans (of ``k - 1``) of the neighbours it gives a slot: the
+``slots`` nearest within the interaction radius ``d + margin + 2 v_max N Ts``
+(:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`). Every
+other plan of the fleet is traffic it pays for and never uses.
+
+- The sender filters (:func:`recipients`): after its step at ``k`` a robot
+  sends its plan to each robot that may give it a slot at ``k + 1``, on
+  ``robot/<id>/plan/<to>``; between two samples a distance changes by at most
+  ``2 v_max Ts``, so the states of ``k`` bound the selection of ``k + 1``. A
+  robot subscribes to ``robot/*/plan/<own id>`` only: Zenoh delivers nothing
+  else.
+- The receiver waits, in lockstep, for exactly the plans its controller will
+  read (:func:`slotted`, the controller's own kernel call) and decodes a plan
+  only when the step reads it (:class:`PlanStore`, :class:`StepPlans`): the
+  header (sender, sample) is peeked on arrival and checked for order, the
+  body decoded and validated when read.
+
+Both sides compute from the same states with the same rule, so a lockstep
+run equals the in-process run; a plan that is late or lost is what the
+controller already handles (the paper's fallback). ``docs/fleet-services.md``
+has the measured costs. Without neighbour slots (or with ``--all-plans``)
+every plan is received on ``robot/<id>/plan`` and decoded on arrival, as
+before; every robot of a run must use the same setting.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Iterator, Mapping
+
+import numpy as np
+
+from sqpmpc.collision_kernels import nearest_within
+from sqpmpc.controllers import DecentralizedController, PlanMessage
+
+from .messages import InvalidMessage, MessageValidator, PlanMsg, peek_plan
+
+__all__ = ["PlanStore", "StepPlans", "recipients", "slotted"]
+
+log = logging.getLogger(__name__)
+
+
+def slotted(states: np.ndarray, controller: DecentralizedController, chosen: np.ndarray,
+            rest: np.ndarray) -> list[int]:
+    """Ids of the neighbours ``controller`` gives a slot at ``states`` (nearest first).
+
+    The same kernel call as the controller's selection
+    (:meth:`~sqpmpc.controllers.DecentralizedController._select_neighbours`), on
+    the caller's scratch arrays ``chosen (slots,)`` and ``rest (n - 1,)``, so
+    the set is exactly the one the controller's step will read plans of.
+    """
+    c = controller
+    positions = np.ascontiguousarray(states[:, :2])
+    used, _ = nearest_within(positions[c.index], positions, c.others, c.interaction_radius,
+                             chosen, rest)
+    return [int(i) for i in c.other_ids[chosen[:used]]]
+
+
+def recipients(states: np.ndarray, index: int, radius: np.ndarray, slots: int,
+               step: float) -> np.ndarray:
+    """Indices of the robots that may give robot ``index`` a slot at the next sample.
+
+    Robot ``i`` selects at sample ``k + 1`` the ``slots`` nearest neighbours
+    within ``radius[i, l]``. Between two samples a distance changes by at most
+    ``step`` (both robots move at most ``v_max Ts``). So from the states
+    ``(n, 3)`` of sample ``k`` alone, robot ``index`` (the sender ``j``) is
+    certainly *not* in ``i``'s slots at ``k + 1`` when it cannot be within
+    reach (``d_ij - step > radius[i, j]``), or when at least ``slots`` others
+    ``l`` are certainly within reach (``d_il + step <= radius[i, l]``) and
+    certainly nearer (``d_il + step < d_ij - step``). Every other robot is a
+    recipient. The bounds are widened by a relative ``1e-9`` against rounding.
+
+    Parameters
+    ----------
+    states
+        Everyone's states at sample ``k`` (scenario order).
+    index
+        The sender's index.
+    radius
+        ``(n, n)`` interaction radii ``d_il + margin + 2 v_max N Ts``.
+    slots
+        Slots per robot (at least the number of others: no limit).
+    step
+        ``2 v_max Ts``, m.
+    """
+    n = states.shape[0]
+    p = states[:, :2]
+    dist = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+    tol = 1e-9
+    lo, hi = step * (1.0 + tol) + 1e-12, radius[index] * (1.0 + tol) + 1e-12
+    d = dist[index]
+    may = d - lo <= hi
+    may[index] = False
+    cand = np.flatnonzero(may)
+    if slots >= n - 1 or cand.size == 0:
+        return cand
+    rows = dist[cand]  # (m, n): candidate receiver i to every l
+    sure = (rows + lo <= radius[cand] * (1.0 - tol)) & (rows + lo < (d[cand] - lo)[:, None])
+    sure[np.arange(cand.size), cand] = False
+    sure[:, index] = False
+    return cand[sure.sum(axis=1) < slots]
+
+
+def _as_plan(msg: PlanMsg) -> PlanMessage:
+    return PlanMessage(msg.id, msg.sample, msg.states, msg.inputs)
+
+
+class PlanStore:
+    """Per neighbour and sample, the plan received (bytes until decoded).
+
+    Parameters
+    ----------
+    validator
+        The node's validator (order checked on arrival, body when decoded; it
+        counts what it refuses).
+    neighbours
+        Ids whose plans are kept.
+    lazy
+        Keep payloads undecoded until used (``False``: decode on arrival).
+
+    Attributes
+    ----------
+    received, decoded
+        Plans accepted so far and plans decoded so far.
+    """
+
+    def __init__(self, validator: MessageValidator, neighbours: Iterable[int],
+                 lazy: bool = True) -> None:
+        self.validator = validator
+        self.lazy = lazy
+        self._plans: dict[int, dict[int, bytes | PlanMessage]] = {int(i): {} for i in neighbours}
+        self._newest = dict.fromkeys(self._plans, -1)
+        self.received = 0
+        self.decoded = 0
+
+    def __contains__(self, robot_id: object) -> bool:
+        return robot_id in self._plans
+
+    def add(self, robot_id: int, payload: bytes) -> None:
+        """Keep a plan received on robot ``robot_id``'s key.
+
+        Raises
+        ------
+        InvalidMessage
+            Refused (counted by the validator): out of order, or, when it is
+            decoded at once, malformed.
+        """
+        head = peek_plan(payload) if self.lazy else None
+        if head is None or head[0] != robot_id:
+            msg = self.validator.check(payload, "plan", robot_id)
+            if not isinstance(msg, PlanMsg):  # the validator matches the type to the key
+                raise InvalidMessage(f"a {type(msg).__name__} on a plan key")
+            self.decoded += 1
+            item: bytes | PlanMessage = _as_plan(msg)
+            sample = msg.sample
+        else:
+            self.validator.admit_plan(robot_id, head[1])
+            item, sample = payload, head[1]
+        self._plans[robot_id][sample] = item
+        self._newest[robot_id] = max(self._newest[robot_id], sample)
+        self.received += 1
+
+    def add_decoded(self, msg: PlanMsg) -> None:
+        """Keep a plan already decoded and validated."""
+        self._plans[msg.id][msg.sample] = _as_plan(msg)
+        self._newest[msg.id] = max(self._newest[msg.id], msg.sample)
+        self.received += 1
+
+    def has(self, robot_id: int, sample: int) -> bool:
+        """Whether a plan of ``sample`` or later from ``robot_id`` is here."""
+        return self._newest[robot_id] >= sample
+
+    def has_before(self, robot_id: int, sample: int) -> bool:
+        """Whether a plan computed before ``sample`` from ``robot_id`` is here."""
+        return any(s < sample for s in self._plans[robot_id])
+
+    def newest_before(self, robot_id: int, sample: int) -> PlanMessage | None:
+        """The newest valid plan computed before ``sample`` (decoding it if needed)."""
+        stored = self._plans[robot_id]
+        for s in sorted((s for s in stored if s < sample), reverse=True):
+            item = stored[s]
+            if isinstance(item, PlanMessage):
+                return item
+            try:
+                msg = self.validator.check(item, "plan", robot_id, ordered=False)
+            except InvalidMessage as exc:
+                log.warning("dropped an invalid plan of robot %d (%d invalid so far): %s",
+                            robot_id, self.validator.invalid, exc)
+                del stored[s]
+                continue
+            self.decoded += 1
+            if not isinstance(msg, PlanMsg) or msg.sample != s:
+                # cannot happen with a matching header; refuse rather than trust it
+                self.validator.refuse(f"plan header of sample {s} over another body")
+                del stored[s]
+                continue
+            stored[s] = plan = _as_plan(msg)
+            return plan
+        return None
+
+    def clear(self, robot_id: int) -> None:
+        """Forget every plan of ``robot_id`` (it is gone)."""
+        self._plans[robot_id].clear()
+        self._newest[robot_id] = -1
+
+    def prune(self, before: int) -> None:
+        """Forget plans computed before sample ``before``."""
+        for rid, stored in self._plans.items():
+            for s in [s for s in stored if s < before]:
+                del stored[s]
+            if not stored:
+                self._newest[rid] = -1
+
+
+class StepPlans(Mapping[int, PlanMessage]):
+    """The plans a controller's step may read: per candidate, the newest before ``sample``.
+
+    Reading one decodes it (once); a candidate without a valid plan is absent.
+
+    Parameters
+    ----------
+    store
+        Where the plans are.
+    sample
+        The sample being computed.
+    candidates
+        The neighbours whose plans may be read.
+    """
+
+    def __init__(self, store: PlanStore, sample: int, candidates: Iterable[int]) -> None:
+        self.store = store
+        self.sample = sample
+        self.candidates = [int(i) for i in candidates]
+        self._ids = frozenset(self.candidates)
+        self._cache: dict[int, PlanMessage | None] = {}
+
+    def _get(self, robot_id: int) -> PlanMessage | None:
+        if robot_id not in self._cache:
+            self._cache[robot_id] = self.store.newest_before(robot_id, self.sample)
+        return self._cache[robot_id]
+
+    def __getitem__(self, robot_id: int) -> PlanMessage:
+        plan = self._get(robot_id) if robot_id in self._ids else None
+        if plan is None:
+            raise KeyError(robot_id)
+        return plan
+
+    def __iter__(self) -> Iterator[int]:
+        return (i for i in self.candidates if self.store.has_before(i, self.sample))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
