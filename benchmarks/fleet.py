@@ -162,6 +162,9 @@ after each further `hold` samples now widens its detour by half a required dista
 never last that long, have identical closed-loop costs. The sweep below counts the seeds
 beyond the must-show ten.
 
+**Distributed.** The same fleets as processes over Zenoh (32 robots in real time, 64 in
+lockstep equal to the in-process run, plan filtering): `docs/fleet-services.md`.
+
 **Known limit: grid-to-grid formations.** A formation sent onto a mirrored formation
 (`sqpmpc generate grid`) does not always fill completely: robots that arrive first can
 wall in the deeper goals (the table below). The robots stay safe; what is missing is an
