@@ -18,6 +18,7 @@ from . import __version__
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
+from .model import DISCRETIZATIONS
 from .registry import add_rule_arguments, describe_rules, rules_from_arguments
 from .scenario import builtin_scenario_names, load_scenario
 from .settings import (
@@ -51,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--iteration", choices=("rti", "sqp"), default="rti",
                      help="one QP per sample (rti, default) or SQP to convergence")
     run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
-    run.add_argument("--discretization", choices=("euler", "rk4"), default="euler")
+    run.add_argument("--discretization", choices=DISCRETIZATIONS, default="euler")
     run.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
                      metavar="N|all|auto",
                      help="collision slots per robot, filled with the nearest neighbours "

@@ -52,7 +52,7 @@ import math
 import numpy as np
 
 from .collision_kernels import (
-    halfplanes_hold,
+    halfplanes_hold_path,
     obstacle_rows,
     pair_rows,
     pairs_keep_distance,
@@ -155,9 +155,14 @@ class PairwiseCollisionModel:
             self.pairs, self.current_positions, states, self.required, self.geometry.rotation,
             self.geometry.kernel_max_turn, A_out, lower_out, self._scratch, self.stages)
 
-    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray) -> bool:
-        """Every pair keeps its true distance along the straight segments ``now -> nxt``."""
-        return bool(pairs_keep_distance(self.pairs, now, nxt, self.safe_distance))
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray,
+                         growth: np.ndarray | None = None) -> bool:
+        """Every pair keeps its true distance along the straight segments ``now -> nxt``
+        (``growth (m,)``: how far each robot's true path may stray, per unit of ``s``)."""
+        if growth is None:
+            growth = np.zeros(now.shape[0])
+        return bool(pairs_keep_distance(self.pairs, now, nxt, self.safe_distance,
+                                        np.ascontiguousarray(growth, dtype=float)))
 
 
 class ExternalCollisionModel:
@@ -312,35 +317,40 @@ class ExternalCollisionModel:
                              self.kind, self.required, self.reach, self.geometry.rotation,
                              self.stage_one_rule_for_obstacles, normals, rhs)
 
-    def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12) -> bool:
-        """Whether this robot's next position ``(2,)`` keeps every true distance.
+    def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12,
+                         alpha: float = 0.0, beta: float = 0.0) -> bool:
+        r"""Whether this robot's next position ``(2,)`` keeps every true distance.
 
         Shared slots: the check of the class notes; the current position also
         satisfies it and a half-plane is convex, so the whole straight segment
-        does. Obstacle slots: the true distance to the neighbour's predicted
-        stage 1. Missing slots and neighbours within reach without a slot: the
-        true distance plus the neighbour's reach, along the whole segment, or
-        standing still.
+        does; a true path within :math:`\alpha s + \beta s(1-s)` of the segment
+        (:func:`sqpmpc.plant.path_deviation`) is checked exactly
+        (:func:`sqpmpc.collision_kernels.halfplanes_hold_path`). Obstacle slots:
+        the true distance to the neighbour's predicted stage 1. Missing slots
+        and neighbours within reach without a slot: the true distance plus the
+        neighbour's reach, along the whole path, or standing still.
         """
         p = position
-        if self._any_shared and not halfplanes_hold(self.check_normals, self.check_rhs,
-                                                    float(p[0]), float(p[1]), tolerance):
+        x0, y0 = float(self.current_self[0]), float(self.current_self[1])
+        if self._any_shared and not halfplanes_hold_path(
+                self.check_normals, self.check_rhs, x0, y0, float(p[0]), float(p[1]),
+                alpha, beta, tolerance):
             return False
         if self._any_obstacle:
             obst = self.kind == OBSTACLE
             d = p - self.obstacles[obst, 0, :2]
             if (np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance).any():
                 return False
-        x0, y0 = float(self.current_self[0]), float(self.current_self[1])
         x1, y1 = float(p[0]), float(p[1])
         moved = math.hypot(x1 - x0, y1 - y0) > 1e-12
+        growth = alpha + max(beta, 0.0)
         if self._any_missing and moved:
             missing = self.kind == MISSING
             if not segment_keeps_distance(
                     x0, y0, x1, y1, np.ascontiguousarray(self.current_others[missing]),
-                    self.safe_distance[missing] + self.reach, tolerance):
+                    self.safe_distance[missing] + self.reach, tolerance, growth):
                 return False
         if self.unslotted.shape[0] and moved and not segment_keeps_distance(
-                x0, y0, x1, y1, self.unslotted, self._unslotted_keep, tolerance):
+                x0, y0, x1, y1, self.unslotted, self._unslotted_keep, tolerance, growth):
             return False
         return True

@@ -20,7 +20,10 @@ import numpy as np
 from .liveness import limit_turning
 
 __all__ = [
+    "growing_segment_distance",
     "halfplanes_hold",
+    "halfplanes_hold_path",
+    "moving_points_keep_distance",
     "nearest_within",
     "obstacle_rows",
     "pair_rows",
@@ -45,19 +48,83 @@ def halfplanes_hold(normals: np.ndarray, rhs: np.ndarray, x: float, y: float,
 
 
 @_jit
+def halfplanes_hold_path(normals: np.ndarray, rhs: np.ndarray, x0: float, y0: float,
+                         x1: float, y1: float, alpha: float, beta: float,
+                         tolerance: float) -> bool:
+    r"""Whether a path near the segment :math:`p_0 \to p_1` stays in every half-plane.
+
+    The path is within :math:`\alpha s + \beta s(1-s)` of :math:`(1-s)p_0 + s p_1`
+    (:func:`sqpmpc.plant.path_deviation`); :math:`p_0` satisfies the half-planes.
+    Along the path :math:`n^\top p - c \ge A + (B - A - \alpha - \beta) s + \beta s^2`
+    with :math:`A, B` the end points' values, whose minimum on :math:`(0, 1]` is at
+    :math:`s = 1` or at the vertex. With :math:`\alpha = \beta = 0` this is
+    :func:`halfplanes_hold` at :math:`p_1`.
+    """
+    for e in range(normals.shape[0]):
+        a = normals[e, 0] * x0 + normals[e, 1] * y0 - rhs[e]
+        b = normals[e, 0] * x1 + normals[e, 1] * y1 - rhs[e]
+        if b - alpha < -tolerance:
+            return False
+        if beta > 0.0:
+            slope = b - a - alpha - beta
+            s = -slope / (2.0 * beta)
+            if 0.0 < s < 1.0 and a + slope * s + beta * s * s < -tolerance:
+                return False
+    return True
+
+
+@_jit
+def growing_segment_distance(r0x: float, r0y: float, dx: float, dy: float,
+                             growth: float) -> float:
+    r"""Smallest :math:`\lVert r_0 + s\Delta \rVert - G s` over :math:`s \in [0, 1]`.
+
+    The smallest distance of a relative segment when the true path may stray
+    :math:`G s` from it (:func:`sqpmpc.plant.linear_growth`). The function is
+    convex; its minimizer solves :math:`(a + b s) = G \lVert r_0 + s \Delta\rVert`
+    (:math:`a = r_0^\top\Delta`, :math:`b = \lVert\Delta\rVert^2`,
+    :math:`c = \lVert r_0\rVert^2`):
+    :math:`s^* = (-a + G\sqrt{(bc - a^2)/(b - G^2)})/b` when :math:`G^2 < b`,
+    else it decreases to :math:`s = 1`. :math:`G = 0` gives the segment distance.
+    """
+    b = dx * dx + dy * dy
+    a = r0x * dx + r0y * dy
+    c = r0x * r0x + r0y * r0y
+    if b <= 0.0 or growth * growth >= b:
+        s = 1.0
+    else:
+        s = (-a + growth * math.sqrt(max(b * c - a * a, 0.0) / (b - growth * growth))) / b
+        s = min(max(s, 0.0), 1.0)
+    best = math.hypot(r0x + s * dx, r0y + s * dy) - growth * s
+    end = math.hypot(r0x + dx, r0y + dy) - growth
+    return min(best, end, math.sqrt(c))
+
+
+@_jit
 def segment_keeps_distance(x0: float, y0: float, x1: float, y1: float, points: np.ndarray,
-                           keep: np.ndarray, tolerance: float) -> bool:
+                           keep: np.ndarray, tolerance: float, growth: float = 0.0) -> bool:
     r"""Whether the segment :math:`(x_0, y_0) \to (x_1, y_1)` keeps ``keep[u] - tolerance``
     from every ``points[u]`` (the point-segment distance, as
-    :func:`sqpmpc.collision.segment_distances`)."""
+    :func:`sqpmpc.collision.segment_distances`), when the true path may stray
+    ``growth`` :math:`\cdot s` from it (:func:`growing_segment_distance`)."""
     dx, dy = x1 - x0, y1 - y0
-    den = dx * dx + dy * dy
     for u in range(points.shape[0]):
         rx, ry = x0 - points[u, 0], y0 - points[u, 1]
-        s = 0.0
-        if den > 0.0:
-            s = min(max(-(rx * dx + ry * dy) / den, 0.0), 1.0)
-        if math.hypot(rx + s * dx, ry + s * dy) < keep[u] - tolerance:
+        if growing_segment_distance(rx, ry, dx, dy, growth) < keep[u] - tolerance:
+            return False
+    return True
+
+
+@_jit
+def moving_points_keep_distance(x0: float, y0: float, x1: float, y1: float,
+                                start: np.ndarray, end: np.ndarray, keep: np.ndarray,
+                                growth: float) -> bool:
+    r"""Whether the path near :math:`p_0 \to p_1` keeps ``keep[o]`` from points moving
+    straight from ``start[o]`` to ``end[o]`` over the same sample (obstacles)."""
+    for o in range(start.shape[0]):
+        rx, ry = x0 - start[o, 0], y0 - start[o, 1]
+        dx = (x1 - end[o, 0]) - rx
+        dy = (y1 - end[o, 1]) - ry
+        if growing_segment_distance(rx, ry, dx, dy, growth) < keep[o]:
             return False
     return True
 
@@ -368,23 +435,22 @@ def obstacle_rows(me: np.ndarray, others_now: np.ndarray, own: np.ndarray,
 
 @_jit
 def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
-                        required: np.ndarray) -> bool:
+                        required: np.ndarray, growth: np.ndarray) -> bool:
     r"""Whether every pair keeps ``required`` along the straight segments of one sample.
 
     With both robots moving on straight segments at constant speed, the
     relative position is :math:`r(s) = r_0 + s(r_1 - r_0)`, whose smallest norm
     on :math:`s\in[0,1]` is at :math:`s^* = \mathrm{clip}(-r_0^\top\Delta/\|\Delta\|^2)`.
+    A robot whose true path may stray ``growth[j]`` :math:`\cdot s` from its
+    segment (a plant unlike the prediction) adds it: the pair's relative path
+    strays at most :math:`(G_j + G_l) s` (:func:`growing_segment_distance`).
     """
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
         r0x, r0y = now[a, 0] - now[b, 0], now[a, 1] - now[b, 1]
         dx = (nxt[a, 0] - nxt[b, 0]) - r0x
         dy = (nxt[a, 1] - nxt[b, 1]) - r0y
-        den = dx * dx + dy * dy
-        s = 0.0
-        if den > 0.0:
-            s = min(max(-(r0x * dx + r0y * dy) / den, 0.0), 1.0)
-        if math.hypot(r0x + s * dx, r0y + s * dy) < required[p]:
+        if growing_segment_distance(r0x, r0y, dx, dy, growth[a] + growth[b]) < required[p]:
             return False
     return True
 

@@ -38,6 +38,7 @@ from .errors import ProblemError
 from .kernels import shift_plan
 from .layout import QPLayout
 from .model import discrete_dynamics, estimate_input, rollout
+from .obstacles import StackedRows
 from .pipeline import ControllerPipeline, ControlOutput, braking_input
 from .scenario import Scenario
 from .settings import SolverSettings
@@ -137,18 +138,20 @@ class CentralizedController(ControllerPipeline):
         settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
-        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, 0,
+        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
                           _has_position_bounds(scenario))
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
-        self.collisions = PairwiseCollisionModel(pairs, required, settings.collision_margin,
+        self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
                                                  self.geometry)
         self._rows = {"internal": self.collisions}
+        if self.obstacle_rows is not None:
+            self._rows["external"] = self.obstacle_rows
         self._sample = 0
         # the neighbour slots of the decentralized scheme, per robot, for the pair rows
         self.slots = settings.neighbour_slots
-        self.interaction_radius = (required + settings.collision_margin + 2.0
+        self.interaction_radius = (required + self.pair_margin + 2.0
                                    * self.context.max_speed * scenario.horizon
                                    * scenario.sample_time)
         if self.slots is not None:
@@ -161,18 +164,22 @@ class CentralizedController(ControllerPipeline):
             _, first_only = self.collisions.select(self.interaction_radius, self.slots)
             self.counts["stage_one_pairs"] += first_only
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray) -> bool:
-        """Every pair keeps its distance along the straight segments of the sample.
+    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+        """Every pair keeps its distance along the paths of the sample.
 
         With the Euler model the robots move on straight segments at constant
         speed, so checking the relative segments (not only the next sample)
-        keeps robots from passing through each other between samples. (With
-        RK4 the path is an arc; the chord is then an approximation.)
+        keeps robots from passing through each other between samples. A plant
+        that moves otherwise (an arc, noise) strays from the predicted segment
+        by at most :meth:`path_deviation`, which the check adds.
         """
+        alpha, beta = self.path_deviation(inputs)
+        growth = alpha + np.maximum(beta, 0.0)
+        now = np.ascontiguousarray(states[:, :2])
         p = np.ascontiguousarray(next_states[:, :2])
-        if not self.collisions.first_input_safe(np.ascontiguousarray(states[:, :2]), p):
+        if not self.collisions.first_input_safe(now, p, growth):
             return False
-        return self._in_position_bounds(p)
+        return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.
@@ -212,8 +219,8 @@ class DecentralizedController(ControllerPipeline):
         others = np.array([i for i in range(scenario.n_robots) if i != index], dtype=np.int64)
         slots = others.size if settings.neighbour_slots is None else min(
             others.size, settings.neighbour_slots)
-        layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64), slots,
-                          _has_position_bounds(scenario))
+        layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64),
+                          slots + len(scenario.obstacles), _has_position_bounds(scenario))
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
         self.index = index
@@ -231,13 +238,14 @@ class DecentralizedController(ControllerPipeline):
         N = scenario.horizon
         v_max = self.context.max_speed
         # beyond this, a neighbour cannot come within its distance over the horizon
-        self.interaction_radius = (self.required + settings.collision_margin
+        self.interaction_radius = (self.required + self.pair_margin
                                    + 2.0 * v_max * N * scenario.sample_time)
         self.collisions = ExternalCollisionModel(
             self.required[:slots], N, self.geometry, reach=scenario.sample_time * v_max,
-            margin=settings.collision_margin, stage_one_rule_for_obstacles=mode == "shared",
+            margin=self.pair_margin, stage_one_rule_for_obstacles=mode == "shared",
         )
-        self._rows = {"external": self.collisions}
+        self._rows = {"external": self.collisions if self.obstacle_rows is None
+                      else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
         self.counts["fallback_neighbours"] = 0
         self.counts["unslotted_neighbours"] = 0
         self._own_prediction = np.zeros((N, 3))
@@ -247,8 +255,13 @@ class DecentralizedController(ControllerPipeline):
             _warn_paper_mode()
         self.published: PlanMessage | None = None
 
-    def _safe(self, states: np.ndarray, next_state: np.ndarray) -> bool:
-        return (self.collisions.first_stage_safe(next_state[0, :2])
+    def _safe(self, states: np.ndarray, next_state: np.ndarray, inputs: np.ndarray) -> bool:
+        alpha, beta = self.path_deviation(inputs)
+        if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
+                                                beta=float(beta[0])):
+            return False
+        growth = alpha + np.maximum(beta, 0.0)
+        return (self._obstacles_safe(states, next_state, growth)
                 and self._in_position_bounds(next_state[:, :2]))
 
     def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int) -> bool:

@@ -327,7 +327,10 @@ def warm_up() -> float:
     shift_plan(np.zeros((3, 3)), np.zeros((2, 2)), 0.1, np.empty((2, 3)))
     clip_and_roll_out(x, np.zeros((2, 2, 2)), -np.ones(2), np.ones(2), 0.1, np.empty((2, 3, 3)))
     ck.halfplanes_hold(np.zeros((1, 2)), np.zeros(1), 0.0, 0.0, 1e-12)
-    ck.segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12)
+    ck.halfplanes_hold_path(np.zeros((1, 2)), np.zeros(1), 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1e-12)
+    ck.segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12, 0.0)
+    ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
+                                   np.ones(1), 0.0)
     one = np.zeros(1, dtype=np.int64)
     split_rows(np.ones(2), np.zeros(2), np.ones(2), one, one + 1, one, one, one + 1, 1e20, 1e30,
                np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
@@ -341,7 +344,7 @@ def warm_up() -> float:
     ck.pair_rows(pairs, x[:, :2].copy(), states, np.ones(1), rot, 0.6, np.empty((1, 2, 4)),
               np.empty((1, 2)), np.empty((2, 2)), stages)
     ck.select_pairs(pairs, x[:, :2].copy(), np.ones(1), 1, 2, stages)
-    ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1))
+    ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2))
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))

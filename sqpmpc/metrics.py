@@ -57,6 +57,7 @@ import numpy as np
 
 from .collision import segment_distances
 from .errors import ProblemError
+from .paths import obstacle_clearances, plant_paths
 
 __all__ = [
     "COLLISION_TOLERANCE",
@@ -110,6 +111,9 @@ class RunRecord:
         Whether the run reached the scenario's ``t_end``.
     extra
         Free extra metrics, merged into the metrics at top level.
+    plant_inputs
+        The inputs the plant really applied (the commanded ``inputs`` plus the
+        ``[plant]`` input noise), ``(k, n, 2)``; ``None``: the commanded ones.
 
     Raises
     ------
@@ -127,6 +131,7 @@ class RunRecord:
     solver_failures: int = 0
     completed: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
+    plant_inputs: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = int(self.scenario.n_robots)
@@ -150,6 +155,17 @@ class RunRecord:
             raise ProblemError(
                 f"solve_times must have shape ({k}, 1) or ({k}, {n}), got {st.shape}")
         self.solve_times = st
+        if self.plant_inputs is not None:
+            self.plant_inputs = np.asarray(self.plant_inputs, dtype=float)
+            if self.plant_inputs.shape != self.inputs.shape:
+                raise ProblemError(f"plant_inputs must have shape {self.inputs.shape}, got "
+                                   f"{self.plant_inputs.shape}")
+
+    @property
+    def plant_model(self) -> str:
+        """The plant model of the scenario (``"euler"`` without a ``[plant]`` section)."""
+        plant = getattr(self.scenario, "plant", None)
+        return str(getattr(plant, "model", "euler"))
 
     @property
     def k(self) -> int:
@@ -222,6 +238,12 @@ def intersample_distances(positions: np.ndarray, pairs: np.ndarray) -> np.ndarra
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     r = positions[:, pairs[:, 0], :] - positions[:, pairs[:, 1], :]
     return segment_distances(r[:-1], r[1:])
+
+
+def _between_samples(piece_distances: np.ndarray, k: int) -> np.ndarray:
+    """Per-interval minimum ``(k, P)`` of the distances of the path pieces ``(k M, P)``."""
+    M = piece_distances.shape[0] // k
+    return piece_distances.reshape((k, M) + piece_distances.shape[1:]).min(axis=1)
 
 
 def _float(x: Any) -> float | None:
@@ -310,7 +332,11 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
     pos = record.positions
     ref = record.references()
 
-    # Pairwise distances and clearances over every sample.
+    # The true paths between samples (arcs of an exact plant), then pairwise distances
+    # and clearances over every sample and between samples.
+    path_t, path_pos = plant_paths(record.states, record.plant_inputs
+                                   if record.plant_inputs is not None else record.inputs,
+                                   float(sc.sample_time), record.plant_model)
     pairs = np.asarray(sc.pairs(), dtype=np.int64).reshape(-1, 2)
     min_distance = min_clearance = None
     min_at: dict[str, Any] | None = None
@@ -324,7 +350,7 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         min_clearance = _float(clearance.min())
         collisions = int(np.count_nonzero(clearance < -COLLISION_TOLERANCE))
         if k > 0:
-            between = intersample_distances(pos, pairs) - required
+            between = _between_samples(intersample_distances(path_pos, pairs), k) - required
             intersample_min_clearance = _float(between.min())
             intersample_collisions = int(np.count_nonzero(between < -COLLISION_TOLERANCE))
         if min_clearance is not None:
@@ -377,7 +403,15 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         "state_bound_violations": state_violations,
         "intersample_min_clearance": intersample_min_clearance,
         "intersample_collisions": intersample_collisions,
+        **obstacle_clearances(sc, record.t, pos, path_t, path_pos, COLLISION_TOLERANCE),
     }
+    plant = getattr(sc, "plant", None)
+    if plant is not None:
+        metrics["plant"] = plant.to_dict()
+        if record.plant_inputs is not None and k > 0:
+            noise = record.plant_inputs - record.inputs
+            metrics["plant"]["applied_noise_max"] = [_float(v) for v in
+                                                    np.abs(noise).max(axis=(0, 1))]
     for key, value in (record.extra or {}).items():
         name = str(key)
         if name in metrics:
@@ -428,6 +462,8 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
         "solve_times": record.solve_times,
         "references": record.references(),
     }
+    if record.plant_inputs is not None:
+        arrays["plant_inputs"] = record.plant_inputs
     _atomic_write(path, lambda fh: np.savez(fh, **arrays), "wb")
     return path
 

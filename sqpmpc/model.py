@@ -1,4 +1,4 @@
-r"""Unicycle kinematics (paper eq. 1) and its discretizations (eq. 3 and RK4).
+r"""Unicycle kinematics (paper eq. 1) and its discretizations (eq. 3, RK4, exact).
 
 The continuous model is
 
@@ -6,12 +6,26 @@ The continuous model is
 
     \dot x = v \cos\psi, \qquad \dot y = v \sin\psi, \qquad \dot\psi = \omega,
 
-with state :math:`\chi = (x, y, \psi)` and input :math:`u = (v, \omega)`. Two
+with state :math:`\chi = (x, y, \psi)` and input :math:`u = (v, \omega)`. Three
 discretizations with sample time :math:`T_s` are provided:
 
 - ``"euler"`` (the paper's eq. 3, the default):
   :math:`\chi_{k+1} = \chi_k + T_s f(\chi_k, u_k)`;
-- ``"rk4"``: the classical fourth-order Runge-Kutta step with the input held.
+- ``"rk4"``: the classical fourth-order Runge-Kutta step with the input held;
+- ``"exact"``: the unicycle integrated exactly under a zero-order-hold input,
+  a circular arc (a straight segment when :math:`\omega = 0`). With
+  :math:`a = \omega T_s / 2` and :math:`\operatorname{sinc} a = \sin a / a`,
+
+  .. math::
+
+      p_{k+1} = p_k + T_s v \operatorname{sinc}(a)
+      \begin{bmatrix}\cos(\psi_k + a) \\ \sin(\psi_k + a)\end{bmatrix},
+      \qquad \psi_{k+1} = \psi_k + T_s \omega,
+
+  the chord of the arc: it turns by half the heading change and is shortened
+  by :math:`\operatorname{sinc} a`. :math:`\operatorname{sinc}` and its
+  derivative are evaluated by their Taylor series for :math:`|a| < 10^{-3}`, so
+  the step and its Jacobians are smooth through :math:`\omega = 0`.
 
 Every function is vectorized: states have shape ``(..., 3)`` and inputs
 ``(..., 2)`` with any common leading shape (robots, stages, both), and
@@ -36,14 +50,16 @@ __all__ = [
     "weighted_dynamics_hessian",
     "estimate_input",
     "rollout",
+    "sinc_and_derivative",
     "NX",
     "NU",
 ]
 
 NX = 3
 NU = 2
-Discretization = Literal["euler", "rk4"]
-DISCRETIZATIONS: tuple[str, ...] = ("euler", "rk4")
+Discretization = Literal["euler", "rk4", "exact"]
+DISCRETIZATIONS: tuple[str, ...] = ("euler", "rk4", "exact")
+_SERIES = 1e-3  # |a| below which sinc and its derivative use their Taylor series
 
 
 def _check_method(method: str) -> None:
@@ -51,6 +67,54 @@ def _check_method(method: str) -> None:
         raise ProblemError(
             f"discretization must be one of {DISCRETIZATIONS}, got {method!r}"
         )
+
+
+def sinc_and_derivative(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r""":math:`\operatorname{sinc} a = \sin a / a` and its derivative, smooth at 0.
+
+    For :math:`|a| < 10^{-3}` the series :math:`1 - a^2/6 + a^4/120` and
+    :math:`-a/3 + a^3/30` are used (their truncation error is below
+    :math:`10^{-18}` there).
+    """
+    a = np.asarray(a, dtype=float)
+    small = np.abs(a) < _SERIES
+    safe = np.where(small, 1.0, a)
+    sin, cos = np.sin(safe), np.cos(safe)
+    a2 = a * a
+    sinc = np.where(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, sin / safe)
+    dsinc = np.where(small, -a / 3.0 + a * a2 / 30.0, (safe * cos - sin) / (safe * safe))
+    return sinc, dsinc
+
+
+def _exact_step(states: np.ndarray, inputs: np.ndarray, h: float, jacobians: bool
+                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The exact zero-order-hold step (and its Jacobians), see the module notes."""
+    psi = states[..., 2]
+    v, w = inputs[..., 0], inputs[..., 1]
+    a = 0.5 * h * w
+    s, ds = sinc_and_derivative(a)
+    mid = psi + a
+    c, sn = np.cos(mid), np.sin(mid)
+    length = h * v * s
+    shape = np.broadcast_shapes(states.shape[:-1], inputs.shape[:-1])
+    nxt = np.empty(shape + (3,))
+    nxt[..., 0] = states[..., 0] + length * c
+    nxt[..., 1] = states[..., 1] + length * sn
+    nxt[..., 2] = psi + h * w
+    if not jacobians:
+        return nxt, None, None
+    A = np.broadcast_to(np.eye(3), shape + (3, 3)).copy()
+    A[..., 0, 2] = -length * sn
+    A[..., 1, 2] = length * c
+    B = np.zeros(shape + (3, 2))
+    B[..., 0, 0] = h * s * c
+    B[..., 1, 0] = h * s * sn
+    # d/d omega: a = h w / 2 moves both the length (through sinc) and the direction
+    dlen = h * v * ds * (0.5 * h)
+    B[..., 0, 1] = dlen * c - length * sn * (0.5 * h)
+    B[..., 1, 1] = dlen * sn + length * c * (0.5 * h)
+    B[..., 2, 1] = h
+    return nxt, A, B
 
 
 def continuous_dynamics(states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
@@ -112,7 +176,7 @@ def discrete_dynamics(
     sample_time
         :math:`T_s` in seconds.
     method
-        ``"euler"`` (paper eq. 3) or ``"rk4"``.
+        ``"euler"`` (paper eq. 3), ``"rk4"`` or ``"exact"``.
 
     Returns
     -------
@@ -123,6 +187,8 @@ def discrete_dynamics(
     states = np.asarray(states, dtype=float)
     inputs = np.asarray(inputs, dtype=float)
     h = float(sample_time)
+    if method == "exact":
+        return _exact_step(states, inputs, h, False)[0]
     if method == "euler":
         if states.shape[:-1] == inputs.shape[:-1]:  # hot path: no broadcasting needed
             psi = states[..., 2]
@@ -161,6 +227,18 @@ def discrete_jacobians(
     :math:`\xi_1 = \chi`, :math:`\xi_{i+1} = \chi + c_i T_s k_i`,
     :math:`k_i = f(\xi_i, u)`, with
     :math:`\mathrm{d}k_i = J_\chi(\xi_i)\,\mathrm{d}\xi_i + J_u(\xi_i)\,\mathrm{d}u`.
+    For the exact step, with :math:`\ell = T_s v \operatorname{sinc} a` and
+    :math:`\phi = \psi + a`,
+
+    .. math::
+
+        \frac{\partial p^+}{\partial \psi} = \ell \begin{bmatrix}-\sin\phi \\
+        \cos\phi\end{bmatrix}, \quad
+        \frac{\partial p^+}{\partial v} = T_s \operatorname{sinc}(a)
+        \begin{bmatrix}\cos\phi \\ \sin\phi\end{bmatrix}, \quad
+        \frac{\partial p^+}{\partial \omega} = \frac{T_s}{2}\Big(T_s v
+        \operatorname{sinc}'(a) \begin{bmatrix}\cos\phi \\ \sin\phi\end{bmatrix}
+        + \ell \begin{bmatrix}-\sin\phi \\ \cos\phi\end{bmatrix}\Big).
 
     Returns
     -------
@@ -171,6 +249,8 @@ def discrete_jacobians(
     states = np.asarray(states, dtype=float)
     inputs = np.asarray(inputs, dtype=float)
     h = float(sample_time)
+    if method == "exact":
+        return _exact_step(states, inputs, h, True)  # type: ignore[return-value]
     shape = np.broadcast_shapes(states.shape[:-1], inputs.shape[:-1])
     eye = np.broadcast_to(np.eye(3), shape + (3, 3))
     if method == "euler":
@@ -221,8 +301,8 @@ def weighted_dynamics_hessian(
         -v(\lambda_x\cos\psi + \lambda_y\sin\psi) & -\lambda_x\sin\psi + \lambda_y\cos\psi & 0\\
         -\lambda_x\sin\psi + \lambda_y\cos\psi & 0 & 0 \\ 0 & 0 & 0\end{bmatrix}.
 
-    For RK4 the block is obtained by central differences of the analytic
-    Jacobians (step 1e-6), which is accurate to about 1e-9 here.
+    For RK4 and the exact step the block is obtained by central differences of
+    the analytic Jacobians (step 1e-6), which is accurate to about 1e-9 here.
 
     Parameters
     ----------

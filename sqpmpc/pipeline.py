@@ -17,7 +17,8 @@ one function that reads top to bottom:
 6. **rules after solve**: a rule may ask for the sample to be iterated to
    convergence (gear cycle), within the sample's time budget;
 7. **verify**: the first input is clipped to its bounds and checked on the
-   nonlinear model over the whole sample; a failed QP, a non-finite plan or
+   nonlinear model over the whole sample, the plant's possible deviation from
+   the predicted path included (:mod:`sqpmpc.plant`); a failed QP, a non-finite plan or
    a failed check applies the shifted previous plan if it passes the same
    check, else a braking input (always safe by the stage-one rule);
 8. **publish**: the counters, the applied-input history the rules read and,
@@ -40,6 +41,8 @@ import numpy as np
 from .errors import ProblemError
 from .kernels import all_finite, clip_and_roll_out, warm_up
 from .layout import QPLayout
+from .obstacles import ObstacleRows
+from .plant import model_margin, path_deviation
 from .references import ReferenceSet
 from .rti import CollisionRows, IterationReport, MultipleShootingSQP
 from .rules import RowGeometry, RuleContext, RuleInstance, SampleView
@@ -154,6 +157,20 @@ class ControllerPipeline:
         self._applied_before = np.zeros((m, 2))
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
+        # a plant unlike the prediction: the margin of the rows and the check's path bound
+        plant = scenario.plant
+        self.model_margin = model_margin(self.input_lower, self.input_upper,
+                                         self.sample_time, settings.discretization, plant)
+        self._deviates = plant.model != settings.discretization or plant.noisy
+        self._noise_bound = plant.noise_bound
+        #: the margin of the rows between two robots: solver tolerance + plant deviation
+        self.pair_margin = settings.collision_margin + self.model_margin
+        self.obstacle_rows: ObstacleRows | None = None
+        if scenario.obstacles:
+            self.obstacle_rows = ObstacleRows(
+                scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
+                self.sample_time, self.geometry,
+                settings.collision_margin + 0.5 * self.model_margin)
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,
@@ -167,7 +184,9 @@ class ControllerPipeline:
             raise ProblemError(f"states must be finite with shape ({self._n}, 3), "
                                f"got {states.shape}")
         own = states[self.indices]
-        # 2. predict neighbours
+        # 2. predict neighbours (and the obstacles)
+        if self.obstacle_rows is not None:
+            self.obstacle_rows.set_sample(t, own[:, :2])
         self._predict_neighbours(sample, states, plans or {}, previous_states)
         # 3. rules shape the references
         raw = self.reference(t)
@@ -210,9 +229,27 @@ class ControllerPipeline:
         """Scheme-specific collision data of the sample (override)."""
         raise NotImplementedError
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray) -> bool:
-        """Whether moving the own robots ``states -> next_states`` is safe (override)."""
+    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+        """Whether moving the own robots ``states -> next_states`` with the first
+        ``inputs (m, 2)`` is safe (override)."""
         raise NotImplementedError
+
+    def path_deviation(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""The plant's deviation from the predicted segments, :math:`(\alpha, \beta)` per own
+        robot, for the first inputs ``(m, 2)`` (:func:`sqpmpc.plant.path_deviation`; zeros
+        when the plant moves as predicted)."""
+        if not self._deviates:
+            zero = np.zeros(inputs.shape[0])
+            return zero, zero
+        return path_deviation(inputs, self.sample_time, self.settings.discretization,
+                              self.scenario.plant.model, self._noise_bound)
+
+    def _obstacles_safe(self, states: np.ndarray, next_states: np.ndarray,
+                        growth: np.ndarray) -> bool:
+        """The own robots' paths keep their distances to the obstacles over the sample."""
+        if self.obstacle_rows is None:
+            return True
+        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth)
 
     def _publish(self, sample: int, out: ControlOutput) -> None:
         """Hand the sample's result to the scheme (override if there is something to send)."""
@@ -248,7 +285,7 @@ class ControllerPipeline:
                 finite = all_finite(plan_u.ravel())
                 plan_x = engine.rollout(own, plan_u) if finite else None
             # stage 1 of the rollout is exactly the next state of the first input
-            if finite and self._safe(own, plan_x[:, 1]):
+            if finite and self._safe(own, plan_x[:, 1], plan_u[:, 0]):
                 return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
                                      time.perf_counter() - t0)
         fallback, plan_u, plan_x = "brake", None, None
@@ -256,7 +293,7 @@ class ControllerPipeline:
             candidate = np.clip(shifted, self.input_lower, self.input_upper)
             if all_finite(candidate.ravel()):
                 candidate_x = engine.rollout(own, candidate)
-                if self._safe(own, candidate_x[:, 1]):
+                if self._safe(own, candidate_x[:, 1], candidate[:, 0]):
                     fallback, plan_u, plan_x = "shifted-plan", candidate, candidate_x
         if plan_u is None:
             plan_u = braking_input(self.input_lower, self.input_upper, (own.shape[0],

@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 
 from .errors import ProblemError, ScenarioError
+from .obstacles import Obstacle
+from .plant import PlantSpec
 from .references import (
     Reference,
     _describe,
@@ -207,6 +209,12 @@ class Scenario:
         Cost weights and box bounds.
     robots
         At least one robot, unique ids, not overlapping at :math:`t = 0`.
+    obstacles
+        Circular obstacles (static or moving), none overlapping a robot at
+        :math:`t = 0` (the file's ``[[obstacles]]``).
+    plant
+        How the simulated robots really move (the file's ``[plant]``; default:
+        the Euler step, no noise).
     source
         File path or built-in name it came from (not part of equality).
 
@@ -223,6 +231,8 @@ class Scenario:
     weights: Weights
     bounds: Bounds
     robots: tuple[RobotSpec, ...]
+    obstacles: tuple[Obstacle, ...] = ()
+    plant: PlantSpec = field(default_factory=PlantSpec)
     source: str = field(default="<memory>", compare=False)
 
     def __post_init__(self) -> None:
@@ -251,6 +261,32 @@ class Scenario:
                                     f"expected a RobotSpec, found {_describe(robot)}")
         object.__setattr__(self, "robots", robots)
         self._check_robots()
+        if not isinstance(self.obstacles, list | tuple):
+            raise ScenarioError(self.source, "obstacles", "expected [[obstacles]] tables, found "
+                                f"{_describe(self.obstacles)}")
+        object.__setattr__(self, "obstacles", tuple(self.obstacles))
+        for i, obstacle in enumerate(self.obstacles):
+            if not isinstance(obstacle, Obstacle):
+                raise ScenarioError(self.source, f"obstacles[{i}]",
+                                    f"expected an Obstacle, found {_describe(obstacle)}")
+        if not isinstance(self.plant, PlantSpec):
+            raise ScenarioError(self.source, "plant", f"expected a PlantSpec ([plant] table), "
+                                f"found {_describe(self.plant)}")
+        self._check_obstacles()
+
+    def _check_obstacles(self) -> None:
+        xy = self.initial_states()[:, :2]
+        for o, obstacle in enumerate(self.obstacles):
+            gap = np.hypot(*(xy - np.asarray(obstacle.position)).T)
+            need = 0.5 * (self.diameters() + obstacle.diameter)
+            bad = np.flatnonzero(gap < need)
+            if bad.size:
+                j = int(bad[0])
+                raise ScenarioError(
+                    self.source, f"obstacles[{o}].position",
+                    f"obstacle {o} overlaps robot id {self.robots[j].id} (robots[{j}]) at "
+                    f"t = 0: centre distance {gap[j]:.6g} m, expected at least "
+                    f"(d_robot + d_obstacle) / 2 = {need[j]:.6g} m")
 
     def _check_robots(self) -> None:
         first: dict[int, int] = {}
@@ -362,6 +398,12 @@ class Scenario:
                       f"initial_state = {_toml_value(robot.initial_state)}",
                       f"diameter = {_toml_value(robot.diameter)}",
                       f"reference = {_toml_value(robot.reference.to_dict())}"]
+        for obstacle in self.obstacles:
+            lines += ["", "[[obstacles]]"]
+            lines += [f"{k} = {_toml_value(v)}" for k, v in obstacle.to_dict().items()]
+        if self.plant != PlantSpec():
+            lines += ["", "[plant]"]
+            lines += [f"{k} = {_toml_value(v)}" for k, v in self.plant.to_dict().items()]
         return "\n".join(lines) + "\n"
 
 
@@ -386,6 +428,10 @@ def _toml_value(value: Any) -> str:
 # -- parsing --------------------------------------------------------------------------------
 
 _TOP_KEYS = ("name", "t_end", "sample_time", "horizon", "weights", "bounds", "robots")
+_OPTIONAL_TOP_KEYS = ("obstacles", "plant")
+_OBSTACLE_KEYS = ("position", "diameter", "velocity")
+_OBSTACLE_REQUIRED = ("position", "diameter")
+_PLANT_KEYS = ("model", "input_noise", "seed")
 _WEIGHT_KEYS = ("Q", "R")
 _BOUND_KEYS = ("v", "omega", "x", "y")
 _BOUND_REQUIRED = ("v", "omega")
@@ -406,6 +452,7 @@ _EXPECTED = {  # what a missing key should hold
     "initial_state": "an array of 3 finite numbers [x, y, psi]",
     "diameter": "a finite number > 0 (m)",
     "reference": "an inline table { type = ..., ... }",
+    "position": "an array of 2 finite numbers [x, y] (m)",
 }
 
 
@@ -449,7 +496,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     ScenarioError
         The first problem found, naming ``source`` and the key.
     """
-    _table(data, source, "", _TOP_KEYS, _TOP_KEYS)
+    _table(data, source, "", _TOP_KEYS + _OPTIONAL_TOP_KEYS, _TOP_KEYS)
     try:  # top-level scalars first, so errors come roughly in file order
         _check_name(data["name"])
         _check_timing(data["t_end"], data["sample_time"], data["horizon"])
@@ -471,9 +518,34 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
         robots.append(_build(RobotSpec, source, key, id=r["id"],
                              initial_state=r["initial_state"], diameter=r["diameter"],
                              reference=reference))
+    obstacles = []
+    raw_obstacles = data.get("obstacles", [])
+    if not isinstance(raw_obstacles, list | tuple):
+        raise ScenarioError(source, "obstacles", "expected [[obstacles]] tables, found "
+                            f"{_describe(raw_obstacles)}")
+    for i, raw in enumerate(raw_obstacles):
+        key = f"obstacles[{i}]"
+        o = _table(raw, source, key, _OBSTACLE_KEYS, _OBSTACLE_REQUIRED)
+        obstacles.append(_build_checked(Obstacle, source, key, **o))
+    plant = PlantSpec()
+    if "plant" in data:
+        plant = _build_checked(PlantSpec, source, "plant",
+                               **_table(data["plant"], source, "plant", _PLANT_KEYS, ()))
     return Scenario(name=data["name"], t_end=data["t_end"], sample_time=data["sample_time"],
                     horizon=data["horizon"], weights=weights, bounds=bounds,
-                    robots=tuple(robots), source=source)
+                    robots=tuple(robots), obstacles=tuple(obstacles), plant=plant,
+                    source=source)
+
+
+def _build_checked(cls: type, source: str, prefix: str, **kwargs: Any) -> Any:
+    """Build a dataclass whose validation raises :class:`ProblemError` naming the field."""
+    try:
+        return cls(**kwargs)
+    except ProblemError as exc:
+        field_name, _, detail = str(exc).partition(": ")  # "<field>: expected ..."
+        if field_name in {f.name for f in dataclasses.fields(cls)}:
+            raise ScenarioError(source, f"{prefix}.{field_name}", detail) from None
+        raise ScenarioError(source, prefix, str(exc)) from None
 
 
 # -- loading --------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ A run that stops midway (exception, Ctrl-C) keeps what it had:
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from .controllers import CentralizedController, DecentralizedController, PlanMessage
 from .errors import ProblemError
 from .metrics import RunRecord
-from .model import discrete_dynamics
+from .plant import Plant
 from .scenario import Scenario
 from .settings import SolverSettings
 
@@ -42,7 +42,8 @@ class SimulationOptions:
     decentralized_mode
         ``"shared"`` or ``"paper"``.
     plant_discretization
-        ``None``: the controller's; else ``"euler"`` or ``"rk4"``.
+        ``None``: the scenario's ``[plant] model`` (``"euler"`` without one);
+        else ``"euler"``, ``"rk4"`` or ``"exact"`` in its place (its input noise kept).
     message_drop_probability
         Decentralized only: probability that a plan message is lost.
     seed
@@ -89,7 +90,13 @@ class ClosedLoopSimulation:
         self.settings = settings or SolverSettings()
         self.options = options or SimulationOptions()
         n, K = scenario.n_robots, scenario.steps
-        self.plant_method = self.options.plant_discretization or self.settings.discretization
+        spec = scenario.plant
+        if self.options.plant_discretization is not None:
+            spec = replace(spec, model=self.options.plant_discretization)
+            scenario = scenario.with_changes(plant=spec)
+            self.scenario = scenario
+        self.plant_method = spec.model
+        self.plant = Plant(spec, scenario.sample_time, n)
         if scheme == "centralized":
             self.controllers = [CentralizedController(scenario, self.settings)]
         else:
@@ -102,6 +109,7 @@ class ClosedLoopSimulation:
         self.states = np.zeros((K + 1, n, 3))
         self.states[0] = scenario.initial_states()
         self.inputs = np.zeros((K, n, 2))
+        self.plant_inputs = np.zeros((K, n, 2))
         self.solve_times = np.zeros((K, len(self.controllers)))
         self.k = 0
         self.fallbacks = 0
@@ -146,7 +154,7 @@ class ClosedLoopSimulation:
             self.timing["osqp_solve_s"] += o.report.osqp_solve_time
             self.timing["total_s"] += o.compute_time
         self.inputs[k] = u
-        self.states[k + 1] = discrete_dynamics(x, u, sc.sample_time, self.plant_method)
+        self.states[k + 1], self.plant_inputs[k] = self.plant.step(x, u)
         self.k = k + 1
 
     def run(self) -> RunRecord:
@@ -180,6 +188,8 @@ class ClosedLoopSimulation:
             "hessian": self.settings.hessian,
             "discretization": self.settings.discretization,
             "plant_discretization": self.plant_method,
+            "collision_margin": self.settings.collision_margin,
+            "model_margin": self.controllers[0].model_margin,
             "qp_iterations_total": int(self.qp_iterations),
             "counters": self.counters(),
             "rules": [r.name for r in self.settings.rules],
@@ -197,6 +207,7 @@ class ClosedLoopSimulation:
             solver_failures=int(self.fallbacks),
             completed=k == self.scenario.steps,
             extra=extra,
+            plant_inputs=self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
         )
 
 

@@ -212,9 +212,10 @@ def test_centralized_check_refuses_passing_through_between_samples() -> None:
     now = np.array([[-0.2, 0.0, 0.0], [0.2, 0.0, np.pi]])
     swapped = np.array([[0.2, 0.0, 0.0], [-0.2, 0.0, np.pi]])  # both ends 0.4 m > D apart
     assert np.linalg.norm(swapped[0, :2] - swapped[1, :2]) > D
-    assert not ctrl._safe(now, swapped)
+    inputs = np.array([[0.4, 0.0], [0.4, 0.0]])  # the Euler plant: no path deviation
+    assert not ctrl._safe(now, swapped, inputs)
     sidestep = np.array([[-0.2, 0.0, 0.0], [0.2, 0.5, np.pi]])
-    assert ctrl._safe(now, sidestep)
+    assert ctrl._safe(now, sidestep, inputs)
 
 
 def test_centralized_controller_refuses_bad_state_shapes() -> None:

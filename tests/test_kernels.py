@@ -76,10 +76,11 @@ def test_pairs_keep_distance_is_the_segment_distance() -> None:
     pairs = np.array([[i, j] for i in range(5) for j in range(i + 1, 5)], dtype=np.int64)
     d = segment_distances(now[pairs[:, 0]] - now[pairs[:, 1]],
                           nxt[pairs[:, 0]] - nxt[pairs[:, 1]])
-    assert collision_kernels.pairs_keep_distance(pairs, now, nxt, d - 1e-9)
+    zero = np.zeros(5)
+    assert collision_kernels.pairs_keep_distance(pairs, now, nxt, d - 1e-9, zero)
     worst = int(np.argmin(d))
     assert not collision_kernels.pairs_keep_distance(pairs[worst:worst + 1], now, nxt,
-                                           d[worst:worst + 1] + 1e-9)
+                                                     d[worst:worst + 1] + 1e-9, zero)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -197,7 +198,7 @@ def test_segment_keeps_distance_is_the_segment_distance_test(seed: int) -> None:
         keep = rng.uniform(0.1, 1.0, points.shape[0])
         expected = bool(np.all(segment_distances(a - points, b - points) >= keep - 1e-12))
         assert collision_kernels.segment_keeps_distance(a[0], a[1], b[0], b[1], points, keep,
-                                              1e-12) == expected
+                                                        1e-12, 0.0) == expected
 
 
 def test_split_rows_gives_piqp_equalities_inequalities_and_off_rows() -> None:
@@ -228,3 +229,42 @@ def test_split_rows_gives_piqp_equalities_inequalities_and_off_rows() -> None:
     off = G_ids.indices == 0  # row 1 of the QP: free on both sides
     np.testing.assert_array_equal(G_data[off], 0.0)
     np.testing.assert_array_equal(G_data[~off], entry_values[g_entries][~off])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_growing_segment_distance_is_the_brute_force_minimum(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, 20001)
+    for case in range(200):
+        r0 = rng.normal(size=2) * rng.uniform(0.01, 2.0)
+        d = rng.normal(size=2) * rng.uniform(0.0, 2.0)
+        if case % 7 == 0:
+            d = -r0 * rng.uniform(0.5, 2.0)  # through (or towards) the origin
+        growth = [0.0, rng.uniform(0.0, 0.2), rng.uniform(0.0, 3.0)][case % 3]
+        brute = (np.hypot(*(r0[:, None] + s * d[:, None])) - growth * s).min()
+        got = collision_kernels.growing_segment_distance(r0[0], r0[1], d[0], d[1], growth)
+        assert got <= brute + 1e-12  # never optimistic
+        assert got >= brute - 2e-4   # and exact up to the grid (kinks at the origin)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_halfplanes_hold_path_is_the_brute_force_test(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, 4001)
+    for _ in range(300):
+        n = rng.normal(size=(3, 2))
+        n /= np.hypot(n[:, 0], n[:, 1])[:, None]
+        p0, p1 = rng.normal(size=2), rng.normal(size=2)
+        rhs = n @ p0 - rng.uniform(0.0, 0.5, 3)  # p0 inside every half-plane
+        alpha = rng.uniform(-0.2, 0.3)
+        beta = rng.uniform(-0.3, 0.3)
+        if alpha < 0 or alpha + beta < 0:  # the bound must be >= 0 on [0, 1]
+            alpha = abs(alpha) + abs(beta)
+        bound = alpha * s + beta * s * (1 - s)
+        path = (1 - s)[:, None] * p0 + s[:, None] * p1  # (S, 2)
+        margin = (path @ n.T - rhs) - bound[:, None]  # worst case: strays against n
+        expected = bool(margin[1:].min() >= -1e-9)
+        got = collision_kernels.halfplanes_hold_path(n, rhs, p0[0], p0[1], p1[0], p1[1],
+                                                     alpha, beta, 1e-9)
+        if got != expected:  # only a grid point away from the boundary may differ
+            assert abs(margin[1:].min()) < 1e-6

@@ -33,7 +33,7 @@ def _fd_jacobians(x, u, h, method):
     return A, B
 
 
-@pytest.mark.parametrize("method", ["euler", "rk4"])
+@pytest.mark.parametrize("method", ["euler", "rk4", "exact"])
 def test_jacobians_match_finite_differences(method: str) -> None:
     rng = np.random.default_rng(1)
     x = rng.normal(size=(4, 8, 3)) * [2.0, 2.0, 3.0]
@@ -45,7 +45,7 @@ def test_jacobians_match_finite_differences(method: str) -> None:
     np.testing.assert_allclose(B, B_fd, atol=1e-8)
 
 
-@pytest.mark.parametrize("method", ["euler", "rk4"])
+@pytest.mark.parametrize("method", ["euler", "rk4", "exact"])
 def test_weighted_hessian_matches_finite_differences(method: str) -> None:
     rng = np.random.default_rng(2)
     x = rng.normal(size=(3, 3))
@@ -102,7 +102,7 @@ def test_unknown_discretization_is_refused() -> None:
         discrete_dynamics(np.zeros(3), np.zeros(2), 0.1, "midpoint")
 
 
-@pytest.mark.parametrize("method", ["euler", "rk4"])
+@pytest.mark.parametrize("method", ["euler", "rk4", "exact"])
 def test_rollout_equals_repeated_steps(method: str) -> None:
     rng = np.random.default_rng(5)
     x0 = rng.normal(size=(4, 3))
@@ -112,3 +112,37 @@ def test_rollout_equals_repeated_steps(method: str) -> None:
     for k in range(7):
         step.append(discrete_dynamics(step[-1], u[k], 0.3, method))
     np.testing.assert_allclose(xs, np.stack(step), atol=1e-12)
+
+
+def test_exact_step_is_the_closed_form_arc() -> None:
+    x0 = np.array([0.3, -1.0, 0.2])
+    v, w, h = 0.6, 0.5, 2.0
+    arc = np.array([0.3 + v / w * (np.sin(0.2 + w * h) - np.sin(0.2)),
+                    -1.0 - v / w * (np.cos(0.2 + w * h) - np.cos(0.2)), 0.2 + w * h])
+    np.testing.assert_allclose(discrete_dynamics(x0, np.array([v, w]), h, "exact"), arc,
+                               rtol=0, atol=1e-15)
+    # and RK4 with many steps converges to it
+    fine = rollout(x0, np.tile([v, w], (400, 1)), h / 400, "rk4")[-1]
+    np.testing.assert_allclose(fine, arc, atol=1e-12)
+
+
+def test_exact_step_is_smooth_through_zero_turn_rate() -> None:
+    x0 = np.array([0.0, 0.0, 0.7])
+    h = 0.5
+    # omega = 0: the straight segment (the Euler step)
+    straight = discrete_dynamics(x0, np.array([0.4, 0.0]), h, "exact")
+    np.testing.assert_allclose(straight, discrete_dynamics(x0, np.array([0.4, 0.0]), h),
+                               atol=1e-16)
+    # on both sides of the series switch (|a| = 1e-3) the step and the Jacobians are
+    # continuous, and the Jacobians match finite differences right at omega = 0
+    for w in (0.0, 2e-3 / h * (1 - 1e-9), 2e-3 / h * (1 + 1e-9), -1e-9, 1e-7):
+        x = np.array([0.1, 0.2, 0.7])
+        u = np.array([0.4, w])
+        nxt, A, B = discrete_jacobians(x, u, h, "exact")
+        A_fd, B_fd = _fd_jacobians(x, u, h, "exact")
+        np.testing.assert_allclose(A, A_fd, atol=1e-9)
+        np.testing.assert_allclose(B, B_fd, atol=1e-9)
+    below = discrete_jacobians(x, np.array([0.4, 2e-3 / h * (1 - 1e-12)]), h, "exact")
+    above = discrete_jacobians(x, np.array([0.4, 2e-3 / h * (1 + 1e-12)]), h, "exact")
+    for lo, hi in zip(below, above, strict=True):
+        np.testing.assert_allclose(lo, hi, atol=1e-14)

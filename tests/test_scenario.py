@@ -87,8 +87,18 @@ W_REF = 'type = "waypoints", times = [1.0, 3.0, 6.0], points = [[0, 0], [2, 1], 
 
 BAD_CASES: list[tuple[str, str, str]] = [
     # unknown keys, everywhere
-    ("unknown top-level key", "obstacles = []\n" + BASE, "obstacles"),
-    ("unknown top-level table", BASE + "\n[plant]\nnoise = 0.1\n", "plant"),
+    ("unknown top-level key", "obstacle = []\n" + BASE, "obstacle"),
+    ("unknown key in [plant]", BASE + "\n[plant]\nnoise = 0.1\n", "plant.noise"),
+    ("unknown plant model", BASE + '\n[plant]\nmodel = "rk5"\n', "plant.model"),
+    ("negative input noise", BASE + "\n[plant]\ninput_noise = [0.1, -0.1]\n",
+     "plant.input_noise"),
+    ("obstacle without a diameter", BASE + "\n[[obstacles]]\nposition = [9.0, 9.0]\n",
+     "obstacles[0].diameter"),
+    ("obstacle with a bad velocity", BASE + "\n[[obstacles]]\nposition = [9.0, 9.0]\n"
+     "diameter = 0.5\nvelocity = [1.0]\n", "obstacles[0].velocity"),
+    ("obstacle on a robot at t = 0", BASE + "\n[[obstacles]]\nposition = [9.0, 9.0]\n"
+     "diameter = 0.5\n\n[[obstacles]]\nposition = [1.0, 0.3]\ndiameter = 0.5\n",
+     "obstacles[1].position"),
     ("unknown key in weights", _sub("R = [0.5, 0.25]", "R = [0.5, 0.25]\nS = [1.0, 1.0]"),
      "weights.S"),
     ("unknown key in bounds", _sub("y = [-5.0, 5.0]", "y = [-5.0, 5.0]\nz = [0.0, 1.0]"),
@@ -221,8 +231,9 @@ def test_unknown_key_message_lists_allowed_keys(tmp_path: Path) -> None:
     with pytest.raises(ScenarioError, match=r"allowed keys: id, initial_state, diameter, "
                                             r"reference"):
         load_scenario(_write(tmp_path, _sub("id = 2\n", "id = 2\nmass = 3.0\n")))
-    with pytest.raises(ScenarioError, match=r"name, t_end, sample_time, horizon, weights"):
-        load_scenario(_write(tmp_path, "obstacles = []\n" + BASE))
+    with pytest.raises(ScenarioError, match=r"name, t_end, sample_time, horizon, weights, "
+                                            r"bounds, robots, obstacles, plant"):
+        load_scenario(_write(tmp_path, "obstacle = []\n" + BASE))
 
 
 def test_bool_is_reported_as_boolean(tmp_path: Path) -> None:
