@@ -19,8 +19,9 @@ states of all robots (one message) and collects one ``cmd`` per robot:
 
 A robot without an input (late, timed out, or its controller gone) gets the
 braking input (``v = omega = 0`` clipped to the bounds), counted in
-``missed_deadlines``. The state advances with the controllers'
-discretization, as in :class:`sqpmpc.simulation.ClosedLoopSimulation`.
+``missed_deadlines``. The state advances with the scenario's ``[plant]`` model and
+input noise (:class:`sqpmpc.plant.Plant`), as in
+:class:`sqpmpc.simulation.ClosedLoopSimulation`.
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
 ``metrics.json``, ``trajectory.npz`` and the plots into ``--out``.
 """
@@ -40,9 +41,8 @@ import numpy as np
 
 from sqpmpc.controllers import braking_input
 from sqpmpc.metrics import RunRecord, write_run
-from sqpmpc.model import discrete_dynamics
+from sqpmpc.plant import Plant
 from sqpmpc.scenario import Scenario
-from sqpmpc.settings import SolverSettings
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import Node, add_common_arguments, open_node, scenario_from_args, setup_logging
@@ -70,12 +70,14 @@ class PlantNode(Node):
         self.scheme = args.scheme
         self.timeout = float(args.timeout)
         self.startup_timeout = float(args.startup_timeout)
-        self.method = SolverSettings().discretization
+        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots)
+        self.method = scenario.plant.model
         n, steps = scenario.n_robots, scenario.steps
         self.t = scenario.sample_time * np.arange(steps + 1)
         self.states = np.zeros((steps + 1, n, 3))
         self.states[0] = scenario.initial_states()
         self.inputs = np.zeros((steps, n, 2))
+        self.plant_inputs = np.zeros((steps, n, 2))
         self.solve_times = np.zeros((steps, n if self.scheme == "decentralized" else 1))
         self.brake = braking_input(scenario.bounds.input_lower(), scenario.bounds.input_upper(),
                                    (1,))[0]
@@ -160,8 +162,8 @@ class PlantNode(Node):
                 self.solve_times[k, 0] = cmd.compute_time
                 fallback = fallback or cmd.fallback is not None
         self.solver_failures += fallback
-        self.states[k + 1] = discrete_dynamics(self.states[k], self.inputs[k],
-                                               self.scenario.sample_time, self.method)
+        self.states[k + 1], self.plant_inputs[k] = self.plant.step(self.states[k],
+                                                                   self.inputs[k])
 
     def run(self) -> None:
         """Run the samples until ``t_end`` or a stop signal."""
@@ -231,7 +233,8 @@ class PlantNode(Node):
         return RunRecord(self.scenario, self.scheme, self.t[: k + 1].copy(),
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
-                         k == self.scenario.steps, extra)
+                         k == self.scenario.steps, extra,
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None)
 
     def finish(self) -> None:
         """Tell the controllers the run is over."""
