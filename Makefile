@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.qp_backends
 	$(BIN)/python -m benchmarks.fleet
 	$(BIN)/python -m benchmarks.fleet_services
+	$(BIN)/python -m benchmarks.real_plants
 	$(BIN)/python -m benchmarks.bench_services
 
 clean:
