@@ -170,7 +170,8 @@ class ControllerPipeline:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
                 self.sample_time, self.geometry,
-                settings.collision_margin + 0.5 * self.model_margin)
+                settings.collision_margin + 0.5 * self.model_margin,
+                (float(self.input_lower[0]), float(self.input_upper[0])))
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,
@@ -186,7 +187,7 @@ class ControllerPipeline:
         own = states[self.indices]
         # 2. predict neighbours (and the obstacles)
         if self.obstacle_rows is not None:
-            self.obstacle_rows.set_sample(t, own[:, :2])
+            self.obstacle_rows.set_sample(t, own)
         self._predict_neighbours(sample, states, plans or {}, previous_states)
         # 3. rules shape the references
         raw = self.reference(t)

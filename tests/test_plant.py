@@ -140,3 +140,25 @@ def test_input_noise_is_recorded_and_stays_safe(scheme: str) -> None:
     assert np.abs(noise).max() > 0
     assert np.all(np.abs(noise) <= NOISE_TRUNCATION * np.array([0.03, 0.04]) + 1e-12)
     assert metrics["plant"]["input_noise"] == [0.03, 0.04]
+
+
+@pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
+@pytest.mark.parametrize("velocity", [(0.0, -0.3), (-0.1, 0.0)], ids=["crossing", "head-on"])
+def test_a_moving_obstacle_on_the_path_is_avoided(scheme: str,
+                                                  velocity: tuple[float, float]) -> None:
+    from sqpmpc.metrics import compute_metrics
+    from sqpmpc.obstacles import Obstacle
+
+    scenario = load_scenario("head-on")
+    robot = scenario.robots[0]
+    # an obstacle across (or along, against) the robot's straight path, there when it is
+    start, goal = np.array(robot.initial_state[:2]), np.array(robot.reference.position(0.0))
+    middle = 0.5 * (start + goal) - 5.0 * np.asarray(velocity)
+    crossing = Obstacle(position=(float(middle[0]), float(middle[1])), diameter=0.4,
+                        velocity=velocity)
+    # head-on, the robot backs away before it goes round: time to arrive
+    scenario = scenario.with_changes(robots=(robot,), obstacles=(crossing,), t_end=45.0)
+    metrics = compute_metrics(simulate(scenario, scheme))
+    _check_safe(metrics)
+    assert metrics["min_obstacle_clearance"] >= 0.0
+    assert _arrived(metrics)
