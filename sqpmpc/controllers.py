@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Literal
 
 import numpy as np
@@ -254,6 +255,7 @@ class DecentralizedController(ControllerPipeline):
         if mode == "paper":
             _warn_paper_mode()
         self.published: PlanMessage | None = None
+        self._received: dict[int, PlanMessage] = {}
 
     def _safe(self, states: np.ndarray, next_state: np.ndarray, inputs: np.ndarray) -> bool:
         alpha, beta = self.path_deviation(inputs)
@@ -344,13 +346,65 @@ class DecentralizedController(ControllerPipeline):
     def _publish(self, sample: int, out: ControlOutput) -> None:
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0],
                                      out.predicted_inputs[0])
+        out.plan = self.published
+
+    def update_neighbour_plan(self, plan: PlanMessage) -> None:
+        """Keep a neighbour's plan for the next steps called without ``plans``.
+
+        The newest plan of each neighbour is kept (a plan of an earlier sample
+        than the one held is ignored, as a late message). Passing ``plans`` to
+        :meth:`step` instead uses exactly those plans.
+
+        Parameters
+        ----------
+        plan
+            What the neighbour's controller returned as ``ControlOutput.plan``
+            (or a plan rebuilt from a message).
+
+        Raises
+        ------
+        ProblemError
+            Not a :class:`PlanMessage`, the sender is this robot or not in the
+            scenario, a negative sample, or states/inputs not finite arrays of
+            shape ``(N+1, 3)`` / ``(N, 2)``; the message names the robot.
+        """
+        if not isinstance(plan, PlanMessage):
+            raise ProblemError(f"robot {self.robot_id}: update_neighbour_plan expects a "
+                               f"PlanMessage, got {type(plan).__name__}")
+        sender = plan.robot_id
+        where = f"robot {self.robot_id}: plan of robot {sender!r}"
+        if sender not in set(self.other_ids.tolist()):
+            raise ProblemError(f"{where}: not a neighbour; neighbours: "
+                               f"{', '.join(map(str, self.other_ids.tolist())) or 'none'}")
+        if isinstance(plan.sample, bool) or not isinstance(plan.sample, int | np.integer) or (
+                plan.sample < 0):
+            raise ProblemError(f"{where}: sample must be an integer >= 0, got {plan.sample!r}")
+        N = self.horizon
+        arrays = {}
+        for name, shape in (("states", (N + 1, 3)), ("inputs", (N, 2))):
+            value = np.ascontiguousarray(getattr(plan, name), dtype=np.float64)
+            if value.shape != shape or not np.isfinite(value).all():
+                raise ProblemError(f"{where}: {name} must be finite with shape {shape}, got "
+                                   f"shape {value.shape}" + (
+                                       "" if value.shape != shape else " with non-finite values"))
+            arrays[name] = value
+        held = self._received.get(sender)
+        if held is not None and held.sample > plan.sample:
+            return
+        self._received[sender] = PlanMessage(int(sender), int(plan.sample), arrays["states"],
+                                             arrays["inputs"])
+
+    @property
+    def neighbour_plans(self) -> Mapping[int, PlanMessage]:
+        """The plans kept by :meth:`update_neighbour_plan`, by neighbour id (read-only view)."""
+        return MappingProxyType(self._received)
 
     def step(
         self,
         sample: int,
         t: float,
         states: np.ndarray,
-        plans: Mapping[int, PlanMessage | None],
+        plans: Mapping[int, PlanMessage | None] | None = None,
         previous_states: np.ndarray | None = None,
     ) -> ControlOutput:
         """Compute this robot's input at sample ``k`` (time ``t``).
@@ -364,10 +418,20 @@ class DecentralizedController(ControllerPipeline):
         states
             Measured states of all robots ``(n, 3)`` (scenario order).
         plans
-            Latest plan received from each neighbour id (``None`` or absent if none).
+            Latest plan received from each neighbour id (``None`` or absent if
+            none); ``None`` (default): the plans kept by
+            :meth:`update_neighbour_plan`.
         previous_states
             States at ``k - 1`` (for the fallback estimate), or ``None``.
+
+        Returns
+        -------
+        ControlOutput
+            The input to apply (``inputs[0]``) and, in ``plan``, the plan to
+            send to the neighbours for their step ``k + 1``.
         """
+        if plans is None:
+            plans = self._received
         return self.run_sample(sample, t, states, plans, previous_states)
 
 

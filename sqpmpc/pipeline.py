@@ -31,10 +31,13 @@ The scheme-specific parts are three methods of the controllers in
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import numbers
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -43,11 +46,14 @@ from .kernels import all_finite, clip_and_roll_out, warm_up
 from .layout import QPLayout
 from .obstacles import ObstacleRows
 from .plant import model_margin, path_deviation
-from .references import ReferenceSet
+from .references import Reference, ReferenceSet
 from .rti import CollisionRows, IterationReport, MultipleShootingSQP
 from .rules import RowGeometry, RuleContext, RuleInstance, SampleView
 from .scenario import Scenario
 from .settings import SolverSettings
+
+if TYPE_CHECKING:
+    from .controllers import PlanMessage
 
 __all__ = ["ControlOutput", "ControllerPipeline", "braking_input", "kernel_warm_up_seconds"]
 
@@ -77,6 +83,10 @@ class ControlOutput:
         Cumulative counts of the controller after this sample: the engine's
         (``samples``, ``fallbacks``, ``qp_rescues``, ``stage_one_overrides``,
         ...) and every rule's (``sqpmpc rules``).
+    plan
+        Decentralized: the plan to send to the neighbours
+        (:class:`~sqpmpc.controllers.PlanMessage`, the same object as the
+        controller's ``published``); ``None`` for the centralized controller.
     """
 
     inputs: np.ndarray
@@ -86,6 +96,7 @@ class ControlOutput:
     report: IterationReport
     compute_time: float
     counters: Mapping[str, int] = field(default_factory=dict)
+    plan: PlanMessage | None = None
 
 
 def braking_input(lower: np.ndarray, upper: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -326,6 +337,53 @@ class ControllerPipeline:
             return True
         inside = (positions >= self._position_low) & (positions <= self._position_high)
         return np.count_nonzero(inside) == inside.size
+
+    # ------------------------------------------------------------------ setters
+    def update_reference(self, robot_id: int, reference: Reference) -> None:
+        """Track ``reference`` for robot ``robot_id`` from the next step on.
+
+        The controller then computes exactly what a controller constructed on
+        a scenario with that reference would compute from the same internal
+        state (warm start, rule state and counters are kept). The
+        controller's :attr:`scenario` is replaced by the updated copy.
+
+        Parameters
+        ----------
+        robot_id
+            Id of a robot of the scenario. For a decentralized controller, an
+            id other than its own changes only what its rules know of that
+            neighbour (where its reference comes to rest).
+        reference
+            A :class:`~sqpmpc.references.HarmonicReference`,
+            :class:`~sqpmpc.references.PointReference` or
+            :class:`~sqpmpc.references.WaypointReference` (validated when it
+            was constructed).
+
+        Raises
+        ------
+        ProblemError
+            Unknown robot id, or ``reference`` is not a reference; the message
+            names the robot.
+        """
+        if isinstance(robot_id, bool) or not isinstance(robot_id, numbers.Integral):
+            raise ProblemError(f"update_reference: robot_id must be an integer robot id, got "
+                               f"{robot_id!r}")
+        if not isinstance(reference, Reference):
+            raise ProblemError(f"update_reference: robot {int(robot_id)}: expected a "
+                               "HarmonicReference, PointReference or WaypointReference, got "
+                               f"{type(reference).__name__} {reference!r:.60}")
+        try:
+            index = self.scenario.index_of(int(robot_id))
+        except ProblemError as exc:
+            raise ProblemError(f"update_reference: {exc}") from None
+        robots = list(self.scenario.robots)
+        robots[index] = dataclasses.replace(robots[index], reference=reference)
+        self.scenario = self.scenario.with_changes(robots=tuple(robots))
+        self.context.scenario = self.scenario
+        self._references = ReferenceSet([self.scenario.robots[i].reference
+                                         for i in self.indices])
+        for rule in self.rules:
+            rule.references_changed()
 
     # ------------------------------------------------------------------ queries
     def reference(self, t: float) -> np.ndarray:

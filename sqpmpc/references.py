@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -32,7 +33,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from .errors import ScenarioError
+from .errors import ProblemError, ScenarioError
 
 __all__ = [
     "HarmonicReference",
@@ -49,8 +50,13 @@ __all__ = [
 # ---------------------------------------------------------------------------
 
 
-class _FieldError(ValueError):
-    """A bad value for one field; ``key`` is relative to the object being built."""
+class _FieldError(ProblemError, ValueError):
+    """A bad value for one field; ``key`` is relative to the object being built.
+
+    A :class:`~sqpmpc.errors.ProblemError` when a reference or scenario part is
+    built in code; the scenario loader turns it into a
+    :class:`~sqpmpc.errors.ScenarioError` naming the file and the key.
+    """
 
     def __init__(self, key: str, detail: str) -> None:
         self.key = key
@@ -213,25 +219,42 @@ class HarmonicReference:
         return {"type": "harmonic", "omega": self.omega, "x": list(self.x), "y": list(self.y)}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False, repr=False)
 class PointReference:
-    """Fixed goal :math:`r(t) = p`, :math:`\\dot r(t) = 0` (TOML key ``position``).
+    """Fixed goal :math:`r(t) = p`, :math:`\\dot r(t) = 0` (``type = "point"``).
 
     Parameters
     ----------
-    position_xy
-        Goal ``(x, y)``, m.
+    position
+        Goal ``(x, y)``, m: the scenario file's key ``position``. It is stored
+        as :attr:`goal`, because ``position(t)`` is the method every reference
+        kind evaluates.
+
+    Examples
+    --------
+    >>> PointReference(position=(3.0, 0.0)).position(10.0)
+    array([3., 0.])
     """
 
-    position_xy: tuple[float, float]
+    goal: tuple[float, float]
 
-    def __post_init__(self) -> None:
-        xy = _real_vector(self.position_xy, 2, "position", "an array of 2 finite numbers [x, y]")
-        object.__setattr__(self, "position_xy", xy)
+    def __init__(self, position: Sequence[float] | np.ndarray) -> None:
+        xy = _real_vector(position, 2, "position", "an array of 2 finite numbers [x, y]")
+        object.__setattr__(self, "goal", xy)
+
+    def __repr__(self) -> str:
+        return f"PointReference(position={self.goal!r})"
+
+    @property
+    def position_xy(self) -> tuple[float, float]:
+        """Deprecated name of :attr:`goal` (warns ``DeprecationWarning``)."""
+        warnings.warn("PointReference.position_xy is deprecated; use PointReference.goal "
+                      "(the constructor takes position=...)", DeprecationWarning, stacklevel=2)
+        return self.goal
 
     def position(self, t: float | np.ndarray) -> np.ndarray:
         """The goal repeated, shape ``np.shape(t) + (2,)``, m."""
-        return np.broadcast_to(np.asarray(self.position_xy), np.shape(t) + (2,)).copy()
+        return np.broadcast_to(np.asarray(self.goal), np.shape(t) + (2,)).copy()
 
     def velocity(self, t: float | np.ndarray) -> np.ndarray:
         """Zeros, shape ``np.shape(t) + (2,)``, m/s."""
@@ -239,7 +262,7 @@ class PointReference:
 
     def to_dict(self) -> dict[str, Any]:
         """The scenario file's inline-table form."""
-        return {"type": "point", "position": list(self.position_xy)}
+        return {"type": "point", "position": list(self.goal)}
 
 
 @dataclass(frozen=True)
@@ -359,7 +382,7 @@ class ReferenceSet:
         self._coeff_table = np.ascontiguousarray(coeffs)
         self._points = slice(None) if len(points) == m else np.array(points, dtype=np.int64)
         self._n_points = len(points)
-        self._point_xy = np.array([self.references[i].position_xy for i in points]
+        self._point_xy = np.array([self.references[i].goal for i in points]
                                   ).reshape(-1, 1, 2)
 
     def positions(self, times: np.ndarray) -> np.ndarray:

@@ -175,10 +175,13 @@ class _RoundaboutInstance(RuleInstance):
         self.offsets = step * np.arange(1, context.horizon + 1, dtype=float)
         self._cos_cone = math.cos(rule.cone)
         self._cos_along = math.cos(rule.along)
-        sc = context.scenario
+        self.references_changed()
+        self._no_headings = np.zeros(context.scenario.n_robots)
+
+    def references_changed(self) -> None:
+        sc = self.context.scenario
         rest = np.hypot(*sc.reference_velocities(sc.t_end).T) == 0.0
         self.rest_goals = np.where(rest[:, None], sc.reference_positions(sc.t_end), np.nan)
-        self._no_headings = np.zeros(context.scenario.n_robots)
 
     def shape_references(self, view: SampleView) -> None:
         r = self.rule

@@ -16,7 +16,9 @@ them (:meth:`sqpmpc.pipeline.ControllerPipeline.step`):
    (the speeds of the shifted guess, a view into the iterate);
 4. :meth:`RuleInstance.after_solve`: ask for the sample to be iterated to
    convergence (SQP) after the RTI step;
-5. :meth:`RuleInstance.counters`: what the rule did, as named integer counts.
+5. :meth:`RuleInstance.counters`: what the rule did, as named integer counts;
+6. :meth:`RuleInstance.references_changed`: a reference was replaced between
+   samples (:meth:`sqpmpc.pipeline.ControllerPipeline.update_reference`).
 
 Only the hooks a rule overrides are called. Rules never touch safety: the
 collision rows stay inner approximations with a hard stage 1 whatever the
@@ -181,6 +183,9 @@ class RuleInstance:
 
     def configure_rows(self, geometry: RowGeometry) -> None:
         """Shape the collision-row geometry (called once, at construction)."""
+
+    def references_changed(self) -> None:
+        """``context.scenario``'s references changed: refresh what was derived from them."""
 
     def shape_references(self, view: SampleView) -> None:
         """Change ``view.references`` (or the cost weights) for this sample."""
