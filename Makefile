@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 # bounds-checked kernels, cached apart from the fast ones (numba's cache ignores the flag)
 CHECKED := NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(VENV)/numba-cache-checked
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test docs lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,9 +21,14 @@ demo: $(STAMP)
 	$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized --out runs/demo
 
 test: $(STAMP)
-	$(BIN)/ruff check sqpmpc services tests benchmarks
+	$(BIN)/ruff check sqpmpc services tests benchmarks examples docs
+	$(BIN)/mkdocs build --strict --quiet --site-dir site
 	$(CHECKED) $(BIN)/python -m sqpmpc.kernels
 	$(CHECKED) $(BIN)/pytest -q
+
+# the API reference (from the docstrings) and the reports, into site/ (mkdocs.yml)
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict --site-dir site
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.compare_ipopt
@@ -37,4 +42,4 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_services
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache .ruff_cache
+	rm -rf $(VENV) runs site .pytest_cache .ruff_cache
