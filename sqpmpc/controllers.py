@@ -185,7 +185,19 @@ class CentralizedController(ControllerPipeline):
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.
 
-        ``sample`` is the sample index (default: one more than the last call's).
+        Parameters
+        ----------
+        t
+            Time ``t_k``, s.
+        states
+            Measured states of all robots ``(n, 3)`` (scenario order).
+        sample
+            Sample index ``k`` (default: one more than the last call's, 0 at first).
+
+        Returns
+        -------
+        ControlOutput
+            ``inputs (n, 2)`` to apply (scenario order) and the plan behind them.
         """
         k = self._sample if sample is None else int(sample)
         out = self.run_sample(k, t, states)
