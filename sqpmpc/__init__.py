@@ -9,16 +9,17 @@ The public API, importable from the package itself::
     print(sqpmpc.compute_metrics(record)["min_clearance"])
 
 - problem data: :class:`Scenario` (:class:`RobotSpec`, :class:`Weights`,
-  :class:`Bounds`), :func:`load_scenario`, :func:`builtin_scenario_names`, the
-  fleet generators :func:`antipodal_swap`, :func:`random_crossings`,
-  :func:`grid_to_grid`;
+  :class:`Bounds`, :class:`Obstacle`, :class:`PlantSpec`), :func:`load_scenario`,
+  :func:`builtin_scenario_names`, the fleet generators :func:`antipodal_swap`,
+  :func:`random_crossings`, :func:`grid_to_grid`;
 - references: :class:`HarmonicReference`, :class:`PointReference`,
   :class:`WaypointReference`;
 - settings: :class:`SolverSettings`, :class:`OSQPSettings` and the rules
   (:func:`select_rules`, :func:`default_rules`, :func:`rule_names`, ...);
 - controllers: :class:`CentralizedController`, :class:`DecentralizedController`,
   their per-sample :class:`ControlOutput` and the exchanged :class:`PlanMessage`;
-- closed loop and results: :class:`ClosedLoopSimulation`,
+- closed loop and results: :class:`Plant` (how simulated robots move),
+  :class:`ClosedLoopSimulation`,
   :class:`SimulationOptions`, :class:`RunRecord`, :func:`compute_metrics`,
   :func:`write_run`, :func:`load_trajectory`;
 - errors: :class:`SqpmpcError` and its subclasses.
@@ -45,6 +46,9 @@ _EXPORTS: dict[str, str] = {
     "builtin_scenario_names": "scenario",
     "load_scenario": "scenario",
     "parse_scenario": "scenario",
+    "Obstacle": "obstacles",
+    "Plant": "plant",
+    "PlantSpec": "plant",
     "antipodal_swap": "fleets",
     "grid_to_grid": "fleets",
     "random_crossings": "fleets",
@@ -95,6 +99,9 @@ __all__ = [
     "builtin_scenario_names",
     "load_scenario",
     "parse_scenario",
+    "Obstacle",
+    "Plant",
+    "PlantSpec",
     "antipodal_swap",
     "grid_to_grid",
     "random_crossings",
@@ -148,6 +155,8 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         write_run,
         write_trajectory,
     )
+    from .obstacles import Obstacle
+    from .plant import Plant, PlantSpec
     from .qp import OSQPSettings
     from .references import (
         HarmonicReference,

@@ -14,7 +14,13 @@ import pytest
 
 import sqpmpc
 from sqpmpc.model import discrete_dynamics
-from sqpmpc.scenario import _ROBOT_KEYS, _TOP_KEYS
+from sqpmpc.scenario import (
+    _OBSTACLE_KEYS,
+    _OPTIONAL_TOP_KEYS,
+    _PLANT_KEYS,
+    _ROBOT_KEYS,
+    _TOP_KEYS,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +53,9 @@ def test_constructor_keywords_are_the_scenario_file_keys() -> None:
     def keywords(cls: type) -> set[str]:
         return set(inspect.signature(cls).parameters)
 
-    assert keywords(sqpmpc.Scenario) - {"source"} == set(_TOP_KEYS)
+    assert keywords(sqpmpc.Scenario) - {"source"} == set(_TOP_KEYS + _OPTIONAL_TOP_KEYS)
+    assert keywords(sqpmpc.Obstacle) == set(_OBSTACLE_KEYS)
+    assert keywords(sqpmpc.PlantSpec) == set(_PLANT_KEYS)
     assert keywords(sqpmpc.RobotSpec) == set(_ROBOT_KEYS)
     assert keywords(sqpmpc.Weights) == {"Q", "R"}
     assert keywords(sqpmpc.Bounds) == {"v", "omega", "x", "y"}
