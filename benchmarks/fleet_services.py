@@ -177,7 +177,7 @@ def _micro(repeat: int = 2000) -> dict[str, float]:
                              np.zeros((scenario.horizon, 2))))
     t0 = time.perf_counter()
     for _ in range(repeat):
-        validator.check(payload, "plan", 2, ordered=False)
+        validator.check(payload, "plan", 2)
     t1 = time.perf_counter()
     for _ in range(repeat):
         peek_plan(payload)

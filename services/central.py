@@ -14,6 +14,8 @@ import argparse
 import logging
 import sys
 
+import zenoh
+
 from sqpmpc.controllers import CentralizedController
 from sqpmpc.scenario import Scenario
 
@@ -23,7 +25,13 @@ from .control import (
     add_controller_arguments,
     controller_settings,
 )
-from .node import add_common_arguments, open_node, scenario_from_args, setup_logging
+from .node import (
+    add_common_arguments,
+    open_node,
+    scenario_from_args,
+    session_lost,
+    setup_logging,
+)
 
 __all__ = ["CentralNode", "build_parser", "main"]
 
@@ -71,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node.start([("plant", "state"), ("plant", "done")])
         return node.run()
+    except zenoh.ZError as exc:
+        return session_lost(PROG, exc)
     finally:
         node.close()
 

@@ -1,18 +1,23 @@
 """The loop a controller service (robot or central) runs.
 
-It keeps the plant's ``state`` messages per sample and, whenever one is newer
-than the last sample handled, calls
+It accepts the plant's ``state`` messages by the run's acceptance policy
+(:class:`services.protocol.AcceptancePolicy`: a state beyond the run, with an
+inconsistent time or older than the cursor is dropped; a forward jump is
+provisional) and, whenever one was accepted since the last step, calls
 :meth:`ControllerNode.step_sample` with the ``(n, 3)`` states in scenario
 order. In lockstep the plant publishes one sample at a time, so every sample
 is handled in order; in real time a controller that falls behind skips to the
-newest sample. The loop ends on the plant's ``done`` message, when
-the plant's liveliness token disappears, or on SIGINT/SIGTERM.
+newest sample. A repeated state of the sample last handled means the plant
+still misses something of it: the controller re-sends what it published for
+it (its inputs, a robot's plan too). The loop ends on the plant's ``done``
+message, when the plant's liveliness token disappears, or on SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,10 +30,21 @@ from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_a
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
 from .node import POLL, Node
+from .protocol import StateCursor, Verdict
 
-__all__ = ["ControllerNode", "SampleStates", "add_controller_arguments", "controller_settings"]
+__all__ = [
+    "RESEND_GAP",
+    "ControllerNode",
+    "SampleStates",
+    "add_controller_arguments",
+    "controller_settings",
+]
 
 log = logging.getLogger(__name__)
+
+RESEND_GAP = 0.01
+"""Shortest time between two re-sends of a sample's outputs, s (a flood of repeated
+states cannot make a controller flood the network)."""
 
 
 def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str) -> None:
@@ -90,24 +106,65 @@ class ControllerNode(Node):
         self.timeout = float(args.timeout)
         self.startup_timeout = args.startup_timeout
         self.samples: dict[int, SampleStates] = {}
+        self.cursor = StateCursor()
+        self.pending: int | None = None  # the newest state accepted and not handled yet
         self.last_sample = -1
         self.done: DoneMsg | None = None
         self.plant_lost = False
         self.steps_done = 0
+        self.resends = 0
+        self._sent: list[tuple[bytes, tuple[object, ...]]] = []  # outputs of last_sample
+        self._sending: list[tuple[bytes, tuple[object, ...]]] = []  # of the sample in hand
+        self._resent_at = 0.0
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, StateMsg):
-            if msg.sample > self.last_sample:
-                self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x)
-            # a neighbour's plan can overtake the state of its sample (e.g. while this
-            # process joins), but a forged far-future sample must not lock a stream
-            bound = msg.sample + self.scenario.horizon + 2
-            self.validator.max_sample = max(self.validator.max_sample or 0, bound)
+            self.on_state(msg)
         elif isinstance(msg, DoneMsg):
-            self.done = msg
+            decision = self.policy.done(self.cursor, msg.sample, msg.completed)
+            if decision.accepted:
+                self.done = msg
+            else:
+                self._refused(decision.reason)
         else:
             self.on_other(kind, msg)
+
+    def on_state(self, msg: StateMsg) -> None:
+        """A valid state message: accept, answer or drop it (the acceptance policy)."""
+        decision = self.policy.state(self.cursor, msg.sample, msg.t)
+        if decision.accepted:
+            self.policy.advance(self.cursor, msg.sample)
+            for later in [s for s in self.samples if s > msg.sample]:
+                del self.samples[later]  # a resync below a provisional jump
+            self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x)
+            self.pending = msg.sample
+        elif decision.verdict is Verdict.REPEAT:
+            # the plant misses an input of this sample: if it is handled, this process's
+            # may be lost; if it is being handled, a robot may wait for a plan of the last
+            self.resend(inputs=msg.sample == self.last_sample)
+        elif decision.verdict is Verdict.STALE:
+            self.validator.stale += 1
+        else:
+            self._refused(decision.reason)
+
+    def sent(self, payload: bytes, *parts: object) -> None:
+        """Publish ``payload`` on ``parts`` and keep it for :meth:`resend`."""
+        self.bus.put(payload, *parts)
+        self._sending.append((payload, parts))
+
+    def resend(self, inputs: bool = True) -> None:
+        """Publish again what was published for the sample last handled (the plant asked
+        again: a message was lost), without the inputs when ``inputs`` is false; at most
+        every :data:`RESEND_GAP` s."""
+        now = time.monotonic()
+        if not self._sent or now - self._resent_at < RESEND_GAP:
+            return
+        self._resent_at = now
+        self.resends += 1
+        for payload, parts in self._sent:
+            if inputs or parts[-1] != "cmd":
+                self.bus.put(payload, *parts)
 
     def on_other(self, kind: str, msg: Message) -> None:
         """Messages other than state and done (override)."""
@@ -117,10 +174,6 @@ class ControllerNode(Node):
             self.plant_lost = True
 
     # -------------------------------------------------------------------- loop
-    def _newest(self) -> int | None:
-        ready = [k for k in self.samples if k > self.last_sample]
-        return max(ready) if ready else None
-
     def _finished(self) -> bool:
         return self.stop.is_set() or self.done is not None or self.plant_lost
 
@@ -138,22 +191,24 @@ class ControllerNode(Node):
         """Publish one robot's input for ``sample``."""
         msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid,
                      self.controller.counters())
-        self.bus.put(encode(msg), "robot", robot_id, "cmd")
+        self.sent(encode(msg), "robot", robot_id, "cmd")
 
     def run(self) -> int:
         """Serve until the plant is done; returns the exit status."""
         log.info("%s waiting for the plant's states", self.name)
-        if not self.wait_until(lambda: self._newest() is not None or self._finished(),
+        if not self.wait_until(lambda: self.pending is not None or self._finished(),
                                self.startup_timeout):
             log.error("no state from the plant within %s s", self.startup_timeout)
             return 1
         while not self._finished():
             self.drain()  # so that a late controller skips to the newest sample
-            k = self._newest()
+            k = self.pending
             if k is None:
                 self.pump(POLL)
                 continue
+            self.pending = None
             entry = self.samples[k]
+            self._sending = []
             try:
                 self.step_sample(k, entry)
             except KeyboardInterrupt:  # OSQP caught the SIGINT during a solve
@@ -161,6 +216,7 @@ class ControllerNode(Node):
                 break
             self.steps_done += 1
             self.last_sample = k
+            self._sent = self._sending
             for old in [s for s in self.samples if s < k - 1]:
                 del self.samples[old]
         if self.plant_lost and self.done is None and not self.stop.is_set():

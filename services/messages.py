@@ -307,9 +307,10 @@ class MessageValidator:
     On top of :func:`decode` it checks that the message type matches the key
     it arrived on, that robot ids are known (a ``state`` must list exactly the
     scenario's ids, in order; a ``cmd`` or ``plan`` must carry the id of the
-    robot key it arrived on), that a ``state`` carries the scenario digest
-    this process computed, and that a stream's sample index never goes
-    backwards (per message type and robot id).
+    robot key it arrived on) and that a ``state`` carries the scenario digest
+    this process computed. It keeps no state about sample indices: whether a
+    well-formed message is timely is decided by
+    :class:`services.protocol.AcceptancePolicy`.
 
     Parameters
     ----------
@@ -322,11 +323,10 @@ class MessageValidator:
 
     Attributes
     ----------
-    max_sample
-        When set, a ``cmd`` or ``plan`` for a later sample is refused before it
-        can advance its stream (a forged future sample cannot lock the sender out).
     invalid
         Number of messages refused so far.
+    stale
+        Number of well-formed messages dropped as older than the receiver's loop.
     """
 
     _TYPES = {"state": StateMsg, "cmd": CmdMsg, "plan": PlanMsg, "done": DoneMsg}
@@ -336,13 +336,11 @@ class MessageValidator:
         self.ids = frozenset(self.order)
         self.horizon = int(horizon)
         self.scenario_digest = scenario_digest
-        self.max_sample: int | None = None
         self.invalid = 0
+        self.stale = 0
         self.last_error = ""
-        self._last: dict[tuple[str, int], int] = {}
 
-    def _check(self, msg: Message, kind: str | None, key_id: int | None,
-               ordered: bool = True) -> None:
+    def _check(self, msg: Message, kind: str | None, key_id: int | None) -> None:
         if kind is not None and not isinstance(msg, self._TYPES.get(kind, ())):
             raise InvalidMessage(f"a {type(msg).__name__} on a {kind!r} key")
         if isinstance(msg, DoneMsg):
@@ -354,34 +352,15 @@ class MessageValidator:
             if self.scenario_digest is not None and msg.scenario != self.scenario_digest:
                 raise InvalidMessage(f"scenario digest {msg.scenario!r} differs from "
                                      f"{self.scenario_digest!r}: same --scenario and overrides?")
-            stream = ("state", 0)
-        else:
-            if msg.id not in self.ids:
-                raise InvalidMessage(f"unknown robot id {msg.id}")
-            if key_id is not None and key_id != msg.id:
-                raise InvalidMessage(f"id {msg.id} on the key of robot {key_id}")
-            if not ordered:  # its header was admitted on arrival (admit_plan)
-                return
-            stream = (type(msg).__name__, msg.id)
-        self._in_order(stream, msg.sample)
+            return
+        if msg.id not in self.ids:
+            raise InvalidMessage(f"unknown robot id {msg.id}")
+        if key_id is not None and key_id != msg.id:
+            raise InvalidMessage(f"id {msg.id} on the key of robot {key_id}")
 
-    def _in_order(self, stream: tuple[str, int], sample: int) -> None:
-        if stream[0] != "state" and self.max_sample is not None and sample > self.max_sample:
-            raise InvalidMessage(f"sample {sample} is ahead of the run "
-                                 f"(at most {self.max_sample} expected)")
-        last = self._last.get(stream)
-        if last is not None and sample < last:
-            raise InvalidMessage(f"sample {sample} is older than {last} already received "
-                                 f"({stream[0]}, robot {stream[1]})")
-        self._last[stream] = sample
-
-    def check(self, payload: bytes, kind: str | None = None, key_id: int | None = None,
-              ordered: bool = True) -> Message:
+    def check(self, payload: bytes, kind: str | None = None,
+              key_id: int | None = None) -> Message:
         """Validate a payload received on a key of ``kind`` (for robot ``key_id``).
-
-        ``ordered=False``: the stream order (sample never backwards, not ahead of
-        the run) is not checked again, for a plan whose header :meth:`admit_plan`
-        already admitted when it arrived.
 
         Raises
         ------
@@ -390,28 +369,8 @@ class MessageValidator:
         """
         try:
             msg = decode(payload, self.horizon)
-            self._check(msg, kind, key_id, ordered)
+            self._check(msg, kind, key_id)
             return msg
-        except InvalidMessage as exc:
-            self.invalid += 1
-            self.last_error = str(exc)
-            raise
-
-    def admit_plan(self, robot_id: int, sample: int) -> None:
-        """Check the stream order of a plan from its peeked header (:func:`peek_plan`).
-
-        The same order checks as :meth:`check`, before the body is decoded; the
-        body is checked when it is decoded (``check(..., ordered=False)``).
-
-        Raises
-        ------
-        InvalidMessage
-            The message must be dropped (the counter is already incremented).
-        """
-        try:
-            if robot_id not in self.ids:
-                raise InvalidMessage(f"unknown robot id {robot_id}")
-            self._in_order(("PlanMsg", robot_id), sample)
         except InvalidMessage as exc:
             self.invalid += 1
             self.last_error = str(exc)

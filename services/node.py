@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import logging
+import math
 import signal
 import sys
 import threading
@@ -24,9 +25,11 @@ from typing import Any, NoReturn, TypeVar
 import zenoh
 
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.scenario import Scenario, load_scenario
+from sqpmpc.scenario import MAX_STEPS, MIN_SAMPLE_TIME, Scenario, load_scenario
 
+from .faults import FaultInjector
 from .messages import InvalidMessage, Message, MessageValidator
+from .protocol import AcceptancePolicy
 from .transport import Bus, Event, check_run_name
 
 __all__ = [
@@ -38,6 +41,7 @@ __all__ = [
     "open_node",
     "scenario_digest",
     "scenario_from_args",
+    "session_lost",
     "setup_logging",
 ]
 
@@ -87,8 +91,12 @@ def scenario_from_args(prog: str, args: argparse.Namespace) -> Scenario:
         changes: dict[str, Any] = {}
         if args.sample_time is not None:
             changes["sample_time"] = args.sample_time
+            ratio = scenario.t_end / args.sample_time if args.sample_time > 0 else math.inf
+            if not ratio <= MAX_STEPS:  # also NaN, inf and Ts <= 0
+                fail(prog, f"--sample-time: expected a number >= {MIN_SAMPLE_TIME:g} s giving "
+                           f"at most {MAX_STEPS} samples, found {args.sample_time!r}")
             if args.t_end is None:  # keep t_end a whole multiple of the new Ts
-                steps = max(1, round(scenario.t_end / args.sample_time))
+                steps = max(1, round(ratio))
                 changes["t_end"] = steps * args.sample_time
         if args.t_end is not None:
             changes["t_end"] = args.t_end
@@ -109,8 +117,15 @@ def open_node(prog: str, factory: Callable[[], _N]) -> _N:
         return factory()
     except zenoh.ZError as exc:
         fail(prog, f"cannot open the Zenoh session: {str(exc).split(' at /')[0]}")
-    except ProblemError as exc:
+    except (ProblemError, ValueError) as exc:  # ValueError: a bad SQPMPC_FAULTS
         fail(prog, str(exc))
+
+
+def session_lost(prog: str, exc: zenoh.ZError) -> int:
+    """Report a Zenoh session that failed mid-run (e.g. timed out on a lossy network) in
+    one line, without a traceback; returns the exit status 1."""
+    log.error("%s: the Zenoh session failed: %s", prog, str(exc).split(" at /")[0])
+    return 1
 
 
 def scenario_digest(scenario: Scenario) -> str:
@@ -150,10 +165,12 @@ class Node:
         self.ids = [int(i) for i in scenario.ids]
         self.digest = scenario_digest(scenario)
         self.validator = MessageValidator(self.ids, scenario.horizon, self.digest)
+        self.policy = AcceptancePolicy(scenario.steps, scenario.sample_time, scenario.horizon)
         self.alive: set[str] = set()
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
-        self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode)
+        self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode,
+                       FaultInjector.from_env(name))
 
     def start(self, subscriptions: list[tuple[object, ...]], signals: bool = True) -> None:
         """Subscribe, watch liveliness, then declare this process alive (in that order).

@@ -16,8 +16,9 @@ other plan of the fleet is traffic it pays for and never uses.
 - The receiver waits, in lockstep, for exactly the plans its controller will
   read (:func:`slotted`, the controller's own kernel call) and decodes a plan
   only when the step reads it (:class:`PlanStore`, :class:`StepPlans`): the
-  header (sender, sample) is peeked on arrival and checked for order, the
-  body decoded and validated when read.
+  header (sender, sample) is peeked on arrival and checked against the
+  acceptance policy (:mod:`services.protocol`), the body decoded and
+  validated when read.
 
 Both sides compute from the same states with the same rule, so a lockstep
 run equals the in-process run; a plan that is late or lost is what the
@@ -30,7 +31,7 @@ before; every robot of a run must use the same setting.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from sqpmpc.collision_kernels import nearest_within
 from sqpmpc.controllers import DecentralizedController, PlanMessage
 
 from .messages import InvalidMessage, MessageValidator, PlanMsg, peek_plan
+from .protocol import AcceptancePolicy, Verdict
 
 __all__ = ["PlanStore", "StepPlans", "recipients", "slotted"]
 
@@ -121,17 +123,25 @@ class PlanStore:
         Ids whose plans are kept.
     lazy
         Keep payloads undecoded until used (``False``: decode on arrival).
+    policy
+        The run's acceptance rules (:meth:`AcceptancePolicy.plan`).
+    cursor
+        The receiving robot's cursor in the state stream (sample), called per plan.
 
     Attributes
     ----------
-    received, decoded
-        Plans accepted so far and plans decoded so far.
+    received, decoded, repeats
+        Plans accepted so far, plans decoded so far, copies dropped.
     """
 
     def __init__(self, validator: MessageValidator, neighbours: Iterable[int],
+                 policy: AcceptancePolicy, cursor: Callable[[], int],
                  lazy: bool = True) -> None:
         self.validator = validator
+        self.policy = policy
+        self.cursor = cursor
         self.lazy = lazy
+        self.repeats = 0
         self._plans: dict[int, dict[int, bytes | PlanMessage]] = {int(i): {} for i in neighbours}
         self._newest = dict.fromkeys(self._plans, -1)
         self.received = 0
@@ -143,10 +153,13 @@ class PlanStore:
     def add(self, robot_id: int, payload: bytes) -> None:
         """Keep a plan received on robot ``robot_id``'s key.
 
+        A repeat (a second plan of the same sample) or a stale one is dropped
+        without an error (:meth:`AcceptancePolicy.plan`).
+
         Raises
         ------
         InvalidMessage
-            Refused (counted by the validator): out of order, or, when it is
+            Refused (counted by the validator): ahead of the run, or, when it is
             decoded at once, malformed.
         """
         head = peek_plan(payload) if self.lazy else None
@@ -154,18 +167,42 @@ class PlanStore:
             msg = self.validator.check(payload, "plan", robot_id)
             if not isinstance(msg, PlanMsg):  # the validator matches the type to the key
                 raise InvalidMessage(f"a {type(msg).__name__} on a plan key")
-            self.decoded += 1
             item: bytes | PlanMessage = _as_plan(msg)
             sample = msg.sample
+            if self._admit(robot_id, sample):
+                self.decoded += 1
+            else:
+                return
         else:
-            self.validator.admit_plan(robot_id, head[1])
+            if robot_id not in self._plans:
+                self.validator.refuse(f"plan of robot {robot_id}, not a neighbour")
+                raise InvalidMessage(self.validator.last_error)
             item, sample = payload, head[1]
+            if not self._admit(robot_id, sample):
+                return
         self._plans[robot_id][sample] = item
         self._newest[robot_id] = max(self._newest[robot_id], sample)
         self.received += 1
 
+    def _admit(self, robot_id: int, sample: int) -> bool:
+        """Whether a plan of ``sample`` is kept (:meth:`AcceptancePolicy.plan`)."""
+        decision = self.policy.plan(self.cursor(), sample, sample in self._plans[robot_id])
+        if decision.verdict is Verdict.ACCEPT:
+            return True
+        if decision.verdict is Verdict.REPEAT:
+            self.repeats += 1
+        elif decision.verdict is Verdict.STALE:
+            self.validator.stale += 1
+        else:
+            self.validator.refuse(decision.reason)
+            raise InvalidMessage(decision.reason)
+        return False
+
     def add_decoded(self, msg: PlanMsg) -> None:
-        """Keep a plan already decoded and validated."""
+        """Keep a plan already decoded and validated (if :meth:`AcceptancePolicy.plan`
+        admits it)."""
+        if not self._admit(msg.id, msg.sample):
+            return
         self._plans[msg.id][msg.sample] = _as_plan(msg)
         self._newest[msg.id] = max(self._newest[msg.id], msg.sample)
         self.received += 1
@@ -186,7 +223,7 @@ class PlanStore:
             if isinstance(item, PlanMessage):
                 return item
             try:
-                msg = self.validator.check(item, "plan", robot_id, ordered=False)
+                msg = self.validator.check(item, "plan", robot_id)
             except InvalidMessage as exc:
                 log.warning("dropped an invalid plan of robot %d (%d invalid so far): %s",
                             robot_id, self.validator.invalid, exc)

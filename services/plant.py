@@ -23,7 +23,10 @@ braking input (``v = omega = 0`` clipped to the bounds), counted in
 input noise (:class:`sqpmpc.plant.Plant`), as in
 :class:`sqpmpc.simulation.ClosedLoopSimulation`.
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
-``metrics.json``, ``trajectory.npz`` and the plots into ``--out``.
+``metrics.json``, ``trajectory.npz`` and the plots into ``--out``. As it goes it
+appends every sample to ``--out``/``record.msgpack`` (:mod:`sqpmpc.runlog`,
+flushed every sample): after a ``kill -9`` of the plant, ``sqpmpc metrics DIR``
+writes ``metrics.json`` and ``trajectory.npz`` from it.
 """
 
 from __future__ import annotations
@@ -38,19 +41,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from sqpmpc.controllers import braking_input
 from sqpmpc.metrics import RunRecord, write_run
 from sqpmpc.plant import Plant
+from sqpmpc.runlog import RECORD_FILE, RecordWriter
 from sqpmpc.scenario import Scenario
 
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
-from .node import Node, add_common_arguments, open_node, scenario_from_args, setup_logging
+from .node import (
+    Node,
+    add_common_arguments,
+    open_node,
+    scenario_from_args,
+    session_lost,
+    setup_logging,
+)
+from .protocol import Verdict
 
 __all__ = ["PlantNode", "build_parser", "main", "summarize"]
 
 log = logging.getLogger(__name__)
 PROG = "services.plant"
+RESEND = 0.05
+"""Lockstep: while inputs of a sample are missing, its states are published again this
+often, s (at most every half ``--timeout``; real time: every ``Ts / 4``)."""
 
 
 class PlantNode(Node):
@@ -82,7 +98,7 @@ class PlantNode(Node):
         self.brake = braking_input(scenario.bounds.input_lower(), scenario.bounds.input_upper(),
                                    (1,))[0]
         self.k = 0
-        self.validator.max_sample = 0
+        self.republished = 0
         self.cmds: dict[int, CmdMsg] = {}
         self.missed = dict.fromkeys(self.ids, 0)
         self.late_commands = 0
@@ -96,6 +112,15 @@ class PlantNode(Node):
         self.timed_start = bool(getattr(args, "timed_start", False))
         self.running = False
         self.sample_walls: list[float] = []
+        self.writer: RecordWriter | None = None
+
+    def open_record(self, out: Path) -> None:
+        """Start the incremental record ``out/record.msgpack`` (:mod:`sqpmpc.runlog`)."""
+        settings = {"mode": self.mode, "plant_discretization": self.method,
+                    "run": self.bus.prefix.rsplit("/", 1)[-1], "timeout": self.timeout}
+        self.writer = RecordWriter(out / RECORD_FILE, self.scenario, self.scheme,
+                                   self.solve_times.shape[1], self.states[0], settings,
+                                   self.digest)
 
     @property
     def controllers(self) -> list[str]:
@@ -121,13 +146,17 @@ class PlantNode(Node):
     def on_message(self, kind: str, msg: Message) -> None:
         if not isinstance(msg, CmdMsg):
             return
+        decision = self.policy.cmd(self.k, msg.sample)
+        if decision.verdict is Verdict.REFUSE:
+            self._refused(decision.reason)
+            return
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
         self.reported_invalid[sender] = msg.invalid
         self.reported_counts[sender] = msg.counters or {}
-        if msg.sample < self.k:
-            self.late_commands += 1
-        else:
+        if decision.accepted:
             self.cmds[msg.id] = msg  # the newest valid input for this sample
+        else:
+            self.late_commands += 1
 
     # -------------------------------------------------------------------- loop
     def publish_states(self, k: int) -> None:
@@ -148,6 +177,7 @@ class PlantNode(Node):
                          sorted(self._missing - missing))
             self._missing = missing
         fallback = False
+        failures = self.solver_failures
         for j, rid in enumerate(self.ids):
             cmd = self.cmds.get(rid)
             if cmd is None:
@@ -164,6 +194,10 @@ class PlantNode(Node):
         self.solver_failures += fallback
         self.states[k + 1], self.plant_inputs[k] = self.plant.step(self.states[k],
                                                                    self.inputs[k])
+        if self.writer is not None:
+            self.writer.sample(k, self.inputs[k], self.states[k + 1], self.solve_times[k],
+                               self.solver_failures - failures, sorted(missing),
+                               self.plant_inputs[k] if self.plant.spec.noisy else None)
 
     def run(self) -> None:
         """Run the samples until ``t_end`` or a stop signal."""
@@ -181,11 +215,10 @@ class PlantNode(Node):
         for k in range(self.scenario.steps):
             t0 = time.perf_counter()
             self.k, self.cmds = k, {}
-            self.validator.max_sample = k  # a cmd for a sample not yet published is invalid
             self.publish_states(k)
             if self.mode == "lockstep" or (k == 0 and not self.timed_start):
-                if not self.wait_until(lambda: all(i in self.cmds for i in self.expected()),
-                                       self.timeout) and not self.stop.is_set():
+                if not self.collect(k, t0 + self.timeout, min(RESEND, self.timeout / 2)) \
+                        and not self.stop.is_set():
                     self.timeouts += 1
                     log.warning("sample %d: no input from robots %s within %.3g s",
                                 k, sorted(set(self.expected()) - set(self.cmds)), self.timeout)
@@ -194,8 +227,8 @@ class PlantNode(Node):
                     start = time.perf_counter() - ts
             else:
                 deadline = start + (k + 1) * ts
-                self.wait_until(lambda: self.stop.is_set(),
-                                deadline - time.perf_counter())
+                self.collect(k, deadline, ts / 4.0)
+                self.wait_until(lambda: self.stop.is_set(), deadline - time.perf_counter())
             if self.stop.is_set():
                 break
             self.apply(k)
@@ -203,6 +236,23 @@ class PlantNode(Node):
             self.sample_walls.append(time.perf_counter() - t0)
         self.running = False
         self.loop_wall = time.perf_counter() - start
+
+    def collect(self, k: int, deadline: float, resend: float) -> bool:
+        """Wait until every expected input of sample ``k`` is in (``True``), a stop is asked
+        or ``deadline`` (``time.perf_counter``) passes; while inputs are missing, publish
+        the states of ``k`` again every ``resend`` s (a state or an input was lost: the
+        controllers answer a repeated state by sending their outputs again)."""
+        def ready() -> bool:
+            return all(i in self.cmds for i in self.expected())
+
+        while True:
+            now = time.perf_counter()
+            if self.wait_until(ready, min(resend, deadline - now)):
+                return True
+            if self.stop.is_set() or time.perf_counter() >= deadline:
+                return False
+            self.publish_states(k)
+            self.republished += 1
 
     def record(self) -> RunRecord:
         """What has been run so far."""
@@ -218,6 +268,8 @@ class PlantNode(Node):
             "missed_deadlines_by_robot": {str(i): int(v) for i, v in self.missed.items()},
             "late_commands": int(self.late_commands),
             "lockstep_timeouts": int(self.timeouts),
+            "republished_states": int(self.republished),
+            "stale_messages": int(self.validator.stale),
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
             "counters": _summed(self.reported_counts.values()),
@@ -301,20 +353,26 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
     node = open_node(PROG, lambda: PlantNode(scenario, args))
+    failed = False
     try:
+        node.open_record(out)
         node.start([("robot", "*", "cmd")])
         node.run()
+    except zenoh.ZError as exc:
+        failed = bool(session_lost(PROG, exc))
     finally:
         try:
             node.finish()
         finally:
             node.close()
         record = node.record()
+        if node.writer is not None:
+            node.writer.end(record.completed, record.extra)
         metrics = write_run(out, record, plots=not args.no_plots)
         if not args.quiet:
             print(summarize(metrics))
             print(f"wrote {out}")
-    if record.completed:
+    if record.completed and not failed:
         return 0
     sig = node.signals.get("signal")
     return 128 + sig if sig else 1

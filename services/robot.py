@@ -30,6 +30,7 @@ import time
 from contextlib import AbstractContextManager, nullcontext
 
 import numpy as np
+import zenoh
 
 from sqpmpc.controllers import DecentralizedController
 from sqpmpc.errors import ProblemError
@@ -49,6 +50,7 @@ from .node import (
     install_signal_handlers,
     open_node,
     scenario_from_args,
+    session_lost,
     setup_logging,
 )
 from .plans import PlanStore, StepPlans, recipients, slotted
@@ -85,7 +87,8 @@ class RobotNode(ControllerNode):
         # of its slots (they address them to it) and decodes a plan when a step reads it
         self.filtering = self.controller.settings.neighbour_slots is not None and not getattr(
             args, "all_plans", False)  # the settings as resolved for this scenario
-        self.plans = PlanStore(self.validator, self.neighbours, lazy=self.filtering)
+        self.plans = PlanStore(self.validator, self.neighbours, self.policy,
+                               lambda: self.cursor.sample, lazy=self.filtering)
         c = self.controller
         self._chosen = np.zeros(c.slots, dtype=np.int64)
         self._rest = np.zeros(c.others.size, dtype=np.int64)
@@ -153,11 +156,11 @@ class RobotNode(ControllerNode):
         """Publish this robot's plan on its key and, when filtering, to every robot that
         may give it a slot at the next sample (:func:`~services.plans.recipients`)."""
         payload = encode(msg)
-        self.bus.put(payload, "robot", self.robot_id, "plan")
+        self.sent(payload, "robot", self.robot_id, "plan")
         if self.filtering:
             c = self.controller
             for j in recipients(states, c.index, self._radius, c.slots, self._step):
-                self.bus.put(payload, "robot", self.robot_id, "plan", int(self.ids[j]))
+                self.sent(payload, "robot", self.robot_id, "plan", int(self.ids[j]))
                 self.addressed += 1
 
     def run(self) -> int:
@@ -284,6 +287,8 @@ def main(argv: list[str] | None = None) -> int:
             nodes[0].start(nodes[0].subscriptions())
             return nodes[0].run()
         return host(nodes)
+    except zenoh.ZError as exc:
+        return session_lost(PROG, exc)
     finally:
         for node in nodes:
             node.close()

@@ -38,10 +38,14 @@ import json
 import logging
 import queue
 import re
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import msgpack
 import zenoh
+
+from .faults import FaultInjector, kind_of_key
 
 __all__ = [
     "KEY_ROOT",
@@ -123,6 +127,14 @@ class Bus:
         Run name (namespace).
     listen, connect, mode
         See :func:`make_config`.
+    faults
+        Lose or delay incoming messages (:mod:`services.faults`; tests, benchmarks).
+
+    Attributes
+    ----------
+    send_failures
+        Publications the session refused (e.g. it timed out on a lossy network):
+        logged and counted, the loop goes on (lockstep re-asks, real time brakes).
 
     Notes
     -----
@@ -131,10 +143,13 @@ class Bus:
     """
 
     def __init__(self, run: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 mode: str = "peer") -> None:
+                 mode: str = "peer", faults: FaultInjector | None = None) -> None:
         self.prefix = run_prefix(run)
         self.express = mode != "client"
         self.inbox: queue.SimpleQueue[Event] = queue.SimpleQueue()
+        self.faults = faults
+        self.send_failures = 0
+        self._released: deque[Event] = deque()
         self.session = zenoh.open(make_config(listen, connect, mode))
         self._subscribers: list[zenoh.Subscriber] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -174,23 +189,40 @@ class Bus:
 
     def get(self, timeout: float) -> Event | None:
         """Next event, waiting at most ``timeout`` seconds (``None`` if none came)."""
+        if self._released:
+            return self._released.popleft()
         try:
             if timeout <= 0.0:
-                return self.inbox.get_nowait()
-            return self.inbox.get(timeout=timeout)
+                event = self.inbox.get_nowait()
+            else:
+                event = self.inbox.get(timeout=timeout)
         except queue.Empty:
             return None
+        if self.faults is None or event.kind != "put":
+            return event
+        parts = self.relative(event.key) or []
+        released = self.faults.admit(kind_of_key(parts), event.payload, event)
+        self._released.extend(released)  # type: ignore[arg-type]
+        return self._released.popleft() if self._released else None
 
     # ------------------------------------------------------------- publish
     def put(self, payload: bytes, *parts: object) -> None:
         """Publish ``payload`` on ``<prefix>/<parts>`` (reliable, blocking congestion control)."""
         key = self.key(*parts)
-        pub = self._publishers.get(key)
-        if pub is None:
-            pub = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=self.express)
-            self._publishers[key] = pub
-        pub.put(payload)
+        if self.faults is not None and parts == ("plant", "state"):
+            self.faults.tick(int(msgpack.unpackb(payload, raw=False)["sample"]))
+        try:
+            pub = self._publishers.get(key)
+            if pub is None:
+                pub = self.session.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.BLOCK, express=self.express)
+                self._publishers[key] = pub
+            pub.put(payload)
+        except zenoh.ZError as exc:
+            self.send_failures += 1
+            if self.send_failures <= 10 or self.send_failures % 1000 == 0:
+                log.warning("could not publish on %s (%d so far): %s", key, self.send_failures,
+                            str(exc).split(" at /")[0])
 
     def declare_alive(self, *parts: object) -> None:
         """Declare this process's liveliness token ``<prefix>/alive/<parts>``."""
@@ -210,7 +242,10 @@ class Bus:
         self._tokens.clear()
         self._subscribers.clear()
         self._publishers.clear()
-        self.session.close()
+        try:
+            self.session.close()
+        except zenoh.ZError as exc:  # e.g. "close operation timed out" on a lossy network
+            log.error("the Zenoh session did not close cleanly: %s", str(exc).split(" at /")[0])
 
     def __enter__(self) -> Bus:
         return self

@@ -48,6 +48,11 @@ from .references import (
 )
 
 __all__ = [
+    "MAX_HORIZON",
+    "MAX_ROBOTS",
+    "MAX_ROBOT_SAMPLES",
+    "MAX_STEPS",
+    "MIN_SAMPLE_TIME",
     "Bounds",
     "RobotSpec",
     "Scenario",
@@ -59,6 +64,19 @@ __all__ = [
 
 _PAIR = "an array of 2 finite numbers [lower, upper] with lower <= upper"
 _STEPS_RTOL = 1e-9
+
+# Limits on the numbers that size arrays and loops: checked before anything is allocated,
+# so no scenario (file, built-in or override) can run for hours or exhaust memory.
+MAX_HORIZON = 200
+"""Largest ``horizon`` N accepted (the QPs grow with N; the paper uses 5 and 8)."""
+MAX_STEPS = 1_000_000
+"""Largest number of samples K = t_end / sample_time accepted."""
+MAX_ROBOTS = 1024
+"""Largest number of ``[[robots]]`` accepted."""
+MIN_SAMPLE_TIME = 1e-4
+"""Smallest ``sample_time`` accepted, s."""
+MAX_ROBOT_SAMPLES = 10_000_000
+"""Largest number of robots times samples K accepted (a run's trajectory: 240 MB)."""
 
 
 def _pair(value: Any, key: str, unit: str) -> tuple[float, float]:
@@ -182,13 +200,30 @@ def _check_timing(t_end: Any, sample_time: Any, horizon: Any) -> tuple[float, fl
     t_end = _real(t_end, "t_end", minimum=0.0, strict=True, what="a finite number > 0 (s)")
     ts = _real(sample_time, "sample_time", minimum=0.0, strict=True,
                what="a finite number > 0 (s)")
+    if ts < MIN_SAMPLE_TIME:
+        raise _FieldError("sample_time", f"expected at least {MIN_SAMPLE_TIME:g} s, found {ts!r}")
     horizon = _integer(horizon, "horizon", 1, "an integer >= 1")
+    if horizon > MAX_HORIZON:
+        raise _FieldError("horizon", f"expected at most {MAX_HORIZON}, found {horizon}")
     ratio = t_end / ts
+    if not ratio <= MAX_STEPS + 0.5:  # also catches an overflow to inf
+        raise _FieldError("t_end", f"expected at most {MAX_STEPS} samples (t_end / sample_time)"
+                          f", found t_end = {t_end!r} s with sample_time = {ts!r} s")
     steps = round(ratio)
     if steps < 1 or abs(ratio - steps) > _STEPS_RTOL * ratio:
         raise _FieldError("t_end", f"expected a positive whole multiple of sample_time = {ts!r} "
                           f"s, found t_end = {t_end!r} s ({ratio:.10g} samples)")
     return t_end, ts, horizon
+
+
+def _check_robot_count(source: str, count: int, steps: int) -> None:
+    if count > MAX_ROBOTS:
+        raise ScenarioError(source, "robots", f"expected at most {MAX_ROBOTS} robots, found "
+                            f"{count}")
+    if count * steps > MAX_ROBOT_SAMPLES:
+        raise ScenarioError(source, "t_end", f"expected at most {MAX_ROBOT_SAMPLES} robot "
+                            f"samples (robots x t_end / sample_time), found {count} robots x "
+                            f"{steps} samples")
 
 
 @dataclass(frozen=True)
@@ -255,6 +290,7 @@ class Scenario:
             raise ScenarioError(self.source, "robots", "expected at least one robot "
                                 f"([[robots]] tables), found {_describe(robots)}")
         robots = tuple(robots)
+        _check_robot_count(self.source, len(robots), self.steps)
         for i, robot in enumerate(robots):
             if not isinstance(robot, RobotSpec):
                 raise ScenarioError(self.source, f"robots[{i}]",
@@ -499,7 +535,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     _table(data, source, "", _TOP_KEYS + _OPTIONAL_TOP_KEYS, _TOP_KEYS)
     try:  # top-level scalars first, so errors come roughly in file order
         _check_name(data["name"])
-        _check_timing(data["t_end"], data["sample_time"], data["horizon"])
+        t_end, ts, _ = _check_timing(data["t_end"], data["sample_time"], data["horizon"])
     except _FieldError as exc:
         raise ScenarioError(source, exc.key, exc.detail) from None
     w = _table(data["weights"], source, "weights", _WEIGHT_KEYS, _WEIGHT_KEYS)
@@ -510,6 +546,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     if not isinstance(raw_robots, list | tuple) or not raw_robots:
         raise ScenarioError(source, "robots", "expected at least one [[robots]] table, found "
                             f"{_describe(raw_robots)}")
+    _check_robot_count(source, len(raw_robots), round(t_end / ts))
     robots = []
     for i, raw in enumerate(raw_robots):
         key = f"robots[{i}]"

@@ -20,6 +20,7 @@ import pytest
 
 from services.messages import InvalidMessage, MessageValidator, PlanMsg, encode, peek_plan
 from services.plans import PlanStore, StepPlans, recipients
+from services.protocol import AcceptancePolicy
 from services.testing import child_pids, pid_alive
 from sqpmpc.collision_kernels import nearest_within
 from sqpmpc.fleets import antipodal_swap
@@ -173,15 +174,18 @@ def test_peek_reads_the_header_and_the_store_decodes_when_read():
     payload = encode(plan)
     assert peek_plan(payload) == (2, 300)
     assert peek_plan(b"\x00garbage") is None and peek_plan(payload[:14]) is None
-    store = PlanStore(validator, [2, 3])
+    store = PlanStore(validator, [2, 3], AcceptancePolicy(1000, 0.5, horizon), lambda: 300)
     store.add(2, payload)
     assert store.has(2, 300) and not store.has(2, 301) and store.decoded == 0
     broken = payload[:-8]  # a good header over a short body: refused when read
     store.add(3, encode(PlanMsg(3, 299, 1.0, 0.0, np.ones((horizon + 1, 3)),
                                 np.zeros((horizon, 2)))))
     store.add(3, broken.replace(b"\xa2id\x02", b"\xa2id\x03", 1))
-    with pytest.raises(InvalidMessage):  # older than what robot 3 sent: refused on arrival
-        store.add(3, encode(PlanMsg(3, 10, 1.0, 0.0, np.ones((horizon + 1, 3)),
+    store.add(3, encode(PlanMsg(3, 10, 1.0, 0.0, np.ones((horizon + 1, 3)),
+                                np.zeros((horizon, 2)))))  # too old at 300: dropped as stale
+    assert validator.stale == 1 and validator.invalid == 0
+    with pytest.raises(InvalidMessage):  # far ahead of the robot's cursor: refused
+        store.add(3, encode(PlanMsg(3, 2**62, 1.0, 0.0, np.ones((horizon + 1, 3)),
                                     np.zeros((horizon, 2)))))
     assert validator.invalid == 1
     plans = StepPlans(store, 301, [2, 3])

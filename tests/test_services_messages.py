@@ -249,27 +249,14 @@ def test_validator_refuses_a_message_of_another_type_than_its_key():
         v.check(encode(DoneMsg(1, True)), "state", None)
 
 
-def test_validator_refuses_old_samples_per_stream():
+def test_validator_keeps_no_sample_order():
+    # timeliness is the acceptance policy's (tests/test_protocol.py): the validator
+    # checks form and identity only, so no sample index can lock a stream here
     v = _validator()
-    v.check(encode(_plan(rid=2, sample=5)), "plan", 2)
-    v.check(encode(_plan(rid=2, sample=5)), "plan", 2)  # a repeat is not older
-    v.check(encode(_plan(rid=3, sample=1)), "plan", 3)  # another stream
-    v.check(encode(CmdMsg(2, 0, np.zeros(2), 0.0)), "cmd", 2)  # another type
-    with pytest.raises(InvalidMessage, match="older"):
-        v.check(encode(_plan(rid=2, sample=4)), "plan", 2)
-    v.check(encode(_state(3)), "state", None)
-    with pytest.raises(InvalidMessage, match="older"):
-        v.check(encode(_state(2)), "state", None)
-    assert v.invalid == 2
-    v.check(encode(_plan(rid=2, sample=6)), "plan", 2)
-
-
-def test_validator_refuses_future_samples_without_advancing_the_stream():
-    v = _validator()
-    v.max_sample = 3
-    with pytest.raises(InvalidMessage, match="ahead"):
-        v.check(encode(CmdMsg(1, 100, np.zeros(2), 0.0)), "cmd", 1)
-    assert isinstance(v.check(encode(CmdMsg(1, 3, np.zeros(2), 0.0)), "cmd", 1), CmdMsg)
+    for sample in (5, 5, 4, 2**62, 0):
+        v.check(encode(_plan(rid=2, sample=sample)), "plan", 2)
+        v.check(encode(_state(sample)), "state", None)
+    assert v.invalid == 0
 
 
 def test_validator_checks_state_ids_and_scenario_digest():
