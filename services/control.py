@@ -2,8 +2,8 @@
 
 It accepts the plant's ``state`` messages by the run's acceptance policy
 (:class:`services.protocol.AcceptancePolicy`: a state beyond the run, with an
-inconsistent time or older than the cursor is dropped; a forward jump is
-provisional) and, whenever one was accepted since the last step, calls
+inconsistent time or older than the cursor is dropped, unless the plant asks for
+an older sample again) and, whenever one was accepted since the last step, calls
 :meth:`ControllerNode.step_sample` with the ``(n, 3)`` states in scenario
 order. In lockstep the plant publishes one sample at a time, so every sample
 is handled in order; in real time a controller that falls behind skips to the
@@ -113,8 +113,9 @@ class ControllerNode(Node):
         self.plant_lost = False
         self.steps_done = 0
         self.resends = 0
-        self._sent: list[tuple[bytes, tuple[object, ...]]] = []  # outputs of last_sample
-        self._sending: list[tuple[bytes, tuple[object, ...]]] = []  # of the sample in hand
+        # what was published per sample computed (the last few), for resend()
+        self._outputs: dict[int, list[tuple[bytes, tuple[object, ...]]]] = {}
+        self._in_hand = -1
         self._resent_at = 0.0
 
     # ------------------------------------------------------------------ events
@@ -136,13 +137,17 @@ class ControllerNode(Node):
         if decision.accepted:
             self.policy.advance(self.cursor, msg.sample)
             for later in [s for s in self.samples if s > msg.sample]:
-                del self.samples[later]  # a resync below a provisional jump
+                del self.samples[later]  # back to the plant's sample after a forged one
             self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x)
             self.pending = msg.sample
         elif decision.verdict is Verdict.REPEAT:
             # the plant misses an input of this sample: if it is handled, this process's
-            # may be lost; if it is being handled, a robot may wait for a plan of the last
-            self.resend(inputs=msg.sample == self.last_sample)
+            # may be lost; if it is being handled, a robot may wait for a plan of the one
+            # before
+            if msg.sample == self.last_sample:
+                self.resend(msg.sample, inputs=True)
+            else:
+                self.resend(msg.sample - 1, inputs=False)
         elif decision.verdict is Verdict.STALE:
             self.validator.stale += 1
         else:
@@ -151,18 +156,19 @@ class ControllerNode(Node):
     def sent(self, payload: bytes, *parts: object) -> None:
         """Publish ``payload`` on ``parts`` and keep it for :meth:`resend`."""
         self.bus.put(payload, *parts)
-        self._sending.append((payload, parts))
+        self._outputs.setdefault(self._in_hand, []).append((payload, parts))
 
-    def resend(self, inputs: bool = True) -> None:
-        """Publish again what was published for the sample last handled (the plant asked
-        again: a message was lost), without the inputs when ``inputs`` is false; at most
-        every :data:`RESEND_GAP` s."""
+    def resend(self, sample: int, inputs: bool = True) -> None:
+        """Publish again what was published for ``sample`` (the plant asked again: a
+        message was lost), without the inputs when ``inputs`` is false; at most every
+        :data:`RESEND_GAP` s."""
         now = time.monotonic()
-        if not self._sent or now - self._resent_at < RESEND_GAP:
+        sent = self._outputs.get(sample)
+        if not sent or now - self._resent_at < RESEND_GAP:
             return
         self._resent_at = now
         self.resends += 1
-        for payload, parts in self._sent:
+        for payload, parts in sent:
             if inputs or parts[-1] != "cmd":
                 self.bus.put(payload, *parts)
 
@@ -208,7 +214,8 @@ class ControllerNode(Node):
                 continue
             self.pending = None
             entry = self.samples[k]
-            self._sending = []
+            self._in_hand = k
+            self._outputs.pop(k, None)
             try:
                 self.step_sample(k, entry)
             except KeyboardInterrupt:  # OSQP caught the SIGINT during a solve
@@ -216,8 +223,9 @@ class ControllerNode(Node):
                 break
             self.steps_done += 1
             self.last_sample = k
-            self._sent = self._sending
-            for old in [s for s in self.samples if s < k - 1]:
+            while len(self._outputs) > 4:
+                del self._outputs[min(self._outputs)]
+            for old in [s for s in self.samples if s < min(k, self.cursor.sample) - 1]:
                 del self.samples[old]
         if self.plant_lost and self.done is None and not self.stop.is_set():
             # the token's removal can overtake the plant's last message

@@ -102,8 +102,10 @@ class FaultSpec:
                 else:
                     raise ValueError(f"{ENV}: unknown field {key!r} (drop, delay, seed, kinds)")
             except ValueError as exc:
-                raise ValueError(str(exc) if str(exc) else
-                                 f"{ENV}: cannot read {item!r}, expected key=value") from None
+                if str(exc).startswith(ENV):
+                    raise
+                raise ValueError(f"{ENV}: cannot read {item!r}, expected key=value with a "
+                                 "number (drop, delay, seed) or kinds=a+b") from None
         return cls(**fields)  # type: ignore[arg-type]
 
 

@@ -10,23 +10,22 @@ replayed, delayed, from the future) can stop a loop or move it backwards.
 kind       receiver    rule (``K`` samples, ``Ts``, ``N``; ``c`` the receiver's cursor)
 =========  ==========  ======================================================================
 ``state``  controller  ``0 <= k < K`` and ``t = k Ts`` (else refused, counted invalid);
-                       ``k = c + 1``: accepted; ``k > c + 1``: accepted as a *provisional*
-                       forward jump (states were lost, or a controller fell behind);
-                       ``k = c``: a repeat (the plant asks again: the controller re-sends
-                       what it published for ``k``); ``k < c``: stale, dropped, unless ``c``
-                       was reached by a provisional jump and ``k`` lies after the sample
-                       before it: then ``k`` is accepted and the jump forgotten (the plant
-                       publishes in order, so a later real state below a jump proves the
-                       jump was not the plant's: a forged future state costs one step, it
-                       cannot lock the stream)
+                       ``k > c``: accepted (``k > c + 1``: states were lost, or a controller
+                       fell behind and skips ahead); ``k = c``: a repeat (the plant asks
+                       again: the controller re-sends what it published for ``k``);
+                       ``k < c``: stale, dropped -- unless the same ``k`` comes a second time
+                       while the cursor is still ahead: the plant re-publishes the sample it
+                       waits for, so a sample asked for again is the plant's, and the cursor
+                       goes back to it (the cursor was ahead of the plant only if a state
+                       was forged: a forged future state costs a step, it cannot lock the
+                       stream; a replayed old one, likewise)
 ``cmd``    plant       ``k = `` the plant's current sample: accepted (a repeat replaces the
                        input with an identical one); ``k <`` current: stale (counted as a
                        late command); ``k >`` current: refused
 ``plan``   robot       ``c - N - 1 <= k <= c + N + 2`` and ``k < K``: accepted once per
                        sender and sample (a second copy is a repeat, dropped: the first
                        wins); older: stale; newer or ``k >= K``: refused
-``done``   controller  ``c' <= k <= K`` with ``c'`` the newest sample not reached by a
-                       provisional jump, and ``completed`` only with ``k = K``; else refused
+``done``   controller  ``c <= k <= K`` and ``completed`` only with ``k = K``; else refused
 =========  ==========  ======================================================================
 
 Repeats are not errors (the plant re-publishes a sample's states while inputs
@@ -80,18 +79,13 @@ class StateCursor:
     ----------
     sample
         Newest state sample accepted (-1: none yet).
-    floor
-        When :attr:`sample` was reached by a forward jump not confirmed since: the
-        sample accepted before the jump; ``None`` otherwise.
+    asked
+        An older sample received once while the cursor was ahead (``None``: none):
+        received again, it is the plant's and the cursor goes back to it.
     """
 
     sample: int = -1
-    floor: int | None = None
-
-    @property
-    def confirmed(self) -> int:
-        """The newest sample not reached by a provisional jump."""
-        return self.sample if self.floor is None else self.floor
+    asked: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,20 +117,16 @@ class AcceptancePolicy:
                                             f"{expected!r}")
         if sample == cursor.sample:
             return Decision(Verdict.REPEAT, f"state of sample {sample} again")
-        if sample > cursor.sample:
-            return _ACCEPT
-        if cursor.floor is not None and sample > cursor.floor:
-            return _ACCEPT  # below a provisional jump: the jump was not the plant's
+        if sample > cursor.sample or sample == cursor.asked:
+            return _ACCEPT  # ahead, or asked for again: the plant is there
+        cursor.asked = sample
         return Decision(Verdict.STALE, f"state of sample {sample}, already at {cursor.sample}")
 
     @staticmethod
     def advance(cursor: StateCursor, sample: int) -> None:
         """Move ``cursor`` to an accepted state of ``sample`` (see :meth:`state`)."""
-        if sample == cursor.sample + 1 or sample < cursor.sample:
-            cursor.floor = None  # in order, or a resync below a provisional jump
-        elif cursor.floor is None:
-            cursor.floor = cursor.sample  # a forward jump: provisional
         cursor.sample = sample
+        cursor.asked = None
 
     def cmd(self, current: int, sample: int) -> Decision:
         """An input for ``sample`` received by the plant at sample ``current``."""
@@ -162,9 +152,9 @@ class AcceptancePolicy:
 
     def done(self, cursor: StateCursor, sample: int, completed: bool) -> Decision:
         """The plant's end after ``sample`` samples, received by a controller at ``cursor``."""
-        if not cursor.confirmed <= sample <= self.steps:
+        if not cursor.sample <= sample <= self.steps:
             return Decision(Verdict.REFUSE, f"done after {sample} samples, at "
-                                            f"{cursor.confirmed} of {self.steps}")
+                                            f"{cursor.sample} of {self.steps}")
         if completed and sample != self.steps:
             return Decision(Verdict.REFUSE, f"completed after {sample} of {self.steps} samples")
         return _ACCEPT

@@ -185,6 +185,8 @@ class RobotNode(ControllerNode):
             pending = [i for i in needed if i in self.waited_for]
 
             def ready() -> bool:  # O(1) per event: drop the satisfied from the end
+                if self.pending is not None:  # another state came: this one is obsolete
+                    return True
                 while pending and (self.plans.has(pending[-1], sample - 1)
                                    or f"robot/{pending[-1]}" not in self.alive):
                     pending.pop()
