@@ -236,6 +236,20 @@ class ExternalCollisionModel:
         self.unslotted = np.zeros((0, 2))
         self.unslotted_distance = np.zeros(0)
         self._unslotted_keep = np.zeros(0)
+        #: ``(E,)`` extra distance of obstacle and missing rows for plans that are late
+        #: (:meth:`set_age_margins`); the first-stage check does not use it
+        self.age_margin = np.zeros(E)
+        self._aged = False
+
+    def set_age_margins(self, margins: np.ndarray) -> None:
+        """Per slot, distance added to the obstacle and missing rows (not to the check).
+
+        A neighbour whose newest plan is ``a`` samples old has re-planned ``a - 1``
+        times unseen: :class:`sqpmpc.controllers.DecentralizedController` asks
+        for ``v_max Ts (a - 1)`` more room, so that its rows give way earlier.
+        """
+        self.age_margin = np.asarray(margins, dtype=float)
+        self._aged = bool((self.age_margin > 0.0).any())
 
     def set_required(self, required: np.ndarray) -> None:
         """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
@@ -313,8 +327,9 @@ class ExternalCollisionModel:
 
     def _avoid_rows(self, own: np.ndarray, normals: np.ndarray, rhs: np.ndarray) -> int:
         """Obstacle and missing slots, relinearized at the own stages 1..N ``own (N, 2+)``."""
+        required = self.required + self.age_margin if self._aged else self.required
         return obstacle_rows(self.current_self, self.current_others, own, self.obstacles,
-                             self.kind, self.required, self.reach, self.geometry.rotation,
+                             self.kind, required, self.reach, self.geometry.rotation,
                              self.stage_one_rule_for_obstacles, normals, rhs)
 
     def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12,

@@ -14,6 +14,20 @@ scheme, no guarantee). A neighbour whose plan is missing or stale is
 predicted as in the paper's section 3.2: its last input is estimated from its
 current and previous states and held over the horizon; it is then kept at the
 full distance as an obstacle.
+
+**Late and lost plans.** The hard part of the safety argument does not depend
+on plans arriving: stage 1 and the first-input check use the *measured*
+positions of sample ``k``; a neighbour without a fresh plan (late, lost,
+never sent) is kept at its distance plus its one-sample reach ``v_max Ts``
+(``missing-neighbour-reach``), and a shared row is built only when both
+robots hold each other's plan of ``k - 1`` (if only one does, the other keeps
+distance plus reach from it, which covers any move of the first). What plan
+age changes is the soft stages 2..N: a neighbour whose newest plan seen is
+``a >= 2`` samples old has re-planned ``a - 1`` times unseen, so its obstacle
+or missing rows ask for ``v_max Ts min(a - 1, N)`` more distance (in the
+spirit of RMADER's delay check; counted in ``late_plan_neighbours``). A
+neighbour never heard from (the first sample) gets no extra margin: a run
+without loss is unchanged.
 """
 
 from __future__ import annotations
@@ -261,6 +275,9 @@ class DecentralizedController(ControllerPipeline):
                       else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
         self.counts["fallback_neighbours"] = 0
         self.counts["unslotted_neighbours"] = 0
+        self.counts["late_plan_neighbours"] = 0
+        self._plan_seen: dict[int, int] = {}  # per neighbour id: newest plan sample seen
+        self._age_margins = np.zeros(slots)
         self._own_prediction = np.zeros((N, 3))
         self._other_predictions = np.zeros((slots, N, 3))
         self._kinds = np.zeros(slots, dtype=np.int8)
@@ -315,8 +332,16 @@ class DecentralizedController(ControllerPipeline):
         kinds = self._kinds
         preds = self._other_predictions
         missing = 0
+        margins = self._age_margins
+        margins[:] = 0.0
         for e, jid in self._neighbours:
             plan = plans.get(jid)
+            if plan is not None and self._plan_seen.get(jid, -1) < plan.sample < sample:
+                self._plan_seen[jid] = plan.sample
+            age = sample - self._plan_seen.get(jid, sample - 1)
+            if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
+                margins[e] = self.context.max_speed * h * min(age - 1, N)
+                self.counts["late_plan_neighbours"] += 1
             if plan is not None and (not shared or plan.sample == sample - 1) and (
                     self._fill_from_plan(preds[e], plan, sample)):
                 kinds[e] = SHARED if shared else OBSTACLE
@@ -328,6 +353,7 @@ class DecentralizedController(ControllerPipeline):
             missing += 1
         if missing:
             self.counts["fallback_neighbours"] += missing
+        self.collisions.set_age_margins(margins)
         self.collisions.set_sample(states[self.index, :2], states[self._slot_index, :2],
                                    self._own_prediction, self._other_predictions, kinds)
 
