@@ -346,9 +346,11 @@ class DecentralizedController(ControllerPipeline):
                     self._fill_from_plan(preds[e], plan, sample)):
                 kinds[e] = SHARED if shared else OBSTACLE
                 continue
-            j = self._slot_index[e]
-            prev = None if previous_states is None else previous_states[j]
-            preds[e] = predict_from_states(states[j], prev, N, h, method)[1:]
+            if margins[e] == 0.0 or plan is None or not self._fill_from_plan(
+                    preds[e], plan, sample):  # a late plan still says where it was going
+                j = self._slot_index[e]
+                prev = None if previous_states is None else previous_states[j]
+                preds[e] = predict_from_states(states[j], prev, N, h, method)[1:]
             kinds[e] = MISSING if shared else OBSTACLE
             missing += 1
         if missing:
