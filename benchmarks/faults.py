@@ -270,11 +270,15 @@ hyperplane needs *both* robots to build it from the same pair of plans, and toda
 pair is the plans of the previous sample: a plan 2 samples late is never part of a
 shared row, every neighbour is handled as uncommitted (distance plus one-sample reach
 from its measured position, and the age margin in the soft rows), and robots meeting
-head-on hold each other off (about 0.59 m apart, `d + v_max Ts`) instead of passing.
+head-on hold each other off (0.4-0.7 m of clearance in the rows above) instead of
+passing.
 Loss does not do this (a lost plan is resent when the plant asks again, and the next
-one is fresh). The fix needs agreement on an older pair: each plan would carry the
-newest plan sample it holds of each neighbour, and both robots of a pair would use the
-older of the two samples (left for a next step; it touches the message schema).
+one is fresh). The fix needs both robots of a pair to agree on an older pair of plans
+from information they share: each input message would carry the newest plan sample its
+robot holds of each neighbour, the plant would relay these in the next state message
+(which both robots receive), and both would build the row from the plans of the older
+of the two samples -- the same row on both sides, whatever the delays (left for a next
+step: it adds fields to two message kinds).
 
 ## What makes this hold
 
@@ -284,7 +288,9 @@ older of the two samples (left for a next step; it touches the message schema).
   re-publishes the sample it waits for, brings it back (a sample asked for twice is
   the plant's); the plant takes an input only for its current sample; a plan only in a
   window around the robot's sample, once; a `done` only within the run and after the
-  robot's sample. No sample index can lock a stream or rewind the plant.
+  robot's sample. No sample index can lock a stream or rewind the plant. Replayed and
+  duplicated messages are dropped as stale or as repeats, which are expected (the plant
+  asks again) and not counted as invalid: those rows show 0.
 - **Lockstep under loss**: while inputs of a sample are missing the plant publishes its
   states again every 50 ms, and a controller answers a repeated state by sending its
   outputs of that sample (or its plans of the one before) again; the plant's timeout
