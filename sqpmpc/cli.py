@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--diameter", type=float, default=0.3, help="robot diameter, m")
     gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
+    from services import credentials  # sqpmpc credentials (the services' mTLS + ACL)
+
+    credentials.add_parser(sub)
     return parser
 
 
@@ -166,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "generate":
         return _generate(args)
+    if args.command == "credentials":
+        return args.handler(args)
     try:
         scenario = load_scenario(args.scenario)
         base = SolverSettings()
