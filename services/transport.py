@@ -31,8 +31,8 @@ never wait for the GIL (which matters when one process hosts several robots,
 (every message must arrive); a peer's are ``express`` (no batching: a sample's
 messages are on the critical path of the loop, and a peer's go to many links),
 a client's are not: all of its traffic shares one link to the router, where
-batching cuts the cost per message several times (measured in ``docs/fleet-
-services.md``).
+batching cuts the cost per message several times (measured in
+``docs/fleet-services.md``).
 """
 
 from __future__ import annotations
