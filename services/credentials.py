@@ -33,18 +33,12 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import ipaddress
 import json
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
-
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.scenario import Scenario, load_scenario
@@ -171,21 +165,6 @@ def session_config(folder: Path, identity: str, acl: dict[str, Any],
     return conf
 
 
-def _name(common_name: str) -> x509.Name:
-    return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "sqpmpc run"),
-                      x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
-
-
-def _san(hosts: Sequence[str]) -> x509.SubjectAlternativeName:
-    names: list[x509.GeneralName] = []
-    for host in dict.fromkeys(hosts):
-        try:
-            names.append(x509.IPAddress(ipaddress.ip_address(host)))
-        except ValueError:
-            names.append(x509.DNSName(host))
-    return x509.SubjectAlternativeName(names)
-
-
 def _write_private(path: Path, data: bytes) -> None:
     """Write ``data`` to a new file readable by its owner only."""
     path.unlink(missing_ok=True)
@@ -233,41 +212,20 @@ def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "bo
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
     folder = folder or out.resolve()
+    # cryptography takes about half a second to import: only the command that makes
+    # certificates pays for it, not every service
+    from .certificates import CertificateAuthority
+
     now = datetime.datetime.now(datetime.UTC)
     start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(hours=valid_hours)
-    ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca_name = _name(f"sqpmpc run {run} CA")
-    ca_ski = x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key())
-    ca = (x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name)
-          .public_key(ca_key.public_key()).serial_number(x509.random_serial_number())
-          .not_valid_before(start).not_valid_after(end)
-          .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-          .add_extension(x509.KeyUsage(False, False, False, False, False, True, True, False,
-                                       False), critical=True)
-          .add_extension(ca_ski, critical=False)
-          .sign(ca_key, hashes.SHA256()))
-    _write_private(out / CA_FILE, ca.public_bytes(serialization.Encoding.PEM))
+    ca = CertificateAuthority(f"sqpmpc run {run} CA", start, end)
+    _write_private(out / CA_FILE, ca.certificate_pem())
     acl = acl_config(run, names)
     configs: dict[str, Path] = {}
     for name in names:
-        key = ec.generate_private_key(ec.SECP256R1())
-        cert = (x509.CertificateBuilder().subject_name(_name(name)).issuer_name(ca_name)
-                .public_key(key.public_key()).serial_number(x509.random_serial_number())
-                .not_valid_before(start).not_valid_after(end)
-                .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-                .add_extension(x509.KeyUsage(True, False, False, False, False, False, False,
-                                             False, False), critical=True)
-                .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH,
-                                                      ExtendedKeyUsageOID.CLIENT_AUTH]),
-                               critical=False)
-                .add_extension(_san([name, *DEFAULT_HOSTS, *hosts]), critical=False)
-                .add_extension(x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(
-                    ca_ski), critical=False)
-                .sign(ca_key, hashes.SHA256()))
-        _write_private(out / f"{name}.key", key.private_bytes(
-            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-            serialization.NoEncryption()))
-        _write_private(out / f"{name}.pem", cert.public_bytes(serialization.Encoding.PEM))
+        key_pem, cert_pem = ca.issue(name, [name, *DEFAULT_HOSTS, *hosts])
+        _write_private(out / f"{name}.key", key_pem)
+        _write_private(out / f"{name}.pem", cert_pem)
         conf = session_config(folder, name, acl, router_listen if name == "router" else ())
         configs[name] = out / f"{name}.json5"
         _write_private(configs[name], (json.dumps(conf, indent=2) + "\n").encode())
