@@ -101,7 +101,7 @@ def run_attacked(work: Path, probe: Probe | None, t_end: float) -> dict:
             if probe.forger == "other-ca":
                 folder = work / "other"
                 write_credentials(folder, load_scenario(SCENARIO), run, "decentralized")
-            fargs += ["--credentials", str(folder), "--identity", probe.forger, "--listen",
+            fargs += ["--credentials", str(folder), "--identity", "robot-2", "--listen",
                       f"tls/127.0.0.1:{ports[5]}"]
         forger = start_service("forger", fargs, logs)
         wait_ready(forger, 60.0)
@@ -164,8 +164,9 @@ def render(rows: list[tuple[Probe, dict]], reference: dict, overhead: dict[str, 
              "and 4 robot processes as Zenoh peers on 127.0.0.1; a forger process "
              "(`services.forger`) publishes throughout the run.", "",
              "| run | forger | forges | forged messages sent | states the forger saw | "
-             "forged cmd applied (samples) | collisions | completed | trajectory = undisturbed |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "forged cmd applied (samples) | collisions (samples) | braked inputs | "
+             "completed | trajectory = undisturbed |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for probe, res in rows:
         m = res["metrics"]
         same = (res["states"].shape == reference["states"].shape
@@ -178,7 +179,8 @@ def render(rows: list[tuple[Probe, dict]], reference: dict, overhead: dict[str, 
         lines.append(f"| {'credentials' if probe.secured else '--insecure'} | {who} | "
                      f"{probe.attack} | {sent} | {f.get('states_seen', 'n/a')} | "
                      f"{res['applied']} / {m['steps']} | {m['collisions']} | "
-                     f"{m['completed']} | {'yes' if same else 'no'} |")
+                     f"{m['missed_deadlines']} | {m['completed']} | "
+                     f"{'yes' if same else 'no'} |")
     lines += ["", f"Undisturbed run with credentials: {reference['metrics']['collisions']} "
               f"collisions, {steps} samples.", "",
               f"Per-sample wall time of the plant in lockstep ({SCENARIO}, {steps} samples, "
@@ -216,8 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for j, probe in enumerate(PROBES):
             res = run_attacked(Path(tmp) / f"probe-{j}", probe, args.t_end)
-            print(probe, res["applied"], res["metrics"]["collisions"], res["forger"],
-                  flush=True)
+            print(probe, res["applied"], res["metrics"]["collisions"],
+                  res["metrics"]["missed_deadlines"], res["forger"], flush=True)
             rows.append((probe, res))
     overhead = bench_overhead(args.t_end, args.repeat)
     publish(render(rows, reference, overhead, args.t_end, time.time() - t0),
