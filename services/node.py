@@ -168,13 +168,13 @@ class Node:
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
         config = config_for(args, name)
-        if config is None:
-            log.warning("no --credentials: unauthenticated Zenoh traffic, any process that "
-                        "reaches the endpoints can publish on the run's keys")
         try:
             self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode, config)
         except ValueError as exc:
             raise ProblemError(str(exc)) from exc
+        if config is None:
+            log.warning("no --credentials: unauthenticated Zenoh traffic, any process that "
+                        "reaches the endpoints can publish on the run's keys")
 
     def start(self, subscriptions: list[tuple[object, ...]], signals: bool = True) -> None:
         """Subscribe, watch liveliness, then declare this process alive (in that order).
