@@ -112,7 +112,7 @@ def run_attacked(work: Path, probe: Probe | None, t_end: float) -> dict:
     try:
         procs[0].wait(600)
     finally:
-        stop_processes(procs[1:] + ([forger] if forger else []))
+        stop_processes(procs[1:] + ([forger] if forger else []), grace=30.0)
     metrics = json.loads((out / "metrics.json").read_text())
     traj = np.load(out / "trajectory.npz")
     v = forged_speed(load_scenario(SCENARIO).bounds.input_upper())
@@ -173,7 +173,8 @@ def render(rows: list[tuple[Probe, dict]], reference: dict, overhead: dict[str, 
                 and np.array_equal(res["states"], reference["states"])
                 and np.array_equal(res["inputs"], reference["inputs"]))
         f = res["forger"]
-        sent = sum(f.get("sent", {}).values()) if f.get("opened") else "could not open"
+        sent = ("n/a" if "opened" not in f else sum(f["sent"].values()) if f["opened"]
+                else "could not open")
         who = {"none": "no certificate", "other-ca": "other CA's certificate",
                "robot-2": "robot 2's certificate"}[probe.forger]
         lines.append(f"| {'credentials' if probe.secured else '--insecure'} | {who} | "
