@@ -8,6 +8,9 @@ Run ``python -m services.<name>``:
 - :mod:`services.central` - the centralized controller for every robot;
 - :mod:`services.router` - a Zenoh router (for docker-compose or several hosts).
 
+:mod:`services.credentials` (``sqpmpc credentials``) writes a run's
+certificates and Zenoh configs: mutual TLS and access control.
+
 The wire schema is in :mod:`services.messages`, the key space and the Zenoh
 session in :mod:`services.transport`.
 """

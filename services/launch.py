@@ -3,7 +3,15 @@
 ``python -m services.launch --scenario S --scheme centralized|decentralized [--out DIR]
 [--mode lockstep|realtime] [--decentralized-mode shared|paper] [--t-end T]
 [--sample-time TS] [--no-plots] [--pin-cpus] [--neighbour-slots K]
-[--robots-per-process K] [--all-plans]``
+[--robots-per-process K] [--all-plans] [--insecure]``
+
+The launcher first writes the run's credentials (:mod:`services.credentials`:
+a CA, one certificate per process, Zenoh configs with the access-control
+rules) into a private temporary folder (mode 0700, removed at exit) and
+hands each child its identity (``--credentials``): every link is mutual TLS
+and a process may publish only its own keys, so a local process that was
+not given them cannot move a robot (``docs/security.md``). ``--insecure``
+(debugging only) runs on plain TCP without credentials.
 
 Every process is a Zenoh peer on loopback only (multicast scouting off): the
 plant listens on a free port chosen at start, each controller listens on its
@@ -30,10 +38,12 @@ import json
 import logging
 import os
 import secrets
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -43,6 +53,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
 from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_argument
 
+from .credentials import write_credentials
 from .node import install_signal_handlers, scenario_from_args
 from .plant import summarize
 
@@ -183,14 +194,20 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with neighbour slots: every robot receives, decodes and waits "
                              "for every neighbour's plan (default: only of those that may "
                              "take one of its slots, services.plans)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="debugging only: plain TCP without credentials (any local "
+                             "process can then publish on the run's keys)")
     add_rule_arguments(parser)
     return parser
 
 
 def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
-              sample_time: float) -> list[tuple[str, list[str]]]:
+              sample_time: float, credentials: Path | None = None) -> list[tuple[str, list[str]]]:
     py = [sys.executable, "-m"]
     common = ["--scenario", args.scenario, "--run", run, "--log-level", args.log_level]
+    secure = [] if credentials is None else ["--credentials", str(credentials)]
+    common += secure
+    proto = "tcp" if credentials is None else "tls"
     for flag, value in (("--t-end", args.t_end), ("--sample-time", args.sample_time)):
         if value is not None:
             common += [flag, repr(value)]
@@ -199,7 +216,7 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     names = ["central"] if args.scheme == "centralized" else [
         "robot/" + ",".join(str(i) for i in g) for g in groups]
     ports = free_ports(1 + len(names))
-    plant_ep = f"tcp/127.0.0.1:{ports[0]}"
+    plant_ep = f"{proto}/127.0.0.1:{ports[0]}"
     plant = [*py, "services.plant", *common, "--listen", plant_ep, "--scheme", args.scheme,
              "--mode", args.mode, "--out", str(out), "--quiet"]
     if args.router:  # the router listens on the plant's port, every process is its client
@@ -220,7 +237,7 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     for name, port in zip(names, ports[1:], strict=True):
         rids = name.split("/")[1].split(",") if "/" in name else []
         # several sessions in one process: each listens on a free loopback port of its own
-        listen = ["--listen", f"tcp/127.0.0.1:{port}"] if len(rids) <= 1 else []
+        listen = ["--listen", f"{proto}/127.0.0.1:{port}"] if len(rids) <= 1 else []
         if args.router:
             listen = ["--zenoh-mode", "client"]
         net = [*listen, "--connect", plant_ep, *controller_extra]
@@ -232,7 +249,7 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
                                 args.decentralized_mode, *common, *net, *robot_extra]))
     if args.router:
         cmds.insert(0, ("router", [*py, "services.router", "--listen", plant_ep,
-                                   "--log-level", args.log_level]))
+                                   "--log-level", args.log_level, *secure]))
     return cmds
 
 
@@ -267,9 +284,13 @@ def main(argv: list[str] | None = None) -> int:
     before = metrics_file.stat().st_mtime_ns if metrics_file.exists() else None
     children: list[Child] = []
     status = 1
+    credentials = None
     try:
+        if not args.insecure:  # private to this user, removed at exit
+            credentials = Path(tempfile.mkdtemp(prefix="sqpmpc-credentials-"))
+            write_credentials(credentials, scenario, run, args.scheme, router_listen=())
         commands = _commands(args, [int(i) for i in scenario.ids], run, out,
-                             scenario.sample_time)
+                             scenario.sample_time, credentials)
         for j, (name, cmd) in enumerate(commands):
             if stop.is_set():
                 break
@@ -304,6 +325,8 @@ def main(argv: list[str] | None = None) -> int:
         stop_children([c for c in children if c.name != "router"], {"plant": signal.SIGINT},
                       PLANT_GRACE)
         stop_children([c for c in children if c.name == "router"], {}, PLANT_GRACE)
+        if credentials is not None:
+            shutil.rmtree(credentials, ignore_errors=True)
     if metrics_file.exists() and metrics_file.stat().st_mtime_ns != before:
         print(summarize(json.loads(metrics_file.read_text())))
         print(f"wrote {out}")

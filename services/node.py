@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
 import zenoh
@@ -27,6 +28,7 @@ import zenoh
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.scenario import MAX_STEPS, MIN_SAMPLE_TIME, Scenario, load_scenario
 
+from .credentials import config_for
 from .faults import FaultInjector
 from .messages import InvalidMessage, Message, MessageValidator
 from .protocol import AcceptancePolicy
@@ -36,6 +38,7 @@ __all__ = [
     "POLL",
     "Node",
     "add_common_arguments",
+    "add_credential_arguments",
     "fail",
     "install_signal_handlers",
     "open_node",
@@ -80,7 +83,18 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              "tcp/127.0.0.1:0 for a peer)")
     parser.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
                         help="peer (default) or client of a router")
+    add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
+
+
+def add_credential_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--credentials DIR`` / ``--zenoh-config FILE`` (:func:`services.credentials.config_for`)."""
+    parser.add_argument("--credentials", type=Path, default=None, metavar="DIR",
+                        help="the run's credentials folder (sqpmpc credentials): this "
+                             "process's certificate and Zenoh config (mutual TLS, access "
+                             "control) by its identity; endpoints are then tls/...")
+    parser.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
+                        help="a Zenoh config file to start from (e.g. DIR/robot-1.json5)")
 
 
 def scenario_from_args(prog: str, args: argparse.Namespace) -> Scenario:
@@ -169,8 +183,15 @@ class Node:
         self.alive: set[str] = set()
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
-        self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode,
-                       FaultInjector.from_env(name))
+        config = config_for(args, name)
+        try:
+            self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode, config,
+                           FaultInjector.from_env(name))
+        except ValueError as exc:
+            raise ProblemError(str(exc)) from exc
+        if config is None:
+            log.warning("no --credentials: unauthenticated Zenoh traffic, any process that "
+                        "reaches the endpoints can publish on the run's keys")
 
     def start(self, subscriptions: list[tuple[object, ...]], signals: bool = True) -> None:
         """Subscribe, watch liveliness, then declare this process alive (in that order).

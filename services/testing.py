@@ -131,12 +131,18 @@ class Probe:
         Key parts below the run prefix to subscribe to, e.g. ``[("plant", "state")]``.
     listen
         Endpoints to listen on (processes started later can connect to the probe).
+    config
+        A Zenoh config file (e.g. an identity's from :mod:`services.credentials`;
+        then the endpoints are ``tls/`` ones).
+    mode
+        ``"peer"`` or ``"client"`` (of a router in ``connect``).
     """
 
     def __init__(self, run: str, connect: Sequence[str] = (),
                  subscriptions: Sequence[tuple[object, ...]] = (),
-                 listen: Sequence[str] = ("tcp/127.0.0.1:0",)) -> None:
-        self.bus = Bus(run, listen, connect)
+                 listen: Sequence[str] = ("tcp/127.0.0.1:0",),
+                 config: Path | None = None, mode: str = "peer") -> None:
+        self.bus = Bus(run, listen, connect, mode, config)
         self.alive: set[str] = set()
         self.events: list[Event] = []
         for parts in subscriptions:

@@ -20,16 +20,19 @@ The ``@v1`` chunk is verbatim: ``**`` does not match it, so wildcard
 subscribers of another version never see these messages.
 
 Sessions are peers (or clients of a router) with multicast scouting off and
-explicit endpoints. Subscribers use callbacks that only copy the key, kind
-and payload into a thread-safe queue (:class:`Bus.inbox`); all Zenoh calls
-happen on the main thread. zenoh-python runs a callback on a Python thread
-of its own, so Zenoh's network threads never wait for the GIL (which matters
-when one process hosts several robots, :func:`services.robot.host`).
-Publishers use ``CongestionControl.BLOCK`` (every message must arrive); a
-peer's are ``express`` (no batching: a sample's messages are on the critical
-path of the loop, and a peer's go to many links), a client's are not: all of
-its traffic shares one link to the router, where batching cuts the cost per
-message several times (measured in ``docs/fleet-services.md``).
+explicit endpoints. A session given a configuration file made by
+:mod:`services.credentials` speaks mutual TLS only (``tls/`` endpoints) and
+enforces the run's access-control rules on what it receives. Subscribers use
+callbacks that only copy the key, kind and payload into a thread-safe queue
+(:class:`Bus.inbox`); all Zenoh calls happen on the main thread. zenoh-python
+runs a callback on a Python thread of its own, so Zenoh's network threads
+never wait for the GIL (which matters when one process hosts several robots,
+:func:`services.robot.host`). Publishers use ``CongestionControl.BLOCK``
+(every message must arrive); a peer's are ``express`` (no batching: a sample's
+messages are on the critical path of the loop, and a peer's go to many links),
+a client's are not: all of its traffic shares one link to the router, where
+batching cuts the cost per message several times (measured in
+``docs/fleet-services.md``).
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ import re
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import msgpack
 import zenoh
@@ -79,6 +83,7 @@ def make_config(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     mode: str = "peer",
+    config: Path | None = None,
 ) -> zenoh.Config:
     """A Zenoh configuration with multicast scouting off and explicit endpoints.
 
@@ -86,18 +91,32 @@ def make_config(
     ----------
     listen
         Endpoints to listen on, e.g. ``tcp/127.0.0.1:7447`` (port 0: any free port).
-        A peer with none listens on ``tcp/127.0.0.1:0`` (loopback only).
+        A peer with none listens on ``tcp/127.0.0.1:0`` (loopback only), or on
+        ``tls/127.0.0.1:0`` with a ``config`` (unless the file names endpoints).
     connect
         Endpoints to connect to (retried until they appear).
     mode
         ``"peer"``, ``"client"`` (needs a router in ``connect``) or ``"router"``.
+    config
+        A Zenoh configuration file to start from, e.g. a process's file made by
+        :func:`services.credentials.write_credentials` (mutual TLS and access
+        control); its endpoints must then be ``tls/`` ones.
     """
     if mode not in ("peer", "client", "router"):
         raise ValueError(f"zenoh mode must be peer, client or router, got {mode!r}")
     listen = list(listen)
+    if config is None:
+        conf = zenoh.Config()
+    else:
+        conf = zenoh.Config.from_file(str(config))
+        for ep in [*listen, *connect]:
+            if not ep.startswith("tls/"):
+                raise ValueError(f"endpoint {ep}: a session with credentials takes tls/ "
+                                 "endpoints only (mutual TLS)")
+        if not listen and isinstance(json.loads(conf.get_json("listen/endpoints")), list):
+            listen = json.loads(conf.get_json("listen/endpoints"))  # the file's own
     if not listen and mode != "client":
-        listen = ["tcp/127.0.0.1:0"]
-    conf = zenoh.Config()
+        listen = ["tcp/127.0.0.1:0" if config is None else "tls/127.0.0.1:0"]
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
@@ -125,7 +144,7 @@ class Bus:
     ----------
     run
         Run name (namespace).
-    listen, connect, mode
+    listen, connect, mode, config
         See :func:`make_config`.
     faults
         Lose or delay incoming messages (:mod:`services.faults`; tests, benchmarks).
@@ -143,14 +162,16 @@ class Bus:
     """
 
     def __init__(self, run: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 mode: str = "peer", faults: FaultInjector | None = None) -> None:
+                 mode: str = "peer", config: Path | None = None,
+                 faults: FaultInjector | None = None) -> None:
         self.prefix = run_prefix(run)
         self.express = mode != "client"
         self.inbox: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self.faults = faults
         self.send_failures = 0
         self._released: deque[Event] = deque()
-        self.session = zenoh.open(make_config(listen, connect, mode))
+        self.secured = config is not None
+        self.session = zenoh.open(make_config(listen, connect, mode, config))
         self._subscribers: list[zenoh.Subscriber] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._tokens: list[zenoh.LivelinessToken] = []

@@ -92,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
     runlog.add_parser(sub)  # sqpmpc metrics RUN_DIR
+    from services import credentials  # sqpmpc credentials (the services' mTLS + ACL)
+
+    credentials.add_parser(sub)
     return parser
 
 

@@ -1,13 +1,17 @@
 """docker/docker-compose.yml: its services' commands, run as local processes through a router.
 
 No Docker here: the compose file is parsed with PyYAML and every service's
-``command`` is started with this interpreter, the host ``router`` replaced by
-127.0.0.1 and the router's port by a free one; the run is shortened with
-``--t-end``.
+``command`` is started with this interpreter: the one-shot ``credentials``
+service writes into a temporary folder instead of the ``/credentials`` volume,
+the router (``eclipse/zenoh``, not installed here) is ``services.router`` with
+the same config file ``docker/zenohd.json5`` (its ``/credentials`` paths and
+port mapped to the local ones), the host ``router`` is 127.0.0.1 and its port
+a free one; the run is shortened with ``--t-end``.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 from pathlib import Path
 
@@ -15,13 +19,16 @@ import pytest
 import yaml
 
 from services.testing import free_ports, start_service, stop_processes
+from sqpmpc.cli import main as sqpmpc_main
 from sqpmpc.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = ROOT / "docker" / "docker-compose.yml"
+ZENOHD = ROOT / "docker" / "zenohd.json5"
 T_END = "20.0"
+VOLUME = "/credentials"
 
 
 def _compose() -> dict:
@@ -32,59 +39,84 @@ def _option(cmd: list[str], flag: str) -> str | None:
     return cmd[cmd.index(flag) + 1] if flag in cmd else None
 
 
-def test_compose_file_describes_router_plant_and_one_service_per_robot():
+def _json5(text: str) -> dict:
+    """The zenohd config: JSON after its leading ``//`` comment lines."""
+    return json.loads("\n".join(ln for ln in text.splitlines() if not ln.startswith("//")))
+
+
+def test_compose_file_describes_a_secured_router_plant_and_one_service_per_robot(tmp_path):
     services = _compose()["services"]
-    assert "router" in services and "plant" in services
-    router_cmd = services["router"]["command"]
-    assert router_cmd[:3] == ["python", "-m", "services.router"]
+    assert {"credentials", "router", "plant"} <= set(services)
+    router = services["router"]
+    # the router is Eclipse Zenoh's image, pinned to the Python package's version
+    assert router["image"] == f"eclipse/zenoh:{importlib.metadata.version('eclipse-zenoh')}"
+    assert router["command"] == ["--config", "/zenohd.json5"]
+    assert "./zenohd.json5:/zenohd.json5:ro" in router["volumes"]
+    assert router["ports"] == ["127.0.0.1:7447:7447"]  # for host tools, loopback only
+    creds_cmd = services["credentials"]["command"]
+    assert creds_cmd[:4] == ["python", "-m", "sqpmpc", "credentials"]
+    assert _option(creds_cmd, "--out") == VOLUME
     plant_cmd = services["plant"]["command"]
     scenario = _option(plant_cmd, "--scenario")
     robots = {name: s["command"] for name, s in services.items()
-              if s["command"][2] == "services.robot"}
+              if s["command"][2:3] == ["services.robot"]}
     ids = sorted(int(_option(cmd, "--id")) for cmd in robots.values())
     assert ids == sorted(int(i) for i in load_scenario(scenario).ids)
     for name, service in services.items():
+        if name in ("credentials", "router"):
+            continue
         cmd = service["command"]
         assert service.get("image") == "sqpmpc:latest"
-        if name != "router":
-            assert _option(cmd, "--connect") == "tcp/router:7447", name
-            assert _option(cmd, "--run") == _option(plant_cmd, "--run"), name
-            assert _option(cmd, "--scenario") == scenario, name
+        assert service["depends_on"]["credentials"]["condition"] == (
+            "service_completed_successfully"), name
+        assert _option(cmd, "--connect") == "tls/router:7447", name
+        assert _option(cmd, "--credentials") == VOLUME, name
+        assert _option(cmd, "--run") == _option(creds_cmd, "--run"), name
+        assert _option(cmd, "--scenario") == scenario == _option(creds_cmd, "--scenario")
+    # docker/zenohd.json5 is the router identity's config the credentials service writes
+    out = tmp_path / "creds"
+    args = [a if a != VOLUME else str(out) for a in creds_cmd[4:]]
+    assert sqpmpc_main(["credentials", *args, "--folder", VOLUME]) == 0
+    assert _json5(ZENOHD.read_text()) == json.loads((out / "router.json5").read_text())
     dockerfile = (ROOT / "docker" / "Dockerfile").read_text()
     assert "pip install ." in dockerfile
 
 
-def _local(cmd: list[str], port: int, run: str) -> tuple[str, list[str]]:
-    """The compose command as a local one: host, port, run name, output and length."""
+def _local(cmd: list[str], port: int, creds: Path) -> tuple[str, list[str]]:
+    """The compose command as a local one: host, port, credentials folder and run length."""
     assert cmd[:2] == ["python", "-m"] and cmd[2].startswith("services.")
     module = cmd[2].split(".", 1)[1]
-    args = [a.replace("tcp/router:7447", f"tcp/127.0.0.1:{port}")
-            .replace("tcp/0.0.0.0:7447", f"tcp/127.0.0.1:{port}") for a in cmd[3:]]
-    if "--run" in args:
-        args[args.index("--run") + 1] = run
+    args = [a.replace("tls/router:7447", f"tls/127.0.0.1:{port}").replace(VOLUME, str(creds))
+            for a in cmd[3:]]
     if module in ("plant", "robot", "central"):
         args += ["--t-end", T_END]
     return module, args
 
 
-def test_compose_services_run_locally_through_a_router(tmp_path):
+def test_compose_services_run_locally_through_a_secured_router(tmp_path):
     services = _compose()["services"]
     (port,) = free_ports(1)
-    out = tmp_path / "out"
+    creds, out, logs = tmp_path / "creds", tmp_path / "out", tmp_path / "logs"
+    # the one-shot service, into a local folder
+    cmd = services["credentials"]["command"]
+    assert sqpmpc_main(["credentials", *[a if a != VOLUME else str(creds) for a in cmd[4:]]]) == 0
+    # the router with the same config file
+    config = tmp_path / "zenohd.json5"
+    config.write_text(ZENOHD.read_text().replace(VOLUME + "/", f"{creds}/")
+                      .replace("tls/0.0.0.0:7447", f"tls/127.0.0.1:{port}"))
     procs = []
     try:
-        module, args = _local(services["router"]["command"], port, "compose-test")
-        router = start_service(module, args, tmp_path / "logs", name="router")
+        router = start_service("router", ["--zenoh-config", str(config)], logs)
         procs.append(router)
         plant = None
         for name, service in services.items():
-            if name == "router":
+            if name in ("credentials", "router"):
                 continue
-            module, args = _local(service["command"], port, "compose-test")
+            module, args = _local(service["command"], port, creds)
             if name == "plant":
                 args[args.index("--out") + 1] = str(out)
                 args.append("--no-plots")
-            proc = start_service(module, args, tmp_path / "logs", name=name)
+            proc = start_service(module, args, logs, name=name)
             procs.append(proc)
             if name == "plant":
                 plant = proc
@@ -100,4 +132,5 @@ def test_compose_services_run_locally_through_a_router(tmp_path):
     assert metrics["completed"] is True
     assert metrics["collisions"] == 0
     assert metrics["steps"] == 40 and metrics["missed_deadlines"] == 0
+    assert metrics["invalid_messages"] == 0
     assert (out / "trajectory.npz").exists()

@@ -1,0 +1,194 @@
+"""A hostile process for tests and benchmarks: well-formed messages on other processes' keys.
+
+``python -m services.forger --scenario S --run R --connect EP [--credentials DIR
+--identity robot-2 | --zenoh-config FILE] [--attack cmd,plan,state,done,alive]
+[--target 1] [--duration S] [--zenoh-mode peer|client]``
+
+It joins a run like any process (with whatever credentials it was given,
+possibly none) and, for ``--duration`` seconds, publishes:
+
+- ``cmd``: an input for robot ``--target`` on ``robot/<target>/cmd`` for the
+  newest sample it saw (or every sample when it sees none) that steers it
+  towards the nearest other robot at a distinctive speed
+  (:data:`FORGED_SPEED` of the upper bound, so the plant's record shows
+  where it was applied: :func:`forged_speed`);
+- ``plan``: a plan of robot ``--target`` 10 m away from where it is, on
+  ``robot/<target>/plan`` and addressed to every other robot;
+- ``state``: the plant's states of the next sample with every robot moved
+  by (1.0, 0.5) m;
+- ``done``: the plant's end of run (once, at sample 3 or later, or after
+  2 s when it sees no state, once it has ``--links`` links);
+- ``alive``: the liveliness token of robot ``--target``.
+
+It subscribes to ``plant/state`` to learn the samples (a process without
+credentials sees nothing), prints ``{"ready": true}`` once its session is
+open and one JSON line when it ends (after ``--duration`` or on SIGTERM):
+the states it saw and the messages it sent. ``docs/security.md`` and
+``tests/test_security.py`` use it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import queue
+import sys
+import threading
+import time
+
+import numpy as np
+import zenoh
+
+from sqpmpc.errors import ProblemError
+
+from .credentials import config_for
+from .messages import CmdMsg, DoneMsg, InvalidMessage, PlanMsg, StateMsg, decode, encode
+from .node import (
+    add_common_arguments,
+    install_signal_handlers,
+    scenario_digest,
+    scenario_from_args,
+)
+from .transport import make_config, run_prefix
+
+__all__ = ["ATTACKS", "FORGED_SPEED", "build_parser", "forged_input", "forged_speed", "main"]
+
+PROG = "services.forger"
+ATTACKS = ("cmd", "plan", "state", "done", "alive")
+"""What the forger can send."""
+FORGED_SPEED = 0.987654321
+"""Forged speed as a fraction of the upper speed bound."""
+
+
+def forged_speed(upper: np.ndarray) -> float:
+    """The speed of every forged ``cmd``, given the scenario's upper input bounds."""
+    return FORGED_SPEED * float(upper[0])
+
+
+def forged_input(x: np.ndarray, target: int, upper: np.ndarray) -> np.ndarray:
+    """A forged input for robot index ``target`` at states ``x`` (n x 3): the forged
+    speed, turning as fast as allowed towards the nearest other robot."""
+    d = np.delete(x[:, :2] - x[target, :2], target, axis=0)
+    dx, dy = d[np.argmin(np.hypot(d[:, 0], d[:, 1]))]
+    err = (np.arctan2(dy, dx) - x[target, 2] + np.pi) % (2.0 * np.pi) - np.pi
+    return np.array([forged_speed(upper), float(np.clip(2.0 * err, -upper[1], upper[1]))])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.forger``."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    add_common_arguments(parser)
+    parser.add_argument("--identity", default="viewer",
+                        help="with --credentials: whose certificate to use (e.g. robot-2)")
+    parser.add_argument("--attack", default=",".join(ATTACKS),
+                        help=f"comma-separated, of {', '.join(ATTACKS)} (default all)")
+    parser.add_argument("--target", type=int, default=1, help="robot whose keys to forge")
+    parser.add_argument("--duration", type=float, default=10.0, help="seconds to forge for")
+    parser.add_argument("--links", type=int, default=0,
+                        help="send 'done' only once linked to this many processes")
+    parser.add_argument("--period", type=float, default=0.001,
+                        help="seconds between rounds (each round sends every attack again)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; prints a JSON summary and returns 0 (2 on bad input)."""
+    args = build_parser().parse_args(argv)
+    attacks = [a for a in args.attack.split(",") if a]
+    if not set(attacks) <= set(ATTACKS):
+        print(f"{PROG}: error: --attack takes {', '.join(ATTACKS)}", file=sys.stderr)
+        return 2
+    scenario = scenario_from_args(PROG, args)
+    prefix = run_prefix(args.run)
+    try:
+        conf = make_config(args.listen, args.connect, args.zenoh_mode,
+                           config_for(args, args.identity))
+        # an attacker retries its links fast: it is there before the run starts
+        conf.insert_json5("connect/retry", '{"period_init_ms": 20, "period_max_ms": 100}')
+        if args.zenoh_mode == "client":  # give up when no router accepts it
+            conf.insert_json5("connect/timeout_ms", "5000")
+        session = zenoh.open(conf)
+    except (ProblemError, ValueError, zenoh.ZError) as exc:
+        print(json.dumps({"opened": False, "error": str(exc).split(" at /")[0]}))
+        return 0
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    ids = [int(i) for i in scenario.ids]
+    target = ids.index(args.target)
+    digest = scenario_digest(scenario)
+    upper = scenario.bounds.input_upper()
+    sent = dict.fromkeys(attacks, 0)
+    seen, links = 0, 0
+    last: StateMsg | None = None
+    done_sent = False
+    token = None
+
+    def put(payload: bytes, key: str) -> None:
+        session.put(f"{prefix}/{key}", payload, express=True)  # dropped when congested
+
+    # the plant's states, not its own forged ones
+    states = session.declare_subscriber(f"{prefix}/plant/state",
+                                        lambda sample: inbox.put(sample.payload.to_bytes()),
+                                        allowed_origin=zenoh.Locality.REMOTE)
+    try:
+        if "alive" in attacks:
+            token = session.liveliness().declare_token(f"{prefix}/alive/robot/{args.target}")
+            sent["alive"] += 1
+        print(json.dumps({"ready": True}), flush=True)
+        start = time.monotonic()
+        sample, polled = 0, 0.0
+        while time.monotonic() < start + args.duration and not stop.is_set():
+            if time.monotonic() - polled > 0.01:
+                links = max(links, len(list(session.info.peers_zid()))
+                            + len(list(session.info.routers_zid())))
+                polled = time.monotonic()
+            try:
+                msg = decode(inbox.get(timeout=args.period), scenario.horizon)
+                if isinstance(msg, StateMsg) and msg.scenario == digest:
+                    seen += 1
+                    if last is None or msg.sample >= last.sample:
+                        last = msg
+            except (queue.Empty, InvalidMessage):
+                if last is None:  # blind: walk through every sample
+                    sample = (sample + 1) % (scenario.steps + 1)
+            k = last.sample if last is not None else sample
+            x = last.x if last is not None else scenario.initial_states()
+            if "cmd" in attacks:
+                u = forged_input(x, target, upper)
+                put(encode(CmdMsg(args.target, k, u, 0.0, None, 0)), f"robot/{args.target}/cmd")
+                sent["cmd"] += 1
+            if "plan" in attacks:
+                far = np.repeat(x[target][None, :] + np.array([10.0, 10.0, 0.0]),
+                                scenario.horizon + 1, axis=0)
+                plan = encode(PlanMsg(args.target, k, k * scenario.sample_time, time.time(),
+                                      far, np.zeros((scenario.horizon, 2))))
+                put(plan, f"robot/{args.target}/plan")
+                for rid in ids:
+                    if rid != args.target:
+                        put(plan, f"robot/{args.target}/plan/{rid}")
+                sent["plan"] += 1
+            if "state" in attacks and k < scenario.steps:
+                moved = x + np.array([1.0, 0.5, 0.0])
+                put(encode(StateMsg(k + 1, (k + 1) * scenario.sample_time, tuple(ids), moved,
+                                    None, digest)), "plant/state")
+                sent["state"] += 1
+            if "done" in attacks and not done_sent and (
+                    k >= 3 if last is not None else time.monotonic() > start + 2.0) and (
+                    links >= args.links):
+                put(encode(DoneMsg(k, True)), "plant/done")
+                sent["done"] += 1
+                done_sent = True
+    finally:
+        for obj in (states, token):
+            if obj is not None:
+                obj.undeclare()
+        # reported before closing: a close that hangs (zenoh-python #434) loses nothing
+        print(json.dumps({"opened": True, "states_seen": seen, "links": links, "sent": sent}),
+              flush=True)
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,180 @@
+"""Authenticated, authorized Zenoh traffic: real certificates, real sessions, forged messages.
+
+Every process is a real Zenoh session in a process of its own on 127.0.0.1
+(multicast scouting off). The run's credentials are made in the test with
+``sqpmpc credentials``; hostile processes are :mod:`services.forger`.
+"""
+
+from __future__ import annotations
+
+import json
+import stat
+import time
+
+import numpy as np
+import pytest
+from cryptography import x509
+from cryptography.x509.oid import NameOID
+
+from services.credentials import META_FILE, write_credentials
+from services.forger import forged_speed
+from services.testing import ServiceProcess, free_ports, start_service, stop_processes
+from sqpmpc.cli import main as sqpmpc_main
+from sqpmpc.scenario import load_scenario
+from sqpmpc.settings import SolverSettings
+from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
+
+pytestmark = pytest.mark.timeout(150)
+
+SCENARIO = "paper-s2"
+T_END = 20.0  # 40 samples
+IDENTITIES = ["plant", "router", "viewer", "central", "robot-1", "robot-2", "robot-3", "robot-4"]
+
+
+def test_credentials_command_writes_a_private_folder_per_identity(tmp_path, capsys):
+    out = tmp_path / "creds"
+    assert sqpmpc_main(["credentials", "--scenario", SCENARIO, "--run", "r1", "--out",
+                        str(out), "--valid-hours", "2"]) == 0
+    assert stat.S_IMODE(out.stat().st_mode) == 0o700
+    meta = json.loads((out / META_FILE).read_text())
+    assert meta["run"] == "r1" and meta["identities"] == IDENTITIES
+    names = {p.name for p in out.iterdir()}
+    assert names == {"ca.pem", META_FILE} | {f"{i}.{ext}" for i in IDENTITIES
+                                            for ext in ("pem", "key", "json5")}
+    for path in out.iterdir():  # the CA's private key is never written
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600, path
+    ca = x509.load_pem_x509_certificate((out / "ca.pem").read_bytes())
+    for identity in IDENTITIES:
+        cert = x509.load_pem_x509_certificate((out / f"{identity}.pem").read_bytes())
+        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+        assert cn == identity
+        cert.verify_directly_issued_by(ca)
+        hours = (cert.not_valid_after_utc - cert.not_valid_before_utc).total_seconds() / 3600
+        assert hours <= 2.1
+    conf = json.loads((out / "robot-1.json5").read_text())
+    assert conf["transport"]["link"]["protocols"] == ["tls"]
+    assert conf["transport"]["link"]["tls"]["enable_mtls"] is True
+    acl = conf["access_control"]
+    assert acl["enabled"] is True and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["robot-1-put"]["key_exprs"] == ["sqpmpc/@v1/r1/robot/1/**"]
+    assert rules["plant-put"]["key_exprs"] == ["sqpmpc/@v1/r1/plant/**"]
+    assert "viewer-put" not in rules  # the viewer may only subscribe
+    capsys.readouterr()
+    assert sqpmpc_main(["credentials", "--scenario", "no-such", "--run", "r1", "--out",
+                        str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("sqpmpc credentials: error: no-such")
+
+
+def _wait_ready(proc: ServiceProcess, timeout: float) -> None:
+    """Until the forger's session is open, or it gave up (a client no router accepts)."""
+    deadline = time.monotonic() + timeout
+    while '"ready"' not in proc.output() and proc.proc.poll() is None:
+        assert time.monotonic() < deadline, proc.output()
+        time.sleep(0.05)
+
+
+def _summary(proc: ServiceProcess) -> dict:
+    lines = [ln for ln in proc.output().splitlines() if ln.startswith('{"opened"')]
+    assert lines, proc.output()
+    return json.loads(lines[-1])
+
+
+@pytest.mark.parametrize("topology", ["peer", "router"])
+def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology):
+    """A process holding robot 2's certificate forges robot 1's cmd and plans, the plant's
+    states and done, and robot 1's liveliness; processes without the run's certificates
+    try the same. The run equals the undisturbed one, bit for bit."""
+    run = f"sec-{topology}"
+    creds, other = tmp_path / "creds", tmp_path / "other-ca"
+    scenario = load_scenario(SCENARIO)
+    write_credentials(creds, scenario, run, "decentralized")
+    write_credentials(other, scenario, run, "decentralized")  # a CA the run does not trust
+    ports = free_ports(9)
+    eps = [f"tls/127.0.0.1:{p}" for p in ports[:5]]  # plant (or router), robots 1-4
+    common = ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END), "--log-level",
+              "WARNING", "--credentials", str(creds)]
+    logs, out = tmp_path / "logs", tmp_path / "out"
+    procs: list[ServiceProcess] = []
+    try:
+        if topology == "router":
+            procs.append(start_service("router", ["--listen", eps[0], "--credentials",
+                                                  str(creds)], logs))
+            net = ["--zenoh-mode", "client", "--connect", eps[0]]
+            plant_net = net
+        else:
+            net, plant_net = ["--connect", eps[0]], ["--listen", eps[0]]
+        plant = start_service("plant", [*common, *plant_net, "--out", str(out), "--no-plots",
+                                        "--quiet", "--timeout", "5"], logs)
+        procs.append(plant)
+        targets = [eps[0]] if topology == "router" else eps
+        hostile = {
+            "robot-2": ["--credentials", str(creds), "--identity", "robot-2",
+                        "--links", str(len(targets))],
+            "other-ca": ["--credentials", str(other), "--identity", "robot-1"],
+            "no-certificate": [],
+        }
+        forgers = {}
+        for name, extra in hostile.items():
+            proto = "tcp" if name == "no-certificate" else "tls"
+            fnet = [a for t in targets for a in ("--connect", t.replace("tls", proto))]
+            if topology == "router":
+                fnet += ["--zenoh-mode", "client"]
+            else:
+                fnet += ["--listen", f"{proto}/127.0.0.1:{ports[5 + len(forgers)]}"]
+            forgers[name] = start_service(
+                "forger", ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END),
+                           "--duration", "120", "--period", "0.002", *extra, *fnet], logs,
+                name=f"forger-{name}")
+            procs.append(forgers[name])
+        for proc in forgers.values():
+            _wait_ready(proc, 60.0)
+        for j, rid in enumerate(scenario.ids, start=1):
+            own = [] if topology == "router" else ["--listen", eps[j]]
+            procs.append(start_service("robot", ["--id", str(rid), *common, *own, *net], logs,
+                                       name=f"robot-{rid}"))
+        assert plant.wait(90) == 0, plant.output()
+    finally:
+        stop_processes(procs)
+    summaries = {name: _summary(p) for name, p in forgers.items()}
+    insider = summaries["robot-2"]
+    # robot 2's certificate lets it in and read the states: it forged during the whole run
+    assert insider["opened"] and insider["links"] == len(targets), insider
+    assert insider["states_seen"] == 40, insider
+    assert insider["sent"]["done"] == 1 and insider["sent"]["cmd"] >= 40, insider
+    # no certificate of the run's CA: no link at all
+    for name in ("other-ca", "no-certificate"):
+        s = summaries[name]
+        assert not s["opened"] or (s["links"] == 0 and s["states_seen"] == 0), (name, s)
+        if topology == "router":  # a client that no router accepts cannot even open
+            assert not s["opened"], (name, s)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["completed"] is True and metrics["steps"] == 40
+    assert metrics["collisions"] == 0 and metrics["missed_deadlines"] == 0
+    assert metrics["lockstep_timeouts"] == 0
+    assert metrics["invalid_messages"] == 0  # nothing forged reached a validator
+    traj = np.load(out / "trajectory.npz")
+    assert not np.any(traj["inputs"][:, :, 0] == forged_speed(scenario.bounds.input_upper()))
+    reference = ClosedLoopSimulation(scenario.with_changes(t_end=T_END), "decentralized",
+                                     SolverSettings(),
+                                     SimulationOptions(decentralized_mode="shared")).run()
+    assert np.array_equal(traj["states"], reference.states)
+    assert np.array_equal(traj["inputs"], reference.inputs)
+
+
+def test_a_service_refuses_credentials_of_another_run_or_plain_endpoints(tmp_path):
+    creds = tmp_path / "creds"
+    write_credentials(creds, load_scenario(SCENARIO), "run-a", "decentralized")
+    (port,) = free_ports(1)
+    cases = [
+        (["--run", "run-b", "--credentials", str(creds)], "were made for run 'run-a'"),
+        (["--run", "run-a", "--credentials", str(creds), "--listen",
+          f"tcp/127.0.0.1:{port}"], "tls/ endpoints only"),
+        (["--run", "run-a", "--zenoh-config", str(tmp_path / "none.json5")], "no such file"),
+    ]
+    for args, message in cases:
+        proc = start_service("plant", ["--scenario", SCENARIO, *args], tmp_path / "logs")
+        assert proc.wait(60) == 2, proc.output()
+        lines = [ln for ln in proc.output().splitlines() if "error" in ln]
+        assert len(lines) == 1 and message in lines[0], proc.output()
