@@ -22,8 +22,10 @@ braking input (``v = omega = 0`` clipped to the bounds), counted in
 ``missed_deadlines``. The state advances with the scenario's ``[plant]`` model and
 input noise (:class:`sqpmpc.plant.Plant`), as in
 :class:`sqpmpc.simulation.ClosedLoopSimulation`.
+It also keeps the plans the controllers publish on ``robot/<id>/plan``.
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
-``metrics.json``, ``trajectory.npz`` and the plots into ``--out``.
+``metrics.json``, ``trajectory.npz``, ``recording.mcap`` (with those plans) and the
+plots into ``--out``.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from sqpmpc.metrics import RunRecord, write_run
 from sqpmpc.plant import Plant
 from sqpmpc.scenario import Scenario
 
-from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
+from .messages import CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
 from .node import Node, add_common_arguments, open_node, scenario_from_args, setup_logging
 
 __all__ = ["PlantNode", "build_parser", "main", "summarize"]
@@ -79,6 +81,8 @@ class PlantNode(Node):
         self.inputs = np.zeros((steps, n, 2))
         self.plant_inputs = np.zeros((steps, n, 2))
         self.solve_times = np.zeros((steps, n if self.scheme == "decentralized" else 1))
+        # the plans the controllers publish, for recording.mcap (NaN: not received)
+        self.horizons = np.full((steps, n, scenario.horizon + 1, 3), np.nan)
         self.brake = braking_input(scenario.bounds.input_lower(), scenario.bounds.input_upper(),
                                    (1,))[0]
         self.k = 0
@@ -119,6 +123,10 @@ class PlantNode(Node):
             self.publish_states(self.k)
 
     def on_message(self, kind: str, msg: Message) -> None:
+        if isinstance(msg, PlanMsg):
+            if 0 <= msg.sample < self.horizons.shape[0]:
+                self.horizons[msg.sample, self.ids.index(msg.id)] = msg.states
+            return
         if not isinstance(msg, CmdMsg):
             return
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
@@ -234,7 +242,8 @@ class PlantNode(Node):
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
                          k == self.scenario.steps, extra,
-                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None)
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+                         horizons=self.horizons[:k].copy())
 
     def finish(self) -> None:
         """Tell the controllers the run is over."""
@@ -302,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
     node = open_node(PROG, lambda: PlantNode(scenario, args))
     try:
-        node.start([("robot", "*", "cmd")])
+        node.start([("robot", "*", "cmd"), ("robot", "*", "plan")])
         node.run()
     finally:
         try:
