@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import __version__
+from . import __version__, animate
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
@@ -91,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--diameter", type=float, default=0.3, help="robot diameter, m")
     gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
+    animate.add_parser(sub)
     return parser
 
 
@@ -166,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "generate":
         return _generate(args)
+    if args.command == "animate":
+        return args.handler(args)
     try:
         scenario = load_scenario(args.scenario)
         base = SolverSettings()

@@ -459,8 +459,9 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
     ``(k, n, 2)``, ``ids`` ``(n,)`` (int64), ``solve_times`` ``(k, c)``
     seconds and ``references`` ``(k+1, n, 2)``; when recorded, also
     ``plant_inputs`` ``(k, n, 2)`` and ``horizons`` ``(k, n, N+1, 3)``
-    (float32, the plans of :attr:`RunRecord.horizons`). The file is written
-    atomically.
+    (float32, the plans of :attr:`RunRecord.horizons`); ``diameters`` ``(n,)``;
+    with obstacles ``obstacle_diameters`` ``(O,)`` and ``obstacle_positions``
+    ``(k+1, O, 2)``. The file is written atomically.
 
     Returns
     -------
@@ -480,6 +481,14 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
         arrays["plant_inputs"] = record.plant_inputs
     if record.horizons is not None:
         arrays["horizons"] = record.horizons.astype(np.float32)
+    diameters = getattr(record.scenario, "diameters", None)
+    if callable(diameters):
+        arrays["diameters"] = np.asarray(diameters(), dtype=float)
+    obstacles = tuple(getattr(record.scenario, "obstacles", ()) or ())
+    if obstacles:
+        arrays["obstacle_diameters"] = np.array([o.diameter for o in obstacles])
+        arrays["obstacle_positions"] = np.stack([o.position_at(record.t) for o in obstacles],
+                                                axis=1)
     _atomic_write(path, lambda fh: np.savez(fh, **arrays), "wb")
     return path
 
