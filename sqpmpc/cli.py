@@ -92,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
     animate.add_parser(sub)
+    sub.add_parser("viewer", add_help=False,
+                   help="live view of a distributed run for Foxglove (python -m "
+                        "services.viewer; 'sqpmpc viewer --help')")
     return parser
 
 
@@ -157,6 +160,11 @@ def _generate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["viewer"]:  # the service's own parser and options
+        from services.viewer import main as viewer_main
+
+        return viewer_main(argv[1:])
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     args = build_parser().parse_args(argv)
     if args.command == "list":
