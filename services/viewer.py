@@ -18,9 +18,9 @@ connection* -> *Foxglove WebSocket* -> ``ws://127.0.0.1:8765``, add a 3D panel
 The plant publishes the states of samples ``0 .. K-1`` (those an input is
 computed for), so the live view ends one sample before ``trajectory.npz``.
 Sample ``k`` is shown as soon as its states, every robot's plan and input of
-``k`` have arrived, or when the states of ``k + 2`` (or the plant's ``done``)
-come first (a plan travels on another link than the states and may arrive
-after the next sample's states). It takes the same scenario options as the other services (the
+``k`` have arrived, or ``--wait`` seconds after it began arriving once a later
+sample's states are there (a plan travels on another link than the states
+and may arrive before or after them). It takes the same scenario options as the other services (the
 scenario digest must match, or the states are refused as invalid) and the
 same Zenoh options (``--connect`` to the plant's or a router's endpoint, or
 ``--listen`` on a fixed endpoint that the run's plant connects to:
@@ -68,6 +68,7 @@ class _Sample:
         self.solve = np.full(n, np.nan)
         self.plan_ids: set[int] = set()
         self.cmds: set[int] = set()
+        self.first_seen = time.perf_counter()  # first message of this sample
 
     def complete(self, n: int) -> bool:
         return self.state is not None and len(self.plan_ids) == n and len(self.cmds) == n
@@ -101,6 +102,7 @@ class ViewerNode(Node):
         self.shown = 0  # samples sent to the server
         self.complete = 0  # ... of them with every robot's plan and input
         self.linger = float(args.linger)
+        self.wait = float(args.wait)
         self.late = 0  # plans and inputs that came after their sample was shown
         self.shown_upto = -1  # the last sample shown
         self.done = False
@@ -124,32 +126,48 @@ class ViewerNode(Node):
             entry = self.pending[sample] = _Sample(len(self.ids), self.scenario.horizon)
         return entry
 
-    def _show(self, upto: int) -> None:
-        """Send the pending samples up to ``upto`` to the server, in order."""
-        for sample in sorted(k for k in self.pending if k <= upto):
-            entry = self.pending.pop(sample)
-            msg = entry.state
-            if msg is None:  # plans or inputs of a sample whose states never came
-                continue
-            solve = entry.solve if entry.cmds else None
-            if solve is not None and "central" in self.alive:
-                solve = solve[:1]  # every cmd carries the central computation's time
-            self.fleet.log_sample(msg.t, msg.x, entry.plans,
-                                  None if solve is None else np.nan_to_num(solve),
-                                  log_time=time.time_ns())
-            self.shown_upto = sample
-            self.shown += 1
-            self.complete += entry.complete(len(self.ids))
-            if self.shown == 1 or self.shown % 100 == 0:
-                log.info("showing sample %d (%d shown)", msg.sample, self.shown)
+    def _flush(self, everything: bool = False) -> None:
+        """Show the pending samples that are complete or waited long enough, in order.
+
+        A sample is shown when its states, every plan and every input have
+        arrived, or ``--wait`` seconds after its first message once a later
+        sample's states have come (``everything``: all now). Plans and
+        inputs of a sample whose states never came are dropped.
+        """
+        n = len(self.ids)
+        now = time.perf_counter()
+        newest = max((k for k, e in self.pending.items() if e.state is not None), default=-1)
+        for sample in sorted(self.pending):
+            entry = self.pending[sample]
+            due = everything or (sample < newest and now - entry.first_seen >= self.wait)
+            if not (entry.complete(n) or due):
+                break
+            del self.pending[sample]
+            self._show(entry)
+
+    def _show(self, entry: _Sample) -> None:
+        """Send one sample to the server."""
+        msg = entry.state
+        if msg is None:
+            return
+        solve = entry.solve if entry.cmds else None
+        if solve is not None and "central" in self.alive:
+            solve = solve[:1]  # every cmd carries the central computation's time
+        self.fleet.log_sample(msg.t, msg.x, entry.plans,
+                              None if solve is None else np.nan_to_num(solve),
+                              log_time=time.time_ns())
+        self.shown_upto = msg.sample
+        self.shown += 1
+        self.complete += entry.complete(len(self.ids))
+        if self.shown == 1 or self.shown % 100 == 0:
+            log.info("showing sample %d (%d shown)", msg.sample, self.shown)
 
     def on_message(self, kind: str, msg: Message) -> None:
         n = len(self.ids)
         if isinstance(msg, StateMsg):
             if msg.sample == 0 and self.shown_upto >= 0:
                 log.info("a new run started")
-                self._show(max(self.pending, default=-1))
-                self.pending.clear()
+                self._flush(everything=True)
                 self.shown_upto = -1
             if msg.sample <= self.shown_upto:
                 return  # re-sent to a controller that joined late
@@ -157,13 +175,9 @@ class ViewerNode(Node):
             if entry.state is not None:
                 return  # likewise
             entry.state = msg
-            # a sample waits for its plans and inputs until the states of two samples later
-            self._show(msg.sample - 2)
-            if entry.complete(n):
-                self._show(msg.sample)
+            self._flush()
             return
         if isinstance(msg, DoneMsg):
-            self._show(max(self.pending, default=-1))
             log.info("the plant is done after %d samples (%d shown)", msg.sample, self.shown)
             self.done = True
             return
@@ -180,15 +194,19 @@ class ViewerNode(Node):
             entry.solve[j] = msg.compute_time
             entry.cmds.add(msg.id)
         if entry.complete(n):
-            self._show(msg.sample)
+            self._flush()
 
     def run(self) -> int:
         """Pump events until Ctrl-C (or the plant's ``done`` with ``--exit-on-done``)."""
         log.info("serving ws://%s:%d for run %s", self.host, self.port,
                  self.bus.prefix.rsplit("/", 1)[-1])
-        while not self.stop.is_set() and not (self.exit_on_done and self.done):
+        end = None
+        while not self.stop.is_set() and (end is None or time.perf_counter() < end):
             self.pump(POLL)
-        self._show(max(self.pending, default=-1))
+            self._flush()
+            if self.exit_on_done and self.done and end is None:
+                end = time.perf_counter() + self.wait  # the last plans and inputs
+        self._flush(everything=True)
         log.info("%d samples shown (%d with every plan and input, %d plans or inputs late)",
                  self.shown, self.complete, self.late)
         if self.done and not self.stop.is_set():  # let the server send what is queued
@@ -214,6 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--exit-on-done", action="store_true",
                         help="exit when the plant says the run is done (default: serve until "
                              "Ctrl-C, also the run's next start)")
+    parser.add_argument("--wait", type=float, default=0.25,
+                        help="longest wait for a sample's plans and inputs once a later "
+                             "sample's states came, s (default 0.25)")
     parser.add_argument("--linger", type=float, default=1.0,
                         help="with --exit-on-done: seconds to keep serving after the run, so "
                              "clients receive what is queued (default 1)")

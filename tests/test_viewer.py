@@ -66,7 +66,8 @@ def test_viewer_serves_the_poses_of_a_lockstep_run(tmp_path: Path) -> None:
     procs = [viewer]
     try:
         _wait_serving(viewer)
-        with connect(f"ws://127.0.0.1:{wsport}", subprotocols=[SUBPROTOCOL]) as ws:
+        with connect(f"ws://127.0.0.1:{wsport}", subprotocols=[SUBPROTOCOL],
+                     max_queue=None) as ws:  # buffer everything while the run runs
             poses, clearances, out = _watch(ws, run, endpoint, tmp_path)
         assert viewer.wait(30) == 0, viewer.output()
     finally:
@@ -102,7 +103,11 @@ def _watch(ws: ClientConnection, run: str, endpoint: str, tmp_path: Path
         data=base64.b64decode(pose["schema"])))
     poses, clearances = [], []
     while len(poses) < 10 or len(clearances) < 10:  # samples 0..9
-        msg = ws.recv(timeout=30.0)
+        try:
+            msg = ws.recv(timeout=30.0)
+        except Exception as exc:
+            raise AssertionError(f"received {len(poses)} poses, {len(clearances)} "
+                                 "clearances") from exc
         if isinstance(msg, bytes) and msg[0] == 0x01:  # message data
             sub = struct.unpack_from("<I", msg, 1)[0]
             payload = msg[1 + 4 + 8:]
