@@ -211,6 +211,7 @@ class PlantNode(Node):
             self.sample_walls.append(time.perf_counter() - t0)
         self.running = False
         self.loop_wall = time.perf_counter() - start
+        self.drain()  # plans already received, for the recording
 
     def record(self) -> RunRecord:
         """What has been run so far."""

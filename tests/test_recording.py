@@ -50,8 +50,12 @@ def _yaw(q: Any) -> float:
     return 2.0 * math.atan2(q.z, q.w)
 
 
-def check_recording(run_dir: Path) -> dict[str, list[tuple[int, Any]]]:
-    """Poses and plans of ``recording.mcap`` against ``trajectory.npz``."""
+def check_recording(run_dir: Path, missing_plans: int = 0) -> dict[str, list[tuple[int, Any]]]:
+    """Poses and plans of ``recording.mcap`` against ``trajectory.npz``.
+
+    ``missing_plans``: how many plans per robot may be absent (a distributed
+    plant records the plans it received; it never waits for them).
+    """
     traj = load_trajectory(run_dir / "trajectory.npz")
     topics = read_mcap(run_dir / "recording.mcap")
     t, states, ids = traj["t"], traj["states"], traj["ids"]
@@ -68,8 +72,10 @@ def check_recording(run_dir: Path) -> dict[str, list[tuple[int, Any]]]:
             dpsi = _yaw(msg.pose.orientation) - states[k, j, 2]
             assert abs(math.remainder(dpsi, 2 * math.pi)) < 1e-9
         plans = topics[f"/robots/{int(rid)}/horizon"]
-        assert len(plans) == K  # a plan at every sample where an input was computed
-        for k, (log_time, msg) in enumerate(plans):
+        # a plan at every sample where an input was computed (NaN in the npz: not received)
+        received = np.flatnonzero(np.isfinite(traj["horizons"][:, j, 0, 0]))
+        assert K - missing_plans <= len(plans) == received.size
+        for k, (log_time, msg) in zip(received, plans, strict=True):
             assert log_time == round(t[k] * 1e9)
             xy = np.array([[q.position.x, q.position.y] for q in msg.poses])
             np.testing.assert_allclose(xy, traj["horizons"][k, j, :, :2], atol=1e-5)
@@ -105,7 +111,7 @@ def test_distributed_lockstep_plant_writes_the_recording(tmp_path: Path) -> None
                           "--scheme", "decentralized", "--t-end", "5", "--out", str(out),
                           "--no-plots"], capture_output=True, text=True, timeout=100, cwd=REPO)
     assert res.returncode == 0, res.stderr
-    check_recording(out)
+    check_recording(out, missing_plans=1)
 
 
 def test_a_partial_record_without_plans(tmp_path: Path) -> None:
