@@ -5,7 +5,8 @@
 At every sample it waits for the plant's states of all robots, runs
 :class:`sqpmpc.controllers.CentralizedController` and publishes one ``cmd``
 per robot (on each robot's key, carrying the whole computation time and the
-fallback flag), so the plant runs both schemes the same way.
+fallback flag), so the plant runs both schemes the same way; before them, each
+robot's plan on ``robot/<id>/plan`` (for the plant's recording and the viewer).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 
 import zenoh
 
@@ -25,6 +27,7 @@ from .control import (
     add_controller_arguments,
     controller_settings,
 )
+from .messages import PlanMsg, encode
 from .node import (
     add_common_arguments,
     open_node,
@@ -56,6 +59,12 @@ class CentralNode(ControllerNode):
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:
         out = self.controller.step(entry.t, entry.states)
+        # each robot's plan first (for the plant's recording and the viewer; before the
+        # inputs, so the plant has it when it advances), then the inputs
+        stamp = time.time()
+        for j, rid in enumerate(self.ids):
+            self.bus.put(encode(PlanMsg(rid, sample, entry.t, stamp, out.predicted_states[j],
+                                        out.predicted_inputs[j])), "robot", rid, "plan")
         for j, rid in enumerate(self.ids):
             self.publish_cmd(rid, sample, out.inputs[j], out.compute_time, out.fallback)
         if out.fallback is not None:

@@ -197,6 +197,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--insecure", action="store_true",
                         help="debugging only: plain TCP without credentials (any local "
                              "process can then publish on the run's keys)")
+    parser.add_argument("--connect", dest="also_connect", action="append", default=[],
+                        metavar="EP", help="also connect every process of the run to this "
+                                           "Zenoh endpoint (the router with --router), e.g. "
+                                           "a services.viewer's --listen (repeatable)")
     add_rule_arguments(parser)
     return parser
 
@@ -247,9 +251,13 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
             id_args = [a for rid in rids for a in ("--id", rid)]
             cmds.append((name, [*py, "services.robot", *id_args, "--mode",
                                 args.decentralized_mode, *common, *net, *robot_extra]))
+    extra = [a for ep in args.also_connect for a in ("--connect", ep)]
     if args.router:
         cmds.insert(0, ("router", [*py, "services.router", "--listen", plant_ep,
-                                   "--log-level", args.log_level, *secure]))
+                                   "--log-level", args.log_level, *secure, *extra]))
+    else:  # every peer links to it from the start (e.g. a viewer gets every plan)
+        for _, cmd in cmds:
+            cmd += extra
     return cmds
 
 

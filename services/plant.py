@@ -22,11 +22,12 @@ braking input (``v = omega = 0`` clipped to the bounds), counted in
 ``missed_deadlines``. The state advances with the scenario's ``[plant]`` model and
 input noise (:class:`sqpmpc.plant.Plant`), as in
 :class:`sqpmpc.simulation.ClosedLoopSimulation`.
+It also keeps the plans the controllers publish on ``robot/<id>/plan``.
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
-``metrics.json``, ``trajectory.npz`` and the plots into ``--out``. As it goes it
-appends every sample to ``--out``/``record.msgpack`` (:mod:`sqpmpc.runlog`,
-flushed every sample): after a ``kill -9`` of the plant, ``sqpmpc metrics DIR``
-writes ``metrics.json`` and ``trajectory.npz`` from it.
+``metrics.json``, ``trajectory.npz``, ``recording.mcap`` (with those plans) and the
+plots into ``--out``. As it goes it appends every sample to ``--out``/``record.msgpack``
+(:mod:`sqpmpc.runlog`, flushed every sample): after a ``kill -9`` of the plant,
+``sqpmpc metrics DIR`` writes ``metrics.json`` and ``trajectory.npz`` from it.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from sqpmpc.plant import Plant
 from sqpmpc.runlog import RECORD_FILE, RecordWriter
 from sqpmpc.scenario import Scenario
 
-from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
+from .messages import CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
 from .node import (
     Node,
     add_common_arguments,
@@ -95,6 +96,8 @@ class PlantNode(Node):
         self.inputs = np.zeros((steps, n, 2))
         self.plant_inputs = np.zeros((steps, n, 2))
         self.solve_times = np.zeros((steps, n if self.scheme == "decentralized" else 1))
+        # the plans the controllers publish, for recording.mcap (NaN: not received)
+        self.horizons = np.full((steps, n, scenario.horizon + 1, 3), np.nan)
         self.brake = braking_input(scenario.bounds.input_lower(), scenario.bounds.input_upper(),
                                    (1,))[0]
         self.k = 0
@@ -144,6 +147,10 @@ class PlantNode(Node):
             self.publish_states(self.k)
 
     def on_message(self, kind: str, msg: Message) -> None:
+        if isinstance(msg, PlanMsg):
+            if 0 <= msg.sample < self.horizons.shape[0]:
+                self.horizons[msg.sample, self.ids.index(msg.id)] = msg.states
+            return
         if not isinstance(msg, CmdMsg):
             return
         decision = self.policy.cmd(self.k, msg.sample)
@@ -236,6 +243,7 @@ class PlantNode(Node):
             self.sample_walls.append(time.perf_counter() - t0)
         self.running = False
         self.loop_wall = time.perf_counter() - start
+        self.drain()  # plans already received, for the recording
 
     def collect(self, k: int, deadline: float, resend: float) -> bool:
         """Wait until every expected input of sample ``k`` is in (``True``), a stop is asked
@@ -286,7 +294,8 @@ class PlantNode(Node):
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
                          k == self.scenario.steps, extra,
-                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None)
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+                         horizons=self.horizons[:k].copy())
 
     def finish(self) -> None:
         """Tell the controllers the run is over."""
@@ -356,7 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     failed = False
     try:
         node.open_record(out)
-        node.start([("robot", "*", "cmd")])
+        node.start([("robot", "*", "cmd"), ("robot", "*", "plan")])
         node.run()
     except zenoh.ZError as exc:
         failed = bool(session_lost(PROG, exc))

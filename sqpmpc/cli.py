@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import __version__, runlog
+from . import __version__, animate, runlog
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
@@ -95,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     from services import credentials  # sqpmpc credentials (the services' mTLS + ACL)
 
     credentials.add_parser(sub)
+    animate.add_parser(sub)
+    sub.add_parser("viewer", add_help=False,
+                   help="live view of a distributed run for Foxglove (python -m "
+                        "services.viewer; 'sqpmpc viewer --help')")
     return parser
 
 
@@ -160,6 +164,11 @@ def _generate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["viewer"]:  # the service's own parser and options
+        from services.viewer import main as viewer_main
+
+        return viewer_main(argv[1:])
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     args = build_parser().parse_args(argv)
     if args.command == "list":

@@ -114,6 +114,11 @@ class RunRecord:
     plant_inputs
         The inputs the plant really applied (the commanded ``inputs`` plus the
         ``[plant]`` input noise), ``(k, n, 2)``; ``None``: the commanded ones.
+    horizons
+        The predicted horizon (plan) of every robot computed at each sample,
+        ``(k, n, N+1, 3)`` states :math:`(x, y, \\psi)` at :math:`t_i .. t_{i+N}`;
+        NaN where a plan is unknown (a distributed plant that did not receive
+        it); ``None``: not recorded.
 
     Raises
     ------
@@ -132,6 +137,7 @@ class RunRecord:
     completed: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
     plant_inputs: np.ndarray | None = None
+    horizons: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = int(self.scenario.n_robots)
@@ -160,6 +166,12 @@ class RunRecord:
             if self.plant_inputs.shape != self.inputs.shape:
                 raise ProblemError(f"plant_inputs must have shape {self.inputs.shape}, got "
                                    f"{self.plant_inputs.shape}")
+        if self.horizons is not None:
+            self.horizons = np.asarray(self.horizons, dtype=float)
+            shape = (k, n, int(self.scenario.horizon) + 1, 3)
+            if self.horizons.shape != shape:
+                raise ProblemError(f"horizons must have shape {shape}, got "
+                                   f"{self.horizons.shape}")
 
     @property
     def plant_model(self) -> str:
@@ -445,8 +457,11 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
 
     Arrays: ``t`` ``(k+1,)``, ``states`` ``(k+1, n, 3)``, ``inputs``
     ``(k, n, 2)``, ``ids`` ``(n,)`` (int64), ``solve_times`` ``(k, c)``
-    seconds and ``references`` ``(k+1, n, 2)``. The file is written
-    atomically.
+    seconds and ``references`` ``(k+1, n, 2)``; when recorded, also
+    ``plant_inputs`` ``(k, n, 2)`` and ``horizons`` ``(k, n, N+1, 3)``
+    (float32, the plans of :attr:`RunRecord.horizons`); ``diameters`` ``(n,)``;
+    with obstacles ``obstacle_diameters`` ``(O,)`` and ``obstacle_positions``
+    ``(k+1, O, 2)``. The file is written atomically.
 
     Returns
     -------
@@ -464,6 +479,16 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
     }
     if record.plant_inputs is not None:
         arrays["plant_inputs"] = record.plant_inputs
+    if record.horizons is not None:
+        arrays["horizons"] = record.horizons.astype(np.float32)
+    diameters = getattr(record.scenario, "diameters", None)
+    if callable(diameters):
+        arrays["diameters"] = np.asarray(diameters(), dtype=float)
+    obstacles = tuple(getattr(record.scenario, "obstacles", ()) or ())
+    if obstacles:
+        arrays["obstacle_diameters"] = np.array([o.diameter for o in obstacles])
+        arrays["obstacle_positions"] = np.stack([o.position_at(record.t) for o in obstacles],
+                                                axis=1)
     _atomic_write(path, lambda fh: np.savez(fh, **arrays), "wb")
     return path
 
@@ -493,13 +518,15 @@ def write_run(
     record: RunRecord,
     plots: bool = True,
     plotter: Callable[[RunRecord, Path], Any] | None = None,
+    recording: bool = True,
 ) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` and return its metrics.
 
     ``trajectory.npz`` and ``metrics.json`` are written first; then, when
-    ``plots`` is true, the PNG figures via ``plotter`` (default
-    :func:`sqpmpc.plots.plot_run`). An exception while plotting propagates,
-    but only after the trajectory and metrics are on disk.
+    ``recording`` is true, ``recording.mcap`` (:func:`sqpmpc.recording.write_recording`,
+    for Foxglove); then, when ``plots`` is true, the PNG figures via ``plotter``
+    (default :func:`sqpmpc.plots.plot_run`). An exception while recording or
+    plotting propagates, but only after the trajectory and metrics are on disk.
 
     Parameters
     ----------
@@ -512,6 +539,8 @@ def write_run(
     plotter
         ``plotter(record, out_dir)`` drawing the figures; for tests and
         alternative renderers.
+    recording
+        Whether to write ``recording.mcap``.
 
     Returns
     -------
@@ -523,6 +552,10 @@ def write_run(
     write_trajectory(out / "trajectory.npz", record)
     metrics = compute_metrics(record)
     write_metrics(out / "metrics.json", metrics)
+    if recording:
+        from .recording import write_recording
+
+        write_recording(out / "recording.mcap", record)
     if plots:
         if plotter is None:
             from .plots import plot_run

@@ -30,7 +30,15 @@ from matplotlib.lines import Line2D
 
 from .metrics import RunRecord, pair_distances
 
-__all__ = ["plot_distances", "plot_inputs", "plot_run", "plot_trajectories"]
+__all__ = [
+    "CLEARANCE_LINTHRESH",
+    "plot_distances",
+    "plot_inputs",
+    "plot_run",
+    "plot_solve_times",
+    "plot_tracking",
+    "plot_trajectories",
+]
 
 log = logging.getLogger(__name__)
 
@@ -74,36 +82,90 @@ def _save(fig: Figure, path: str | os.PathLike[str]) -> Path:
     return path
 
 
+_STYLES = ("-", "--", "-.", ":")
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h", "p")
+
+
+def _style(j: int, n: int, samples: int) -> dict[str, object]:
+    """Line style of robot (or pair) ``j`` of ``n``: curves that coincide stay visible.
+
+    Distinct dash patterns and markers, markers placed at staggered samples,
+    and earlier curves drawn wider and lower, so a curve exactly on top of
+    another leaves a rim of the one below.
+    """
+    every = max(1, samples // 10)
+    return {"ls": _STYLES[j % len(_STYLES)], "marker": _MARKERS[j % len(_MARKERS)],
+            "markevery": (min(samples - 1, (j * every) // max(n, 1)), every) if samples > 1
+            else None, "ms": 5.0, "lw": 1.2 + 1.6 * (n - 1 - j) / max(n - 1, 1),
+            "zorder": 2.0 + j / max(n, 1), "mfc": "none" if j % 2 else None}
+
+
+def _obstacles(ax: Axes, record: RunRecord) -> None:
+    """Obstacles at t = 0 (grey discs; a moving one also at the end, hatched, with its track)."""
+    from matplotlib.patches import Circle
+
+    t_end = float(record.t[-1])
+    for o, ob in enumerate(getattr(record.scenario, "obstacles", ()) or ()):
+        start = ob.position_at(0.0)
+        ax.add_patch(Circle(tuple(start), 0.5 * ob.diameter, facecolor="0.6",
+                            edgecolor="0.3", zorder=1.5,
+                            label="obstacle" if o == 0 else None))
+        if ob.moving:
+            end = ob.position_at(t_end)
+            ax.add_patch(Circle(tuple(end), 0.5 * ob.diameter, facecolor="none",
+                                edgecolor="0.3", hatch="//", zorder=1.5))
+            ax.plot([start[0], end[0]], [start[1], end[1]], ":", color="0.3", lw=1.0)
+
+
 def plot_trajectories(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Paths of every robot in the x-y plane against their references (Fig. 1/2).
 
-    Solid line: executed path; dashed, same colour: reference over the same
-    sample times; circle: start; cross: last sample.
+    Executed path: a line style and marker per robot (robots on symmetric
+    paths stay distinguishable); thin dashed, same colour: reference over the
+    same sample times; hollow circle of the robot's diameter: start; filled
+    square: last sample; star: the reference at the last sample (the goal);
+    arrows: headings at ten instants; grey discs: obstacles.
 
     Returns
     -------
     Path
         The PNG written.
     """
-    fig, (ax,) = _new_figure(7.0, 6.0)
+    from matplotlib.patches import Circle
+
+    fig, (ax,) = _new_figure(8.0, 6.5)
     pos = record.positions
     ref = record.references()
     ids = record.ids
-    colors = _colors(len(ids))
+    n, samples = len(ids), pos.shape[0]
+    colors = _colors(n)
+    diameters = np.asarray(record.scenario.diameters(), dtype=float) if hasattr(
+        record.scenario, "diameters") else np.full(n, 0.0)
+    every = max(1, samples // 10)
     for j, rid in enumerate(ids):
         c = colors[j]
-        ax.plot(ref[:, j, 0], ref[:, j, 1], "--", color=c, lw=1.0, alpha=0.8)
-        ax.plot(pos[:, j, 0], pos[:, j, 1], "-", color=c, lw=1.6, label=f"robot {rid}")
-        ax.plot(pos[0, j, 0], pos[0, j, 1], "o", color=c, ms=6)
-        ax.plot(pos[-1, j, 0], pos[-1, j, 1], "x", color=c, ms=7, mew=2)
+        ax.plot(ref[:, j, 0], ref[:, j, 1], ls=(0, (2, 2)), color=c, lw=0.9, alpha=0.7,
+                zorder=1)
+        ax.plot(pos[:, j, 0], pos[:, j, 1], color=c, label=f"robot {rid}",
+                **_style(j, n, samples))
+        ax.add_patch(Circle(tuple(pos[0, j]), 0.5 * diameters[j], fill=False, edgecolor=c,
+                            lw=1.5, zorder=5))
+        ax.plot(pos[-1, j, 0], pos[-1, j, 1], "s", color=c, ms=7, mec="k", zorder=6)
+        ax.plot(ref[-1, j, 0], ref[-1, j, 1], "*", color=c, ms=12, mec="k", mew=0.6, zorder=6)
+        head = record.states[::every, j]
+        ax.quiver(head[:, 0], head[:, 1], np.cos(head[:, 2]), np.sin(head[:, 2]), color=c,
+                  angles="xy", scale=28, width=0.004, zorder=4)
+    _obstacles(ax, record)
     handles, _ = ax.get_legend_handles_labels()
     handles += [
-        Line2D([], [], ls="--", color="0.4", label="reference"),
-        Line2D([], [], ls="", marker="o", color="0.4", label="start"),
-        Line2D([], [], ls="", marker="x", mew=2, color="0.4", label="end"),
+        Line2D([], [], ls=(0, (2, 2)), color="0.4", label="reference"),
+        Line2D([], [], ls="", marker="o", mfc="none", ms=9, color="0.4", label="start"),
+        Line2D([], [], ls="", marker="s", mec="k", color="0.4", label="end"),
+        Line2D([], [], ls="", marker="*", ms=11, mec="k", color="0.4", label="goal (ref. at end)"),
+        Line2D([], [], ls="", marker=r"$\rightarrow$", ms=10, color="0.4", label="heading"),
     ]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-              fontsize="small", frameon=False)
+              fontsize="small", frameon=False, ncols=max(1, int(np.ceil(len(handles) / 24))))
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="datalim")
@@ -117,12 +179,20 @@ def _pair_label(a: int, b: int) -> str:
     return f"$D_{{{sub}}}$"
 
 
-def plot_distances(record: RunRecord, path: str | os.PathLike[str]) -> Path:
-    """Pairwise centre distances over time with the required distances (Fig. 3/4).
+CLEARANCE_LINTHRESH = 1e-3
+"""Clearance axis: linear within +-1 mm, logarithmic beyond (millimetres show)."""
 
-    One line per pair, labelled :math:`D_{jl}` by robot ids; each distinct
-    required distance :math:`(d_j + d_l)/2` is drawn as a dashed horizontal
-    line. A single robot has no pair: the figure then says so.
+
+def plot_distances(record: RunRecord, path: str | os.PathLike[str]) -> Path:
+    """Pairwise centre distances and clearances over time (Fig. 3/4 and a zoom).
+
+    Top: one curve per pair, labelled :math:`D_{jl}` by robot ids, with a
+    line style and marker each; each distinct required distance
+    :math:`(d_j + d_l)/2` is a black horizontal line. Bottom: the clearances
+    :math:`D_{jl} - (d_j + d_l)/2` on a symmetric-log axis (linear within
+    :data:`CLEARANCE_LINTHRESH`, so a millimetre is visible next to metres),
+    zero in red, the smallest clearance marked and annotated. A single robot
+    has no pair: the figure then says so.
 
     Returns
     -------
@@ -132,35 +202,49 @@ def plot_distances(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     sc = record.scenario
     ids = record.ids
     pairs = np.asarray(sc.pairs(), dtype=np.int64).reshape(-1, 2)
-    fig, (ax,) = _new_figure(9.0, 5.0)
-    if pairs.shape[0] == 0:
+    fig, axes = _new_figure(9.5, 7.5, rows=2)
+    ax, low = axes
+    P, samples = pairs.shape[0], record.t.size
+    if P == 0:
         ax.text(0.5, 0.5, "single robot: no pairwise distances", ha="center", va="center",
                 transform=ax.transAxes)
     else:
         dist = pair_distances(record.positions, pairs)  # (k+1, P)
         required = np.asarray(sc.required_distances(), dtype=float)[pairs[:, 0], pairs[:, 1]]
-        cmap_name = "tab10" if pairs.shape[0] <= 10 else "tab20"
-        from matplotlib import colormaps
-
-        cmap = colormaps[cmap_name]
-        ax.set_prop_cycle(color=[cmap(i % cmap.N) for i in range(pairs.shape[0])])
-        marker = "." if record.k == 0 else None
-        lines = ax.plot(record.t, dist, lw=1.2, marker=marker)
-        for i, (line, (a, b)) in enumerate(zip(lines, pairs, strict=True)):
-            line.set_label(_pair_label(int(ids[a]), int(ids[b])))
-            if i >= cmap.N:  # colours repeat: tell the pairs apart by line style
-                line.set_linestyle("-." if (i // cmap.N) % 2 else ":")
+        clear = dist - required
+        colors = _colors(P)
+        for i, (a, b) in enumerate(pairs):
+            style = _style(i, P, samples) if samples > 1 else {"marker": "."}
+            label = _pair_label(int(ids[a]), int(ids[b]))
+            ax.plot(record.t, dist[:, i], color=colors[i], label=label, **style)
+            low.plot(record.t, clear[:, i], color=colors[i], **style)
         levels = np.unique(np.round(required, 12))
         styles = ("--", (0, (1, 1)), "-.")
         for i, value in enumerate(levels):
             ax.axhline(value, color="k", ls=styles[i % len(styles)], lw=1.2,
                        label=f"required {value:.3g} m")
-        _legend(ax, pairs.shape[0] + len(levels))
+        _legend(ax, P + len(levels), outside=True)
         ax.set_ylim(bottom=0.0)
-    ax.set_xlabel("time [s]")
+        low.set_yscale("symlog", linthresh=CLEARANCE_LINTHRESH, linscale=1.0)
+        low.axhline(0.0, color="tab:red", lw=1.2, label="touching (0)")
+        k, i = np.unravel_index(int(np.argmin(clear)), clear.shape)
+        a, b = pairs[i]
+        value = float(clear[k, i])
+        low.plot(record.t[k], value, "o", ms=11, mfc="none", mec="tab:red", mew=2.0, zorder=9,
+                 label="smallest clearance")
+        low.annotate(f"min {value * 1e3:.2f} mm\nt = {record.t[k]:.1f} s, robots "
+                     f"{int(ids[a])}-{int(ids[b])}", (record.t[k], value),
+                     xytext=(0.6, 0.12), textcoords="axes fraction", fontsize="small",
+                     arrowprops={"arrowstyle": "->", "color": "tab:red"},
+                     bbox={"boxstyle": "round", "fc": "w", "ec": "tab:red"})
+        low.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small",
+                   frameon=False)
     ax.set_ylabel("centre distance [m]")
-    ax.grid(True, alpha=0.3)
-    ax.set_title(_title(record, "pairwise distances"))
+    low.set_ylabel("clearance [m] (symlog: linear within 1 mm)")
+    low.set_xlabel("time [s]")
+    for a in axes:
+        a.grid(True, alpha=0.3, which="both")
+    ax.set_title(_title(record, "pairwise distances and clearances"))
     return _save(fig, path)
 
 
@@ -209,8 +293,95 @@ def plot_inputs(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     return _save(fig, path)
 
 
+def plot_tracking(record: RunRecord, path: str | os.PathLike[str]) -> Path:
+    r"""Tracking error :math:`\lVert p_j(t_i) - r_j(t_i) \rVert` and heading :math:`\psi_j`.
+
+    Two stacked panels over time, one curve per robot (line style and marker
+    each); the heading is wrapped to :math:`(-\pi, \pi]`, with breaks at the wraps.
+
+    Returns
+    -------
+    Path
+        The PNG written.
+    """
+    ids = record.ids
+    n, samples = len(ids), record.t.size
+    colors = _colors(n)
+    fig, (err_ax, psi_ax) = _new_figure(9.5, 6.5, rows=2)
+    err = np.linalg.norm(record.positions - record.references(), axis=-1)
+    psi = np.angle(np.exp(1j * record.states[..., 2]))
+    jumps = np.abs(np.diff(psi, axis=0)) > np.pi
+    for j, rid in enumerate(ids):
+        style = _style(j, n, samples) if samples > 1 else {"marker": "."}
+        err_ax.plot(record.t, err[:, j], color=colors[j], label=f"robot {rid}", **style)
+        heading = psi[:, j].copy()
+        heading[1:][jumps[:, j]] = np.nan  # no vertical line across a wrap
+        psi_ax.plot(record.t, heading, color=colors[j], **style)
+    err_ax.set_ylabel("tracking error [m]")
+    err_ax.set_ylim(bottom=0.0)
+    psi_ax.set_ylabel(r"heading $\psi$ [rad]")
+    psi_ax.set_yticks(np.pi * np.array([-1.0, -0.5, 0.0, 0.5, 1.0]),
+                      [r"$-\pi$", r"$-\pi/2$", "0", r"$\pi/2$", r"$\pi$"])
+    psi_ax.set_xlabel("time [s]")
+    for ax in (err_ax, psi_ax):
+        ax.grid(True, alpha=0.3)
+    _legend(err_ax, n, outside=True)
+    err_ax.set_title(_title(record, "tracking error and heading"))
+    return _save(fig, path)
+
+
+def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
+    """Controller computation time per sample against the sample-time budget.
+
+    One curve per controller (the central one, or each robot) on a log axis
+    in ms, its median as a dotted line of the same colour, the sum over the
+    robots (the decentralized scheme's Table 3 convention) in grey, and the
+    budget :math:`T_s` as a red line; the largest time is annotated.
+
+    Returns
+    -------
+    Path
+        The PNG written.
+    """
+    ts_ms = float(record.scenario.sample_time) * 1e3
+    st = record.solve_times * 1e3  # (k, c)
+    fig, (ax,) = _new_figure(9.5, 5.0)
+    if record.k == 0:
+        ax.text(0.5, 0.5, "no controller step yet", ha="center", va="center",
+                transform=ax.transAxes)
+    else:
+        t = record.t[:-1]
+        c = st.shape[1]
+        names = ["central"] if c == 1 else [f"robot {i}" for i in record.ids]
+        colors = _colors(c)
+        for j, name in enumerate(names):
+            med = float(np.median(st[:, j]))
+            ax.plot(t, st[:, j], color=colors[j], lw=0.9, alpha=0.85,
+                    label=f"{name} (median {med:.2f} ms, max {st[:, j].max():.2f} ms)")
+            ax.axhline(med, color=colors[j], ls=":", lw=1.2)
+        if c > 1:
+            total = st.sum(axis=1)
+            ax.plot(t, total, color="0.35", lw=1.0,
+                    label=f"sum over robots (median {np.median(total):.2f} ms)")
+        ax.axhline(ts_ms, color="tab:red", lw=1.6, label=f"budget $T_s$ = {ts_ms:g} ms")
+        k, j = np.unravel_index(int(np.argmax(st)), st.shape)
+        ax.annotate(f"max {st[k, j]:.2f} ms ({100 * st[k, j] / ts_ms:.2g} % of $T_s$)",
+                    (t[k], st[k, j]), xytext=(0.02, 0.78), textcoords="axes fraction",
+                    fontsize="small", arrowprops={"arrowstyle": "->", "color": "0.3"})
+        ax.set_yscale("log")
+        _legend(ax, c + 2, outside=True)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("computation per sample [ms]")
+    ax.grid(True, alpha=0.3, which="both")
+    ax.set_title(_title(record, "controller time against the sample time"))
+    return _save(fig, path)
+
+
 def plot_run(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
-    """Write ``trajectories.png``, ``distances.png`` and ``inputs.png`` into ``out_dir``.
+    """Write the figures of a run into ``out_dir``.
+
+    ``trajectories.png``, ``distances.png`` and ``inputs.png`` (the paper's
+    figures), ``tracking.png`` and ``solve_time.png``.
 
     Returns
     -------
@@ -223,6 +394,8 @@ def plot_run(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
         plot_trajectories(record, out / "trajectories.png"),
         plot_distances(record, out / "distances.png"),
         plot_inputs(record, out / "inputs.png"),
+        plot_tracking(record, out / "tracking.png"),
+        plot_solve_times(record, out / "solve_time.png"),
     ]
     log.debug("wrote plots %s", [str(p) for p in written])
     return written

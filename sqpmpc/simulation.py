@@ -110,6 +110,7 @@ class ClosedLoopSimulation:
         self.states[0] = scenario.initial_states()
         self.inputs = np.zeros((K, n, 2))
         self.plant_inputs = np.zeros((K, n, 2))
+        self.horizons = np.full((K, n, scenario.horizon + 1, 3), np.nan)  # the plans
         self.solve_times = np.zeros((K, len(self.controllers)))
         self.k = 0
         self.fallbacks = 0
@@ -144,6 +145,7 @@ class ClosedLoopSimulation:
                 plans[c.robot_id] = c.published
             # a lost message leaves the receivers with the older plan, as over a network
             self._plans.update(plans)
+        self.horizons[k] = np.concatenate([o.predicted_states for o in outs], axis=0)
         for j, o in enumerate(outs):
             self.solve_times[k, j] = o.compute_time
             self.fallbacks += o.fallback is not None
@@ -208,6 +210,7 @@ class ClosedLoopSimulation:
             completed=k == self.scenario.steps,
             extra=extra,
             plant_inputs=self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+            horizons=self.horizons[:k].copy(),
         )
 
 

@@ -15,7 +15,7 @@ from sqpmpc.scenario import Scenario
 from tests.scenarios import circle_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-NAMES = ["trajectories.png", "distances.png", "inputs.png"]
+NAMES = ["trajectories.png", "distances.png", "inputs.png", "tracking.png", "solve_time.png"]
 
 
 def make_record(sc: Scenario, k: int, completed: bool = True) -> RunRecord:
@@ -36,7 +36,7 @@ def assert_pngs(paths: list[Path], min_bytes: int = 10_000) -> None:
         assert len(data) > min_bytes, (p, len(data))
 
 
-def test_plot_run_writes_three_pngs(tmp_path: Path) -> None:
+def test_plot_run_writes_the_pngs(tmp_path: Path) -> None:
     sc = circle_scenario((0.3, 0.3, 0.5))  # two distinct required distances
     paths = plot_run(make_record(sc, sc.steps), tmp_path / "figs")
     assert_pngs(paths)

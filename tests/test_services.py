@@ -151,7 +151,8 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         probe.put(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), "robot", 2, "cmd")  # id mismatch
         probe.put(encode(CmdMsg(1, 50, np.zeros(2), 0.0)), "robot", 1, "cmd")  # future sample
         probe.put(encode(CmdMsg(99, 0, np.zeros(2), 0.0)), "robot", 99, "cmd")  # unknown id
-        # seen by robots 1 and 3 (subscribed to robot 2's plan): 1 invalid each
+        # seen by robots 1 and 3 (subscribed to robot 2's plan) and the plant (robot/*/plan,
+        # for its recording): 1 invalid each
         plan = PlanMsg(2, 0, 0.0, 0.0, np.zeros((8, 3)), np.zeros((8, 2)))  # wrong shape
         probe.put(encode(plan), "robot", 2, "plan")
         # seen by robots 1, 2, 3: 1 invalid each (unknown ids)
@@ -170,10 +171,10 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     by_process = m["invalid_messages_by_process"]
-    assert by_process["plant"] == 6, plant.output()
+    assert by_process["plant"] == 7, plant.output()
     assert by_process["robot/1"] == 2 and by_process["robot/3"] == 2
     assert by_process["robot/2"] == 1 and by_process["robot/4"] == 0
-    assert m["invalid_messages"] == 11
+    assert m["invalid_messages"] == 12
     # the forged messages changed nothing: every input arrived, the run completed
     assert m["completed"] is True and m["missed_deadlines"] == 0
     assert "dropped an invalid message" in plant.output()

@@ -1,0 +1,83 @@
+"""``sqpmpc animate`` writes a playable animation of a run folder."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sqpmpc.cli import main
+from sqpmpc.metrics import write_run
+from sqpmpc.scenario import load_scenario
+from sqpmpc.simulation import simulate
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A short real decentralized run of paper-s2 (12 samples) written as ``sqpmpc run`` does."""
+    out = tmp_path_factory.mktemp("run")
+    record = simulate(load_scenario("paper-s2").with_changes(t_end=6.0), "decentralized")
+    write_run(out, record, plots=False)
+    return out
+
+
+def test_gif_has_one_frame_per_sample(run_dir: Path, capsys: pytest.CaptureFixture) -> None:
+    out = run_dir / "a.gif"
+    assert main(["animate", str(run_dir), "--out", str(out), "--fps", "5"]) == 0
+    assert "13 frames" in capsys.readouterr().out
+    with Image.open(out) as im:
+        assert im.format == "GIF" and im.n_frames == 13 and im.size == (640, 640)
+        assert im.info["duration"] == 200 and im.info["loop"] == 0
+        first = np.asarray(im.convert("RGB"))
+        im.seek(12)
+        last = np.asarray(im.convert("RGB"))
+    assert (first != last).any()  # the robots moved
+
+
+def test_step_and_default_name(run_dir: Path) -> None:
+    assert main(["animate", str(run_dir), "--step", "5"]) == 0
+    with Image.open(run_dir / "animation.gif") as im:
+        assert im.n_frames == 4  # samples 0, 5, 10 and the last, 12
+
+
+def test_single_frame_png(run_dir: Path) -> None:
+    out = run_dir / "f.png"
+    assert main(["animate", str(run_dir), "--frame", "6", "--out", str(out)]) == 0
+    with Image.open(out) as im:
+        assert im.format == "PNG" and im.size == (640, 640)
+        rgb = np.asarray(im.convert("RGB"))
+    # robots of tab10 colours are drawn (not only white, grey and black)
+    assert (np.ptp(rgb.astype(int), axis=-1) > 60).sum() > 500
+
+
+@pytest.mark.skipif(importlib.util.find_spec("imageio_ffmpeg") is None,
+                    reason="imageio-ffmpeg not installed (optional)")
+def test_mp4(run_dir: Path) -> None:
+    import imageio_ffmpeg
+
+    out = run_dir / "a.mp4"
+    assert main(["animate", str(run_dir), "--out", str(out)]) == 0
+    frames, _ = imageio_ffmpeg.count_frames_and_secs(str(out))
+    assert frames == 13
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--out", "x.avi"], "--out"),
+    (["--fps", "0"], "--fps"),
+    (["--frame", "99"], "--frame"),
+])
+def test_bad_options_give_one_message(run_dir: Path, capsys: pytest.CaptureFixture,
+                                      args: list[str], needle: str) -> None:
+    if args[0] == "--out":
+        args = ["--out", str(run_dir / args[1])]
+    assert main(["animate", str(run_dir), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0] and "Traceback" not in err[0]
+
+
+def test_not_a_run_folder(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert main(["animate", str(tmp_path)]) == 2
+    assert "no trajectory.npz" in capsys.readouterr().err
