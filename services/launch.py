@@ -53,7 +53,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
 from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_argument
 
-from .credentials import write_credentials
+from .credentials import META_FILE, config_for, write_credentials
 from .node import install_signal_handlers, scenario_from_args
 from .plant import summarize
 
@@ -197,10 +197,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--insecure", action="store_true",
                         help="debugging only: plain TCP without credentials (any local "
                              "process can then publish on the run's keys)")
+    parser.add_argument("--credentials", type=Path, default=None, metavar="DIR",
+                        help="the run's credentials made by 'sqpmpc credentials' (same "
+                             "--run) instead of fresh ones, e.g. to let a services.viewer "
+                             "started with the same folder join the run")
     parser.add_argument("--connect", dest="also_connect", action="append", default=[],
                         metavar="EP", help="also connect every process of the run to this "
                                            "Zenoh endpoint (the router with --router), e.g. "
-                                           "a services.viewer's --listen (repeatable)")
+                                           "a services.viewer's --listen (repeatable; tls/ "
+                                           "unless --insecure)")
     add_rule_arguments(parser)
     return parser
 
@@ -261,13 +266,43 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     return cmds
 
 
+def _run_of(credentials: Path | None) -> str | None:
+    """The run a credentials folder was made for (``None``: no folder or unreadable)."""
+    if credentials is None:
+        return None
+    try:
+        run = json.loads((credentials / META_FILE).read_text()).get("run")
+    except (OSError, ValueError, AttributeError):
+        return None  # config_for names the problem
+    return run if isinstance(run, str) else None
+
+
+def _credential_problem(args: argparse.Namespace) -> str | None:
+    """Why ``--credentials``, ``--insecure`` and ``--connect`` cannot go together, if so."""
+    if args.insecure and args.credentials is not None:
+        return "give --credentials DIR or --insecure, not both"
+    if args.credentials is not None:
+        names = ["plant", "central" if args.scheme == "centralized" else "robot/1"]
+        for name in names + (["router"] if args.router else []):
+            try:
+                config_for(argparse.Namespace(credentials=args.credentials, run=args.run),
+                           name)
+            except ProblemError as exc:
+                return str(exc)
+    for ep in args.also_connect:
+        if not args.insecure and not ep.startswith("tls/"):
+            return (f"--connect {ep}: the run's links are mutual TLS; give a tls/ endpoint "
+                    "(and the same --credentials to both sides) or --insecure")
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s launch %(message)s",
                         stream=sys.stderr)
     args.connect, args.listen = [], []
-    run = args.run or f"run-{os.getpid()}-{secrets.token_hex(3)}"
+    run = args.run or _run_of(args.credentials) or f"run-{os.getpid()}-{secrets.token_hex(3)}"
     args.run = run
     scenario = scenario_from_args(PROG, args)  # exits 2 with one message on bad input
     if args.robots_per_process < 1:
@@ -279,6 +314,10 @@ def main(argv: list[str] | None = None) -> int:
         SolverSettings(neighbour_slots=args.neighbour_slots, qp_solver=args.qp_solver)
     except ProblemError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    problem = _credential_problem(args)
+    if problem:
+        print(f"{PROG}: error: {problem}", file=sys.stderr)
         return 2
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
@@ -294,7 +333,9 @@ def main(argv: list[str] | None = None) -> int:
     status = 1
     credentials = None
     try:
-        if not args.insecure:  # private to this user, removed at exit
+        if args.credentials is not None:  # the user's: used, kept
+            credentials = args.credentials
+        elif not args.insecure:  # private to this user, removed at exit
             credentials = Path(tempfile.mkdtemp(prefix="sqpmpc-credentials-"))
             write_credentials(credentials, scenario, run, args.scheme, router_listen=())
         commands = _commands(args, [int(i) for i in scenario.ids], run, out,
@@ -333,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
         stop_children([c for c in children if c.name != "router"], {"plant": signal.SIGINT},
                       PLANT_GRACE)
         stop_children([c for c in children if c.name == "router"], {}, PLANT_GRACE)
-        if credentials is not None:
+        if credentials is not None and args.credentials is None:
             shutil.rmtree(credentials, ignore_errors=True)
     if metrics_file.exists() and metrics_file.stat().st_mtime_ns != before:
         print(summarize(json.loads(metrics_file.read_text())))

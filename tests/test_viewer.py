@@ -59,16 +59,22 @@ def _advertised(ws: ClientConnection, topics: set[str]) -> dict[str, dict]:
 def test_viewer_serves_the_poses_of_a_lockstep_run(tmp_path: Path) -> None:
     run = "viewer-test"
     zport, wsport = free_ports(2)
-    endpoint = f"tcp/127.0.0.1:{zport}"
+    endpoint = f"tls/127.0.0.1:{zport}"
+    credentials = tmp_path / "credentials"  # the run's, shared by the viewer and the launcher
+    made = subprocess.run([sys.executable, "-m", "sqpmpc", "credentials", "--scenario",
+                           "paper-s2", "--run", run, "--out", str(credentials)],
+                          capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert made.returncode == 0, made.stderr
     viewer = start_service("viewer", ["--scenario", "paper-s2", "--t-end", "5", "--run", run,
                                       "--listen", endpoint, "--port", str(wsport),
+                                      "--credentials", str(credentials),
                                       "--exit-on-done"], tmp_path / "logs")
     procs = [viewer]
     try:
         _wait_serving(viewer)
         with connect(f"ws://127.0.0.1:{wsport}", subprotocols=[SUBPROTOCOL],
                      max_queue=None) as ws:  # buffer everything while the run runs
-            poses, clearances, out = _watch(ws, run, endpoint, tmp_path)
+            poses, clearances, out = _watch(ws, run, endpoint, credentials, tmp_path)
         assert viewer.wait(30) == 0, viewer.output()
     finally:
         stop_processes(procs)
@@ -82,7 +88,7 @@ def test_viewer_serves_the_poses_of_a_lockstep_run(tmp_path: Path) -> None:
     assert "10 samples shown (10 with every plan and input" in viewer.output()
 
 
-def _watch(ws: ClientConnection, run: str, endpoint: str, tmp_path: Path
+def _watch(ws: ClientConnection, run: str, endpoint: str, credentials: Path, tmp_path: Path
            ) -> tuple[list[tuple[float, float]], list[float | None], Path]:
     """Subscribe, run the distributed loop, collect robot 1's poses and the clearances."""
     pose_topic = POSE_TOPIC.format(id=1)
@@ -95,7 +101,8 @@ def _watch(ws: ClientConnection, run: str, endpoint: str, tmp_path: Path
     out = tmp_path / "out"
     launch = subprocess.run(
         [sys.executable, "-m", "services.launch", "--scenario", "paper-s2", "--scheme",
-         "decentralized", "--t-end", "5", "--run", run, "--connect", endpoint, "--out",
+         "decentralized", "--t-end", "5", "--run", run, "--connect", endpoint,
+         "--credentials", str(credentials), "--out",
          str(out), "--no-plots"], capture_output=True, text=True, timeout=100, cwd=REPO)
     assert launch.returncode == 0, launch.stderr
     decode = DecoderFactory().decoder_for("protobuf", Schema(
