@@ -101,7 +101,11 @@ def test_sigterm_to_the_launcher_leaves_no_child(tmp_path):
             children = child_pids(launcher.pid)
             time.sleep(0.1)
         assert len(children) == 5, "plant and 4 robots should be running"
-        time.sleep(3.0)  # the realtime loop is running (Ts = 0.5 s)
+        record = out / "record.msgpack"  # the plant appends one entry per sample
+        while time.monotonic() < deadline + 60 and not (
+                record.exists() and record.stat().st_size > 0):
+            time.sleep(0.1)
+        time.sleep(1.0)  # the realtime loop is running (Ts = 0.5 s)
         launcher.send_signal(signal.SIGTERM)
         _, err = launcher.communicate(timeout=60)
     finally:
@@ -219,17 +223,17 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
 
 def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     run = "late"
-    # 4000 samples (about 10 s of lockstep): robot 4's start-up (imports, Zenoh, loading
+    # 6000 samples (about 15 s of lockstep): robot 4's start-up (imports, Zenoh, loading
     # the compiled kernels) must fit well inside the run even on a loaded machine
     probe, plant, robots, plant_ep = _start_run(
-        tmp_path, run, [1, 2, 3], 2000.0, plant_args=("--startup-timeout", "1"),
+        tmp_path, run, [1, 2, 3], 3000.0, plant_args=("--startup-timeout", "1"),
         robot_args=("--timeout", "0.2"),  # their wait for all neighbours at the start
         subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
         assert probe.wait_for(lambda: bool(probe.events), 60), plant.output()  # running
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--run", run,
-                                            "--t-end", "2000.0", "--connect", plant_ep,
+                                            "--t-end", "3000.0", "--connect", plant_ep,
                                             "--startup-timeout", "60"],
                                   tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
@@ -241,8 +245,8 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     missed = m["missed_deadlines_by_robot"]
-    assert m["completed"] is True and m["steps"] == 4000
-    assert 1 <= missed["4"] <= 3950, "robot 4 braked until it joined, then drove"
+    assert m["completed"] is True and m["steps"] == 6000
+    assert 1 <= missed["4"] <= 5950, "robot 4 braked until it joined, then drove"
     assert missed["1"] == missed["2"] == missed["3"] == 0
     assert m["lockstep_timeouts"] == 0  # the plant re-sent the sample robot 4 joined at
     assert "robot/4 joined at sample" in plant.output()
