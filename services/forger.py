@@ -119,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     digest = scenario_digest(scenario)
     upper = scenario.bounds.input_upper()
     sent = dict.fromkeys(attacks, 0)
-    seen, links = 0, 0
+    seen: set[int] = set()  # distinct samples (the plant may publish one again)
+    links = 0
     last: StateMsg | None = None
     done_sent = False
     token = None
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 msg = decode(inbox.get(timeout=args.period), scenario.horizon)
                 if isinstance(msg, StateMsg) and msg.scenario == digest:
-                    seen += 1
+                    seen.add(msg.sample)
                     if last is None or msg.sample >= last.sample:
                         last = msg
             except (queue.Empty, InvalidMessage):
@@ -184,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             if obj is not None:
                 obj.undeclare()
         # reported before closing: a close that hangs (zenoh-python #434) loses nothing
-        print(json.dumps({"opened": True, "states_seen": seen, "links": links, "sent": sent}),
+        print(json.dumps({"opened": True, "states_seen": len(seen), "links": links, "sent": sent}),
               flush=True)
         session.close()
     return 0
