@@ -1,6 +1,7 @@
 """The centralized controller as one service speaking the robots' protocol.
 
-``python -m services.central --scenario S [--run R] [--connect EP] [--listen EP]``
+``python -m services.central --scenario S [--settings FILE.toml] [controller options as
+sqpmpc run] [--run R] [--connect EP] [--listen EP]`` (also ``sqpmpc central ...``)
 
 At every sample it waits for the plant's states of all robots, runs
 :class:`sqpmpc.controllers.CentralizedController` and publishes one ``cmd``
@@ -19,6 +20,7 @@ import time
 import zenoh
 
 from sqpmpc.controllers import CentralizedController
+from sqpmpc.options import Parser
 from sqpmpc.scenario import Scenario
 
 from .control import (
@@ -55,7 +57,7 @@ class CentralNode(ControllerNode):
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
         self.controller = CentralizedController(scenario, controller_settings(args))
-        super().__init__(scenario, args, "central")
+        super().__init__(scenario, args, "central", "centralized")
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:
         out = self.controller.step(entry.t, entry.states)
@@ -71,25 +73,25 @@ class CentralNode(ControllerNode):
             log.debug("sample %d: fallback %s", sample, out.fallback)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m services.central``."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.central`` (``sqpmpc central``)."""
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
     add_common_arguments(parser)
-    add_controller_arguments(parser, "unused; for symmetry, s")
+    add_controller_arguments(parser, "unused; for symmetry, s", decentralized=False)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    args = build_parser(prog).parse_args(argv)
     setup_logging(args.log_level, "central")
-    scenario = scenario_from_args(PROG, args)
-    node = open_node(PROG, lambda: CentralNode(scenario, args))
+    scenario = scenario_from_args(prog, args)
+    node = open_node(prog, lambda: CentralNode(scenario, args))
     try:
         node.start([("plant", "state"), ("plant", "done")])
         return node.run()
     except zenoh.ZError as exc:
-        return session_lost(PROG, exc)
+        return session_lost(prog, exc)
     finally:
         node.close()
 

@@ -23,13 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.controllers import CentralizedController, DecentralizedController
-from sqpmpc.qp import OSQPSettings
-from sqpmpc.registry import add_rule_arguments, rules_from_arguments
+from sqpmpc.options import add_controller_options, nonnegative_float, positive_float
 from sqpmpc.scenario import Scenario
-from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_argument
+from sqpmpc.settings import SolverSettings
 
+from .agreement import ADVICE
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
-from .node import POLL, Node
+from .node import POLL, Node, options_of
 from .protocol import StateCursor, Verdict
 
 __all__ = [
@@ -47,36 +47,31 @@ RESEND_GAP = 0.01
 states cannot make a controller flood the network)."""
 
 
-def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str) -> None:
-    """The options both controller services take (read by :func:`controller_settings`)."""
-    parser.add_argument("--timeout", type=float, default=5.0, help=timeout_help)
-    parser.add_argument("--qp-time-limit", type=float, default=0.0,
+def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str,
+                             decentralized: bool = True) -> None:
+    """The options both controller services take (read by :func:`controller_settings`):
+    the process's own (timeouts, QP time limit) and the run's
+    (:func:`sqpmpc.options.add_controller_options`; ``decentralized``: the robots')."""
+    parser.add_argument("--timeout", type=positive_float, default=5.0, help=timeout_help)
+    parser.add_argument("--qp-time-limit", type=nonnegative_float, default=0.0,
                         help="bound on one QP solve and on one sample's iterations, s (0: "
                              "none); real-time runs pass a fraction of Ts, a QP out of time "
                              "is a counted fallback")
-    parser.add_argument("--startup-timeout", type=float, default=None,
+    parser.add_argument("--startup-timeout", type=positive_float, default=None,
                         help="give up when no state came within this time, s (default: wait)")
-    parser.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
-                        metavar="N|all|auto",
-                        help="decentralized: collision slots per robot, filled with the "
-                             "nearest neighbours within reach; 'all': one per other robot; "
-                             "'auto' (default): as sqpmpc run")
-    parser.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
-                        help="QP backend (default auto: as sqpmpc run)")
-    add_rule_arguments(parser)
+    add_controller_options(parser, decentralized=decentralized, all_plans=decentralized,
+                           overrides=False)
 
 
 def controller_settings(args: argparse.Namespace) -> SolverSettings:
-    """The library's default settings with the chosen rules; ``--qp-time-limit`` bounds
-    each QP and the sample.
+    """The settings of the run's options (:func:`services.node.options_of`);
+    ``--qp-time-limit`` bounds each QP and the sample.
 
     The same value is the sample's ``time_budget``: iterations (the first
     sample's SQP, a sample a rule asks to converge) start no new QP once it is spent.
     """
     limit = float(args.qp_time_limit) or None
-    return SolverSettings(time_budget=limit, osqp=OSQPSettings(time_limit=limit),
-                          rules=rules_from_arguments(args),
-                          neighbour_slots=args.neighbour_slots, qp_solver=args.qp_solver)
+    return options_of(args).solver_settings(limit)
 
 
 @dataclass
@@ -101,8 +96,10 @@ class ControllerNode(Node):
 
     controller: CentralizedController | DecentralizedController
 
-    def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str) -> None:
-        super().__init__(scenario, args, name)
+    def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str,
+                 scheme: str) -> None:
+        super().__init__(scenario, args, name, scheme)
+        self.mismatch: str | None = None  # the plant runs another scenario or other settings
         self.timeout = float(args.timeout)
         self.startup_timeout = args.startup_timeout
         self.samples: dict[int, SampleStates] = {}
@@ -175,13 +172,38 @@ class ControllerNode(Node):
     def on_other(self, kind: str, msg: Message) -> None:
         """Messages other than state and done (override)."""
 
+    def on_mismatch(self, msg: Message, reason: str) -> None:
+        """A state of a plant started with another scenario or other settings: do not step;
+        tell the plant this process's settings (a braking ``cmd`` with ``detail``; again
+        when it asks again) and end the loop (status 2)."""
+        if not isinstance(msg, StateMsg):
+            super().on_mismatch(msg, reason)
+            return
+        if self.mismatch is None:
+            what, theirs, mine = ("another scenario", msg.scenario, self.digest)
+            if msg.scenario == self.digest:
+                what, theirs, mine = ("other settings", msg.settings, self.settings_digest)
+            self.mismatch = (f"{self.name}: the plant runs with {what} (digest {theirs}, this "
+                             f"process's {mine}; the plant's log names what differs): {ADVICE}")
+            log.error("%s", self.mismatch)
+        now = time.monotonic()
+        if now - self._resent_at < RESEND_GAP:
+            return
+        self._resent_at = now
+        rid = self.ids[0] if self.name == "central" else int(self.name.split("/")[1])
+        detail = {**(self.agreed or {}), "process": self.name}
+        self.bus.put(encode(CmdMsg(rid, msg.sample, np.zeros(2), 0.0, "settings-mismatch",
+                                   self.validator.invalid, None, self.settings_digest,
+                                   detail)), "robot", rid, "cmd")
+
     def on_liveliness(self, name: str, alive: bool) -> None:
         if name == "plant" and not alive:
             self.plant_lost = True
 
     # -------------------------------------------------------------------- loop
     def _finished(self) -> bool:
-        return self.stop.is_set() or self.done is not None or self.plant_lost
+        return (self.stop.is_set() or self.done is not None or self.plant_lost
+                or self.mismatch is not None)
 
     def previous_states(self, sample: int) -> np.ndarray | None:
         """The states of ``sample - 1`` if this process has them."""
@@ -196,14 +218,14 @@ class ControllerNode(Node):
                     fallback: str | None) -> None:
         """Publish one robot's input for ``sample``."""
         msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid,
-                     self.controller.counters())
+                     self.controller.counters(), self.settings_digest)
         self.sent(encode(msg), "robot", robot_id, "cmd")
 
     def run(self) -> int:
         """Serve until the plant is done; returns the exit status."""
         log.info("%s waiting for the plant's states", self.name)
         if not self.wait_until(lambda: self.pending is not None or self._finished(),
-                               self.startup_timeout):
+                               self.startup_timeout) and self.mismatch is None:
             log.error("no state from the plant within %s s", self.startup_timeout)
             return 1
         while not self._finished():
@@ -227,6 +249,10 @@ class ControllerNode(Node):
                 del self._outputs[min(self._outputs)]
             for old in [s for s in self.samples if s < min(k, self.cursor.sample) - 1]:
                 del self.samples[old]
+        if self.mismatch is not None:  # answer the plant's repeats until it gives up
+            self.wait_until(lambda: self.done is not None or self.plant_lost
+                            or self.stop.is_set(), max(self.timeout, 2.0))
+            return 2
         if self.plant_lost and self.done is None and not self.stop.is_set():
             # the token's removal can overtake the plant's last message
             self.wait_until(lambda: self.done is not None, 1.0)

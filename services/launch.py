@@ -1,9 +1,15 @@
 """Run a distributed closed loop on this machine: the plant and the controllers as processes.
 
 ``python -m services.launch --scenario S --scheme centralized|decentralized [--out DIR]
-[--mode lockstep|realtime] [--decentralized-mode shared|paper] [--t-end T]
-[--sample-time TS] [--no-plots] [--pin-cpus] [--neighbour-slots K]
-[--robots-per-process K] [--all-plans] [--insecure]``
+[--mode lockstep|realtime] [--settings FILE.toml] [controller options as sqpmpc run:
+--decentralized-mode, --collision-margin, --discretization, ... --t-end T,
+--sample-time TS, --horizon N] [--no-plots] [--pin-cpus] [--robots-per-process K]
+[--all-plans] [--insecure]`` (also ``sqpmpc launch ...``)
+
+Every process gets the same controller options (the flags given here and the
+``--settings`` file): a distributed lockstep run gives the trajectory of
+``sqpmpc run`` with the same flags. The plant's status lines (every 10 s) and
+warnings reach the launcher's stderr.
 
 The launcher first writes the run's credentials (:mod:`services.credentials`:
 a CA, one certificate per process, Zenoh configs with the access-control
@@ -49,12 +55,19 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from sqpmpc import __version__
 from sqpmpc.errors import ProblemError
-from sqpmpc.registry import add_rule_arguments, rule_arguments, rules_from_arguments
-from sqpmpc.settings import QP_SOLVER_CHOICES, SolverSettings, neighbour_slots_argument
+from sqpmpc.options import (
+    Parser,
+    add_controller_options,
+    combination_problem,
+    option_words,
+    positive_float,
+    positive_int,
+)
 
 from .credentials import META_FILE, config_for, write_credentials
-from .node import install_signal_handlers, scenario_from_args
+from .node import install_signal_handlers, options_of, scenario_from_args
 from .plant import summarize
 
 __all__ = ["Child", "build_parser", "free_ports", "main", "stop_children"]
@@ -157,43 +170,30 @@ def stop_children(children: list[Child], first: dict[str, int], grace: float) ->
             log.error("%s (pid %d) could not be reaped", c.name, c.pid)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m services.launch``."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.launch`` (``sqpmpc launch``)."""
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--scenario", required=True, help="TOML file or built-in name")
     parser.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default runs/<scenario>-<scheme>-<mode>-<time>)")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
-    parser.add_argument("--decentralized-mode", choices=("shared", "paper"), default="shared")
-    parser.add_argument("--t-end", type=float, default=None, help="override the scenario's t_end")
-    parser.add_argument("--sample-time", type=float, default=None,
-                        help="override the scenario's sample time Ts")
     parser.add_argument("--run", default=None, help="run namespace (default: a fresh name)")
-    parser.add_argument("--timeout", type=float, default=None,
+    parser.add_argument("--timeout", type=positive_float, default=None,
                         help="lockstep: the plant's wait for a sample's inputs, s")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--pin-cpus", action="store_true",
                         help="pin each controller to one CPU (round robin)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
-    parser.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
-                        metavar="N|all|auto",
-                        help="decentralized: collision slots per robot; 'all': one per other "
-                             "robot; 'auto' (default): as sqpmpc run")
-    parser.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
-                        help="QP backend of the controllers (default auto: as sqpmpc run)")
     parser.add_argument("--router", action="store_true",
                         help="start a Zenoh router (services.router) and run every process as "
                              "its client instead of peer to peer (one link per session, "
                              "batched)")
-    parser.add_argument("--robots-per-process", type=int, default=1, metavar="K",
+    parser.add_argument("--robots-per-process", type=positive_int, default=None, metavar="K",
                         help="decentralized: host K robots' controllers in each process (one "
                              "thread and one Zenoh session each; default 1: one process per "
                              "robot)")
-    parser.add_argument("--all-plans", action="store_true",
-                        help="with neighbour slots: every robot receives, decodes and waits "
-                             "for every neighbour's plan (default: only of those that may "
-                             "take one of its slots, services.plans)")
     parser.add_argument("--insecure", action="store_true",
                         help="debugging only: plain TCP without credentials (any local "
                              "process can then publish on the run's keys)")
@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
                                            "Zenoh endpoint (the router with --router), e.g. "
                                            "a services.viewer's --listen (repeatable; tls/ "
                                            "unless --insecure)")
-    add_rule_arguments(parser)
+    add_controller_options(parser, all_plans=True)
     return parser
 
 
@@ -217,30 +217,26 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     secure = [] if credentials is None else ["--credentials", str(credentials)]
     common += secure
     proto = "tcp" if credentials is None else "tls"
-    for flag, value in (("--t-end", args.t_end), ("--sample-time", args.sample_time)):
-        if value is not None:
-            common += [flag, repr(value)]
-    k = args.robots_per_process
+    k = args.robots_per_process or 1
     groups = [ids[j:j + k] for j in range(0, len(ids), k)]
     names = ["central"] if args.scheme == "centralized" else [
         "robot/" + ",".join(str(i) for i in g) for g in groups]
     ports = free_ports(1 + len(names))
     plant_ep = f"{proto}/127.0.0.1:{ports[0]}"
+    decentralized = args.scheme == "decentralized"
+    run_options = option_words(args, decentralized)  # every process: the same settings
     plant = [*py, "services.plant", *common, "--listen", plant_ep, "--scheme", args.scheme,
-             "--mode", args.mode, "--out", str(out), "--quiet"]
+             "--mode", args.mode, "--out", str(out), "--quiet", *run_options]
     if args.router:  # the router listens on the plant's port, every process is its client
         plant = [*py, "services.plant", *common, "--zenoh-mode", "client", "--connect",
                  plant_ep, "--scheme", args.scheme, "--mode", args.mode, "--out", str(out),
-                 "--quiet"]
+                 "--quiet", *run_options]
     if args.timeout is not None:
         plant += ["--timeout", repr(args.timeout)]
     if args.no_plots:
         plant.append("--no-plots")
     cmds = [("plant", plant)]
-    controller_extra: list[str] = [*rule_arguments(args), "--qp-solver", args.qp_solver]
-    slots = args.neighbour_slots
-    controller_extra += ["--neighbour-slots", "all" if slots is None else str(slots)]
-    robot_extra = ["--all-plans"] if args.all_plans else []
+    controller_extra: list[str] = list(run_options)
     if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback
         controller_extra += ["--qp-time-limit", repr(0.4 * sample_time)]
     for name, port in zip(names, ports[1:], strict=True):
@@ -254,8 +250,7 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
             cmds.append((name, [*py, "services.central", *common, *net]))
         else:
             id_args = [a for rid in rids for a in ("--id", rid)]
-            cmds.append((name, [*py, "services.robot", *id_args, "--mode",
-                                args.decentralized_mode, *common, *net, *robot_extra]))
+            cmds.append((name, [*py, "services.robot", *id_args, *common, *net]))
     extra = [a for ep in args.also_connect for a in ("--connect", ep)]
     if args.router:
         cmds.insert(0, ("router", [*py, "services.router", "--listen", plant_ep,
@@ -296,28 +291,22 @@ def _credential_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    args = build_parser(prog).parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s launch %(message)s",
                         stream=sys.stderr)
     args.connect, args.listen = [], []
     run = args.run or _run_of(args.credentials) or f"run-{os.getpid()}-{secrets.token_hex(3)}"
     args.run = run
-    scenario = scenario_from_args(PROG, args)  # exits 2 with one message on bad input
-    if args.robots_per_process < 1:
-        print(f"{PROG}: error: --robots-per-process must be >= 1, got "
-              f"{args.robots_per_process}", file=sys.stderr)
-        return 2
-    try:
-        rules_from_arguments(args)  # refused here once, not by every child
-        SolverSettings(neighbour_slots=args.neighbour_slots, qp_solver=args.qp_solver)
-    except ProblemError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    problem = _credential_problem(args)
+    # bad input (scenario, options, rules) is refused here once, not by every child
+    scenario = scenario_from_args(prog, args)  # exits 2 with one message on bad input
+    problem = combination_problem(options_of(args), args.scheme, scenario.n_robots)
+    if args.scheme == "centralized" and args.robots_per_process is not None:
+        problem = "--robots-per-process does nothing with --scheme centralized"
+    problem = problem or _credential_problem(args)
     if problem:
-        print(f"{PROG}: error: {problem}", file=sys.stderr)
+        print(f"{prog}: error: {problem}", file=sys.stderr)
         return 2
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")

@@ -15,12 +15,16 @@ type       fields (besides ``v`` and ``type``)
 ``state``  ``sample`` int >= 0, ``t`` float (time t_k, s), ``ids`` [int] (every robot,
            scenario order), ``x`` n x 3 (x, y, psi of each robot), ``budget`` float > 0
            or nil (wall-clock seconds the controllers have in real-time mode; nil in
-           lockstep), ``scenario`` str (digest of the scenario and its overrides)
+           lockstep), ``scenario`` str (digest of the scenario and its overrides);
+           optional ``settings`` str (digest of the settings the run's processes agree
+           on, :mod:`services.agreement`; absent or empty: not checked)
 ``cmd``    ``id`` int, ``sample`` int >= 0, ``u`` [v, omega], ``compute_time`` float >= 0 (s),
            ``fallback`` str or nil, ``invalid`` int >= 0 (messages the sender dropped);
            optional ``counters`` {str: int >= 0} (the sending controller's totals so far:
            engine and rule counters, ``sqpmpc rules``; at most 64 entries; empty when
-           absent)
+           absent); optional ``settings`` str (the sender's settings digest) and
+           ``detail`` {str: str} (its settings, at most 32 entries: a controller that
+           refuses the plant's settings sends them once, with a braking ``u``)
 ``plan``   ``id`` int, ``sample`` int >= 0, ``t`` float (time t_k), ``stamp`` float (sender's wall
            clock, Unix s), ``states`` (N+1) x 3, ``inputs`` N x 2
 ``done``   ``sample`` int (samples simulated), ``completed`` bool
@@ -43,6 +47,7 @@ __all__ = [
     "CmdMsg",
     "DoneMsg",
     "InvalidMessage",
+    "Mismatch",
     "Message",
     "MessageValidator",
     "PlanMsg",
@@ -62,6 +67,15 @@ class InvalidMessage(ValueError):
     """A payload that does not match the schema; it is dropped and counted."""
 
 
+class Mismatch(InvalidMessage):
+    """A well-formed message from a process of the run started with another scenario or
+    other settings (``msg``: the message)."""
+
+    def __init__(self, text: str, msg: Message) -> None:
+        super().__init__(text)
+        self.msg = msg
+
+
 @dataclass(frozen=True, slots=True)
 class StateMsg:
     """The states of every robot at sample ``k`` (published by the plant)."""
@@ -72,6 +86,7 @@ class StateMsg:
     x: np.ndarray
     budget: float | None = None
     scenario: str = ""
+    settings: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,6 +100,8 @@ class CmdMsg:
     fallback: str | None = None
     invalid: int = 0
     counters: dict[str, int] | None = None
+    settings: str = ""
+    detail: dict[str, str] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,11 +152,17 @@ def encode(msg: Message) -> bytes:
                 "ids": [int(i) for i in msg.ids], "x": _floats(msg.x),
                 "budget": None if msg.budget is None else float(msg.budget),
                 "scenario": msg.scenario}
+        if msg.settings:
+            body["settings"] = msg.settings
     elif isinstance(msg, CmdMsg):
         body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
                 "compute_time": float(msg.compute_time), "fallback": msg.fallback,
                 "invalid": int(msg.invalid),
                 "counters": {str(k): int(v) for k, v in (msg.counters or {}).items()}}
+        if msg.settings:
+            body["settings"] = msg.settings
+        if msg.detail is not None:
+            body["detail"] = {str(k): str(v) for k, v in msg.detail.items()}
     elif isinstance(msg, PlanMsg):
         body = {"type": "plan", "id": int(msg.id), "sample": int(msg.sample), "t": float(msg.t),
                 "stamp": float(msg.stamp), "states": _floats(msg.states),
@@ -266,7 +289,8 @@ def decode(payload: bytes, horizon: int) -> Message:
                 or any(type(i) is not int for i in ids)):
             raise InvalidMessage("'ids' must be a non-empty list of integers")
         return StateMsg(_int(body, "sample", 0), _float(body, "t"), tuple(ids),
-                        _array(body, "x", (len(ids), 3)), budget, scenario)
+                        _array(body, "x", (len(ids), 3)), budget, scenario,
+                        _text(body, "settings"))
     if kind == "cmd":
         fallback = body.get("fallback")
         if fallback is not None and not isinstance(fallback, str):
@@ -275,7 +299,8 @@ def decode(payload: bytes, horizon: int) -> Message:
         if compute_time < 0.0:
             raise InvalidMessage(f"'compute_time' must be >= 0, got {compute_time}")
         return CmdMsg(_int(body, "id"), _int(body, "sample", 0), _array(body, "u", (2,)),
-                      compute_time, fallback, _int(body, "invalid", 0), _counters(body))
+                      compute_time, fallback, _int(body, "invalid", 0), _counters(body),
+                      _text(body, "settings"), _detail(body))
     if kind == "plan":
         return PlanMsg(_int(body, "id"), _int(body, "sample", 0), _float(body, "t"),
                        _float(body, "stamp"), _array(body, "states", (horizon + 1, 3)),
@@ -286,6 +311,26 @@ def decode(payload: bytes, horizon: int) -> Message:
             raise InvalidMessage("'completed' must be a boolean")
         return DoneMsg(_int(body, "sample", 0), completed)
     raise InvalidMessage(f"unknown message type {kind!r}")
+
+
+def _text(body: dict[str, Any], key: str) -> str:
+    """An optional short string field (empty when absent)."""
+    value = body.get(key, "")
+    if not isinstance(value, str) or len(value) > 64:
+        raise InvalidMessage(f"{key!r} must be a string of at most 64 characters")
+    return value
+
+
+def _detail(body: dict[str, Any]) -> dict[str, str] | None:
+    """The optional ``detail`` map of a cmd: at most 32 str keys, str values."""
+    detail = body.get("detail")
+    if detail is None:
+        return None
+    if not isinstance(detail, dict) or len(detail) > 32 or not all(
+            isinstance(k, str) and len(k) <= 64 and isinstance(v, str) and len(v) <= 4096
+            for k, v in detail.items()):
+        raise InvalidMessage("'detail' must be a map of at most 32 strings")
+    return detail
 
 
 def _counters(body: dict[str, Any]) -> dict[str, int]:
@@ -319,7 +364,11 @@ class MessageValidator:
     horizon
         ``N`` of the scenario.
     scenario_digest
-        When given, ``state`` messages must carry this digest.
+        When given, ``state`` messages must carry this digest; another non-empty
+        digest raises :class:`Mismatch`.
+    settings_digest
+        When given, a ``state`` or ``cmd`` carrying another non-empty settings
+        digest raises :class:`Mismatch`.
 
     Attributes
     ----------
@@ -331,11 +380,13 @@ class MessageValidator:
 
     _TYPES = {"state": StateMsg, "cmd": CmdMsg, "plan": PlanMsg, "done": DoneMsg}
 
-    def __init__(self, ids: Iterable[int], horizon: int, scenario_digest: str | None = None):
+    def __init__(self, ids: Iterable[int], horizon: int, scenario_digest: str | None = None,
+                 settings_digest: str | None = None):
         self.order = tuple(int(i) for i in ids)
         self.ids = frozenset(self.order)
         self.horizon = int(horizon)
         self.scenario_digest = scenario_digest
+        self.settings_digest = settings_digest
         self.invalid = 0
         self.stale = 0
         self.last_error = ""
@@ -350,13 +401,22 @@ class MessageValidator:
                 raise InvalidMessage(f"state for robots {list(msg.ids)}, expected "
                                      f"{list(self.order)}")
             if self.scenario_digest is not None and msg.scenario != self.scenario_digest:
-                raise InvalidMessage(f"scenario digest {msg.scenario!r} differs from "
-                                     f"{self.scenario_digest!r}: same --scenario and overrides?")
+                text = (f"scenario digest {msg.scenario!r} differs from "
+                        f"{self.scenario_digest!r}: same --scenario and overrides?")
+                raise Mismatch(text, msg) if msg.scenario else InvalidMessage(text)
+            self._check_settings(msg)
             return
         if msg.id not in self.ids:
             raise InvalidMessage(f"unknown robot id {msg.id}")
         if key_id is not None and key_id != msg.id:
             raise InvalidMessage(f"id {msg.id} on the key of robot {key_id}")
+        if isinstance(msg, CmdMsg):
+            self._check_settings(msg)
+
+    def _check_settings(self, msg: StateMsg | CmdMsg) -> None:
+        if self.settings_digest and msg.settings and msg.settings != self.settings_digest:
+            raise Mismatch(f"settings digest {msg.settings!r} differs from "
+                           f"{self.settings_digest!r}", msg)
 
     def check(self, payload: bytes, kind: str | None = None,
               key_id: int | None = None) -> Message:

@@ -12,25 +12,26 @@ every :data:`POLL` seconds, then the process closes its session and exits.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import logging
-import math
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NoReturn, TypeVar
+from typing import NoReturn, TypeVar
 
 import zenoh
 
+from sqpmpc import __version__
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.scenario import MAX_STEPS, MIN_SAMPLE_TIME, Scenario, load_scenario
+from sqpmpc.options import RunOptions, add_override_options, resolve_options, with_overrides
+from sqpmpc.scenario import Scenario, load_scenario
 
+from .agreement import agreed_settings, scenario_digest, settings_digest
 from .credentials import config_for
 from .faults import FaultInjector
-from .messages import InvalidMessage, Message, MessageValidator
+from .messages import InvalidMessage, Message, MessageValidator, Mismatch
 from .protocol import AcceptancePolicy
 from .transport import Bus, Event, check_run_name
 
@@ -42,6 +43,7 @@ __all__ = [
     "fail",
     "install_signal_handlers",
     "open_node",
+    "options_of",
     "scenario_digest",
     "scenario_from_args",
     "session_lost",
@@ -70,11 +72,11 @@ def setup_logging(level: str, name: str) -> None:
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Arguments every service takes: scenario, overrides, run namespace, Zenoh endpoints."""
+    """Arguments every service takes: version, scenario and its overrides, run namespace,
+    Zenoh endpoints."""
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--scenario", required=True, help="TOML file or built-in name")
-    parser.add_argument("--t-end", type=float, default=None, help="override the scenario's t_end")
-    parser.add_argument("--sample-time", type=float, default=None,
-                        help="override the scenario's sample time Ts")
+    add_override_options(parser)
     parser.add_argument("--run", default="default", help="run namespace in the key space")
     parser.add_argument("--connect", action="append", default=[], metavar="EP",
                         help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
@@ -97,26 +99,22 @@ def add_credential_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a Zenoh config file to start from (e.g. DIR/robot-1.json5)")
 
 
+def options_of(args: argparse.Namespace) -> RunOptions:
+    """The controller options of ``args`` (resolved once by :func:`scenario_from_args`)."""
+    options = getattr(args, "options", None)
+    if not isinstance(options, RunOptions):
+        options = resolve_options(args)
+        args.options = options
+    return options
+
+
 def scenario_from_args(prog: str, args: argparse.Namespace) -> Scenario:
-    """Load the scenario with the overrides, or exit with status 2 and one message."""
+    """Load the scenario with the overrides and resolve the controller options (kept as
+    ``args.options``), or exit with status 2 and one message naming the flag."""
     try:
         check_run_name(args.run)
-        scenario = load_scenario(args.scenario)
-        changes: dict[str, Any] = {}
-        if args.sample_time is not None:
-            changes["sample_time"] = args.sample_time
-            ratio = scenario.t_end / args.sample_time if args.sample_time > 0 else math.inf
-            if not ratio <= MAX_STEPS:  # also NaN, inf and Ts <= 0
-                fail(prog, f"--sample-time: expected a number >= {MIN_SAMPLE_TIME:g} s giving "
-                           f"at most {MAX_STEPS} samples, found {args.sample_time!r}")
-            if args.t_end is None:  # keep t_end a whole multiple of the new Ts
-                steps = max(1, round(ratio))
-                changes["t_end"] = steps * args.sample_time
-        if args.t_end is not None:
-            changes["t_end"] = args.t_end
-        if changes:
-            scenario = scenario.with_changes(**changes)
-        return scenario
+        options = options_of(args)
+        return with_overrides(load_scenario(args.scenario), options)
     except (ScenarioError, ProblemError, ValueError) as exc:
         fail(prog, str(exc))
 
@@ -140,11 +138,6 @@ def session_lost(prog: str, exc: zenoh.ZError) -> int:
     one line, without a traceback; returns the exit status 1."""
     log.error("%s: the Zenoh session failed: %s", prog, str(exc).split(" at /")[0])
     return 1
-
-
-def scenario_digest(scenario: Scenario) -> str:
-    """A short digest of everything in the scenario (processes must agree on it)."""
-    return hashlib.sha256(scenario.to_toml().encode()).hexdigest()[:16]
 
 
 def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
@@ -171,14 +164,24 @@ class Node:
         Parsed common arguments (run, endpoints, Zenoh mode).
     name
         Liveliness name below ``alive/``, e.g. ``"plant"`` or ``"robot/3"``.
+    scheme
+        The run's scheme: with it, the settings the processes must agree on
+        (:mod:`services.agreement`) are checked; ``None``: not checked.
     """
 
-    def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str) -> None:
+    def __init__(self, scenario: Scenario, args: argparse.Namespace, name: str,
+                 scheme: str | None = None) -> None:
         self.scenario = scenario
         self.name = name
         self.ids = [int(i) for i in scenario.ids]
         self.digest = scenario_digest(scenario)
-        self.validator = MessageValidator(self.ids, scenario.horizon, self.digest)
+        self.agreed: dict[str, str] | None = None
+        self.settings_digest = ""
+        if scheme is not None:
+            self.agreed = agreed_settings(scenario, scheme, options_of(args))
+            self.settings_digest = settings_digest(self.agreed)
+        self.validator = MessageValidator(self.ids, scenario.horizon, self.digest,
+                                          self.settings_digest)
         self.policy = AcceptancePolicy(scenario.steps, scenario.sample_time, scenario.horizon)
         self.alive: set[str] = set()
         self.stop = threading.Event()
@@ -217,6 +220,11 @@ class Node:
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         """A token ``alive/<name>`` appeared or disappeared (override to react)."""
+
+    def on_mismatch(self, msg: Message, reason: str) -> None:
+        """A message from a process started with another scenario or other settings
+        (override; default: dropped as invalid)."""
+        self._log_invalid(reason)
 
     def _dispatch(self, event: Event) -> None:
         parts = self.bus.relative(event.key)
@@ -258,6 +266,9 @@ class Node:
                 return
         try:
             msg = self.validator.check(event.payload, kind, key_id)
+        except Mismatch as exc:
+            self.on_mismatch(exc.msg, f"on {event.key}: {exc}")
+            return
         except InvalidMessage as exc:
             self._log_invalid(f"on {event.key}: {exc}")
             return

@@ -2,7 +2,17 @@
 
 ``python -m services.plant --scenario S [--scheme decentralized|centralized]
 [--mode lockstep|realtime] [--out DIR] [--run R] [--connect EP] [--listen EP]
-[--timeout S] [--startup-timeout S] [--t-end T] [--sample-time TS] [--no-plots]``
+[--timeout S] [--startup-timeout S] [--t-end T] [--sample-time TS] [--horizon N]
+[--settings FILE.toml] [controller options as sqpmpc run] [--no-plots]``
+(also ``sqpmpc plant ...``)
+
+The plant takes the controller options too: with the scenario they make the
+settings every process of the run must share (:mod:`services.agreement`). A
+controller started with others answers the plant's first state with them and
+the plant stops with one message naming what differs, writes what it has
+(``completed: false``) and exits with status 2. Every ``--status-every``
+seconds (default 10) it writes a status line to stderr (sample, time, smallest
+clearance so far, braked inputs).
 
 Before sample 0 it waits (up to ``--startup-timeout``) for the liveliness of
 every controller of the scheme. Then, at every sample ``k``, it publishes the
@@ -46,15 +56,26 @@ import zenoh
 
 from sqpmpc.controllers import braking_input
 from sqpmpc.metrics import RunRecord, write_run
+from sqpmpc.options import (
+    Parser,
+    add_controller_options,
+    combination_problem,
+    nonnegative_float,
+    positive_float,
+)
 from sqpmpc.plant import Plant
+from sqpmpc.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
 from sqpmpc.runlog import RECORD_FILE, RecordWriter
 from sqpmpc.scenario import Scenario
 
+from .agreement import describe_difference
 from .messages import CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
 from .node import (
     Node,
     add_common_arguments,
+    fail,
     open_node,
+    options_of,
     scenario_from_args,
     session_lost,
     setup_logging,
@@ -82,7 +103,7 @@ class PlantNode(Node):
     """
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
-        super().__init__(scenario, args, "plant")
+        super().__init__(scenario, args, "plant", args.scheme)
         self.mode = args.mode
         self.scheme = args.scheme
         self.timeout = float(args.timeout)
@@ -116,6 +137,9 @@ class PlantNode(Node):
         self.running = False
         self.sample_walls: list[float] = []
         self.writer: RecordWriter | None = None
+        self.refused: str | None = None  # a controller runs with other settings
+        self.status = StatusLines(scenario, "plant", float(getattr(args, "status_every",
+                                                                   STATUS_PERIOD)))
 
     def open_record(self, out: Path) -> None:
         """Start the incremental record ``out/record.msgpack`` (:mod:`sqpmpc.runlog`)."""
@@ -146,6 +170,18 @@ class PlantNode(Node):
             log.info("%s joined at sample %d", name, self.k)
             self.publish_states(self.k)
 
+    def on_mismatch(self, msg: Message, reason: str) -> None:
+        if not isinstance(msg, CmdMsg):
+            super().on_mismatch(msg, reason)
+            return
+        if self.refused is None:
+            detail = msg.detail or {}
+            who = detail.get("process") or (
+                "central" if self.scheme == "centralized" else f"robot/{msg.id}")
+            self.refused = describe_difference(self.agreed or {}, detail or None, who)
+            log.error("%s", self.refused)
+        self.stop.set()
+
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, PlanMsg):
             if 0 <= msg.sample < self.horizons.shape[0]:
@@ -169,7 +205,8 @@ class PlantNode(Node):
     def publish_states(self, k: int) -> None:
         """Publish every robot's state of sample ``k``."""
         budget = self.scenario.sample_time if self.mode == "realtime" else None
-        msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest)
+        msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest,
+                       self.settings_digest)
         self.bus.put(encode(msg), "plant", "state")
 
     def apply(self, k: int) -> None:
@@ -241,6 +278,8 @@ class PlantNode(Node):
             self.apply(k)
             self.k = k + 1
             self.sample_walls.append(time.perf_counter() - t0)
+            self.status.update(k + 1, self.states[k + 1],
+                               f", braked inputs {sum(self.missed.values())}")
         self.running = False
         self.loop_wall = time.perf_counter() - start
         self.drain()  # plans already received, for the recording
@@ -281,7 +320,9 @@ class PlantNode(Node):
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
             "counters": _summed(self.reported_counts.values()),
-            "interrupted": signal.Signals(sig).name if sig else None,
+            "interrupted": signal.Signals(sig).name if sig and not self.refused else None,
+            "refused": self.refused,
+            "agreed_settings": self.agreed,
             "plant_discretization": self.method,
             "sample_loop_wall_s": float(self.loop_wall),
             "start_wall_s": float(self.start_wall),
@@ -314,7 +355,7 @@ def summarize(metrics: dict[str, Any]) -> str:
         f"invalid messages {metrics.get('invalid_messages')}, "
         f"solver failures {metrics['solver_failures']}, "
         f"RMS error {', '.join(f'{k}: {_num(v)}' for k, v in rms.items())} m, "
-        f"controller time median {_num(st.get('median_ms'))} ms, "
+        f"{describe_solve_time({'solve_time': st})}, "
         f"sample loop {_num(metrics.get('sample_loop_wall_s'))} s wall"
     )
 
@@ -323,25 +364,36 @@ def _num(value: Any) -> str:
     return "n/a" if value is None else f"{value:.4g}"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m services.plant``."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.plant`` (``sqpmpc plant``)."""
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
     add_common_arguments(parser)
     parser.add_argument("--scheme", choices=("decentralized", "centralized"),
                         default="decentralized", help="which controllers to expect")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default runs/<scenario>-<scheme>-<mode>-<time>)")
-    parser.add_argument("--timeout", type=float, default=10.0,
+    parser.add_argument("--timeout", type=positive_float, default=10.0,
                         help="lockstep: longest wait for a sample's inputs, s")
-    parser.add_argument("--startup-timeout", type=float, default=60.0,
+    parser.add_argument("--startup-timeout", type=positive_float, default=60.0,
                         help="longest wait for the controllers before sample 0, s")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
     parser.add_argument("--timed-start", action="store_true",
                         help="realtime: sample 0 gets Ts too (default: its inputs are waited "
                              "for as in lockstep, then the wall clock starts)")
+    parser.add_argument("--status-every", type=nonnegative_float, default=STATUS_PERIOD,
+                        metavar="S", help="a status line on stderr every S seconds (default "
+                                          f"{STATUS_PERIOD:g}; 0: none)")
+    add_controller_options(parser, all_plans=True, overrides=False)
     return parser
+
+
+def check_combinations(args: argparse.Namespace, scenario: Scenario) -> str | None:
+    """Why the plant's flags contradict each other or do nothing together, if so."""
+    if args.timed_start and args.mode != "realtime":
+        return "--timed-start applies to --mode realtime only"
+    return combination_problem(options_of(args), args.scheme, scenario.n_robots)
 
 
 
@@ -354,21 +406,25 @@ def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:
     return total
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit status (0 completed, 128+signal, 1 otherwise)."""
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit status (0 completed, 2 bad input or a controller
+    with other settings, 128+signal, 1 otherwise)."""
+    args = build_parser(prog).parse_args(argv)
     setup_logging(args.log_level, "plant")
-    scenario = scenario_from_args(PROG, args)
+    scenario = scenario_from_args(prog, args)
+    problem = check_combinations(args, scenario)
+    if problem:
+        fail(prog, problem)
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
-    node = open_node(PROG, lambda: PlantNode(scenario, args))
+    node = open_node(prog, lambda: PlantNode(scenario, args))
     failed = False
     try:
         node.open_record(out)
         node.start([("robot", "*", "cmd"), ("robot", "*", "plan")])
         node.run()
     except zenoh.ZError as exc:
-        failed = bool(session_lost(PROG, exc))
+        failed = bool(session_lost(prog, exc))
     finally:
         try:
             node.finish()
@@ -381,6 +437,8 @@ def main(argv: list[str] | None = None) -> int:
         if not args.quiet:
             print(summarize(metrics))
             print(f"wrote {out}")
+    if node.refused:
+        return 2
     if record.completed and not failed:
         return 0
     sig = node.signals.get("signal")

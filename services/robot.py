@@ -1,7 +1,8 @@
 """One robot's decentralized controller as a service.
 
-``python -m services.robot --id J --scenario S [--mode shared|paper] [--run R]
-[--connect EP] [--listen EP] [--timeout S]``
+``python -m services.robot --id J --scenario S [--decentralized-mode shared|paper]
+[--settings FILE.toml] [controller options as sqpmpc run] [--run R] [--connect EP]
+[--listen EP] [--timeout S]`` (also ``sqpmpc robot ...``)
 
 At sample ``k`` the robot waits for the plant's states of sample ``k`` and
 for the plan of sample ``k - 1`` of every neighbour whose liveliness token is
@@ -34,6 +35,7 @@ import zenoh
 
 from sqpmpc.controllers import DecentralizedController
 from sqpmpc.errors import ProblemError
+from sqpmpc.options import Parser, combination_problem
 from sqpmpc.scenario import Scenario
 
 from .control import (
@@ -49,6 +51,7 @@ from .node import (
     fail,
     install_signal_handlers,
     open_node,
+    options_of,
     scenario_from_args,
     session_lost,
     setup_logging,
@@ -79,14 +82,16 @@ class RobotNode(ControllerNode):
         if robot_id is None:
             robot_id = args.id[0] if isinstance(args.id, list) else args.id
         settings = controller_settings(args)
-        self.controller = DecentralizedController(scenario, robot_id, settings, args.mode)
-        super().__init__(scenario, args, f"robot/{robot_id}")
+        options = options_of(args)
+        self.controller = DecentralizedController(scenario, robot_id, settings,
+                                                  options.decentralized_mode)
+        super().__init__(scenario, args, f"robot/{robot_id}", "decentralized")
         self.robot_id = int(robot_id)
         self.neighbours = [i for i in self.ids if i != self.robot_id]
         # with neighbour slots, a robot receives the plans of the robots that may take one
         # of its slots (they address them to it) and decodes a plan when a step reads it
-        self.filtering = self.controller.settings.neighbour_slots is not None and not getattr(
-            args, "all_plans", False)  # the settings as resolved for this scenario
+        self.filtering = (self.controller.settings.neighbour_slots is not None
+                          and not options.all_plans)  # the settings as resolved for this scenario
         self.plans = PlanStore(self.validator, self.neighbours, self.policy,
                                lambda: self.cursor.sample, lazy=self.filtering)
         c = self.controller
@@ -249,48 +254,45 @@ def host(nodes: list[RobotNode]) -> int:
     return 0 if all(v == 0 for v in status.values()) else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m services.robot``."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.robot`` (``sqpmpc robot``)."""
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("--id", type=int, required=True, action="append",
                         help="robot id in the scenario; repeated: host several robots in this "
                              "process (one thread and one Zenoh session each, every session "
                              "listening on a free loopback port)")
-    parser.add_argument("--mode", choices=("shared", "paper"), default="shared",
-                        help="decentralized mode of the controller (default shared)")
     add_common_arguments(parser)
     add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
-    parser.add_argument("--all-plans", action="store_true",
-                        help="with neighbour slots: receive, decode and wait for every "
-                             "neighbour's plan (default: only of those that may take a slot, "
-                             "services.plans; every robot of a run must agree)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    args = build_parser(prog).parse_args(argv)
     ids = list(dict.fromkeys(args.id))
     setup_logging(args.log_level, "robot/" + ",".join(str(i) for i in ids))
-    scenario = scenario_from_args(PROG, args)
+    scenario = scenario_from_args(prog, args)
     try:
         for rid in ids:
             scenario.index_of(rid)
     except ProblemError as exc:
-        fail(PROG, str(exc))
+        fail(prog, f"--id: {exc}")
+    problem = combination_problem(options_of(args), "decentralized", scenario.n_robots)
+    if problem:
+        fail(prog, problem)
     if len(ids) > 1 and args.listen:
-        fail(PROG, "--listen takes one robot: with several --id every session listens on a "
+        fail(prog, "--listen takes one robot: with several --id every session listens on a "
                    "free loopback port")
     nodes: list[RobotNode] = []
     try:
         for rid in ids:
-            nodes.append(open_node(PROG, lambda rid=rid: RobotNode(scenario, args, rid)))
+            nodes.append(open_node(prog, lambda rid=rid: RobotNode(scenario, args, rid)))
         if len(nodes) == 1:
             nodes[0].start(nodes[0].subscriptions())
             return nodes[0].run()
         return host(nodes)
     except zenoh.ZError as exc:
-        return session_lost(PROG, exc)
+        return session_lost(prog, exc)
     finally:
         for node in nodes:
             node.close()

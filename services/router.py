@@ -22,7 +22,9 @@ import threading
 
 import zenoh
 
+from sqpmpc import __version__
 from sqpmpc.errors import ProblemError
+from sqpmpc.options import Parser
 
 from .credentials import config_for
 from .node import add_credential_arguments, install_signal_handlers, setup_logging
@@ -34,9 +36,10 @@ log = logging.getLogger("services.router")
 PROG = "services.router"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m services.router``."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.router`` (``sqpmpc router``)."""
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--listen", action="append", default=[], metavar="EP",
                         help="endpoint to listen on (repeatable; default: the config file's, "
                              "else tcp/127.0.0.1:7447)")
@@ -47,14 +50,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    args = build_parser(prog).parse_args(argv)
     setup_logging(args.log_level, "router")
     try:
         config = config_for(args, "router")
     except ProblemError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     listen = args.listen or ([] if config is not None else ["tcp/127.0.0.1:7447"])
     try:
@@ -62,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         listen = json.loads(conf.get_json("listen/endpoints"))
         session = zenoh.open(conf)
     except (ValueError, zenoh.ZError) as exc:
-        print(f"{PROG}: error: cannot start the router on {listen or 'its endpoints'}: "
+        print(f"{prog}: error: cannot start the router on {listen or 'its endpoints'}: "
               f"{str(exc).split(' at /')[0]}", file=sys.stderr)
         return 2
     if config is None:

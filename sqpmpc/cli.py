@@ -1,5 +1,12 @@
 """Command line: ``sqpmpc run SCENARIO --scheme centralized|decentralized [--out DIR]``.
 
+One ``sqpmpc`` command: ``run`` (a closed loop in this process), ``list``,
+``generate``, ``rules``, ``metrics``, ``credentials``, ``animate``, and the
+distributed services ``launch``, ``plant``, ``robot``, ``central``, ``router``,
+``viewer`` (the same parsers as ``python -m services.<name>``). The controller
+options are the same everywhere (:mod:`sqpmpc.options`), also from
+``--settings FILE.toml``.
+
 Exit status: 0 when the run completed (whatever the metrics say), 2 for bad
 input (scenario file, options), 1 when the run stopped midway (what it had is
 written), 130 on Ctrl-C (likewise).
@@ -8,6 +15,7 @@ written), 130 on Ctrl-C (likewise).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import logging
 import sys
@@ -18,27 +26,40 @@ from . import __version__, animate, runlog
 from .errors import ProblemError, ScenarioError
 from .fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from .metrics import write_run
-from .model import DISCRETIZATIONS
-from .registry import add_rule_arguments, describe_rules, rules_from_arguments
-from .scenario import builtin_scenario_names, load_scenario
-from .settings import (
-    FLEET_NEIGHBOUR_SLOTS,
-    FLEET_QP_SOLVER,
-    FLEET_ROBOTS,
-    QP_SOLVER_CHOICES,
-    SolverSettings,
-    neighbour_slots_argument,
+from .options import (
+    Parser,
+    add_controller_options,
+    combination_problem,
+    nonnegative_float,
+    positive_float,
+    positive_int,
+    probability,
+    resolve_options,
+    with_overrides,
 )
+from .registry import describe_rules
+from .reporting import STATUS_PERIOD, StatusLines, describe_solve_time
+from .scenario import builtin_scenario_names, load_scenario
 from .simulation import ClosedLoopSimulation, SimulationOptions
 
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("sqpmpc")
 
+#: ``sqpmpc NAME ...`` runs ``python -m services.NAME ...`` in this process.
+SERVICES = {
+    "launch": "a distributed run on this machine: the plant and the controllers as processes",
+    "plant": "the plant service of a distributed run",
+    "robot": "one robot's decentralized controller service (or several: --id repeated)",
+    "central": "the centralized controller service",
+    "router": "a Zenoh router for the services",
+    "viewer": "live view of a distributed run for Foxglove",
+}
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``sqpmpc`` command."""
-    parser = argparse.ArgumentParser(prog="sqpmpc", description=__doc__.splitlines()[0])
+    parser = Parser(prog="sqpmpc", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"sqpmpc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a closed loop in one process")
@@ -46,49 +67,32 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scenario", help=f"TOML file or built-in name ({names})")
     run.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
     run.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<new>)")
-    run.add_argument("--decentralized-mode", choices=("shared", "paper"), default="shared",
-                     help="shared-responsibility hyperplanes (default) or the paper's "
-                          "literal scheme")
-    run.add_argument("--iteration", choices=("rti", "sqp"), default="rti",
-                     help="one QP per sample (rti, default) or SQP to convergence")
-    run.add_argument("--hessian", choices=("gauss-newton", "exact"), default="gauss-newton")
-    run.add_argument("--discretization", choices=DISCRETIZATIONS, default="euler")
-    run.add_argument("--neighbour-slots", type=neighbour_slots_argument, default="auto",
-                     metavar="N|all|auto",
-                     help="collision slots per robot, filled with the nearest neighbours "
-                          f"within reach; 'all': one per other robot; 'auto' (default): "
-                          f"{FLEET_NEIGHBOUR_SLOTS} on fleets of more than {FLEET_ROBOTS} "
-                          f"robots, else all")
-    run.add_argument("--qp-solver", choices=QP_SOLVER_CHOICES, default="auto",
-                     help=f"QP backend; 'auto' (default): {FLEET_QP_SOLVER} for the "
-                          f"decentralized robots of fleets of more than {FLEET_ROBOTS}, else "
-                          f"osqp (docs/qp-backends.md, docs/fleet.md)")
-    run.add_argument("--collision-margin", type=float, default=None,
-                     help="added to every required distance in the QP, m (default 0.001); "
-                          "raise it to cover a plant that differs from the prediction model")
-    run.add_argument("--slack-penalty", type=float, default=None,
-                     help="L1 price of collision slacks on stages 2..N")
-    add_rule_arguments(run)
-    run.add_argument("--message-drop", type=float, default=0.0,
-                     help="decentralized: probability that a plan message is lost")
+    add_controller_options(run)
+    run.add_argument("--message-drop", type=probability, default=None, metavar="P",
+                     help="decentralized: probability that a plan message is lost "
+                          "(default 0)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    run.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    run.add_argument("--quiet", action="store_true",
+                     help="no progress or summary (default: a progress bar on a terminal, "
+                          f"else a status line every {STATUS_PERIOD:g} s on stderr)")
     sub.add_parser("list", help="list the built-in scenarios")
     gen = sub.add_parser("generate", help="write a fleet scenario file (swap, random "
                                           "crossings, grid-to-grid)")
     gen.add_argument("kind", choices=FLEET_KINDS,
                      help="swap: antipodal swap on a circle; crossings: random starts and "
                           "goals (seeded); grid: a grid sent to the mirrored grid")
-    gen.add_argument("--robots", type=int, help="swap, crossings: number of robots")
+    gen.add_argument("--robots", type=positive_int, help="swap, crossings: number of robots")
     gen.add_argument("--seed", type=int, help="crossings: random seed")
-    gen.add_argument("--rows", type=int, help="grid: rows")
-    gen.add_argument("--cols", type=int, help="grid: columns")
-    gen.add_argument("--spacing", type=float,
+    gen.add_argument("--rows", type=positive_int, help="grid: rows")
+    gen.add_argument("--cols", type=positive_int, help="grid: columns")
+    gen.add_argument("--spacing", type=positive_float,
                      help="crossings, grid: smallest distance between robots, m")
-    gen.add_argument("--gap", type=float, help="grid: distance between the two grids, m")
-    gen.add_argument("--sample-time", type=float, default=0.5, help="Ts, s (default 0.5)")
-    gen.add_argument("--horizon", type=int, default=8, help="N (default 8)")
-    gen.add_argument("--diameter", type=float, default=0.3, help="robot diameter, m")
+    gen.add_argument("--gap", type=nonnegative_float,
+                     help="grid: distance between the two grids, m")
+    gen.add_argument("--sample-time", type=positive_float, default=0.5,
+                     help="Ts, s (default 0.5)")
+    gen.add_argument("--horizon", type=positive_int, default=8, help="N (default 8)")
+    gen.add_argument("--diameter", type=positive_float, default=0.3, help="robot diameter, m")
     gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
     runlog.add_parser(sub)  # sqpmpc metrics RUN_DIR
@@ -96,14 +100,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     credentials.add_parser(sub)
     animate.add_parser(sub)
-    sub.add_parser("viewer", add_help=False,
-                   help="live view of a distributed run for Foxglove (python -m "
-                        "services.viewer; 'sqpmpc viewer --help')")
+    for name, text in SERVICES.items():
+        sub.add_parser(name, add_help=False,
+                       help=f"{text} (python -m services.{name}; 'sqpmpc {name} --help')")
     return parser
 
 
 def _summary(metrics: dict) -> str:
-    st = metrics["solve_time"]
     rms = metrics["rms_tracking_error"]
     return (
         f"{metrics['scenario']} / {metrics['scheme']}: steps {metrics['steps']}, "
@@ -112,7 +115,7 @@ def _summary(metrics: dict) -> str:
         f"solver failures {metrics['solver_failures']}, closed-loop cost "
         f"{metrics['closed_loop_cost']:.4g}, RMS error "
         f"{', '.join(f'{k}: {v:.3f}' for k, v in rms.items())} m, "
-        f"controller time median {st['median_ms']:.3f} ms, total {st['total_s']:.3f} s"
+        f"{describe_solve_time(metrics)}, total {metrics['solve_time']['total_s']:.3f} s"
     )
 
 
@@ -165,10 +168,11 @@ def _generate(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["viewer"]:  # the service's own parser and options
-        from services.viewer import main as viewer_main
-
-        return viewer_main(argv[1:])
+    if argv[:1] and argv[0] in SERVICES:  # the service's own parser and options
+        service = importlib.import_module(f"services.{argv[0]}")
+        if argv[0] == "viewer":
+            return int(service.main(argv[1:]))
+        return int(service.main(argv[1:], prog=f"sqpmpc {argv[0]}"))
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     args = build_parser().parse_args(argv)
     if args.command == "list":
@@ -181,27 +185,22 @@ def main(argv: list[str] | None = None) -> int:
         return _generate(args)
     if getattr(args, "handler", None) is not None:
         return int(args.handler(args))
+    terminal = sys.stderr.isatty()
     try:
-        scenario = load_scenario(args.scenario)
-        base = SolverSettings()
-        settings = SolverSettings(
-            iteration_scheme=args.iteration,
-            hessian=args.hessian,
-            discretization=args.discretization,
-            collision_margin=base.collision_margin if args.collision_margin is None
-            else args.collision_margin,
-            slack_penalty=base.slack_penalty if args.slack_penalty is None
-            else args.slack_penalty,
-            rules=rules_from_arguments(args),
-            qp_solver=args.qp_solver,
-            neighbour_slots=args.neighbour_slots,
-        )
-        options = SimulationOptions(decentralized_mode=args.decentralized_mode,
-                                    message_drop_probability=args.message_drop,
-                                    progress=not args.quiet)
-        sim = ClosedLoopSimulation(scenario, args.scheme, settings, options)
+        options = resolve_options(args)
+        scenario = with_overrides(load_scenario(args.scenario), options)
+        problem = combination_problem(options, args.scheme, scenario.n_robots)
+        if args.scheme == "centralized" and args.message_drop is not None:
+            problem = "--message-drop does nothing with --scheme centralized"
+        if problem:
+            raise ProblemError(problem)
+        sim_options = SimulationOptions(decentralized_mode=options.decentralized_mode,
+                                        message_drop_probability=args.message_drop or 0.0,
+                                        progress=terminal and not args.quiet)
+        sim = ClosedLoopSimulation(scenario, args.scheme, options.solver_settings(),
+                                   sim_options)
     except (ScenarioError, ProblemError) as exc:
-        print(f"sqpmpc: error: {exc}", file=sys.stderr)
+        print(f"sqpmpc run: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # before the run started: nothing to write
         print("sqpmpc: interrupted before the run started", file=sys.stderr)
@@ -209,8 +208,15 @@ def main(argv: list[str] | None = None) -> int:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
     status = 0
+    status_lines = None if terminal or args.quiet else StatusLines(
+        scenario, f"{scenario.name} {args.scheme}")
     try:
-        sim.run()
+        if status_lines is None:
+            sim.run()
+        else:  # not a terminal (a log file, a pipe): plain lines, no carriage return
+            while sim.k < scenario.steps:
+                sim.step()
+                status_lines.update(sim.k, sim.states[sim.k])
     except KeyboardInterrupt:
         print("sqpmpc: interrupted; writing what was simulated", file=sys.stderr)
         status = 130
