@@ -61,10 +61,12 @@ from sqpmpc.options import (
     Parser,
     add_controller_options,
     combination_problem,
+    nonnegative_float,
     option_words,
     positive_float,
     positive_int,
 )
+from sqpmpc.reporting import STATUS_PERIOD
 
 from .credentials import META_FILE, config_for, write_credentials
 from .node import install_signal_handlers, options_of, scenario_from_args
@@ -183,6 +185,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--timeout", type=positive_float, default=None,
                         help="lockstep: the plant's wait for a sample's inputs, s")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("--status-every", type=nonnegative_float, default=None, metavar="S",
+                        help="the plant's status lines on stderr every S seconds (default "
+                             f"{STATUS_PERIOD:g}; 0: none)")
     parser.add_argument("--pin-cpus", action="store_true",
                         help="pin each controller to one CPU (round robin)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
@@ -235,6 +240,8 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
         plant += ["--timeout", repr(args.timeout)]
     if args.no_plots:
         plant.append("--no-plots")
+    if args.status_every is not None:
+        plant += ["--status-every", repr(args.status_every)]
     cmds = [("plant", plant)]
     controller_extra: list[str] = list(run_options)
     if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback

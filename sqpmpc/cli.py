@@ -74,7 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     run.add_argument("--quiet", action="store_true",
                      help="no progress or summary (default: a progress bar on a terminal, "
-                          f"else a status line every {STATUS_PERIOD:g} s on stderr)")
+                          "else status lines on stderr)")
+    run.add_argument("--status-every", type=nonnegative_float, default=STATUS_PERIOD,
+                     metavar="S", help="not on a terminal: a status line on stderr every S "
+                                       f"seconds (default {STATUS_PERIOD:g}; 0: none)")
     sub.add_parser("list", help="list the built-in scenarios")
     gen = sub.add_parser("generate", help="write a fleet scenario file (swap, random "
                                           "crossings, grid-to-grid)")
@@ -209,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
     status = 0
     status_lines = None if terminal or args.quiet else StatusLines(
-        scenario, f"{scenario.name} {args.scheme}")
+        scenario, f"{scenario.name} {args.scheme}", args.status_every)
     try:
         if status_lines is None:
             sim.run()
