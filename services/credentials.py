@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.options import positive_float
 from sqpmpc.scenario import Scenario, load_scenario
 
 from .transport import check_run_name, run_prefix
@@ -286,7 +287,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--router-listen", action="append", default=[], metavar="EP",
                    help="endpoint in the router's config (repeatable; default "
                         "tls/127.0.0.1:7447)")
-    p.add_argument("--valid-hours", type=float, default=24.0,
+    p.add_argument("--valid-hours", type=positive_float, default=24.0,
                    help="validity of the certificates, hours (default 24)")
     p.add_argument("--folder", type=Path, default=None,
                    help="where the processes will find the files if not --out (e.g. a "

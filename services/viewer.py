@@ -38,6 +38,7 @@ import time
 import foxglove
 import numpy as np
 
+from sqpmpc.options import Parser, nonnegative_float, port_number
 from sqpmpc.recording import FleetLog
 from sqpmpc.scenario import Scenario
 
@@ -221,37 +222,35 @@ class ViewerNode(Node):
             super().close()
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m services.viewer``."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.viewer`` (``sqpmpc viewer``)."""
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
     add_common_arguments(parser)
     parser.add_argument("--host", default="127.0.0.1",
                         help="address of the WebSocket server (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=8765,
+    parser.add_argument("--port", type=port_number, default=8765,
                         help="port of the WebSocket server (default 8765; 0: any free port)")
     parser.add_argument("--exit-on-done", action="store_true",
                         help="exit when the plant says the run is done (default: serve until "
                              "Ctrl-C, also the run's next start)")
-    parser.add_argument("--wait", type=float, default=0.25,
+    parser.add_argument("--wait", type=nonnegative_float, default=0.25,
                         help="longest wait for a sample's plans and inputs once a later "
                              "sample's states came, s (default 0.25)")
-    parser.add_argument("--linger", type=float, default=1.0,
+    parser.add_argument("--linger", type=nonnegative_float, default=1.0,
                         help="with --exit-on-done: seconds to keep serving after the run, so "
                              "clients receive what is queued (default 1)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status (0, or 2 for bad input)."""
-    args = build_parser().parse_args(argv)
+    args = build_parser(prog).parse_args(argv)
     setup_logging(args.log_level, "viewer")
-    scenario = scenario_from_args(PROG, args)
-    if not 0 <= args.port <= 65535:
-        fail(PROG, f"--port must be in 0..65535, got {args.port}")
+    scenario = scenario_from_args(prog, args)
     try:
-        node = open_node(PROG, lambda: ViewerNode(scenario, args))
+        node = open_node(prog, lambda: ViewerNode(scenario, args))
     except RuntimeError as exc:  # the WebSocket server could not bind
-        fail(PROG, f"cannot serve on {args.host}:{args.port}: {exc}")
+        fail(prog, f"cannot serve on {args.host}:{args.port}: {exc}")
     try:
         node.start_viewing()
         print(f"viewer: open ws://{args.host}:{node.port} in Foxglove", flush=True)

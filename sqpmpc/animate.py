@@ -33,6 +33,7 @@ from matplotlib.patches import Circle
 
 from .errors import ProblemError, ScenarioError
 from .metrics import load_trajectory
+from .options import nonnegative_int, positive_float, positive_int
 from .recording import robot_rgba
 
 __all__ = ["MAX_FRAMES", "RunData", "add_parser", "animate", "load_run", "main", "render_frames",
@@ -281,10 +282,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run's output folder")
     p.add_argument("--out", type=Path, default=None,
                    help="file to write, .gif (default RUN_DIR/animation.gif) or .mp4")
-    p.add_argument("--fps", type=float, default=10.0, help="frames per second (default 10)")
-    p.add_argument("--step", type=int, default=None,
+    p.add_argument("--fps", type=positive_float, default=10.0,
+                   help="frames per second (default 10)")
+    p.add_argument("--step", type=positive_int, default=None,
                    help=f"samples per frame (default: at most {MAX_FRAMES} frames)")
-    p.add_argument("--frame", type=int, default=None, metavar="K",
+    p.add_argument("--frame", type=nonnegative_int, default=None, metavar="K",
                    help="write only the frame of sample K as a PNG (--out, default "
                         "RUN_DIR/frame-K.png)")
     p.add_argument("--scenario", default=None,

@@ -173,8 +173,6 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] and argv[0] in SERVICES:  # the service's own parser and options
         service = importlib.import_module(f"services.{argv[0]}")
-        if argv[0] == "viewer":
-            return int(service.main(argv[1:]))
         return int(service.main(argv[1:], prog=f"sqpmpc {argv[0]}"))
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     args = build_parser().parse_args(argv)

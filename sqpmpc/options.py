@@ -65,6 +65,8 @@ __all__ = [
     "option_words",
     "flag_type",
     "nonnegative_float",
+    "nonnegative_int",
+    "port_number",
     "positive_float",
     "positive_int",
     "probability",
@@ -117,6 +119,8 @@ def flag_type(check: Callable[[float], bool], expected: str,
 nonnegative_float = flag_type(lambda v: v >= 0.0, "a number >= 0")
 positive_float = flag_type(lambda v: v > 0.0, "a number > 0")
 positive_int = flag_type(lambda v: v >= 1, "an integer >= 1", integer=True)
+nonnegative_int = flag_type(lambda v: v >= 0, "an integer >= 0", integer=True)
+port_number = flag_type(lambda v: 0 <= v <= 65535, "a port in 0..65535", integer=True)
 probability = flag_type(lambda v: 0.0 <= v <= 1.0, "a probability in [0, 1]")
 
 
