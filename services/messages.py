@@ -397,13 +397,14 @@ class MessageValidator:
         if isinstance(msg, DoneMsg):
             return
         if isinstance(msg, StateMsg):
-            if msg.ids != self.order:
-                raise InvalidMessage(f"state for robots {list(msg.ids)}, expected "
-                                     f"{list(self.order)}")
+            # another scenario (a plant started with another one) first: its robots may differ
             if self.scenario_digest is not None and msg.scenario != self.scenario_digest:
                 text = (f"scenario digest {msg.scenario!r} differs from "
                         f"{self.scenario_digest!r}: same --scenario and overrides?")
                 raise Mismatch(text, msg) if msg.scenario else InvalidMessage(text)
+            if msg.ids != self.order:
+                raise InvalidMessage(f"state for robots {list(msg.ids)}, expected "
+                                     f"{list(self.order)}")
             self._check_settings(msg)
             return
         if msg.id not in self.ids:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 
@@ -16,6 +17,7 @@ from services.messages import (
     DoneMsg,
     InvalidMessage,
     MessageValidator,
+    Mismatch,
     PlanMsg,
     StateMsg,
     decode,
@@ -270,6 +272,48 @@ def test_validator_checks_state_ids_and_scenario_digest():
     assert isinstance(v.check(encode(_state(0)), "state"), StateMsg)
     assert isinstance(_validator(None).check(encode(
         StateMsg(0, 0.0, IDS, np.zeros((4, 3)), 0.05, "other")), "state"), StateMsg)
+
+
+def test_another_scenario_or_other_settings_is_a_mismatch_carrying_the_message():
+    v = MessageValidator(IDS, N, "abc", "s1")
+    with pytest.raises(Mismatch, match="scenario digest") as exc:  # also with other robots
+        v.check(encode(StateMsg(0, 0.0, (1, 2), np.zeros((2, 3)), None, "xyz")), "state")
+    assert isinstance(exc.value.msg, StateMsg) and exc.value.msg.scenario == "xyz"
+    with pytest.raises(Mismatch, match="settings digest"):
+        v.check(encode(StateMsg(0, 0.0, IDS, np.zeros((4, 3)), None, "abc", "s2")), "state")
+    detail = {"collision_margin": "0.05", "process": "robot/2"}
+    with pytest.raises(Mismatch) as exc:
+        v.check(encode(CmdMsg(2, 0, np.zeros(2), 0.0, None, 0, None, "s2", detail)), "cmd", 2)
+    assert exc.value.msg.detail == detail and exc.value.msg.settings == "s2"
+    # the same digest, or none (an older sender, a probe): not checked
+    assert v.check(encode(StateMsg(0, 0.0, IDS, np.zeros((4, 3)), None, "abc", "s1")), "state")
+    assert v.check(encode(CmdMsg(2, 0, np.zeros(2), 0.0)), "cmd", 2).settings == ""
+    with pytest.raises(InvalidMessage, match="detail"):
+        v.check(encode(CmdMsg(2, 0, np.zeros(2), 0.0, None, 0, None, "s1",
+                              {str(i): "x" for i in range(40)})), "cmd", 2)
+
+
+def test_the_settings_digest_names_what_differs():
+    from services.agreement import agreed_settings, describe_difference, settings_digest
+    from sqpmpc.options import add_controller_options, resolve_options, with_overrides
+    from sqpmpc.scenario import load_scenario
+
+    parser = argparse.ArgumentParser()
+    add_controller_options(parser, all_plans=True)
+
+    def agreed(*argv: str) -> dict[str, str]:
+        options = resolve_options(parser.parse_args(list(argv)))
+        return agreed_settings(with_overrides(load_scenario("head-on"), options),
+                               "decentralized", options)
+
+    plant, same = agreed(), agreed("--collision-margin", "0.001", "--qp-solver", "osqp")
+    assert settings_digest(plant) == settings_digest(same)  # the defaults, resolved
+    robot = agreed("--collision-margin", "0.05", "--t-end", "4")
+    assert settings_digest(robot) != settings_digest(plant)
+    text = describe_difference(plant, {**robot, "process": "robot/2"}, "robot/2")
+    assert text.startswith("robot/2 runs with collision_margin 0.05 (the plant: 0.001), "
+                           "t_end 4 (the plant: 30)")
+    assert "scenario" not in text.split(":")[0] and "--settings" in text
 
 
 # ------------------------------------------------------------------------ key helpers
