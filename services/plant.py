@@ -247,8 +247,7 @@ class PlantNode(Node):
         """Run the samples until ``t_end`` or a stop signal."""
         log.info("plant (%s, %s): waiting for %s", self.mode, self.scheme,
                  ", ".join(self.controllers))
-        if not self.wait_until(lambda: all(c in self.alive for c in self.controllers),
-                               self.startup_timeout) and not self.stop.is_set():
+        if not self._wait_for_controllers() and not self.stop.is_set():
             log.warning("starting without %s after %.3g s",
                         sorted(set(self.controllers) - self.alive), self.startup_timeout)
         if self.stop.is_set():
@@ -283,6 +282,24 @@ class PlantNode(Node):
         self.running = False
         self.loop_wall = time.perf_counter() - start
         self.drain()  # plans already received, for the recording
+
+    def _wait_for_controllers(self) -> bool:
+        """Wait up to ``--startup-timeout`` for every controller's token, with a status
+        line every ``--status-every`` s; ``True`` if they all came."""
+        start = time.perf_counter()
+        period = self.status.period if self.status.period > 0 else self.startup_timeout
+
+        def ready() -> bool:
+            return all(c in self.alive for c in self.controllers)
+
+        while True:
+            left = start + self.startup_timeout - time.perf_counter()
+            if self.wait_until(ready, min(period, left)):
+                return True
+            if self.stop.is_set() or left <= period:
+                return False
+            self.status.note(f"waiting for {', '.join(sorted(set(self.controllers) - self.alive))}"
+                             f" ({time.perf_counter() - start:.0f} s)")
 
     def collect(self, k: int, deadline: float, resend: float) -> bool:
         """Wait until every expected input of sample ``k`` is in (``True``), a stop is asked

@@ -68,8 +68,12 @@ class StatusLines:
         """Write one status line now."""
         clearance = ("" if not np.isfinite(self.min_clearance)
                      else f", min clearance {self.min_clearance:.3g} m")
-        line = (f"{self.label}: sample {k}/{self.total} ({100.0 * k / max(self.total, 1):.0f} %), "
-                f"{time.monotonic() - self.start:.0f} s{clearance}{extra}")
+        self.note(f"sample {k}/{self.total} ({100.0 * k / max(self.total, 1):.0f} %), "
+                  f"{time.monotonic() - self.start:.0f} s{clearance}{extra}")
+
+    def note(self, text: str) -> None:
+        """Write ``label: text`` as a line now."""
+        line = f"{self.label}: {text}"
         stream = self.stream or sys.stderr
         stream.write(line.replace("\r", " ") + "\n")
         stream.flush()
