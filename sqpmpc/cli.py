@@ -175,7 +175,10 @@ def main(argv: list[str] | None = None) -> int:
         service = importlib.import_module(f"services.{argv[0]}")
         return int(service.main(argv[1:], prog=f"sqpmpc {argv[0]}"))
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a bad option (one line on stderr)
+        return exc.code if isinstance(exc.code, int) else 2
     if args.command == "list":
         print("\n".join(builtin_scenario_names()))
         return 0
