@@ -125,6 +125,12 @@ def main(argv: list[str] | None = None) -> int:
     done_sent = False
     token = None
 
+    reported: tuple[int, int, bool] = (0, 0, False)
+
+    def report() -> None:
+        print(json.dumps({"opened": True, "states_seen": len(seen), "links": links,
+                          "sent": sent}), flush=True)
+
     def put(payload: bytes, key: str) -> None:
         session.put(f"{prefix}/{key}", payload, express=True)  # dropped when congested
 
@@ -180,13 +186,15 @@ def main(argv: list[str] | None = None) -> int:
                 put(encode(DoneMsg(k, True)), "plant/done")
                 sent["done"] += 1
                 done_sent = True
+            if (len(seen), links, done_sent) != reported:  # what it learned, as it goes
+                reported = (len(seen), links, done_sent)
+                report()
     finally:
+        # reported first: an undeclare or close that hangs (zenoh-python #434) loses nothing
+        report()
         for obj in (states, token):
             if obj is not None:
                 obj.undeclare()
-        # reported before closing: a close that hangs (zenoh-python #434) loses nothing
-        print(json.dumps({"opened": True, "states_seen": len(seen), "links": links, "sent": sent}),
-              flush=True)
         session.close()
     return 0
 
