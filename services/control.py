@@ -81,6 +81,7 @@ class SampleStates:
     t: float
     budget: float | None
     states: np.ndarray
+    plan_ages: dict[int, dict[int, int]] | None = None
 
 
 class ControllerNode(Node):
@@ -135,7 +136,7 @@ class ControllerNode(Node):
             self.policy.advance(self.cursor, msg.sample)
             for later in [s for s in self.samples if s > msg.sample]:
                 del self.samples[later]  # back to the plant's sample after a forged one
-            self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x)
+            self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x, msg.plan_ages)
             self.pending = msg.sample
         elif decision.verdict is Verdict.REPEAT:
             # the plant misses an input of this sample: if it is handled, this process's
@@ -215,10 +216,12 @@ class ControllerNode(Node):
         raise NotImplementedError
 
     def publish_cmd(self, robot_id: int, sample: int, u: np.ndarray, compute_time: float,
-                    fallback: str | None) -> None:
-        """Publish one robot's input for ``sample``."""
+                    fallback: str | None, plan_ages: dict[int, int] | None = None) -> None:
+        """Publish one robot's input for ``sample`` (with its controller's ``plan_ages``,
+        which the plant relays)."""
         msg = CmdMsg(robot_id, sample, u, compute_time, fallback, self.validator.invalid,
-                     self.controller.counters(), self.settings_digest)
+                     self.controller.counters(), self.settings_digest,
+                     plan_ages=plan_ages)
         self.sent(encode(msg), "robot", robot_id, "cmd")
 
     def run(self) -> int:

@@ -17,14 +17,20 @@ type       fields (besides ``v`` and ``type``)
            or nil (wall-clock seconds the controllers have in real-time mode; nil in
            lockstep), ``scenario`` str (digest of the scenario and its overrides);
            optional ``settings`` str (digest of the settings the run's processes agree
-           on, :mod:`services.agreement`; absent or empty: not checked)
+           on, :mod:`services.agreement`; absent or empty: not checked);
+           optional ``plan_ages`` [[robot id, [[neighbour id, age], ...]], ...] (the
+           ``plan_ages`` of the inputs the plant applied at ``k - 1``, relayed: both robots
+           of a pair agree on the plans of their shared row from it; empty when absent)
 ``cmd``    ``id`` int, ``sample`` int >= 0, ``u`` [v, omega], ``compute_time`` float >= 0 (s),
            ``fallback`` str or nil, ``invalid`` int >= 0 (messages the sender dropped);
            optional ``counters`` {str: int >= 0} (the sending controller's totals so far:
            engine and rule counters, ``sqpmpc rules``; at most 64 entries; empty when
            absent); optional ``settings`` str (the sender's settings digest) and
            ``detail`` {str: str} (its settings, at most 32 entries: a controller that
-           refuses the plant's settings sends them once, with a braking ``u``)
+           refuses the plant's settings sends them once, with a braking ``u``);
+           optional ``plan_ages`` [[neighbour id, age], ...] (neighbours whose
+           newest plan the sender held at its step ``k`` was ``age >= 2`` samples old,
+           ``age <= N + 2``; empty when absent)
 ``plan``   ``id`` int, ``sample`` int >= 0, ``t`` float (time t_k), ``stamp`` float (sender's wall
            clock, Unix s), ``states`` (N+1) x 3, ``inputs`` N x 2
 ``done``   ``sample`` int (samples simulated), ``completed`` bool
@@ -43,6 +49,7 @@ import numpy as np
 
 __all__ = [
     "MAX_PAYLOAD",
+    "MAX_PLAN_AGES",
     "SCHEMA_VERSION",
     "CmdMsg",
     "DoneMsg",
@@ -61,6 +68,8 @@ SCHEMA_VERSION = 1
 """Version carried in every message (``"v"``); also the ``@v1`` chunk of the key space."""
 MAX_PAYLOAD = 1 << 16
 """Payloads larger than this (bytes) are refused before unpacking."""
+MAX_PLAN_AGES = 4096
+"""Most ``[neighbour, age]`` entries in one cmd, and in all of one state's ``plan_ages``."""
 
 
 class InvalidMessage(ValueError):
@@ -87,6 +96,8 @@ class StateMsg:
     budget: float | None = None
     scenario: str = ""
     settings: str = ""
+    plan_ages: dict[int, dict[int, int]] | None = None
+    """Per robot whose input of ``k - 1`` the plant applied, its ``plan_ages`` (relayed)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,6 +113,9 @@ class CmdMsg:
     counters: dict[str, int] | None = None
     settings: str = ""
     detail: dict[str, str] | None = None
+    plan_ages: dict[int, int] | None = None
+    """Per neighbour, the age (``>= 2`` samples) of the newest plan held at this step;
+    neighbours not listed: a plan of ``k - 1`` (or none yet)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -154,6 +168,8 @@ def encode(msg: Message) -> bytes:
                 "scenario": msg.scenario}
         if msg.settings:
             body["settings"] = msg.settings
+        if msg.plan_ages:
+            body["plan_ages"] = [[int(r), _pairs(a)] for r, a in msg.plan_ages.items() if a]
     elif isinstance(msg, CmdMsg):
         body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
                 "compute_time": float(msg.compute_time), "fallback": msg.fallback,
@@ -163,6 +179,8 @@ def encode(msg: Message) -> bytes:
             body["settings"] = msg.settings
         if msg.detail is not None:
             body["detail"] = {str(k): str(v) for k, v in msg.detail.items()}
+        if msg.plan_ages:
+            body["plan_ages"] = _pairs(msg.plan_ages)
     elif isinstance(msg, PlanMsg):
         body = {"type": "plan", "id": int(msg.id), "sample": int(msg.sample), "t": float(msg.t),
                 "stamp": float(msg.stamp), "states": _floats(msg.states),
@@ -172,6 +190,10 @@ def encode(msg: Message) -> bytes:
     else:
         raise TypeError(f"not a message: {type(msg).__name__}")
     return msgpack.packb({"v": SCHEMA_VERSION, **body}, use_bin_type=True)
+
+
+def _pairs(ages: dict[int, int]) -> list[list[int]]:
+    return [[int(j), int(a)] for j, a in ages.items()]
 
 
 _PLAN_HEAD = b"\x88\xa1v\x01\xa4type\xa4plan\xa2id"
@@ -290,7 +312,8 @@ def decode(payload: bytes, horizon: int) -> Message:
             raise InvalidMessage("'ids' must be a non-empty list of integers")
         return StateMsg(_int(body, "sample", 0), _float(body, "t"), tuple(ids),
                         _array(body, "x", (len(ids), 3)), budget, scenario,
-                        _text(body, "settings"))
+                        _text(body, "settings"),
+                        _relayed_ages(body, horizon) or None)
     if kind == "cmd":
         fallback = body.get("fallback")
         if fallback is not None and not isinstance(fallback, str):
@@ -300,7 +323,8 @@ def decode(payload: bytes, horizon: int) -> Message:
             raise InvalidMessage(f"'compute_time' must be >= 0, got {compute_time}")
         return CmdMsg(_int(body, "id"), _int(body, "sample", 0), _array(body, "u", (2,)),
                       compute_time, fallback, _int(body, "invalid", 0), _counters(body),
-                      _text(body, "settings"), _detail(body))
+                      _text(body, "settings"), _detail(body),
+                      _ages(body.get("plan_ages", []), horizon, MAX_PLAN_AGES) or None)
     if kind == "plan":
         return PlanMsg(_int(body, "id"), _int(body, "sample", 0), _float(body, "t"),
                        _float(body, "stamp"), _array(body, "states", (horizon + 1, 3)),
@@ -343,6 +367,42 @@ def _counters(body: dict[str, Any]) -> dict[str, int]:
         if not isinstance(key, str) or len(key) > 64 or type(value) is not int or value < 0:
             raise InvalidMessage("'counters' must map names to integers >= 0")
         out[key] = value
+    return out
+
+
+def _ages(value: Any, horizon: int, limit: int) -> dict[int, int]:
+    """A ``[[neighbour id, age], ...]`` list: distinct integer ids, ages in 1..N+2."""
+    if not isinstance(value, list) or len(value) > limit:
+        raise InvalidMessage(f"'plan_ages' must be a list of at most {limit} [id, age] pairs")
+    out: dict[int, int] = {}
+    for item in value:
+        if (not isinstance(item, list) or len(item) != 2 or type(item[0]) is not int
+                or type(item[1]) is not int):
+            raise InvalidMessage("'plan_ages' entries must be [id, age] integer pairs")
+        rid, age = item
+        if not 1 <= age <= horizon + 2:
+            raise InvalidMessage(f"'plan_ages' ages must be within 1..{horizon + 2}, got {age}")
+        if rid in out:
+            raise InvalidMessage(f"'plan_ages' lists robot {rid} twice")
+        out[rid] = age
+    return out
+
+
+def _relayed_ages(body: dict[str, Any], horizon: int) -> dict[int, dict[int, int]]:
+    """A state's ``plan_ages``: ``[[robot id, [[neighbour id, age], ...]], ...]``."""
+    value = body.get("plan_ages", [])
+    if not isinstance(value, list) or len(value) > MAX_PLAN_AGES:
+        raise InvalidMessage("'plan_ages' must be a list of [robot id, [[id, age], ...]]")
+    out: dict[int, dict[int, int]] = {}
+    total = 0
+    for item in value:
+        if not isinstance(item, list) or len(item) != 2 or type(item[0]) is not int:
+            raise InvalidMessage("'plan_ages' entries must be [robot id, [[id, age], ...]]")
+        if item[0] in out:
+            raise InvalidMessage(f"'plan_ages' lists robot {item[0]} twice")
+        ages = _ages(item[1], horizon, MAX_PLAN_AGES - total)
+        total += len(ages)
+        out[item[0]] = ages
     return out
 
 
@@ -406,6 +466,8 @@ class MessageValidator:
                 raise InvalidMessage(f"state for robots {list(msg.ids)}, expected "
                                      f"{list(self.order)}")
             self._check_settings(msg)
+            for rid, ages in (msg.plan_ages or {}).items():
+                self._check_ages(rid, ages)
             return
         if msg.id not in self.ids:
             raise InvalidMessage(f"unknown robot id {msg.id}")
@@ -413,11 +475,22 @@ class MessageValidator:
             raise InvalidMessage(f"id {msg.id} on the key of robot {key_id}")
         if isinstance(msg, CmdMsg):
             self._check_settings(msg)
+            if msg.plan_ages:
+                self._check_ages(msg.id, msg.plan_ages)
 
     def _check_settings(self, msg: StateMsg | CmdMsg) -> None:
         if self.settings_digest and msg.settings and msg.settings != self.settings_digest:
             raise Mismatch(f"settings digest {msg.settings!r} differs from "
                            f"{self.settings_digest!r}", msg)
+
+    def _check_ages(self, rid: int, ages: dict[int, int]) -> None:
+        """Plan ages of robot ``rid``: known robots, neighbours of ``rid`` (not itself)."""
+        if rid not in self.ids:
+            raise InvalidMessage(f"'plan_ages' of unknown robot id {rid}")
+        for j in ages:
+            if j not in self.ids or j == rid:
+                raise InvalidMessage(f"'plan_ages' of robot {rid} names robot {j}, not one of "
+                                     "its neighbours")
 
     def check(self, payload: bytes, kind: str | None = None,
               key_id: int | None = None) -> Message:

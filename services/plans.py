@@ -219,25 +219,32 @@ class PlanStore:
         """The newest valid plan computed before ``sample`` (decoding it if needed)."""
         stored = self._plans[robot_id]
         for s in sorted((s for s in stored if s < sample), reverse=True):
-            item = stored[s]
-            if isinstance(item, PlanMessage):
-                return item
-            try:
-                msg = self.validator.check(item, "plan", robot_id)
-            except InvalidMessage as exc:
-                log.warning("dropped an invalid plan of robot %d (%d invalid so far): %s",
-                            robot_id, self.validator.invalid, exc)
-                del stored[s]
-                continue
-            self.decoded += 1
-            if not isinstance(msg, PlanMsg) or msg.sample != s:
-                # cannot happen with a matching header; refuse rather than trust it
-                self.validator.refuse(f"plan header of sample {s} over another body")
-                del stored[s]
-                continue
-            stored[s] = plan = _as_plan(msg)
-            return plan
+            plan = self.at(robot_id, s)
+            if plan is not None:
+                return plan
         return None
+
+    def at(self, robot_id: int, sample: int) -> PlanMessage | None:
+        """The valid plan of ``sample`` (decoding it if needed; ``None``: not here)."""
+        stored = self._plans[robot_id]
+        item = stored.get(sample)
+        if item is None or isinstance(item, PlanMessage):
+            return item
+        try:
+            msg = self.validator.check(item, "plan", robot_id)
+        except InvalidMessage as exc:
+            log.warning("dropped an invalid plan of robot %d (%d invalid so far): %s",
+                        robot_id, self.validator.invalid, exc)
+            del stored[sample]
+            return None
+        self.decoded += 1
+        if not isinstance(msg, PlanMsg) or msg.sample != sample:
+            # cannot happen with a matching header; refuse rather than trust it
+            self.validator.refuse(f"plan header of sample {sample} over another body")
+            del stored[sample]
+            return None
+        stored[sample] = plan = _as_plan(msg)
+        return plan
 
     def clear(self, robot_id: int) -> None:
         """Forget every plan of ``robot_id`` (it is gone)."""
@@ -279,6 +286,13 @@ class StepPlans(Mapping[int, PlanMessage]):
         if robot_id not in self._cache:
             self._cache[robot_id] = self.store.newest_before(robot_id, self.sample)
         return self._cache[robot_id]
+
+    def plan_at(self, robot_id: int, sample: int) -> PlanMessage | None:
+        """The plan of candidate ``robot_id`` of ``sample`` (before this step's), if kept
+        (:class:`sqpmpc.controllers.PlanSource`)."""
+        if robot_id not in self._ids or sample >= self.sample:
+            return None
+        return self.store.at(robot_id, sample)
 
     def __getitem__(self, robot_id: int) -> PlanMessage:
         plan = self._get(robot_id) if robot_id in self._ids else None

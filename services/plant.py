@@ -33,6 +33,9 @@ braking input (``v = omega = 0`` clipped to the bounds), counted in
 input noise (:class:`sqpmpc.plant.Plant`), as in
 :class:`sqpmpc.simulation.ClosedLoopSimulation`.
 It also keeps the plans the controllers publish on ``robot/<id>/plan``.
+With the states of ``k + 1`` it relays the ``plan_ages`` of the inputs it
+applied at ``k`` (the same to every robot: both robots of a pair agree on the
+plans of their shared row from it, :func:`sqpmpc.controllers.pair_sample`).
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
 ``metrics.json``, ``trajectory.npz``, ``recording.mcap`` (with those plans) and the
 plots into ``--out``. As it goes it appends every sample to ``--out``/``record.msgpack``
@@ -69,7 +72,7 @@ from sqpmpc.runlog import RECORD_FILE, RecordWriter
 from sqpmpc.scenario import Scenario
 
 from .agreement import describe_difference
-from .messages import CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
+from .messages import MAX_PLAN_AGES, CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
 from .node import (
     Node,
     add_common_arguments,
@@ -124,6 +127,7 @@ class PlantNode(Node):
         self.k = 0
         self.republished = 0
         self.cmds: dict[int, CmdMsg] = {}
+        self.relay: dict[int, dict[int, int]] = {}  # plan ages sent with the current states
         self.missed = dict.fromkeys(self.ids, 0)
         self.late_commands = 0
         self.timeouts = 0
@@ -206,7 +210,8 @@ class PlantNode(Node):
         """Publish every robot's state of sample ``k``."""
         budget = self.scenario.sample_time if self.mode == "realtime" else None
         msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest,
-                       self.settings_digest)
+                       self.settings_digest,
+                       plan_ages=self.relay)
         self.bus.put(encode(msg), "plant", "state")
 
     def apply(self, k: int) -> None:
@@ -222,6 +227,7 @@ class PlantNode(Node):
             self._missing = missing
         fallback = False
         failures = self.solver_failures
+        self.relay = _relayed(self.cmds[rid] for rid in self.ids if rid in self.cmds)
         for j, rid in enumerate(self.ids):
             cmd = self.cmds.get(rid)
             if cmd is None:
@@ -412,6 +418,19 @@ def check_combinations(args: argparse.Namespace, scenario: Scenario) -> str | No
         return "--timed-start applies to --mode realtime only"
     return combination_problem(options_of(args), args.scheme, scenario.n_robots)
 
+
+
+def _relayed(cmds: Iterable[CmdMsg]) -> dict[int, dict[int, int]]:
+    """The inputs' ``plan_ages`` to send with the next states, by robot, at most
+    :data:`~services.messages.MAX_PLAN_AGES` entries in all (a robot left out counts as
+    reporting none, which both robots of each of its pairs read alike)."""
+    out: dict[int, dict[int, int]] = {}
+    room = MAX_PLAN_AGES
+    for cmd in cmds:
+        if cmd.plan_ages and len(cmd.plan_ages) <= room:
+            out[cmd.id] = dict(cmd.plan_ages)
+            room -= len(cmd.plan_ages)
+    return out
 
 
 def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:

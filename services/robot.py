@@ -5,15 +5,18 @@
 [--listen EP] [--timeout S]`` (also ``sqpmpc robot ...``)
 
 At sample ``k`` the robot waits for the plant's states of sample ``k`` and
-for the plan of sample ``k - 1`` of every neighbour whose liveliness token is
-present and was present at its step ``k - 1`` (up to ``--timeout`` in
-lockstep, a fifth of the plant's budget in real time), then calls
-:class:`sqpmpc.controllers.DecentralizedController` exactly as the in-process
-simulation does: ``plans`` holds, per neighbour, the newest plan computed
-before sample ``k``, ``previous_states`` the states of ``k - 1``. A neighbour
-that is gone or silent is left out of ``plans``: the controller predicts it
-from its states (the paper's fallback). It then publishes its plan and its
-input.
+for the plan its shared row with each neighbour is built from (of sample
+:func:`sqpmpc.controllers.pair_sample`: ``k - 1``, or older when plans have
+been late, from the ``plan_ages`` the plant relays with the states) of every
+neighbour whose liveliness token is present and was present at its step
+``k - 1`` (up to ``--timeout`` in lockstep, a fifth of the plant's budget in
+real time), then calls :class:`sqpmpc.controllers.DecentralizedController`
+exactly as the in-process simulation does: ``plans`` holds, per neighbour, the
+newest plan computed before sample ``k`` (and any older one kept, on request),
+``previous_states`` the states of ``k - 1``, ``plan_ages`` the relayed
+reports. A neighbour that is gone or silent is left out of ``plans``: the
+controller predicts it from its states (the paper's fallback). It then
+publishes its plan and its input, with its own ``plan_ages``.
 
 Before its first step the robot waits (up to ``--timeout``) until it sees
 every neighbour's token: in peer mode that proves a direct link, over which
@@ -33,7 +36,7 @@ from contextlib import AbstractContextManager, nullcontext
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import DecentralizedController
+from sqpmpc.controllers import DecentralizedController, pair_sample
 from sqpmpc.errors import ProblemError
 from sqpmpc.options import Parser, combination_problem
 from sqpmpc.scenario import Scenario
@@ -184,15 +187,18 @@ class RobotNode(ControllerNode):
                 missing = sorted(set(self.neighbours) - set(self._alive_neighbours()))
                 log.warning("robot %d starts without neighbours %s", self.robot_id, missing)
         needed = self.needed(entry.states)
-        # wait for the plan of k - 1 of every neighbour within reach that was there at this
-        # robot's step k - 1 (one that joined since then has none; at the first step: none)
+        # wait for the plan of the pair's sample (k - 1 unless plans were late) of every
+        # neighbour within reach that was there at this robot's step k - 1 (one that joined
+        # since then has none; at the first step: none)
         if sample > 0 and self.waited_for:
             pending = [i for i in needed if i in self.waited_for]
+            wanted = {i: pair_sample(sample, self.robot_id, i, entry.plan_ages)
+                      for i in pending}
 
             def ready() -> bool:  # O(1) per event: drop the satisfied from the end
                 if self.pending is not None:  # another state came: this one is obsolete
                     return True
-                while pending and (self.plans.has(pending[-1], sample - 1)
+                while pending and (self.plans.has(pending[-1], wanted[pending[-1]])
                                    or f"robot/{pending[-1]}" not in self.alive):
                     pending.pop()
                 return not pending
@@ -200,19 +206,21 @@ class RobotNode(ControllerNode):
             wait = self.timeout if entry.budget is None else min(self.timeout,
                                                                   0.2 * entry.budget)
             if not self.wait_until(ready, wait) and not self.stop.is_set():
-                log.warning("robot %d sample %d: no plan of sample %d from %s in %.3g s",
-                            self.robot_id, sample, sample - 1, pending, wait)
+                log.warning("robot %d sample %d: no plan of sample %s from %s in %.3g s",
+                            self.robot_id, sample, sorted({wanted[i] for i in pending}),
+                            pending, wait)
         self.waited_for = set(self._alive_neighbours())
         plans = self.plans_for(sample, entry.states)
         if len(plans) < len(needed):
             self.fallback_samples += 1
         with self.step_lock:  # one step at a time in a process hosting several robots
             out = self.controller.step(sample, entry.t, entry.states, plans,
-                                       self.previous_states(sample))
+                                       self.previous_states(sample), entry.plan_ages)
         plan = self.controller.published
         self.publish_plan(PlanMsg(self.robot_id, sample, entry.t, time.time(), plan.states,
                                   plan.inputs), entry.states)
-        self.publish_cmd(self.robot_id, sample, out.inputs[0], out.compute_time, out.fallback)
+        self.publish_cmd(self.robot_id, sample, out.inputs[0], out.compute_time, out.fallback,
+                         self.controller.plan_ages)
         self.plans.prune(sample - self.scenario.horizon - 1)  # keep what a later sample may use
         if out.fallback is not None:
             log.debug("robot %d sample %d: fallback %s", self.robot_id, sample, out.fallback)

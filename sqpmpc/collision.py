@@ -278,10 +278,13 @@ class ExternalCollisionModel:
         current_self, current_others
             Measured positions ``(2,)`` and ``(E, 2)``.
         own_prediction
-            ``(N, 2+)``: this robot's positions of stages 1..N as *published*
-            (its previous plan shifted), identical to what the neighbours use.
+            ``(E, N, 2+)``: per slot, this robot's positions of stages 1..N as
+            *published* (its plan of the pair's common sample, shifted),
+            identical to what that neighbour uses; ``(N, 2+)``: the same for
+            every slot.
         other_predictions
-            ``(E, N, 2+)``: neighbours' positions for stages 1..N.
+            ``(E, N, 2+)``: neighbours' positions for stages 1..N (shared
+            slots: from their plans of the pair's common sample).
         kinds
             ``(E,)`` slot kinds (:data:`SHARED`, ...).
         """
@@ -297,6 +300,8 @@ class ExternalCollisionModel:
         self.current_self = np.ascontiguousarray(current_self, dtype=float)
         self.current_others = np.ascontiguousarray(current_others, dtype=float)
         self.obstacles = other_predictions
+        if own_prediction.ndim == 2:
+            own_prediction = np.repeat(own_prediction[None], kinds.shape[0], axis=0)
         g = self.geometry
         self._shared_overrides = shared_rows(
             self.current_self, self.current_others, own_prediction, other_predictions,

@@ -320,7 +320,8 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
     me, others_now
         ``(2,)`` and ``(E, 2)`` measured positions.
     own_pred, other_pred
-        ``(N, 2+)`` and ``(E, N, 2+)`` predicted positions of stages 1..N.
+        ``(E, N, 2+)`` predicted positions of stages 1..N: per slot, this
+        robot's and the neighbour's, from the pair's common plans.
     shared
         ``(E,)`` bool.
     required, true_distance
@@ -357,14 +358,14 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
         ox, oy = others_now[e, 0], others_now[e, 1]
         gx, gy = mx - ox, my - oy
         n = A_out[e]
-        n0x, n0y = _stage_normals(gx, gy, own_pred, other_pred[e], rotation, max_turn, n)
+        n0x, n0y = _stage_normals(gx, gy, own_pred[e], other_pred[e], rotation, max_turn, n)
         d = required[e]
         half = 0.5 * d
         gap, overridden = stage_one_override(n, n0x, n0y, gx, gy, d)
         overrides += overridden
         for i in range(N):
-            cx = 0.5 * (own_pred[i, 0] + other_pred[e, i, 0])
-            cy = 0.5 * (own_pred[i, 1] + other_pred[e, i, 1])
+            cx = 0.5 * (own_pred[e, i, 0] + other_pred[e, i, 0])
+            cy = 0.5 * (own_pred[e, i, 1] + other_pred[e, i, 1])
             lower_out[e, i] = n[i, 0] * cx + n[i, 1] * cy
         n1x, n1y = n[0, 0], n[0, 1]
         lo = (n1x * ox + n1y * oy) + half

@@ -36,7 +36,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Literal
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -62,13 +62,19 @@ __all__ = [
     "CentralizedController",
     "ControlOutput",
     "DecentralizedController",
+    "PlanAges",
     "PlanMessage",
+    "PlanSource",
     "braking_input",
+    "pair_sample",
     "predict_from_plan",
     "predict_from_states",
 ]
 
 DecentralizedMode = Literal["shared", "paper"]
+PlanAges = Mapping[int, Mapping[int, int]]
+"""Per robot id, per neighbour id: the age (samples) of the newest plan of that neighbour
+the robot held at its previous step, as relayed by the plant; a pair not listed: 1."""
 
 log = logging.getLogger(__name__)
 _paper_mode_warned = False
@@ -94,6 +100,37 @@ class PlanMessage:
     sample: int
     states: np.ndarray
     inputs: np.ndarray
+
+
+@runtime_checkable
+class PlanSource(Protocol):
+    """A ``plans`` mapping that can also give a neighbour's plan of a given sample."""
+
+    def plan_at(self, robot_id: int, sample: int) -> PlanMessage | None:
+        """The plan robot ``robot_id`` computed at ``sample``, if held."""
+
+
+def pair_sample(sample: int, a: int, b: int, plan_ages: PlanAges | None) -> int:
+    """The sample of the two plans robots ``a`` and ``b`` build their shared row from.
+
+    At sample ``k`` both robots of a pair read the same relayed ``plan_ages``
+    (the plant's state message of ``k``): each reported, at its step ``k - 1``,
+    how old the newest plan of the other it held was (``1`` when not listed).
+    With ``a`` the larger of the two ages the pair uses the plans of
+    ``k - a``: with plans late by ``D`` samples this is ``k - D``, whose
+    plans both hold by now; without delay it is ``k - 1`` (as before).
+    Both robots compute the same number from the same message, which is all
+    the safety argument needs (module notes); whether they hold the plans is
+    each one's own business (a robot that does not holds the pair as missing).
+    """
+    age = 1
+    if plan_ages:
+        mine, theirs = plan_ages.get(a), plan_ages.get(b)
+        if mine:
+            age = max(age, int(mine.get(b, 1)))
+        if theirs:
+            age = max(age, int(theirs.get(a, 1)))
+    return sample - age
 
 
 def predict_from_plan(
@@ -276,9 +313,20 @@ class DecentralizedController(ControllerPipeline):
         self.counts["fallback_neighbours"] = 0
         self.counts["unslotted_neighbours"] = 0
         self.counts["late_plan_neighbours"] = 0
+        self.counts["older_shared_neighbours"] = 0
         self._plan_seen: dict[int, int] = {}  # per neighbour id: newest plan sample seen
         self._age_margins = np.zeros(slots)
         self._own_prediction = np.zeros((N, 3))
+        self._own_pair_predictions = np.zeros((slots, N, 3))
+        # own plans by sample (None: two different plans of that sample were published)
+        # and the neighbours' plans seen, by id and sample: a shared row may use older ones
+        self._own_plans: dict[int, PlanMessage | None] = {}
+        self._history: dict[int, dict[int, PlanMessage]] = {}
+        self._plan_ages_in: PlanAges | None = None
+        #: per neighbour (slotted at the last step) whose newest plan held then was
+        #: ``age >= 2`` samples old: ``age`` (at most ``N + 2``); the services send it with
+        #: the input and the plant relays it to every robot with the next states
+        self.plan_ages: dict[int, int] = {}
         self._other_predictions = np.zeros((slots, N, 3))
         self._kinds = np.zeros(slots, dtype=np.int8)
         if mode == "paper":
@@ -313,13 +361,53 @@ class DecentralizedController(ControllerPipeline):
         out[:] = pred[1:]
         return True
 
+    def _own_at(self, pair: int, sample: int, cache: dict[int, np.ndarray | None]
+                ) -> np.ndarray | None:
+        """Own stages 1..N at ``sample`` from the own plan of sample ``pair`` (``None``: not
+        held, or published twice)."""
+        if pair not in cache:
+            published = self.published
+            plan = self._own_plans.get(pair, published if published is not None
+                                       and published.sample == pair else None)
+            if plan is None:
+                cache[pair] = None
+            elif plan is self.published and sample - pair <= self.horizon:
+                cache[pair] = self._own_prediction  # filled from it above
+            else:
+                out = np.empty((self.horizon, 3))
+                cache[pair] = out if self._fill_from_plan(out, plan, sample) else None
+        return cache[pair]
+
+    def _neighbour_at(self, plans: Mapping[int, object], jid: int, pair: int,
+                      newest: PlanMessage | None) -> PlanMessage | None:
+        """The plan neighbour ``jid`` computed at sample ``pair``, if held."""
+        if newest is not None and newest.sample == pair:
+            return newest
+        if isinstance(plans, PlanSource):
+            return plans.plan_at(jid, pair)
+        return self._history.get(jid, {}).get(pair)
+
+    def _remember(self, jid: int, plan: PlanMessage, sample: int) -> None:
+        """Keep a neighbour's plan for shared rows of later samples (the first of a sample
+        wins, as in the services' plan store)."""
+        held = self._history.setdefault(jid, {})
+        if plan.sample in held:
+            return
+        held[plan.sample] = plan
+        if len(held) > self.horizon + 2:
+            for old in [s for s in held if s < sample - self.horizon - 1]:
+                del held[old]
+
     def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
                             previous_states: np.ndarray | None) -> None:
         """Own published prediction and the neighbours', stages 1..N, with the slot kinds.
 
-        Shared hyperplanes need the plan the neighbour itself uses (the
-        previous sample's); a neighbour without it is predicted by the paper's
-        fallback (input estimated from two states) and its slot is *missing*.
+        A shared hyperplane of the pair with neighbour ``l`` is built from both
+        robots' plans of the sample :func:`pair_sample` gives (``k - 1``
+        unless plans have been late), which both compute from the same relayed
+        ``plan_ages``; a robot that does not hold both plans of that sample
+        predicts the neighbour by the paper's fallback (input estimated from
+        two states, or its newest late plan) and its slot is *missing*.
         """
         N, h, method = self.horizon, self.sample_time, self.settings.discretization
         if self._selecting:
@@ -331,20 +419,36 @@ class DecentralizedController(ControllerPipeline):
         shared = self.mode == "shared"
         kinds = self._kinds
         preds = self._other_predictions
+        own_preds = self._own_pair_predictions
+        own_cache: dict[int, np.ndarray | None] = {}
+        ages_in = self._plan_ages_in
+        report: dict[int, int] = {}
         missing = 0
         margins = self._age_margins
         margins[:] = 0.0
         for e, jid in self._neighbours:
             plan = plans.get(jid)
-            if plan is not None and self._plan_seen.get(jid, -1) < plan.sample < sample:
-                self._plan_seen[jid] = plan.sample
+            if plan is not None:
+                self._remember(jid, plan, sample)
+                if self._plan_seen.get(jid, -1) < plan.sample < sample:
+                    self._plan_seen[jid] = plan.sample
             age = sample - self._plan_seen.get(jid, sample - 1)
             if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
                 margins[e] = self.context.max_speed * h * min(age - 1, N)
                 self.counts["late_plan_neighbours"] += 1
-            if plan is not None and (not shared or plan.sample == sample - 1) and (
-                    self._fill_from_plan(preds[e], plan, sample)):
-                kinds[e] = SHARED if shared else OBSTACLE
+                report[jid] = min(age, N + 2)
+            if shared:
+                pair = pair_sample(sample, self.robot_id, jid, ages_in)
+                mine = self._own_at(pair, sample, own_cache)
+                theirs = None if mine is None else self._neighbour_at(plans, jid, pair, plan)
+                if theirs is not None and self._fill_from_plan(preds[e], theirs, sample):
+                    own_preds[e] = mine
+                    kinds[e] = SHARED
+                    if pair != sample - 1:
+                        self.counts["older_shared_neighbours"] += 1
+                    continue
+            elif plan is not None and self._fill_from_plan(preds[e], plan, sample):
+                kinds[e] = OBSTACLE
                 continue
             if margins[e] == 0.0 or plan is None or not self._fill_from_plan(
                     preds[e], plan, sample):  # a late plan still says where it was going
@@ -355,9 +459,10 @@ class DecentralizedController(ControllerPipeline):
             missing += 1
         if missing:
             self.counts["fallback_neighbours"] += missing
+        self.plan_ages = report
         self.collisions.set_age_margins(margins)
         self.collisions.set_sample(states[self.index, :2], states[self._slot_index, :2],
-                                   self._own_prediction, self._other_predictions, kinds)
+                                   own_preds, self._other_predictions, kinds)
 
     def _select_neighbours(self, states: np.ndarray) -> None:
         """Fill the slots with the nearest neighbours within the interaction radius.
@@ -387,6 +492,12 @@ class DecentralizedController(ControllerPipeline):
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0],
                                      out.predicted_inputs[0])
         out.plan = self.published
+        # a sample computed twice (a forged future state) published two plans: a
+        # neighbour may hold either, so that sample's pair rows are never shared
+        self._own_plans[sample] = None if sample in self._own_plans else self.published
+        if len(self._own_plans) > self.horizon + 2:
+            for old in [s for s in self._own_plans if s < sample - self.horizon - 1]:
+                del self._own_plans[old]
 
     def update_neighbour_plan(self, plan: PlanMessage) -> None:
         """Keep a neighbour's plan for the next steps called without ``plans``.
@@ -428,11 +539,12 @@ class DecentralizedController(ControllerPipeline):
                                    f"shape {value.shape}" + (
                                        "" if value.shape != shape else " with non-finite values"))
             arrays[name] = value
-        held = self._received.get(sender)
-        if held is not None and held.sample > plan.sample:
+        kept = PlanMessage(int(sender), int(plan.sample), arrays["states"], arrays["inputs"])
+        newest = self._received.get(sender)
+        self._remember(int(sender), kept, kept.sample if newest is None else newest.sample)
+        if newest is not None and newest.sample > plan.sample:
             return
-        self._received[sender] = PlanMessage(int(sender), int(plan.sample), arrays["states"],
-                                             arrays["inputs"])
+        self._received[sender] = kept
 
     @property
     def neighbour_plans(self) -> Mapping[int, PlanMessage]:
@@ -446,6 +558,7 @@ class DecentralizedController(ControllerPipeline):
         states: np.ndarray,
         plans: Mapping[int, PlanMessage | None] | None = None,
         previous_states: np.ndarray | None = None,
+        plan_ages: PlanAges | None = None,
     ) -> ControlOutput:
         """Compute this robot's input at sample ``k`` (time ``t``).
 
@@ -463,15 +576,25 @@ class DecentralizedController(ControllerPipeline):
             :meth:`update_neighbour_plan`.
         previous_states
             States at ``k - 1`` (for the fallback estimate), or ``None``.
+        plan_ages
+            The :attr:`plan_ages` every robot reported at its step ``k - 1``,
+            by robot id, exactly as every other robot receives them (the
+            services: relayed by the plant with the states of ``k``); ``None``
+            (default): none reported, every shared row uses the plans of
+            ``k - 1``. With plans late by ``D`` samples, passing them lets each
+            pair share rows built from the plans of ``k - D``
+            (:func:`pair_sample`).
 
         Returns
         -------
         ControlOutput
             The input to apply (``inputs[0]``) and, in ``plan``, the plan to
-            send to the neighbours for their step ``k + 1``.
+            send to the neighbours for their step ``k + 1``; :attr:`plan_ages`
+            then holds this step's report.
         """
         if plans is None:
             plans = self._received
+        self._plan_ages_in = plan_ages
         return self.run_sample(sample, t, states, plans, previous_states)
 
 

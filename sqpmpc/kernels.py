@@ -348,7 +348,7 @@ def warm_up() -> float:
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))
-    ck.shared_rows(np.zeros(2), np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
+    ck.shared_rows(np.zeros(2), np.ones((1, 2)), np.zeros((1, 2, 3)), np.ones((1, 2, 3)),
                 np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
                 np.empty((1, 2)), np.empty(1), touching)
     hold_touching_rows(np.zeros(2), touching, A, lo)

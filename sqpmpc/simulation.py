@@ -5,7 +5,11 @@ the controller's, so that the paper's setting is reproduced exactly). At
 every sample ``k`` the controller(s) see the measured states
 :math:`\chi(k)`; decentralized controllers see the plans their neighbours
 published at ``k - 1`` (all robots compute in parallel), optionally with
-messages dropped at random to exercise the paper's communication fallback.
+messages dropped at random to exercise the paper's communication fallback,
+or delivered ``plan_delay`` samples after they were computed (as the
+services' fault injector ``SQPMPC_FAULTS="delay=D"`` does). Each robot's
+``plan_ages`` of step ``k - 1`` are handed to every controller at ``k``, as
+the services' plant relays them with the states.
 
 A run that stops midway (exception, Ctrl-C) keeps what it had:
 :meth:`ClosedLoopSimulation.record` returns the partial record at any time.
@@ -14,6 +18,7 @@ A run that stops midway (exception, Ctrl-C) keeps what it had:
 from __future__ import annotations
 
 import logging
+from collections import deque
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -46,6 +51,10 @@ class SimulationOptions:
         else ``"euler"``, ``"rk4"`` or ``"exact"`` in its place (its input noise kept).
     message_drop_probability
         Decentralized only: probability that a plan message is lost.
+    plan_delay
+        Decentralized only: a plan computed at sample ``k`` reaches the
+        neighbours for their step ``k + plan_delay`` (default 1: the next
+        sample, no delay).
     seed
         Seed of the message-loss generator.
     progress
@@ -55,10 +64,15 @@ class SimulationOptions:
     decentralized_mode: str = "shared"
     plant_discretization: str | None = None
     message_drop_probability: float = 0.0
+    plan_delay: int = 1
     seed: int = 0
     progress: bool = False
 
     def __post_init__(self) -> None:
+        if (isinstance(self.plan_delay, bool) or not isinstance(self.plan_delay, int)
+                or not 1 <= self.plan_delay <= 1000):
+            raise ProblemError(f"plan_delay must be an integer in 1..1000 (samples), got "
+                               f"{self.plan_delay!r}")
         if not 0.0 <= self.message_drop_probability <= 1.0:
             raise ProblemError(
                 f"message_drop_probability must be in [0, 1], got {self.message_drop_probability}"
@@ -119,6 +133,8 @@ class ClosedLoopSimulation:
         self.sqp_iterations = np.zeros(K, dtype=np.int64)
         self.timing = {"assembly_s": 0.0, "qp_s": 0.0, "osqp_solve_s": 0.0, "total_s": 0.0}
         self._plans: dict[int, PlanMessage] = {}
+        self._in_transit: deque[tuple[int, dict[int, PlanMessage]]] = deque()
+        self._plan_ages: dict[int, dict[int, int]] = {}
         self._rng = np.random.default_rng(self.options.seed)
         self.dropped_messages = 0
 
@@ -135,16 +151,21 @@ class ClosedLoopSimulation:
             u = out.inputs
             outs = [out]
         else:
-            outs = [c.step(k, self.t[k], x, self._plans, prev) for c in self.controllers]
+            while self._in_transit and self._in_transit[0][0] <= k:
+                # a lost message leaves the receivers with the older plan, as over a network
+                self._plans.update(self._in_transit.popleft()[1])
+            outs = [c.step(k, self.t[k], x, self._plans, prev, self._plan_ages)
+                    for c in self.controllers]
             u = np.concatenate([o.inputs for o in outs], axis=0)
+            self._plan_ages = {c.robot_id: c.plan_ages for c in self.controllers
+                               if c.plan_ages}
             plans = {}
             for c in self.controllers:
                 if self._rng.random() < self.options.message_drop_probability:
                     self.dropped_messages += 1
                     continue
                 plans[c.robot_id] = c.published
-            # a lost message leaves the receivers with the older plan, as over a network
-            self._plans.update(plans)
+            self._in_transit.append((k + self.options.plan_delay, plans))
         self.horizons[k] = np.concatenate([o.predicted_states for o in outs], axis=0)
         for j, o in enumerate(outs):
             self.solve_times[k, j] = o.compute_time

@@ -43,6 +43,7 @@ def test_free_slots_are_off_and_plans_fill_the_used_ones() -> None:
     N = sc.horizon
     states = sc.initial_states()
     plan = PlanMessage(2, 0, np.tile(states[1], (N + 1, 1)), np.zeros((N, 2)))
+    ctrl.step(0, 0.0, states)  # a shared row needs both plans of sample 0: its own too
     ctrl._predict_neighbours(1, states, {2: plan}, states)
     assert ctrl.collisions.kind.tolist() == [SHARED, OFF]
     assert np.all(np.isneginf(ctrl.collisions.fixed_rhs[1]))  # no row for the free slot

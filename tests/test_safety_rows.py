@@ -84,7 +84,14 @@ def test_shared_slot_with_a_fresh_plan_is_shared() -> None:
     states = sc.initial_states()
     N = sc.horizon
     plan = PlanMessage(2, 2, np.tile(states[1], (N + 1, 1)), np.zeros((N, 2)))
+    ctrl.step(2, 2 * sc.sample_time, states)  # its own plan of sample 2
     ctrl._predict_neighbours(3, states, {2: plan}, states)
     assert ctrl.collisions.kind.tolist() == [SHARED]
     ctrl._predict_neighbours(4, states, {2: plan}, states)  # one sample too old: missing
     assert ctrl.collisions.kind.tolist() == [MISSING]
+    # unless robot 2 reported (relayed by the plant) that its newest plan of robot 1 was
+    # 2 samples old: then both build the pair's row from their plans of sample 2
+    ctrl.step(4, 4 * sc.sample_time, states, {2: plan}, states, plan_ages={2: {1: 2}})
+    assert ctrl.collisions.kind.tolist() == [SHARED]
+    assert ctrl.counters()["older_shared_neighbours"] == 1
+    assert ctrl.plan_ages == {2: 2}  # its own report: robot 2's newest plan is of sample 2
