@@ -72,6 +72,10 @@ __all__ = [
 ]
 
 DecentralizedMode = Literal["shared", "paper"]
+AGE_HOLD = 10
+"""Samples a robot keeps reporting the largest plan age it saw of a neighbour: a plan
+that comes one sample later than usual then costs one sample without a shared row with
+that neighbour, not one every time."""
 PlanAges = Mapping[int, Mapping[int, int]]
 """Per robot id, per neighbour id: the age (samples) of the newest plan of that neighbour
 the robot held at its previous step, as relayed by the plant; a pair not listed: 1."""
@@ -323,6 +327,7 @@ class DecentralizedController(ControllerPipeline):
         self._own_plans: dict[int, PlanMessage | None] = {}
         self._history: dict[int, dict[int, PlanMessage]] = {}
         self._plan_ages_in: PlanAges | None = None
+        self._age_hold: dict[int, tuple[int, int]] = {}  # per neighbour: (age, held until)
         #: per neighbour (slotted at the last step) whose newest plan held then was
         #: ``age >= 2`` samples old: ``age`` (at most ``N + 2``); the services send it with
         #: the input and the plant relays it to every robot with the next states
@@ -436,7 +441,12 @@ class DecentralizedController(ControllerPipeline):
             if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
                 margins[e] = self.context.max_speed * h * min(age - 1, N)
                 self.counts["late_plan_neighbours"] += 1
-                report[jid] = min(age, N + 2)
+            held_age, until = self._age_hold.get(jid, (1, -1))
+            if age >= held_age or sample > until:  # the largest age of the last few samples
+                held_age, until = age, sample + AGE_HOLD - 1
+                self._age_hold[jid] = (held_age, until)
+            if held_age > 1:
+                report[jid] = min(held_age, N + 2)
             if shared:
                 pair = pair_sample(sample, self.robot_id, jid, ages_in)
                 mine = self._own_at(pair, sample, own_cache)
