@@ -265,20 +265,22 @@ neighbour's plan, the plant 2 s for an input.
 
 Rows with a collision (at or between samples): **{len(bad)}**. Arrivals: {stuck_text}.
 
-**Plans late by 2 or more samples: safe, but symmetric encounters jam.** A shared
-hyperplane needs *both* robots to build it from the same pair of plans, and today that
-pair is the plans of the previous sample: a plan 2 samples late is never part of a
-shared row, every neighbour is handled as uncommitted (distance plus one-sample reach
-from its measured position, and the age margin in the soft rows), and robots meeting
-head-on hold each other off (0.4-0.7 m of clearance in the rows above) instead of
-passing.
-Loss does not do this (a lost plan is resent when the plant asks again, and the next
-one is fresh). The fix needs both robots of a pair to agree on an older pair of plans
-from information they share: each input message would carry the newest plan sample its
-robot holds of each neighbour, the plant would relay these in the next state message
-(which both robots receive), and both would build the row from the plans of the older
-of the two samples -- the same row on both sides, whatever the delays (left for a next
-step: it adds fields to two message kinds).
+**Plans late by several samples: shared rows from an agreed older pair of plans.** A
+shared hyperplane is safe when *both* robots build it from the same pair of plans (each
+keeps its half of the distance). Until plans came late that pair was always the plans
+of the previous sample, so with plans 2 samples late no row was shared, every neighbour
+was held off as uncommitted (distance plus one-sample reach) and robots meeting head-on
+jammed (before this change: paper-s2 1/4 and swap-6 0/6 arrived at 2 samples, 0/4 and
+0/6 at 3). Now each input carries the age of the newest plan its robot holds of each
+neighbour that is late (`plan_ages`, the largest of the last 10 samples), the plant
+relays the inputs' `plan_ages` with the next states, and both robots of a pair build
+their row from their plans of sample `k - a`, `a` the larger of the two ages
+(`sqpmpc.controllers.pair_sample`): the same number on both sides, from the same
+message. A robot that does not hold both plans of that sample (a plan later than
+usual) handles the pair as missing for that sample, which is safe whatever the other
+does. Stage 1 is clipped to the measured positions as before, so how old the plans
+are changes where the line lies, never whether standing still is feasible. The
+`older_shared_neighbours` counter (`sqpmpc metrics`) counts the rows built so.
 
 ## What makes this hold
 
@@ -299,9 +301,9 @@ step: it adds fields to two message kinds).
   `Traceback` lines in every process's output.
 - **Late and lost plans are designed for** (`sqpmpc/controllers.py`): stage 1 and the
   first-input check use the measured positions and keep distance plus one-sample reach
-  from a neighbour without a fresh plan; a shared row needs both plans of the previous
-  sample; a neighbour whose newest plan is `a >= 2` samples old gets `v_max Ts
-  min(a - 1, N)` more room in the soft rows.
+  from a neighbour without a fresh plan; a shared row needs both robots' plans of the
+  pair's agreed sample (above); a neighbour whose newest plan is `a >= 2` samples old
+  gets `v_max Ts min(a - 1, N)` more room in the soft rows.
 - **Records survive a crash**: the plant appends every sample to `record.msgpack`
   (flushed each sample); `sqpmpc metrics RUN_DIR` rebuilds `metrics.json` and
   `trajectory.npz` from it (the *kill -9 plant* rows).
