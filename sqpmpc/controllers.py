@@ -73,9 +73,10 @@ __all__ = [
 
 DecentralizedMode = Literal["shared", "paper"]
 AGE_HOLD = 10
-"""Samples a robot keeps reporting the largest plan age it saw of a neighbour: a plan
-that comes one sample later than usual then costs one sample without a shared row with
-that neighbour, not one every time."""
+"""Samples a robot keeps reporting the largest plan age it saw of a neighbour whose plans
+come late (late at two steps in a row: one lost plan is not reported): a plan that comes
+one sample later than usual then costs one sample without a shared row with that
+neighbour, not one every time."""
 PlanAges = Mapping[int, Mapping[int, int]]
 """Per robot id, per neighbour id: the age (samples) of the newest plan of that neighbour
 the robot held at its previous step, as relayed by the plant; a pair not listed: 1."""
@@ -327,7 +328,8 @@ class DecentralizedController(ControllerPipeline):
         self._own_plans: dict[int, PlanMessage | None] = {}
         self._history: dict[int, dict[int, PlanMessage]] = {}
         self._plan_ages_in: PlanAges | None = None
-        self._age_hold: dict[int, tuple[int, int]] = {}  # per neighbour: (age, held until)
+        # per neighbour: (age at the last step, largest age of the last samples, held until)
+        self._age_hold: dict[int, tuple[int, int, int]] = {}
         #: per neighbour (slotted at the last step) whose newest plan held then was
         #: ``age >= 2`` samples old: ``age`` (at most ``N + 2``); the services send it with
         #: the input and the plant relays it to every robot with the next states
@@ -441,11 +443,11 @@ class DecentralizedController(ControllerPipeline):
             if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
                 margins[e] = self.context.max_speed * h * min(age - 1, N)
                 self.counts["late_plan_neighbours"] += 1
-            held_age, until = self._age_hold.get(jid, (1, -1))
+            previous, held_age, until = self._age_hold.get(jid, (1, 1, -1))
             if age >= held_age or sample > until:  # the largest age of the last few samples
                 held_age, until = age, sample + AGE_HOLD - 1
-                self._age_hold[jid] = (held_age, until)
-            if held_age > 1:
+            self._age_hold[jid] = (age, held_age, until)
+            if min(age, previous) > 1:  # late twice in a row: delayed, not one plan lost
                 report[jid] = min(held_age, N + 2)
             if shared:
                 pair = pair_sample(sample, self.robot_id, jid, ages_in)

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import DecentralizedController
+from sqpmpc.collision import SHARED
+from sqpmpc.controllers import DecentralizedController, pair_sample
 from sqpmpc.metrics import compute_metrics
+from sqpmpc.model import discrete_dynamics
 from sqpmpc.scenario import load_scenario
 from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
 
@@ -42,3 +44,69 @@ def test_lost_plans_never_cause_a_collision(name):
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert rec.extra["counters"]["late_plan_neighbours"] > 0
     assert np.isfinite(rec.states).all()
+
+
+def _arrived(rec, scenario, tolerance: float = 0.05) -> np.ndarray:
+    k = rec.states.shape[0] - 1
+    goal = scenario.reference_positions(k * scenario.sample_time)
+    return np.hypot(*(rec.states[-1, :, :2] - goal).T) <= tolerance
+
+
+@pytest.mark.parametrize("name", ["head-on", "swap-6"])
+def test_plans_two_samples_late_share_older_rows_and_every_robot_arrives(name):
+    # without the relayed plan ages no row is shared and these encounters jam (3-4 m short)
+    scenario = load_scenario(name)
+    sim = ClosedLoopSimulation(scenario, "decentralized", options=SimulationOptions(plan_delay=2))
+    rec = sim.run()
+    m = compute_metrics(rec)
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert _arrived(rec, scenario).all()
+    assert rec.extra["counters"]["older_shared_neighbours"] > 0
+
+
+def test_both_robots_of_a_pair_build_the_same_row_whatever_the_delays():
+    # every plan reaches each receiver 1 to 3 samples late (drawn per message and
+    # receiver); whenever both robots of a pair share a row, it is one line: opposite
+    # normals, halves adding up to the distance, first-stage checks adding up to it
+    scenario = load_scenario("swap-6").with_changes(t_end=20.0)
+    ts, n = scenario.sample_time, scenario.n_robots
+    ctrl = [DecentralizedController(scenario, int(i)) for i in scenario.ids]
+    ids = [c.robot_id for c in ctrl]
+    rng = np.random.default_rng(4)
+    x = scenario.initial_states()
+    in_transit: list[tuple[int, int, object]] = []  # (due sample, receiver, plan)
+    ages: dict[int, dict[int, int]] = {}
+    required = scenario.required_distances()
+    margin = ctrl[0].settings.collision_margin
+    shared_pairs = older = 0
+    for k in range(scenario.steps):
+        for _due, r, plan in [t for t in in_transit if t[0] <= k]:
+            ctrl[r].update_neighbour_plan(plan)
+        in_transit = [t for t in in_transit if t[0] > k]
+        outs = [c.step(k, k * ts, x, None, None, ages) for c in ctrl]
+        ages = {c.robot_id: dict(c.plan_ages) for c in ctrl if c.plan_ages}
+        for a in range(n):
+            for b in range(a + 1, n):
+                ea = dict((j, e) for e, j in ctrl[a]._neighbours)[ids[b]]
+                eb = dict((j, e) for e, j in ctrl[b]._neighbours)[ids[a]]
+                ca, cb = ctrl[a].collisions, ctrl[b].collisions
+                if not (ca.kind[ea] == SHARED and cb.kind[eb] == SHARED):
+                    continue
+                shared_pairs += 1
+                older += pair_sample(k, ids[a], ids[b], None) != pair_sample(k, ids[a], ids[b],
+                                                                            ages or None)
+                np.testing.assert_array_equal(ca.fixed_normals[ea], -cb.fixed_normals[eb])
+                np.testing.assert_array_equal(ca.check_normals[ea], -cb.check_normals[eb])
+                first = 2 if ca.touching[ea] else 1  # a touching pair holds stage 2 alone
+                np.testing.assert_allclose(ca.fixed_rhs[ea, first:] + cb.fixed_rhs[eb, first:],
+                                           required[a, b] + margin, rtol=0, atol=1e-9)
+                gap = float(ca.check_normals[ea] @ (x[a, :2] - x[b, :2]))
+                assert ca.check_rhs[ea] + cb.check_rhs[eb] == pytest.approx(
+                    min(required[a, b], gap), abs=1e-9)
+        for r, c in enumerate(ctrl):
+            for other in range(n):
+                if other != r:
+                    in_transit.append((k + int(rng.integers(1, 4)), other, c.published))
+        x = np.array([discrete_dynamics(x[j], outs[j].inputs[0], ts, "euler")
+                      for j in range(n)])
+    assert shared_pairs > 100 and older > 0
