@@ -74,7 +74,11 @@ def _valid_messages() -> list[bytes]:
             encode(CmdMsg(2, 3, rng.normal(size=2), 0.01, None, 0, {"samples": 3})),
             encode(PlanMsg(2, 3, 1.5, 1.7e9, rng.normal(size=(N + 1, 3)),
                            rng.normal(size=(N, 2)))),
-            encode(DoneMsg(80, True))]
+            encode(DoneMsg(80, True)),
+            # the plan ages a cmd carries and the plant relays with the next states
+            encode(CmdMsg(2, 3, rng.normal(size=2), 0.01, None, 0, None, {1: 2, 4: 3})),
+            encode(StateMsg(4, 2.0, IDS, rng.normal(size=(4, 3)), None, "abc",
+                            {2: {1: 2, 4: 3}, 3: {1: N + 2}}))]
 
 
 VALID = _valid_messages()
@@ -89,6 +93,12 @@ def _check_payload(payload: bytes) -> None:
         except InvalidMessage:
             continue
         # a message that passes is well formed: the policy decides on it without raising
+        if isinstance(msg, StateMsg | CmdMsg):  # relayed plan ages: known pairs, in range
+            relay = (msg.plan_ages or {}) if isinstance(msg, StateMsg) else {
+                msg.id: msg.plan_ages or {}}
+            for rid, ages in relay.items():
+                assert rid in IDS and all(j in IDS and j != rid and 1 <= a <= N + 2
+                                          for j, a in ages.items())
         if isinstance(msg, StateMsg):
             assert msg.x.shape == (4, 3) and np.isfinite(msg.x).all()
             assert isinstance(policy.state(StateCursor(10), msg.sample, msg.t).verdict, Verdict)

@@ -1,10 +1,16 @@
-"""Late and lost plans in the decentralized controller: the age margin, and safety."""
+"""Late and lost plans in the decentralized controller: the age margin, shared rows from an
+agreed older pair of plans, and safety (in process and in the services)."""
 
 from __future__ import annotations
+
+import json
+import os
 
 import numpy as np
 import pytest
 
+from services.faults import ENV
+from services.testing import free_ports, start_service, stop_processes
 from sqpmpc.collision import SHARED
 from sqpmpc.controllers import DecentralizedController, pair_sample
 from sqpmpc.metrics import compute_metrics
@@ -110,3 +116,36 @@ def test_both_robots_of_a_pair_build_the_same_row_whatever_the_delays():
         x = np.array([discrete_dynamics(x[j], outs[j].inputs[0], ts, "euler")
                       for j in range(n)])
     assert shared_pairs > 100 and older > 0
+
+
+@pytest.mark.timeout(180)
+def test_services_with_plans_two_samples_late_arrive_without_collision(tmp_path):
+    # the plant and one process per robot over Zenoh on loopback, every plan held back 2
+    # samples by the transport's fault injector: the plan ages ride on the inputs and the
+    # states, and the head-on pair passes instead of holding each other off
+    ports = free_ports(3)
+    plant_ep = f"tcp/127.0.0.1:{ports[0]}"
+    common = ["--scenario", "head-on", "--run", "late"]
+    env = {**os.environ, ENV: "delay=2,kinds=plan"}
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--out",
+                                    str(tmp_path / "out"), "--no-plots", "--timeout", "5"],
+                          tmp_path / "logs", env=env)
+    robots = [start_service("robot", ["--id", str(i), *common, "--listen",
+                                      f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
+                                      "--timeout", "0.2"],
+                            tmp_path / "logs", name=f"robot-{i}", env=env)
+              for i, port in zip((1, 2), ports[1:], strict=True)]
+    try:
+        assert plant.wait(150) == 0, plant.output()
+        for r in robots:
+            assert r.wait(30) == 0, r.output()
+    finally:
+        stop_processes([plant, *robots])
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert m["completed"] is True
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["counters"]["older_shared_neighbours"] > 0
+    scenario = load_scenario("head-on")
+    final = np.load(tmp_path / "out" / "trajectory.npz")["states"][-1, :, :2]
+    goal = scenario.reference_positions(scenario.steps * scenario.sample_time)
+    assert (np.hypot(*(final - goal).T) <= 0.05).all()

@@ -204,6 +204,52 @@ def test_wrong_values_in_a_cmd_are_refused(field, value):
         decode(_raw(body), N)
 
 
+def test_plan_ages_round_trip_and_default_to_none():
+    cmd = CmdMsg(3, 7, np.zeros(2), 1e-4, None, 0, None, {1: 2, 4: N + 2})
+    assert decode(encode(cmd), N).plan_ages == {1: 2, 4: N + 2}
+    state = StateMsg(8, 4.0, IDS, np.zeros((4, 3)), None, "abc", {3: {1: 2, 4: 3}, 2: {}})
+    assert decode(encode(state), N).plan_ages == {3: {1: 2, 4: 3}}  # empty: not sent
+    assert decode(encode(_state()), N).plan_ages is None
+    assert decode(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), N).plan_ages is None
+
+
+@pytest.mark.parametrize("value", [
+    {}, [[1]], [[1, 2, 3]], [["1", 2]], [[1, 2.0]], [[1, 0]], [[1, N + 3]], [[1, 2], [1, 3]],
+    [[1, True]], [[1, 2]] * 5000,
+])
+def test_wrong_plan_ages_in_a_cmd_are_refused(value):
+    body = _body(CmdMsg(2, 0, np.zeros(2), 0.0))
+    body["plan_ages"] = value
+    with pytest.raises(InvalidMessage, match="plan_ages"):
+        decode(_raw(body), N)
+
+
+@pytest.mark.parametrize("value", [
+    {}, [[1]], [[1, [[2, 2]], 3]], [["1", [[2, 2]]]], [[1, [[2, 0]]]], [[1, {}]],
+    [[1, [[2, 2]]], [1, [[3, 2]]]], [[i, [[1, 2]] * 1000] for i in range(5)],
+])
+def test_wrong_plan_ages_in_a_state_are_refused(value):
+    body = _body(_state())
+    body["plan_ages"] = value
+    with pytest.raises(InvalidMessage, match="plan_ages"):
+        decode(_raw(body), N)
+
+
+def test_validator_refuses_plan_ages_of_unknown_robots_or_of_oneself():
+    v = _validator()
+    for ages, match in (({7: 2}, "names robot 7"), ({2: 2}, "names robot 2")):
+        with pytest.raises(InvalidMessage, match=match):
+            v.check(encode(CmdMsg(2, 0, np.zeros(2), 0.0, plan_ages=ages)), "cmd", 2)
+    x = np.zeros((4, 3))
+    for ages, match in (({9: {1: 2}}, "unknown robot id 9"), ({1: {1: 2}}, "names robot 1"),
+                        ({1: {5: 2}}, "names robot 5")):
+        with pytest.raises(InvalidMessage, match=match):
+            v.check(encode(StateMsg(0, 0.0, IDS, x, None, "abc", ages)), "state")
+    assert v.invalid == 5
+    ok = v.check(encode(StateMsg(0, 0.0, IDS, x, None, "abc", {1: {2: 3}})), "state")
+    assert ok.plan_ages == {1: {2: 3}}
+
+
 @pytest.mark.parametrize("ids", [[], [1, 2, "3", 4], "1234", None])
 def test_bad_state_ids_are_refused(ids):
     body = _body(_state())
