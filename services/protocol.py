@@ -28,6 +28,12 @@ kind       receiver    rule (``K`` samples, ``Ts``, ``N``; ``c`` the receiver's 
 ``done``   controller  ``c <= k <= K`` and ``completed`` only with ``k = K``; else refused
 =========  ==========  ======================================================================
 
+The ``plan_ages`` a ``cmd`` carries (checked by :class:`~services.messages.MessageValidator`:
+neighbours of the sender, ages ``1..N+2``) are relayed by the plant with the states of
+``k + 1`` only for the inputs it applied at ``k`` (accepted by the ``cmd`` row): a stale,
+refused or forged-ahead input relays nothing, and every robot reads the same relay in the
+same state message.
+
 Repeats are not errors (the plant re-publishes a sample's states while inputs
 are missing, :mod:`services.plant`); stale messages are counted apart from
 invalid ones. ``tests/test_protocol.py`` checks every row.

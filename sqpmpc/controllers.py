@@ -19,15 +19,52 @@ full distance as an obstacle.
 on plans arriving: stage 1 and the first-input check use the *measured*
 positions of sample ``k``; a neighbour without a fresh plan (late, lost,
 never sent) is kept at its distance plus its one-sample reach ``v_max Ts``
-(``missing-neighbour-reach``), and a shared row is built only when both
-robots hold each other's plan of ``k - 1`` (if only one does, the other keeps
-distance plus reach from it, which covers any move of the first). What plan
-age changes is the soft stages 2..N: a neighbour whose newest plan seen is
-``a >= 2`` samples old has re-planned ``a - 1`` times unseen, so its obstacle
-or missing rows ask for ``v_max Ts min(a - 1, N)`` more distance (in the
-spirit of RMADER's delay check; counted in ``late_plan_neighbours``). A
-neighbour never heard from (the first sample) gets no extra margin: a run
-without loss is unchanged.
+(``missing-neighbour-reach``). What plan age changes is the soft stages
+2..N: a neighbour whose newest plan seen is ``a >= 2`` samples old has
+re-planned ``a - 1`` times unseen, so its obstacle or missing rows ask for
+``v_max Ts min(a - 1, N)`` more distance (in the spirit of RMADER's delay
+check; counted in ``late_plan_neighbours``). A neighbour never heard from (the
+first sample) gets no extra margin: a run without loss is unchanged.
+
+**Which plans a shared row is built from.** The pair ``(j, l)`` shares a row at
+sample ``k`` built from *both robots' plans of one sample* ``s``, which both
+compute alike with :func:`pair_sample` from the ``plan_ages`` every robot
+reported at its step ``k - 1`` (the age of the newest plan it held of each
+late neighbour, the services' input message carries it and the plant relays
+it with the states of ``k``, the same message to every robot): ``s = k - a``,
+``a`` the larger of the two robots' ages for each other (``k - 1`` when
+neither reported one). With plans ``D`` samples late that is ``k - D``, whose
+plans both hold; without delay it is ``k - 1``. The argument:
+
+1. *Same row or none.* Each robot builds the pair's row from the measured
+   positions of ``k`` (one state message), the two plans of ``s`` shifted
+   ``k - s`` stages by the same code (its own as it published it, the other's
+   as received: msgpack float64 is exact), the scenario's distance and the
+   rules' row geometry, which is antisymmetric in the pair; so if both build
+   it, ``j`` keeps :math:`n^\top p_j \ge c + d/2` and ``l`` keeps
+   :math:`-n^\top p_l \ge -c + d/2`, and together :math:`n^\top(p_j - p_l)
+   \ge d`. A robot that does not hold both plans of ``s`` (a plan later than
+   usual, lost, or a sample it published twice after a forged state) treats
+   the neighbour as *missing*: it keeps distance plus the neighbour's
+   one-sample reach from its measured position, which holds whatever the
+   neighbour does within its bounds, shared row or not.
+2. *The age of the plans does not enter stage 1's feasibility.* The stage-1
+   offset ``c`` is clipped so that both measured positions are on their sides
+   (and overridden by the current normal when the row's normal would not keep
+   them apart): standing still satisfies stage 1 whatever plans the line came
+   from, so the QP stays feasible and the first-input check (the whole path of
+   the sample, against the same half-plane) accepts at least stopping. Older
+   plans only move the line (stages 2..N are soft): the row constrains the
+   robots' *new* plans, which both satisfy from the opposite sides.
+3. *Forged relays* can only change which common ``s`` both use (every robot
+   reads the same state message), never make the two sides differ; a state
+   message that differs between robots is outside this argument as it is for
+   the measured positions themselves (authenticated runs, ``docs/security.md``).
+
+Ages are reported only for neighbours late at two steps in a row (one lost
+plan keeps the pair on ``k - 1``), and the largest age of the last
+:data:`AGE_HOLD` samples is kept, so a plan one sample later than usual costs
+one sample without that shared row, not one per jitter.
 """
 
 from __future__ import annotations
