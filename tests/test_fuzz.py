@@ -76,9 +76,10 @@ def _valid_messages() -> list[bytes]:
                            rng.normal(size=(N, 2)))),
             encode(DoneMsg(80, True)),
             # the plan ages a cmd carries and the plant relays with the next states
-            encode(CmdMsg(2, 3, rng.normal(size=2), 0.01, None, 0, None, {1: 2, 4: 3})),
+            encode(CmdMsg(2, 3, rng.normal(size=2), 0.01, None, 0,
+                          plan_ages={1: 2, 4: 3})),
             encode(StateMsg(4, 2.0, IDS, rng.normal(size=(4, 3)), None, "abc",
-                            {2: {1: 2, 4: 3}, 3: {1: N + 2}}))]
+                            plan_ages={2: {1: 2, 4: 3}, 3: {1: N + 2}}))]
 
 
 VALID = _valid_messages()

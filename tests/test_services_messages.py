@@ -205,9 +205,10 @@ def test_wrong_values_in_a_cmd_are_refused(field, value):
 
 
 def test_plan_ages_round_trip_and_default_to_none():
-    cmd = CmdMsg(3, 7, np.zeros(2), 1e-4, None, 0, None, {1: 2, 4: N + 2})
+    cmd = CmdMsg(3, 7, np.zeros(2), 1e-4, None, 0, plan_ages={1: 2, 4: N + 2})
     assert decode(encode(cmd), N).plan_ages == {1: 2, 4: N + 2}
-    state = StateMsg(8, 4.0, IDS, np.zeros((4, 3)), None, "abc", {3: {1: 2, 4: 3}, 2: {}})
+    state = StateMsg(8, 4.0, IDS, np.zeros((4, 3)), None, "abc",
+                     plan_ages={3: {1: 2, 4: 3}, 2: {}})
     assert decode(encode(state), N).plan_ages == {3: {1: 2, 4: 3}}  # empty: not sent
     assert decode(encode(_state()), N).plan_ages is None
     assert decode(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), N).plan_ages is None
@@ -244,9 +245,10 @@ def test_validator_refuses_plan_ages_of_unknown_robots_or_of_oneself():
     for ages, match in (({9: {1: 2}}, "unknown robot id 9"), ({1: {1: 2}}, "names robot 1"),
                         ({1: {5: 2}}, "names robot 5")):
         with pytest.raises(InvalidMessage, match=match):
-            v.check(encode(StateMsg(0, 0.0, IDS, x, None, "abc", ages)), "state")
+            v.check(encode(StateMsg(0, 0.0, IDS, x, None, "abc", plan_ages=ages)), "state")
     assert v.invalid == 5
-    ok = v.check(encode(StateMsg(0, 0.0, IDS, x, None, "abc", {1: {2: 3}})), "state")
+    ok = v.check(encode(StateMsg(0, 0.0, IDS, x, None, "abc", plan_ages={1: {2: 3}})),
+                 "state")
     assert ok.plan_ages == {1: {2: 3}}
 
 
