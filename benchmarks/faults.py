@@ -21,8 +21,10 @@ process per robot, Zenoh peer-to-peer on loopback) with one fault:
   numbers are of the recovered part).
 
 Columns: collisions (at samples / between samples), smallest clearance (at /
-between samples), robots arrived (within 0.05 m of their reference at the
-end; a killed robot cannot) and the largest distance to it, missed deadlines
+between samples), robots arrived (within 0.05 m of a fixed goal at the
+end; for references still moving at the end, within the largest tracking error of the
+last tenth of the undisturbed in-process run: :func:`arrival_tolerance`; a killed robot
+cannot) and the largest distance to it, missed deadlines
 (inputs the plant had to brake for), fallbacks (controller steps that applied a
 fallback), lockstep timeouts, invalid messages counted, plus the loop's wall time.
 Then the property-based tests of ``tests/test_fuzz.py`` with ``--fuzz-examples``
@@ -50,6 +52,7 @@ from services.node import scenario_digest
 from services.testing import Probe, free_ports, start_service, stop_processes
 from sqpmpc.runlog import read_record
 from sqpmpc.scenario import load_scenario
+from sqpmpc.simulation import ClosedLoopSimulation
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "reliability.md"
@@ -114,7 +117,36 @@ def _inject(kind: str, probe: Probe, scenario, seen: set[bytes]) -> None:
             probe.put(e.payload, *parts)
 
 
-def run_case(name: str, fault: dict[str, object], scenario_name: str, work: Path) -> dict:
+def arrival_tolerance(scenario_name: str) -> tuple[float, str]:
+    """How close to its reference a robot must end to count as arrived, and why.
+
+    A fixed goal: ``ARRIVAL`` (0.05 m). A reference still moving at the end (paper-s2's
+    harmonic ones) has no arrival, only tracking: the tolerance is then the largest
+    tracking error over the last tenth of the in-process run of the same scenario
+    without any fault (computed here, in the same run of the benchmark), so a robot
+    counts as arrived when it ends as close to its reference as the undisturbed
+    controller keeps it; a jam ends metres away.
+    """
+    scenario = load_scenario(scenario_name)
+    t_end = scenario.steps * scenario.sample_time
+    moving = not np.allclose(scenario.reference_positions(t_end),
+                             scenario.reference_positions(t_end - scenario.sample_time))
+    if not moving:
+        return ARRIVAL, "fixed goals: within 0.05 m"
+    record = ClosedLoopSimulation(scenario, "decentralized").run()
+    tail = max(1, record.states.shape[0] // 10)
+    err = [np.hypot(*(record.states[j, :, :2]
+                      - scenario.reference_positions(record.t[j])).T)
+           for j in range(record.states.shape[0] - tail, record.states.shape[0])]
+    band = float(np.max(err))
+    return max(ARRIVAL, band), (
+        f"moving references: within {band:.3f} m, the largest tracking error over the last "
+        f"{tail} samples of the in-process run without faults (its final error "
+        f"{float(np.max(err[-1])):.3f} m)")
+
+
+def run_case(name: str, fault: dict[str, object], scenario_name: str, work: Path,
+             tolerance: float = ARRIVAL) -> dict:
     """One run with one fault; returns the row."""
     scenario = load_scenario(scenario_name)
     ids = [int(i) for i in scenario.ids]
@@ -180,7 +212,7 @@ def run_case(name: str, fault: dict[str, object], scenario_name: str, work: Path
         "scenario": scenario_name, "fault": name, "steps": f"{k}/{scenario.steps}",
         "collisions": f"{m['collisions']} / {m.get('intersample_collisions')}",
         "clearance": f"{m['min_clearance']:.4f} / {m.get('intersample_min_clearance', 0):.4f}",
-        "arrived": f"{int((err <= ARRIVAL).sum())}/{len(ids)}", "error": f"{err.max():.3f}",
+        "arrived": f"{int((err <= tolerance).sum())}/{len(ids)}", "error": f"{err.max():.3f}",
         "missed": m.get("missed_deadlines"), "fallbacks": m.get("solver_failures"),
         "timeouts": m.get("lockstep_timeouts", "-"), "invalid": m.get("invalid_messages", "-"),
         "wall": f"{wall:.0f}", "tracebacks": logs.count("Traceback"),
@@ -227,12 +259,15 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     t0 = time.monotonic()
+    tolerances = {}
     for scenario in args.scenarios:
+        tolerances[scenario] = arrival_tolerance(scenario)
+        print(f"{scenario}: arrived = {tolerances[scenario][1]}", flush=True)
         for name, fault in FAULTS.items():
             if args.only and name not in args.only:
                 continue
             with TemporaryDirectory() as tmp:
-                row = run_case(name, fault, scenario, Path(tmp))
+                row = run_case(name, fault, scenario, Path(tmp), tolerances[scenario][0])
             rows.append(row)
             print(_table([row]).splitlines()[-1], flush=True)
     fuzz = _fuzz(args.fuzz_examples) if args.fuzz_examples else ("skipped", 0.0)
@@ -241,13 +276,15 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     print(f"fuzzing ({args.fuzz_examples} examples per property): {fuzz[0]} ({fuzz[1]:.0f} s)")
     if not args.no_write and not args.only:
-        OUT.write_text(_doc(table, rows, fuzz, args.fuzz_examples, started, total))
+        OUT.write_text(_doc(table, rows, fuzz, args.fuzz_examples, started, total,
+                            tolerances))
         print(f"wrote {OUT}")
     return 0
 
 
 def _doc(table: str, rows: list[dict], fuzz: tuple[str, float], examples: int,
-         started: str, total: float) -> str:
+         started: str, total: float, tolerances: dict[str, tuple[float, str]]) -> str:
+    criteria = "; ".join(f"{name}: {why}" for name, (_, why) in tolerances.items())
     bad = [r for r in rows if not r["ok"]]
     stuck = [f"{r['scenario']} / {r['fault']} ({r['arrived']})" for r in rows
              if r["arrived"] != "-" and r["arrived"].split("/")[0] != r["arrived"].split("/")[1]
@@ -266,13 +303,13 @@ neighbour's plan, the plant 2 s for an input.
 {table}
 
 Rows with a collision (at or between samples): **{len(bad)}**. Arrivals: {stuck_text}.
-paper-s2's references are harmonic (they keep moving to the end): *arrived* there is the
-tracking error at the last sample, and in the in-process run without any fault all four
-robots are within 0.05 m of their references at only 32 of the last 101 samples (largest
-error over them 0.156 m, 0.038 m at the last one); so a row whose robots pass each other
-ends anywhere between about 0.03 and 0.06 m from the references (its *arrived* is then a
-matter of phase), while a jam ends metres away (0.4-0.7 m of clearance held). swap-6's
-goals are fixed.
+*Arrived* ({criteria}). paper-s2's references are harmonic and keep moving to the end,
+so there is no arrival, only tracking: the in-process run without any fault is within
+0.05 m of its references at only 32 of its last 101 samples (0.038 m at the last one),
+and a row whose robots pass each other ends anywhere between about 0.03 and 0.06 m from
+them (a strict 0.05 m would be a matter of phase), while a jam ends metres away (0.4-0.7
+m of clearance held); the *largest final error* column gives the number. swap-6's goals
+are fixed.
 
 **Plans late by several samples: shared rows from an agreed older pair of plans.** A
 shared hyperplane is safe when *both* robots build it from the same pair of plans (each
