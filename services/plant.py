@@ -15,7 +15,10 @@ seconds (default 10) it writes a status line to stderr (sample, time, smallest
 clearance so far, braked inputs).
 
 Before sample 0 it waits (up to ``--startup-timeout``) for the liveliness of
-every controller of the scheme. Then, at every sample ``k``, it publishes the
+every controller of the scheme (one may still join later). A run in which some
+robot's controller never sent an input ends with one error line naming the
+robots, which were braked all along, and status 3 (``never_controlled`` in
+``metrics.json``). Then, at every sample ``k``, it publishes the
 states of all robots (one message) and collects one ``cmd`` per robot:
 
 - ``lockstep``: it advances as soon as every robot whose controller is alive
@@ -336,6 +339,7 @@ class PlantNode(Node):
             "run": self.bus.prefix.rsplit("/", 1)[-1],
             "missed_deadlines": int(sum(self.missed.values())),
             "missed_deadlines_by_robot": {str(i): int(v) for i, v in self.missed.items()},
+            "never_controlled": self.never_controlled(),
             "late_commands": int(self.late_commands),
             "lockstep_timeouts": int(self.timeouts),
             "republished_states": int(self.republished),
@@ -360,6 +364,10 @@ class PlantNode(Node):
                          k == self.scenario.steps, extra,
                          self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
                          horizons=self.horizons[:k].copy())
+
+    def never_controlled(self) -> list[int]:
+        """Robots no input ever came for in the samples run (braked all along)."""
+        return [int(rid) for rid in self.ids if self.k > 0 and self.missed[rid] >= self.k]
 
     def finish(self) -> None:
         """Tell the controllers the run is over."""
@@ -444,7 +452,8 @@ def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status (0 completed, 2 bad input or a controller
-    with other settings, 128+signal, 1 otherwise)."""
+    with other settings, 3 completed but some robot's controller never sent an input,
+    128+signal, 1 otherwise)."""
     args = build_parser(prog).parse_args(argv)
     setup_logging(args.log_level, "plant")
     scenario = scenario_from_args(prog, args)
@@ -475,6 +484,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             print(f"wrote {out}")
     if node.refused:
         return 2
+    absent = record.extra.get("never_controlled") or []
+    if record.completed and absent and not failed:
+        log.error("no controller ever sent an input for robots %s: they were braked for the "
+                  "whole run (start their controllers with the same --run and endpoints)",
+                  ", ".join(map(str, absent)))
+        return 3
     if record.completed and not failed:
         return 0
     sig = node.signals.get("signal")

@@ -295,3 +295,22 @@ def test_lockstep_fleet_with_neighbour_slots_reproduces_the_in_process_run(tmp_p
     m = _metrics(out)
     assert m["collisions"] == 0 and m["counters"] == reference.extra["counters"]
     assert m["counters"]["unslotted_neighbours"] > 0  # the budget was exceeded
+
+
+def test_a_run_no_controller_ever_answered_is_not_a_success(tmp_path):
+    """The plant alone: it runs its samples braking every robot, then says so and exits 3."""
+    (port,) = free_ports(1)
+    plant = start_service("plant", ["--scenario", SCENARIO, "--t-end", "1.5", "--run",
+                                    "alone", "--listen", f"tcp/127.0.0.1:{port}",
+                                    "--startup-timeout", "0.5", "--timeout", "0.2",
+                                    "--out", str(tmp_path / "out"), "--no-plots"],
+                          tmp_path / "logs")
+    try:
+        assert plant.wait(60) == 3, plant.output()
+    finally:
+        stop_processes([plant])
+    m = _metrics(tmp_path / "out")
+    assert m["completed"] is True and m["never_controlled"] == [1, 2, 3, 4]
+    assert m["missed_deadlines"] == 4 * m["steps"]
+    assert "no controller ever sent an input for robots 1, 2, 3, 4" in plant.output()
+    assert "Traceback" not in plant.output()
