@@ -56,6 +56,7 @@ __all__ = [
     "identities",
     "identity_of",
     "main",
+    "read_meta",
     "session_config",
     "write_credentials",
 ]
@@ -236,6 +237,25 @@ def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "bo
     return configs
 
 
+def read_meta(folder: Path) -> dict[str, Any]:
+    """What a credentials folder was made for (its ``META_FILE``: run, scenario, identities).
+
+    Raises
+    ------
+    ProblemError
+        The file is missing or not a JSON object.
+    """
+    try:
+        meta = json.loads((Path(folder) / META_FILE).read_text())
+    except (OSError, ValueError) as exc:
+        raise ProblemError(f"--credentials {folder}: cannot read {META_FILE} ({exc}); make "
+                           "the folder with 'sqpmpc credentials'") from exc
+    if not isinstance(meta, dict):
+        raise ProblemError(f"--credentials {folder}: {META_FILE} is not a JSON object; make "
+                           "the folder with 'sqpmpc credentials'")
+    return meta
+
+
 def config_for(args: argparse.Namespace, name: str) -> Path | None:
     """The Zenoh config file of process ``name`` (liveliness name) from ``--zenoh-config``
     or ``--credentials DIR``; ``None`` when neither was given.
@@ -256,11 +276,7 @@ def config_for(args: argparse.Namespace, name: str) -> Path | None:
     if folder is None:
         return None
     folder = Path(folder)
-    try:
-        meta = json.loads((folder / META_FILE).read_text())
-    except (OSError, ValueError) as exc:
-        raise ProblemError(f"--credentials {folder}: cannot read {META_FILE} ({exc}); make "
-                           "the folder with 'sqpmpc credentials'") from exc
+    meta = read_meta(folder)
     run = getattr(args, "run", None)
     if run is not None and meta.get("run") != run:
         raise ProblemError(f"--credentials {folder} were made for run {meta.get('run')!r}, "

@@ -68,7 +68,7 @@ from sqpmpc.options import (
 )
 from sqpmpc.reporting import STATUS_PERIOD
 
-from .credentials import META_FILE, config_for, write_credentials
+from .credentials import config_for, read_meta, write_credentials
 from .node import install_signal_handlers, options_of, scenario_from_args
 from .plant import summarize
 
@@ -273,8 +273,8 @@ def _run_of(credentials: Path | None) -> str | None:
     if credentials is None:
         return None
     try:
-        run = json.loads((credentials / META_FILE).read_text()).get("run")
-    except (OSError, ValueError, AttributeError):
+        run = read_meta(credentials).get("run")
+    except ProblemError:
         return None  # config_for names the problem
     return run if isinstance(run, str) else None
 

@@ -48,7 +48,8 @@ import logging
 import math
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,6 +64,7 @@ __all__ = [
     "COLLISION_TOLERANCE",
     "BOUND_TOLERANCE",
     "RunRecord",
+    "atomic_path",
     "compute_metrics",
     "intersample_distances",
     "load_trajectory",
@@ -434,14 +436,16 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
     return _jsonable(metrics)
 
 
-def _atomic_write(path: Path, write: Callable[[Any], None], mode: str) -> None:
-    """Write through ``write(fileobj)`` to a temporary file, then rename onto ``path``."""
+@contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary file beside ``path`` to write, renamed onto ``path`` when the block
+    ends normally and removed when it raises: ``path`` is either complete or untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
     try:
-        with os.fdopen(fd, mode) as fh:
-            write(fh)
+        yield Path(tmp)
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary files
         os.replace(tmp, path)
     except BaseException:
@@ -450,6 +454,12 @@ def _atomic_write(path: Path, write: Callable[[Any], None], mode: str) -> None:
         except OSError:
             pass
         raise
+
+
+def _atomic_write(path: Path, write: Callable[[Any], None], mode: str) -> None:
+    """Write through ``write(fileobj)`` to a temporary file, then rename onto ``path``."""
+    with atomic_path(path) as tmp, open(tmp, mode) as fh:
+        write(fh)
 
 
 def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:

@@ -51,7 +51,6 @@ import json
 import logging
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +59,7 @@ import numpy as np
 from foxglove import channels as fc
 from foxglove import messages as fm
 
-from .metrics import RunRecord, pair_distances
+from .metrics import RunRecord, atomic_path, pair_distances
 
 __all__ = ["MAX_PAIRS", "POSE_TOPIC", "FleetLog", "robot_rgba", "write_recording"]
 
@@ -307,12 +306,9 @@ def write_recording(path: str | os.PathLike[str], record: RunRecord) -> Path:
         The path written.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         context = foxglove.Context()
-        writer = foxglove.open_mcap(tmp, allow_overwrite=True, context=context)
+        writer = foxglove.open_mcap(str(tmp), allow_overwrite=True, context=context)
         try:
             fleet = FleetLog(record.scenario, context)
             horizons = record.horizons
@@ -323,13 +319,5 @@ def write_recording(path: str | os.PathLike[str], record: RunRecord) -> Path:
                                  None if last else record.solve_times[k])
         finally:
             writer.close()
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
     log.debug("wrote %s (%d samples)", path, record.k + 1)
     return path
