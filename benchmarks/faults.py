@@ -50,9 +50,9 @@ from services.faults import ENV
 from services.messages import CmdMsg, DoneMsg, PlanMsg, StateMsg, decode, encode
 from services.node import scenario_digest
 from services.testing import Probe, free_ports, start_service, stop_processes
-from sqpmpc.runlog import read_record
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.io.runlog import read_record
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "reliability.md"
@@ -320,7 +320,7 @@ neighbour whose plans came late at 3 steps in a row (`plan_ages`, the largest ag
 last 10 samples), the plant
 relays the inputs' `plan_ages` with the next states, and both robots of a pair build
 their row from their plans of sample `k - a`, `a` the larger of the two ages
-(`sqpmpc.controllers.pair_sample`): the same number on both sides, from the same
+(`sqpmpc.control.plans.pair_sample`): the same number on both sides, from the same
 message. A robot that does not hold both plans of that sample (a plan later than
 usual) handles the pair as missing for that sample, which is safe whatever the other
 does. Stage 1 is clipped to the measured positions as before, so how old the plans

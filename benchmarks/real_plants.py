@@ -5,7 +5,7 @@ For every built-in scenario and both schemes it runs
 - the **matching model** (the default: Euler controller, Euler plant), the
   cost reference;
 - an **exact plant under the default Euler controller**, whose rows keep the
-  margin derived from the path-deviation bound (:mod:`sqpmpc.plant`:
+  margin derived from the path-deviation bound (:mod:`sqpmpc.problem.plant`:
   :math:`v_{\\max}\\omega_{\\max}T_s^2` plus the 1 mm solver margin);
 - an **exact plant under the exact controller** (the arcs' chord bound gives
   the same margin);
@@ -35,12 +35,13 @@ from typing import Any
 
 import numpy as np
 
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.obstacles import Obstacle
-from sqpmpc.plant import PlantSpec, model_margin
-from sqpmpc.scenario import Scenario, builtin_scenario_names, load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.obstacles import Obstacle
+from sqpmpc.problem.plant import PlantSpec, model_margin
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario
+from sqpmpc.sim.simulation import simulate
 
 from .compare_ipopt import machine_line
 from .report import publish

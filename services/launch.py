@@ -56,8 +56,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sqpmpc import __version__
-from sqpmpc.errors import ProblemError
-from sqpmpc.options import (
+from sqpmpc.cli.options import (
     Parser,
     add_controller_options,
     combination_problem,
@@ -66,7 +65,8 @@ from sqpmpc.options import (
     positive_float,
     positive_int,
 )
-from sqpmpc.reporting import STATUS_PERIOD
+from sqpmpc.errors import ProblemError
+from sqpmpc.io.reporting import STATUS_PERIOD
 
 from .credentials import config_for, read_meta, write_credentials
 from .node import install_signal_handlers, options_of, scenario_from_args

@@ -33,16 +33,16 @@ states of all robots (one message) and collects one ``cmd`` per robot:
 A robot without an input (late, timed out, or its controller gone) gets the
 braking input (``v = omega = 0`` clipped to the bounds), counted in
 ``missed_deadlines``. The state advances with the scenario's ``[plant]`` model and
-input noise (:class:`sqpmpc.plant.Plant`), as in
-:class:`sqpmpc.simulation.ClosedLoopSimulation`.
+input noise (:class:`sqpmpc.problem.plant.Plant`), as in
+:class:`sqpmpc.sim.simulation.ClosedLoopSimulation`.
 It also keeps the plans the controllers publish on ``robot/<id>/plan``.
 With the states of ``k + 1`` it relays the ``plan_ages`` of the inputs it
 applied at ``k`` (the same to every robot: both robots of a pair agree on the
-plans of their shared row from it, :func:`sqpmpc.controllers.pair_sample`).
+plans of their shared row from it, :func:`sqpmpc.control.plans.pair_sample`).
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
 ``metrics.json``, ``trajectory.npz``, ``recording.mcap`` (with those plans) and the
 plots into ``--out``. As it goes it appends every sample to ``--out``/``record.msgpack``
-(:mod:`sqpmpc.runlog`, flushed every sample): after a ``kill -9`` of the plant,
+(:mod:`sqpmpc.io.runlog`, flushed every sample): after a ``kill -9`` of the plant,
 ``sqpmpc metrics DIR`` writes ``metrics.json`` and ``trajectory.npz`` from it.
 """
 
@@ -60,19 +60,20 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import braking_input
-from sqpmpc.metrics import RunRecord, write_run
-from sqpmpc.options import (
+from sqpmpc.cli.options import (
     Parser,
     add_controller_options,
     combination_problem,
     nonnegative_float,
     positive_float,
 )
-from sqpmpc.plant import Plant
-from sqpmpc.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
-from sqpmpc.runlog import RECORD_FILE, RecordWriter
-from sqpmpc.scenario import Scenario
+from sqpmpc.control.pipeline import braking_input
+from sqpmpc.io.files import write_run
+from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
+from sqpmpc.io.runlog import RECORD_FILE, RecordWriter
+from sqpmpc.problem.plant import Plant
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 
 from .agreement import describe_difference
 from .messages import MAX_PLAN_AGES, CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
@@ -149,7 +150,7 @@ class PlantNode(Node):
                                                                    STATUS_PERIOD)))
 
     def open_record(self, out: Path) -> None:
-        """Start the incremental record ``out/record.msgpack`` (:mod:`sqpmpc.runlog`)."""
+        """Start the incremental record ``out/record.msgpack`` (:mod:`sqpmpc.io.runlog`)."""
         settings = {"mode": self.mode, "plant_discretization": self.method,
                     "run": self.bus.prefix.rsplit("/", 1)[-1], "timeout": self.timeout}
         self.writer = RecordWriter(out / RECORD_FILE, self.scenario, self.scheme,

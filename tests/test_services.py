@@ -26,10 +26,10 @@ from services.testing import (
     start_service,
     stop_processes,
 )
-from sqpmpc.metrics import RunRecord
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.record import RunRecord
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -277,8 +277,8 @@ def test_bad_input_gives_one_message_and_status_2(module, args):
 
 def test_lockstep_fleet_with_neighbour_slots_reproduces_the_in_process_run(tmp_path):
     """Nine processes (a swap of 8 robots, 2 slots each) over Zenoh equal the in-process run."""
-    from sqpmpc.fleets import antipodal_swap
-    from sqpmpc.simulation import simulate
+    from sqpmpc.problem.fleets import antipodal_swap
+    from sqpmpc.sim.simulation import simulate
 
     scenario = antipodal_swap(8).with_changes(t_end=15.0)
     path = tmp_path / "swap-8.toml"
