@@ -39,7 +39,7 @@ class CentralizedController(ControllerPipeline):
         settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
-        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
+        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, scenario.obstacle_slots,
                           _has_position_bounds(scenario))
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs

@@ -48,6 +48,7 @@ from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.ocp.iteration import MultipleShootingSQP
 from sqpmpc.ocp.obstacle_rows import ObstacleRows
+from sqpmpc.ocp.polygon_rows import MapRows, PolygonRows
 from sqpmpc.ocp.report import CollisionRows, IterationReport
 from sqpmpc.problem.plant import model_margin, path_deviation
 from sqpmpc.problem.references import Reference, ReferenceSet
@@ -179,13 +180,17 @@ class ControllerPipeline:
         self._noise_bound = plant.noise_bound
         #: the margin of the rows between two robots: solver tolerance + plant deviation
         self.pair_margin = settings.collision_margin + self.model_margin
-        self.obstacle_rows: ObstacleRows | None = None
+        self.obstacle_rows: ObstacleRows | MapRows | None = None
+        obstacle_margin = settings.collision_margin + 0.5 * self.model_margin
         if scenario.obstacles:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
-                self.sample_time, self.geometry,
-                settings.collision_margin + 0.5 * self.model_margin,
+                self.sample_time, self.geometry, obstacle_margin,
                 (float(self.input_lower[0]), float(self.input_upper[0])))
+        if scenario.polygons:  # circles first, then every polygon's convex pieces
+            self.obstacle_rows = MapRows(self.obstacle_rows, PolygonRows(
+                scenario.polygons, scenario.diameters()[self.indices], self.horizon,
+                self.geometry, obstacle_margin))
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,

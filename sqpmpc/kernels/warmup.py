@@ -25,6 +25,7 @@ from sqpmpc.kernels.ocp import (
     split_rows,
     write_reference,
 )
+from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
 from sqpmpc.kernels.rules import hold_touching_rows, warm_up_roundabout, warm_up_rules
 
@@ -85,4 +86,9 @@ def warm_up() -> float:
     warm_up_rules()
     warm_up_roundabout()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
+    square = np.array([[[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]])
+    four = np.full(1, 4, dtype=np.int64)
+    polygon_rows(np.zeros(2), np.zeros((2, 3)), square, four, np.ones(1), rot,
+                 np.empty((1, 2, 2)), np.empty((1, 2)))
+    path_keeps_pieces(0.0, 0.0, 0.1, 0.0, square, four, np.ones(1), 0.0)
     return time.perf_counter() - t0

@@ -15,6 +15,7 @@ from typing import Any
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
+from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.references import _describe, _FieldError, reference_from_dict
 from sqpmpc.problem.scenario import (
     Bounds,
@@ -39,6 +40,9 @@ _OBSTACLE_KEYS = ("position", "diameter", "velocity")
 
 
 _OBSTACLE_REQUIRED = ("position", "diameter")
+
+
+_POLYGON_KEYS = ("points",)
 
 
 _PLANT_KEYS = ("model", "input_noise", "seed")
@@ -144,18 +148,32 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     if not isinstance(raw_obstacles, list | tuple):
         raise ScenarioError(source, "obstacles", "expected [[obstacles]] tables, found "
                             f"{_describe(raw_obstacles)}")
+    polygons = []
+    polygon_keys = []  # the file's key of each polygon, for the scenario's own checks
     for i, raw in enumerate(raw_obstacles):
         key = f"obstacles[{i}]"
+        if isinstance(raw, Mapping) and "points" in raw:  # a polygon (CONTRACT 1d)
+            o = _table(raw, source, key, _POLYGON_KEYS, _POLYGON_KEYS)
+            polygons.append(_build_checked(PolygonObstacle, source, key, **o))
+            polygon_keys.append(key)
+            continue
         o = _table(raw, source, key, _OBSTACLE_KEYS, _OBSTACLE_REQUIRED)
         obstacles.append(_build_checked(Obstacle, source, key, **o))
     plant = PlantSpec()
     if "plant" in data:
         plant = _build_checked(PlantSpec, source, "plant",
                                **_table(data["plant"], source, "plant", _PLANT_KEYS, ()))
-    return Scenario(name=data["name"], t_end=data["t_end"], sample_time=data["sample_time"],
-                    horizon=data["horizon"], weights=weights, bounds=bounds,
-                    robots=tuple(robots), obstacles=tuple(obstacles), plant=plant,
-                    source=source)
+    try:
+        return Scenario(name=data["name"], t_end=data["t_end"],
+                        sample_time=data["sample_time"], horizon=data["horizon"],
+                        weights=weights, bounds=bounds, robots=tuple(robots),
+                        obstacles=tuple(obstacles), plant=plant, source=source,
+                        polygons=tuple(polygons))
+    except ScenarioError as exc:
+        if not exc.key.startswith("polygons["):
+            raise
+        index, _, rest = exc.key[len("polygons["):].partition("]")
+        raise ScenarioError(source, polygon_keys[int(index)] + rest, exc.detail) from None
 
 
 def _build_checked(cls: type, source: str, prefix: str, **kwargs: Any) -> Any:
