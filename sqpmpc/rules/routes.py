@@ -1,0 +1,158 @@
+r"""The ``route`` rule: a robot whose goal lies behind static obstacles tracks a route.
+
+A robot with a goal at rest (a ``point`` reference) whose straight way to it
+crosses the static map inflated by its radius plus ``margin`` gets the
+shortest route around it (:class:`sqpmpc.problem.routes.RoadMap`: a visibility
+graph of the inflated walls, shelves and resting circles). The route is
+time-parametrized at ``speed`` times the robot's top speed from the moment it
+is planned, but never runs more than ``lead`` metres of arc ahead of the
+robot's progress (its projection on the route), so a robot held up by others
+is not pulled across a corner; stages 1..N of the reference are the route's
+points at that arc length plus ``speed`` times the stage's time. The route is
+re-planned from the robot's position when the robot has not progressed by
+``progress`` metres for ``patience`` seconds or has been pushed more than
+``deviation`` metres off it, and dropped once the straight way to the goal
+is free. Safety is the collision rows' business, as for every rule: the
+route only chooses where the robot heads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sqpmpc.problem.references import PointReference
+from sqpmpc.problem.routes import RoadMap, Route
+from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
+
+__all__ = ["RouteFollowing"]
+
+
+@dataclass
+class _Tracking:
+    route: Route
+    t0: float
+    progress: float = 0.0
+    best: float = 0.0
+    t_best: float = 0.0
+
+
+class _RouteInstance(RuleInstance):
+    rule: RouteFollowing
+    counter_names = ("route_plans", "route_replans", "route_samples", "routes_missing")
+
+    def __init__(self, rule: RouteFollowing, context: RuleContext) -> None:
+        super().__init__(rule, context)
+        self.maps: list[RoadMap | None] = []
+        self.goals: list[np.ndarray | None] = []
+        self.tracking: list[_Tracking | None] = []
+        self.speed = rule.speed * context.max_speed
+        self.references_changed()
+
+    def references_changed(self) -> None:
+        sc = self.context.scenario
+        static = bool(sc.polygons) or any(not o.moving for o in sc.obstacles)
+        by_radius: dict[float, RoadMap] = {}
+        self.maps, self.goals, self.tracking = [], [], []
+        for i in self.context.own:
+            robot = sc.robots[int(i)]
+            ref = robot.reference
+            if not static or not isinstance(ref, PointReference):
+                self.maps.append(None)
+                self.goals.append(None)
+            else:
+                r = 0.5 * robot.diameter
+                if r not in by_radius:
+                    by_radius[r] = RoadMap(sc.polygons, sc.obstacles, r, self.rule.margin)
+                self.maps.append(by_radius[r])
+                self.goals.append(np.asarray(ref.goal, dtype=float))
+            self.tracking.append(None)
+
+    def _plan(self, k: int, p: np.ndarray, t: float) -> None:
+        road, goal = self.maps[k], self.goals[k]
+        route = None if road is None or goal is None else road.route(p, goal)
+        if route is None:
+            self.counts["routes_missing"] += 1
+            self.tracking[k] = None
+            return
+        self.tracking[k] = _Tracking(route, t, 0.0, 0.0, t)
+
+    def shape_references(self, view: SampleView) -> None:
+        rule = self.rule
+        out: np.ndarray | None = None
+        N = view.references.shape[1]
+        stage_s = self.speed * self.context.sample_time * np.arange(1, N + 1)
+        for k, road in enumerate(self.maps):
+            goal = self.goals[k]
+            if road is None or goal is None:
+                continue
+            p = view.own_states[k, :2]
+            track = self.tracking[k]
+            if track is None:
+                if view.sample % rule.check_every or road.free(p, goal):
+                    continue
+                self.counts["route_plans"] += 1
+                self._plan(k, p, view.t)
+                track = self.tracking[k]
+                if track is None:
+                    continue
+            elif road.free(p, goal):
+                self.tracking[k] = None  # the way is clear: the goal itself
+                continue
+            s, off = track.route.project(p, lower=track.progress - rule.lead)
+            track.progress = max(track.progress, s)
+            if track.progress > track.best + rule.progress:
+                track.best, track.t_best = track.progress, view.t
+            stalled = view.t - track.t_best > rule.patience
+            if stalled or off > rule.deviation:
+                self.counts["route_replans"] += 1
+                self._plan(k, p, view.t)
+                track = self.tracking[k]
+                if track is None:
+                    continue
+            base = min(self.speed * (view.t - track.t0), track.progress + rule.lead)
+            if out is None:
+                out = view.references.copy()
+            out[k] = track.route.position_at(base + stage_s)
+            self.counts["route_samples"] += 1
+        if out is not None:
+            view.references = out
+
+
+@dataclass(frozen=True)
+class RouteFollowing(Rule):
+    r"""Track the shortest route around the static map when the goal is behind it.
+
+    Parameters
+    ----------
+    margin
+        Clearance kept beyond the robot's radius by the route, m.
+    speed
+        The route's speed as a fraction of the robot's top speed.
+    lead
+        Largest arc length the route's reference runs ahead of the robot's
+        progress, m.
+    progress, patience
+        Re-plan when the progress grew by less than ``progress`` m in
+        ``patience`` s.
+    deviation
+        Re-plan when the robot is farther than this from its route, m.
+    check_every
+        Samples between the checks of a robot without a route (is its way blocked?).
+    """
+
+    name = "route"
+    summary = "a goal behind walls or pillars: follow the shortest route around the static map"
+    instance = _RouteInstance
+    margin: float = 0.15
+    speed: float = 0.9
+    lead: float = 0.6
+    progress: float = 0.25
+    patience: float = 8.0
+    deviation: float = 1.0
+    check_every: int = 1
+
+    def __post_init__(self) -> None:
+        check_positive(self, "margin", "speed", "lead", "progress", "patience", "deviation",
+                       "check_every")
