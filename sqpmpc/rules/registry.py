@@ -23,6 +23,7 @@ from sqpmpc.rules.liveness import (
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout
+from sqpmpc.rules.formations import Yield
 from sqpmpc.rules.routes import RouteFollowing
 
 __all__ = [
@@ -42,8 +43,8 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, TouchingPairs, RouteFollowing, Roundabout, Detour,
-                Parking, StallRepair, GearCycle)
+    for cls in (TurnLimit, KeepRight, TouchingPairs, RouteFollowing, Yield, Roundabout,
+                Detour, Parking, StallRepair, GearCycle)
 }
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.ocp.collision_rows`).
