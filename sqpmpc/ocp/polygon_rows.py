@@ -39,7 +39,9 @@ class PolygonRows:
     horizon
         :math:`N`.
     geometry
-        Row geometry from the rules (the rotation is applied, as for neighbours).
+        Row geometry from the rules (kept for the interface; the rotation is not
+        applied to walls: tilting a long piece's normal moves its support point
+        along it).
     margin
         Added to the radius in the QP rows, m.
     """
@@ -57,6 +59,10 @@ class PolygonRows:
         self.required = self.safe_distance + float(margin)
         self.horizon = int(horizon)
         self.geometry = geometry
+        # the rules' tilt is for symmetric encounters between robots: tilting a long
+        # wall's normal moves its support point metres along the wall, so walls keep
+        # the closest-point normal
+        self._plain = RowGeometry.plain(self.horizon).rotation
         self.current = np.zeros((radius.size, 2))
         self.stage_one_overrides = 0
 
@@ -69,7 +75,7 @@ class PolygonRows:
         overrides = 0
         for r in range(self.current.shape[0]):
             overrides += polygon_rows(self.current[r], states[r, 1:], self.vertices,
-                                      self.counts, self.required[r], self.geometry.rotation,
+                                      self.counts, self.required[r], self._plain,
                                       A_out[r], lower_out[r])
         self.stage_one_overrides = overrides
 

@@ -112,6 +112,8 @@ class RoadMap:
                                 + [Point(o.position).buffer(0.5 * o.diameter, quad_segs=16)
                                    for o in circles if not o.moving])
         self.inflated = unary_union(shapes)
+        self._hard = self.bare.buffer(self.radius).buffer(-_EPS)
+        shapely.prepare(self._hard)
         self.empty = self.inflated.is_empty
         self._inner = self.inflated.buffer(-_EPS)
         shapely.prepare(self._inner)
@@ -140,6 +142,15 @@ class RoadMap:
         if np.allclose(a, b):
             return not self._inner.contains(Point(a))
         return not self._inner.intersects(LineString([tuple(a), tuple(b)]))
+
+    def sees(self, p: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Whether the robot's centre at ``p`` can go straight to each of ``points (K, 2)``
+        without coming nearer an obstacle than its radius, ``(K,)`` bool."""
+        if self.empty:
+            return np.ones(len(points), dtype=bool)
+        lines = shapely.linestrings(np.stack((np.broadcast_to(p, points.shape), points),
+                                             axis=1))
+        return ~shapely.intersects(self._hard, lines)
 
     def _entry(self, p: np.ndarray) -> list[np.ndarray] | None:
         """``[p]``, or ``[p, nearest outline point]`` inside the band; ``None`` if too near."""

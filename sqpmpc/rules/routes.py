@@ -8,7 +8,10 @@ time-parametrized at ``speed`` times the robot's top speed from the moment it
 is planned, but never runs more than ``lead`` metres of arc ahead of the
 robot's progress (its projection on the route), so a robot held up by others
 is not pulled across a corner; stages 1..N of the reference are the route's
-points at that arc length plus ``speed`` times the stage's time. The route is
+points at that arc length plus ``speed`` times the stage's time, each held at
+the last one the robot can reach in a straight line without coming nearer an
+obstacle than its radius (a unicycle tracking a point beyond a corner cuts
+it and can end up pinned against it). The route is
 re-planned from the robot's position when the robot has not progressed by
 ``progress`` metres for ``patience`` seconds or has been pushed more than
 ``deviation`` metres off it, and dropped once the straight way to the goal
@@ -114,7 +117,17 @@ class _RouteInstance(RuleInstance):
             base = min(self.speed * (view.t - track.t0), track.progress + rule.lead)
             if out is None:
                 out = view.references.copy()
-            out[k] = track.route.position_at(base + stage_s)
+            pts = track.route.position_at(base + stage_s)
+            seen = road.sees(p, pts)
+            if not seen.all():  # never past a corner not yet in sight: the next vertex
+                first = int(np.argmin(seen))
+                if first == 0:
+                    cum = track.route.cumulative
+                    ahead = cum[cum > track.progress + 1e-6]
+                    pts[:] = track.route.position_at(ahead[0] if ahead.size else cum[-1])
+                else:
+                    pts[first:] = pts[first - 1]
+            out[k] = pts
             self.counts["route_samples"] += 1
         if out is not None:
             view.references = out
@@ -145,7 +158,7 @@ class RouteFollowing(Rule):
     name = "route"
     summary = "a goal behind walls or pillars: follow the shortest route around the static map"
     instance = _RouteInstance
-    margin: float = 0.15
+    margin: float = 0.2
     speed: float = 0.9
     lead: float = 0.6
     progress: float = 0.25
