@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.rules.base import Rule
+from sqpmpc.rules.formations import Yield
 from sqpmpc.rules.liveness import (
     Detour,
     GearCycle,
@@ -23,7 +24,6 @@ from sqpmpc.rules.liveness import (
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout
-from sqpmpc.rules.formations import Yield
 from sqpmpc.rules.routes import RouteFollowing
 
 __all__ = [
