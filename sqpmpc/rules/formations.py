@@ -6,12 +6,13 @@ at rest *yields* when a travelling robot (one farther than ``travelling`` from
 its own resting goal, so that a robot stepping aside is not one) within
 ``reach`` metres has it in its way: the arrived robot lies ahead of the
 traveller and closer than their required distance plus ``clearance`` to the
-traveller's straight way to its goal. Its reference then becomes its goal moved sideways, perpendicular to the traveller's way on
-the side it already is (the traveller's right when exactly on the way), far
-enough to leave the required distance plus ``clearance``; it holds that point
-for ``hold`` samples after the last such traveller and then returns to its
-goal. Every robot applies the same rule to the same shared data (the
-scenario's goals, the measured positions), so the decentralized robots agree.
+traveller's straight way to its goal. Its reference then becomes its goal
+moved sideways, perpendicular to the traveller's way on the side it already is
+(the traveller's right when exactly on the way), far enough to leave the
+required distance plus ``clearance``; it holds that point for ``hold`` samples
+after the last such traveller and then returns to its goal. Every robot
+applies the same rule to the same shared data (the scenario's goals, the
+measured positions), so the decentralized robots agree.
 """
 
 from __future__ import annotations
