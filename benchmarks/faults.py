@@ -347,7 +347,7 @@ under random 1-3-sample delays, that both robots of every shared pair hold the s
   (braking input) is the last resort. Zenoh errors (a session that times out) are
   logged in one line and the loop goes on or ends cleanly: *tracebacks* counts the
   `Traceback` lines in every process's output.
-- **Late and lost plans are designed for** (`sqpmpc/controllers.py`): stage 1 and the
+- **Late and lost plans are designed for** (`sqpmpc/control/decentralized.py`): stage 1 and the
   first-input check use the measured positions and keep distance plus one-sample reach
   from a neighbour without a fresh plan; a shared row needs both robots' plans of the
   pair's agreed sample (above); a neighbour whose newest plan is `a >= 2` samples old
