@@ -221,6 +221,10 @@ class Node:
     def on_liveliness(self, name: str, alive: bool) -> None:
         """A token ``alive/<name>`` appeared or disappeared (override to react)."""
 
+    def on_invalid(self, kind: str, key_id: int | None, reason: str) -> None:
+        """A message on a ``kind`` key (of robot ``key_id``) was refused by the validator and
+        counted invalid (override to attribute it)."""
+
     def on_mismatch(self, msg: Message, reason: str) -> None:
         """A message from a process started with another scenario or other settings
         (override; default: dropped as invalid)."""
@@ -271,6 +275,7 @@ class Node:
             return
         except InvalidMessage as exc:
             self._log_invalid(f"on {event.key}: {exc}")
+            self.on_invalid(kind, key_id, str(exc))
             return
         self.on_message(kind, msg)
 

@@ -8,9 +8,19 @@
 
 The plant takes the controller options too: with the scenario they make the
 settings every process of the run must share (:mod:`services.agreement`). A
-controller started with others answers the plant's first state with them and
-the plant stops with one message naming what differs, writes what it has
-(``completed: false``) and exits with status 2. Every ``--status-every``
+controller started with others answers the plant's first state with them: the
+plant logs one message naming what differs and goes on, braking that
+controller's robots while it answers so (it then exits); at the end it exits
+with status 2 (``refused`` in ``metrics.json``).
+
+No message on a robot's keys can stop, stall or rewind the run. The plant
+judges an input's sample before anything else: an input of an older sample
+is stale and dropped whatever it carries; one of a later sample is refused.
+An input of the current sample that carries another settings digest marks
+its robot faulty at this sample: braked, not waited for, even if a
+consistent input came too. Every input on robot ``j``'s key that is
+inconsistent with the run (schema, sample ahead, settings digest) is dropped
+and counted in ``faulty_messages[j]``. Every ``--status-every``
 seconds (default 10) it writes a status line to stderr (sample, time, smallest
 clearance so far, braked inputs).
 
@@ -132,6 +142,8 @@ class PlantNode(Node):
         self.cmds: dict[int, CmdMsg] = {}
         self.relay: dict[int, dict[int, int]] = {}  # plan ages sent with the current states
         self.missed = dict.fromkeys(self.ids, 0)
+        self.faulty = dict.fromkeys(self.ids, 0)  # inconsistent inputs dropped, per robot
+        self.faulty_now: set[int] = set()  # robots braked at this sample for such an input
         self.late_commands = 0
         self.timeouts = 0
         self._missing: set[int] = set()
@@ -181,13 +193,37 @@ class PlantNode(Node):
         if not isinstance(msg, CmdMsg):
             super().on_mismatch(msg, reason)
             return
+        # the sample first: an old input is stale whatever it carries (it cannot act)
+        decision = self.policy.cmd(self.k, msg.sample)
+        if decision.verdict is Verdict.STALE:
+            self.late_commands += 1
+            return
+        if decision.verdict is Verdict.REFUSE or not self.running:
+            self.faulty_message(msg.id, decision.reason or reason)
+            return
+        # an input of this sample from a controller with other settings: that robot is
+        # faulty at this sample (braked, not waited for); the run goes on
+        self.faulty_message(msg.id, reason)
+        self.faulty_now.add(msg.id)
         if self.refused is None:
             detail = msg.detail or {}
             who = detail.get("process") or (
                 "central" if self.scheme == "centralized" else f"robot/{msg.id}")
             self.refused = describe_difference(self.agreed or {}, detail or None, who)
-            log.error("%s", self.refused)
-        self.stop.set()
+            log.error("%s; its robots are braked while it does", self.refused)
+
+    def on_invalid(self, kind: str, key_id: int | None, reason: str) -> None:
+        if kind == "cmd" and key_id is not None:
+            self.faulty_message(key_id, reason)
+
+    def faulty_message(self, rid: int, reason: str) -> None:
+        """Count a message on robot ``rid``'s cmd key inconsistent with the run (schema,
+        sample, settings digest); it is dropped (``faulty_messages`` in the metrics)."""
+        if rid in self.faulty:
+            self.faulty[rid] += 1
+            if self.faulty[rid] <= 3 or self.faulty[rid] % 1000 == 0:
+                log.warning("robot %d: inconsistent input dropped (%d so far): %s", rid,
+                            self.faulty[rid], reason)
 
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, PlanMsg):
@@ -199,11 +235,12 @@ class PlantNode(Node):
         decision = self.policy.cmd(self.k, msg.sample)
         if decision.verdict is Verdict.REFUSE:
             self._refused(decision.reason)
+            self.faulty_message(msg.id, decision.reason)
             return
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
         self.reported_invalid[sender] = msg.invalid
         self.reported_counts[sender] = msg.counters or {}
-        if decision.accepted:
+        if decision.accepted and msg.id not in self.faulty_now:
             self.cmds[msg.id] = msg  # the newest valid input for this sample
         else:
             self.late_commands += 1
@@ -219,6 +256,8 @@ class PlantNode(Node):
 
     def apply(self, k: int) -> None:
         """Apply the inputs collected for sample ``k`` and integrate to ``k + 1``."""
+        for rid in self.faulty_now:
+            self.cmds.pop(rid, None)  # a robot that sent an inconsistent input is braked
         missing = set(self.ids) - set(self.cmds)
         if missing != self._missing:
             if missing - self._missing:
@@ -266,7 +305,7 @@ class PlantNode(Node):
         start = time.perf_counter()
         for k in range(self.scenario.steps):
             t0 = time.perf_counter()
-            self.k, self.cmds = k, {}
+            self.k, self.cmds, self.faulty_now = k, {}, set()
             self.publish_states(k)
             if self.mode == "lockstep" or (k == 0 and not self.timed_start):
                 if not self.collect(k, t0 + self.timeout, min(RESEND, self.timeout / 2)) \
@@ -316,7 +355,7 @@ class PlantNode(Node):
         the states of ``k`` again every ``resend`` s (a state or an input was lost: the
         controllers answer a repeated state by sending their outputs again)."""
         def ready() -> bool:
-            return all(i in self.cmds for i in self.expected())
+            return all(i in self.cmds or i in self.faulty_now for i in self.expected())
 
         while True:
             now = time.perf_counter()
@@ -339,6 +378,7 @@ class PlantNode(Node):
             "run": self.bus.prefix.rsplit("/", 1)[-1],
             "missed_deadlines": int(sum(self.missed.values())),
             "missed_deadlines_by_robot": {str(i): int(v) for i, v in self.missed.items()},
+            "faulty_messages": {str(i): int(v) for i, v in self.faulty.items()},
             "never_controlled": self.never_controlled(),
             "late_commands": int(self.late_commands),
             "lockstep_timeouts": int(self.timeouts),
@@ -347,7 +387,7 @@ class PlantNode(Node):
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
             "counters": _summed(self.reported_counts.values()),
-            "interrupted": signal.Signals(sig).name if sig and not self.refused else None,
+            "interrupted": signal.Signals(sig).name if sig else None,
             "refused": self.refused,
             "agreed_settings": self.agreed,
             "plant_discretization": self.method,

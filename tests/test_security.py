@@ -178,3 +178,64 @@ def test_a_service_refuses_credentials_of_another_run_or_plain_endpoints(tmp_pat
         assert proc.wait(60) == 2, proc.output()
         lines = [ln for ln in proc.output().splitlines() if "error" in ln]
         assert len(lines) == 1 and message in lines[0], proc.output()
+
+
+@pytest.mark.parametrize("offset", [-1, 0], ids=["stale", "current"])
+def test_one_inconsistent_input_on_a_robots_own_key_cannot_stop_the_run(tmp_path, offset):
+    """Robot 2's own certificate sends one input for robot 2 carrying another settings
+    digest (what a controller with other settings sends) at sample 20. Of an older sample
+    (``stale``) it is dropped before its digest is read: the run equals the undisturbed one,
+    bit for bit. Of the plant's current sample it marks robot 2 faulty at that sample
+    (braked); either way the run completes and the forged input is never applied."""
+    run = f"one-{'stale' if offset else 'current'}"
+    creds = tmp_path / "creds"
+    scenario = load_scenario(SCENARIO)
+    write_credentials(creds, scenario, run, "decentralized")
+    ports = free_ports(6)
+    eps = [f"tls/127.0.0.1:{p}" for p in ports]
+    common = ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END), "--log-level",
+              "WARNING", "--credentials", str(creds)]
+    logs, out = tmp_path / "logs", tmp_path / "out"
+    procs: list[ServiceProcess] = []
+    try:
+        plant = start_service("plant", [*common, "--listen", eps[0], "--out", str(out),
+                                        "--no-plots", "--quiet", "--timeout", "5"], logs)
+        procs.append(plant)
+        forger = start_service(
+            "forger", ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END),
+                       "--credentials", str(creds), "--identity", "robot-2", "--target", "2",
+                       "--attack", "settings", "--at", "20", "--sample-offset", str(offset),
+                       "--duration", "120", "--connect", eps[0], "--listen", eps[5]], logs,
+            name="forger")
+        procs.append(forger)
+        _wait_ready(forger, 60.0)
+        for j, rid in enumerate(scenario.ids, start=1):
+            procs.append(start_service("robot", ["--id", str(rid), *common, "--listen", eps[j],
+                                                 "--connect", eps[0]], logs,
+                                       name=f"robot-{rid}"))
+        status = plant.wait(90)
+    finally:
+        stop_processes(procs)
+    assert _summary(forger)["sent"]["settings"] == 1, forger.output()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["completed"] is True and metrics["steps"] == 40, plant.output()
+    assert metrics["collisions"] == 0
+    faulty = metrics["faulty_messages"]
+    assert faulty["1"] == faulty["3"] == faulty["4"] == 0
+    traj = np.load(out / "trajectory.npz")
+    assert not np.any(traj["inputs"][:, :, 0] == forged_speed(scenario.bounds.input_upper()))
+    assert "Traceback" not in plant.output()
+    if offset < 0:
+        assert status == 0, plant.output()
+        assert faulty["2"] == 0 and metrics["late_commands"] >= 1
+        reference = ClosedLoopSimulation(scenario.with_changes(t_end=T_END), "decentralized",
+                                         SolverSettings(),
+                                         SimulationOptions(decentralized_mode="shared")).run()
+        assert np.array_equal(traj["states"], reference.states)
+        assert np.array_equal(traj["inputs"], reference.inputs)
+    else:  # it reached the plant at sample 20 or, if the plant had moved on, was stale
+        assert faulty["2"] + metrics["late_commands"] >= 1
+        assert metrics["missed_deadlines"] == faulty["2"] <= 1
+        assert status == (2 if faulty["2"] else 0), plant.output()
+        if faulty["2"]:
+            assert "collision_margin 0.5 (the plant: 0.001)" in metrics["refused"]
