@@ -97,6 +97,9 @@ def add_credential_arguments(parser: argparse.ArgumentParser) -> None:
                              "control) by its identity; endpoints are then tls/...")
     parser.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
                         help="a Zenoh config file to start from (e.g. DIR/robot-1.json5)")
+    parser.add_argument("--credentials-fd", type=int, default=None, metavar="FD",
+                        help="services.launch hands this process its own credentials over "
+                             "this inherited socket (services.handover)")
 
 
 def options_of(args: argparse.Namespace) -> RunOptions:

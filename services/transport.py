@@ -83,7 +83,7 @@ def make_config(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     mode: str = "peer",
-    config: Path | None = None,
+    config: Path | str | None = None,
 ) -> zenoh.Config:
     """A Zenoh configuration with multicast scouting off and explicit endpoints.
 
@@ -100,7 +100,8 @@ def make_config(
     config
         A Zenoh configuration file to start from, e.g. a process's file made by
         :func:`services.credentials.write_credentials` (mutual TLS and access
-        control); its endpoints must then be ``tls/`` ones.
+        control), or such a configuration as JSON text (handed over by
+        :mod:`services.handover`); its endpoints must then be ``tls/`` ones.
     """
     if mode not in ("peer", "client", "router"):
         raise ValueError(f"zenoh mode must be peer, client or router, got {mode!r}")
@@ -108,7 +109,8 @@ def make_config(
     if config is None:
         conf = zenoh.Config()
     else:
-        conf = zenoh.Config.from_file(str(config))
+        conf = (zenoh.Config.from_json5(config) if isinstance(config, str)
+                else zenoh.Config.from_file(str(config)))
         for ep in [*listen, *connect]:
             if not ep.startswith("tls/"):
                 raise ValueError(f"endpoint {ep}: a session with credentials takes tls/ "
@@ -162,7 +164,7 @@ class Bus:
     """
 
     def __init__(self, run: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 mode: str = "peer", config: Path | None = None,
+                 mode: str = "peer", config: Path | str | None = None,
                  faults: FaultInjector | None = None) -> None:
         self.prefix = run_prefix(run)
         self.express = mode != "client"
