@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """Run a distributed closed loop on this machine: the plant and the controllers as processes.
 
 ``python -m services.launch --scenario S --scheme centralized|decentralized [--out DIR]
@@ -36,12 +37,22 @@ only, and the children share one scheduling autogroup, which matters on few
 cores) and, on Linux, receives SIGTERM if the launcher dies. When the launcher
 exits (normally, on an error, SIGINT or SIGTERM) it stops and reaps every
 child: SIGINT to the plant (which then writes what it has) and SIGTERM to the
-controllers, SIGKILL after a grace period.
+controllers, SIGKILL after a grace period. A stop at any moment, start-up
+included, ends every process without a traceback (a signal that comes while
+a service still imports its modules is honoured once it can be,
+:mod:`services.early`) and leaves a run folder readable by ``sqpmpc metrics``:
+stopped before the plant started, the launcher still starts it, and a run
+stopped before its first sample says so (``steps 0``, ``interrupted``).
 
 Exit status: the plant's (0 when the run completed), 2 for bad input.
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
 
 import argparse
 import ctypes
@@ -82,6 +93,8 @@ log = logging.getLogger("services.launch")
 PROG = "services.launch"
 PLANT_GRACE = 30.0
 """Seconds the plant may take to write its outputs after being interrupted."""
+SIGNAL_READY = 5.0
+"""Longest wait for a child to handle signals before one is sent to it anyway, s."""
 CONTROLLER_GRACE = 5.0
 """Seconds the controllers may take to exit after the plant finished."""
 
@@ -134,8 +147,29 @@ class Child:
         """Process id (also the process group id)."""
         return self.proc.pid
 
+    def catches_signals(self, timeout: float = SIGNAL_READY) -> bool:
+        """Wait (up to ``timeout`` s) until the child handles SIGTERM (Linux: its
+        ``/proc/<pid>/status`` ``SigCgt``): a service does from its first lines on
+        (:mod:`services.early`), so a signal sent then cannot hit the interpreter's start
+        (a ``KeyboardInterrupt`` traceback, or an end that writes nothing)."""
+        deadline = time.monotonic() + timeout
+        while self.proc.poll() is None:
+            try:
+                with open(f"/proc/{self.proc.pid}/status") as fh:
+                    caught = next(int(ln.split()[1], 16) for ln in fh
+                                  if ln.startswith("SigCgt:"))
+            except (OSError, StopIteration, ValueError):
+                return False  # not Linux: no way to tell
+            if caught & (1 << (signal.SIGTERM - 1)) or time.monotonic() >= deadline:
+                return bool(caught & (1 << (signal.SIGTERM - 1)))
+            time.sleep(0.01)
+        return False
+
     def signal(self, sig: int) -> None:
-        """Send ``sig`` to the child's process group (if it has not been reaped)."""
+        """Send ``sig`` to the child's process group (if it has not been reaped), once it
+        handles signals (:meth:`catches_signals`, a few seconds at most)."""
+        if sig != signal.SIGKILL:
+            self.catches_signals()
         if self.proc.returncode is None:
             try:
                 os.killpg(self.proc.pid, sig)
@@ -352,8 +386,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                              scenario.sample_time, args.credentials, issued is not None)
         handover = Handover(issued.meta) if issued is not None else None
         for j, (name, cmd) in enumerate(commands):
-            if stop.is_set():
-                break
+            if stop.is_set() and name != "plant":
+                continue  # stopped already: only the plant, which writes the (empty) run
             cpu = cpus[(j - 1) % len(cpus)] if args.pin_cpus and cpus and j > 0 else None
             if handover is None or issued is None:
                 children.append(Child(name, cmd, cpu, env))

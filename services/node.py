@@ -30,6 +30,7 @@ from sqpmpc.scenario import Scenario, load_scenario
 
 from .agreement import agreed_settings, scenario_digest, settings_digest
 from .credentials import config_for
+from .early import RECEIVED
 from .faults import FaultInjector
 from .messages import InvalidMessage, Message, MessageValidator, Mismatch
 from .protocol import AcceptancePolicy
@@ -144,7 +145,8 @@ def session_lost(prog: str, exc: zenoh.ZError) -> int:
 
 
 def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
-    """SIGINT and SIGTERM set ``stop``; the returned dict records the signal number."""
+    """SIGINT and SIGTERM set ``stop``; the returned dict records the signal number (also
+    of one received during start-up, :mod:`services.early`: ``stop`` is then set at once)."""
     received: dict[str, int] = {}
 
     def handler(signum: int, _frame: object) -> None:
@@ -153,6 +155,8 @@ def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    if "signal" in RECEIVED:  # it came during start-up (services.early)
+        handler(RECEIVED["signal"], None)
     return received
 
 
