@@ -93,6 +93,8 @@ log = logging.getLogger("services.launch")
 PROG = "services.launch"
 PLANT_GRACE = 30.0
 """Seconds the plant may take to write its outputs after being interrupted."""
+MAX_RATE_PER_SAMPLE = 20.0
+"""Real time: messages per sample period a robot may publish on one of its keys."""
 SIGNAL_READY = 5.0
 """Longest wait for a child to handle signals before one is sent to it anyway, s."""
 CONTROLLER_GRACE = 5.0
@@ -240,6 +242,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--insecure", action="store_true",
                         help="debugging only: plain TCP without credentials (any local "
                              "process can then publish on the run's keys)")
+    parser.add_argument("--no-flood-limits", action="store_true",
+                        help="benchmarks only: no per-publisher rate or size limit "
+                             "(services.limits) in the run's processes")
     parser.add_argument("--credentials", type=Path, default=None, metavar="DIR",
                         help="the run's credentials made by 'sqpmpc credentials' (same "
                              "--run) instead of fresh ones, e.g. to let a services.viewer "
@@ -260,6 +265,10 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     caller adds ``--credentials-fd`` (:mod:`services.handover`)."""
     py = [sys.executable, "-m"]
     common = ["--scenario", args.scenario, "--run", run, "--log-level", args.log_level]
+    if args.no_flood_limits:
+        common.append("--no-flood-limits")
+    elif args.mode == "realtime":  # per-publisher rate limit (services.limits)
+        common += ["--max-rate", repr(MAX_RATE_PER_SAMPLE / sample_time)]
     secure = [] if credentials is None else ["--credentials", str(credentials)]
     common += secure
     proto = "tcp" if credentials is None and not secured else "tls"

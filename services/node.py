@@ -25,16 +25,23 @@ import zenoh
 
 from sqpmpc import __version__
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.options import RunOptions, add_override_options, resolve_options, with_overrides
+from sqpmpc.options import (
+    RunOptions,
+    add_override_options,
+    positive_float,
+    resolve_options,
+    with_overrides,
+)
 from sqpmpc.scenario import Scenario, load_scenario
 
 from .agreement import agreed_settings, scenario_digest, settings_digest
 from .credentials import config_for
 from .early import RECEIVED
 from .faults import FaultInjector
+from .limits import interceptors
 from .messages import InvalidMessage, Message, MessageValidator, Mismatch
 from .protocol import AcceptancePolicy
-from .transport import Bus, Event, check_run_name
+from .transport import Bus, Event, check_run_name, run_prefix
 
 __all__ = [
     "POLL",
@@ -86,6 +93,12 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              "tcp/127.0.0.1:0 for a peer)")
     parser.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
                         help="peer (default) or client of a router")
+    parser.add_argument("--max-rate", type=positive_float, default=None, metavar="HZ",
+                        help="drop what a robot publishes on one of its keys faster than this "
+                             "(services.limits; services.launch passes 20/Ts in real time; "
+                             "default: no rate limit, payloads above 64 KiB are always dropped)")
+    parser.add_argument("--no-flood-limits", action="store_true",
+                        help="benchmarks only: neither the rate nor the size limit")
     add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
 
@@ -196,7 +209,10 @@ class Node:
         config = config_for(args, name)
         try:
             self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode, config,
-                           FaultInjector.from_env(name))
+                           FaultInjector.from_env(name),
+                           None if getattr(args, "no_flood_limits", False) else
+                           interceptors(run_prefix(args.run), self.ids, name,
+                                        getattr(args, "max_rate", None)))
         except ValueError as exc:
             raise ProblemError(str(exc)) from exc
         if config is None:
