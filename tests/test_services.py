@@ -408,3 +408,33 @@ def test_sigterm_during_start_up_leaves_a_readable_run_without_samples(tmp_path)
     assert res.returncode == 0 and "0 samples" in res.stdout, res.stderr
     m = _metrics(out)
     assert m["steps"] == 0 and m["completed"] is False and m["interrupted"] == "SIGINT"
+
+
+def test_oversized_and_too_frequent_messages_are_dropped_before_the_service(tmp_path):
+    """Zenoh's interceptors (services.limits) drop a payload above 64 KiB and what a robot
+    key carries faster than --max-rate before the plant's Python sees them."""
+    run = "limits"
+    (port,) = free_ports(1)
+    plant = start_service("plant", ["--scenario", SCENARIO, "--run", run, "--listen",
+                                    f"tcp/127.0.0.1:{port}", "--max-rate", "20",
+                                    "--startup-timeout", "600", "--out", str(tmp_path / "out"),
+                                    "--no-plots"], tmp_path / "logs")
+    probe = Probe(run, [f"tcp/127.0.0.1:{port}"])
+    try:
+        assert probe.wait_alive(["plant"], 60), plant.output()
+        probe.put(b"\x00" * (1 << 17), "robot", 1, "cmd")  # 128 KiB: dropped by Zenoh
+        time.sleep(0.2)
+        start = time.monotonic()
+        for _ in range(2000):  # small garbage, as fast as it goes: a few per 50 ms pass
+            probe.put(b"\x00garbage", "robot", 3, "cmd")
+        elapsed = time.monotonic() - start
+        probe.put(b"\x00garbage", "robot", 4, "cmd")  # another key: its own budget
+        time.sleep(1.0)
+    finally:
+        probe.close()
+        stop_processes([plant])
+    m = _metrics(tmp_path / "out")
+    faulty = m["faulty_messages"]
+    assert faulty["1"] == 0 and faulty["4"] == 1
+    assert 1 <= faulty["3"] <= 2 + 20 * (elapsed + 1.2) < 2000
+    assert m["invalid_messages_by_process"]["plant"] == faulty["3"] + faulty["4"]
