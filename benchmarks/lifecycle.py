@@ -159,7 +159,25 @@ def render(restarts: list[dict], alone: dict, launches: list[dict], latest: floa
              f"Measured by `python -m benchmarks.lifecycle` "
              f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {wall:.0f} s on this "
              "shared 2-core machine; the module docstring says exactly what each row does).",
-             "", "kill -9 of robot 2 at sample 20 and its command started again at once:", "",
+             "", "Every wait is bounded and every process ends with one clear line when what it "
+             "depends on is gone:", "",
+             "- a controller with no state from the plant gives up after `--startup-timeout` "
+             "(default 120 s), status 1; one whose plant leaves (liveliness token gone, at "
+             "once on a crash, after the 10 s lease on a silent partition) ends, status 1;",
+             "- the plant waits `--startup-timeout` for its controllers before sample 0; in "
+             "lockstep it waits up to `--rejoin-timeout` (default 30 s) for a controller that "
+             "left mid-run (a restarted robot rejoins at the sample where it left), then brakes "
+             "its robots; when every controller has been gone `--rejoin-timeout` it stops with "
+             "one error line (`abandoned` in `metrics.json`), writes what it has, status 1;",
+             "- SIGINT/SIGTERM at any moment, start-up included: each service records a signal "
+             "from its first lines on (`services/early.py`, before its slow imports) and "
+             "honours it once it can, without a traceback; the launcher signals a child only "
+             "once it handles signals, and always starts the plant, which writes what was "
+             "simulated (a run stopped before its first sample has `steps 0` and "
+             "`interrupted`); `sqpmpc metrics` reads every such folder;",
+             "- nothing of the credentials is left on disk by a launch, whatever its end "
+             "(`docs/security.md`).", "",
+             "kill -9 of robot 2 at sample 20 and its command started again at once:", "",
              "| mode | samples | collisions (at / between) | arrived | largest final error m | "
              "robot 2 braked inputs | others' braked inputs | robot 2 rejoined at sample | "
              "back after s | tracebacks | wall s |", "|" + "---|" * 11]

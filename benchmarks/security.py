@@ -163,7 +163,8 @@ def run_flooded(work: Path, flood: Flood, t_end: float) -> dict:
     forger = None
     if flood.payload is not None:
         forger = start_service("forger", [
-            "--scenario", SCENARIO, "--run", run, "--credentials", str(creds), "--identity",
+            "--scenario", SCENARIO, "--sample-time", "0.1", "--t-end", repr(t_end),
+            "--run", run, "--credentials", str(creds), "--identity",
             "robot-2", "--target", "2", "--attack", "flood", "--flood-bytes", str(flood.payload),
             "--duration", "900", "--listen", endpoint, "--log-level", "ERROR"], work / "logs")
         if flood.niced:
@@ -193,7 +194,8 @@ def render_floods(rows: list[tuple[Flood, dict]], t_end: float) -> list[str]:
     lines = ["", f"Flood: {SCENARIO} in real time at Ts 0.1 s, {int(round(t_end / 0.1))} "
              "samples (`services.launch` with credentials, every process linked to the "
              "flooder), a `services.forger` holding robot 2's certificate publishing robot 2's "
-             "`cmd` and `plan` (also addressed to robots 1, 3, 4) in a loop without pause; "
+             "`cmd` and `plan` (also addressed to robots 1, 3, 4) of the newest sample it saw "
+             "in a loop without pause; "
              "limits: `services.limits` (`--max-rate` 200 Hz per key, 64 KiB payloads); "
              "niced: the flooder at `nice 19`, as if it ran on its own computer (unniced, it "
              "also takes one of the machine's 2 shared cores).", "",
