@@ -21,6 +21,7 @@ route only chooses where the robot heads.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,12 @@ from sqpmpc.problem.routes import RoadMap, Route
 from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
 
 __all__ = ["RouteFollowing"]
+
+
+@functools.lru_cache(maxsize=16)
+def _road_map(polygons: tuple, circles: tuple, radius: float, margin: float) -> RoadMap:
+    """One road map per map and clearance, shared by the controllers of a run."""
+    return RoadMap(polygons, circles, radius, margin)
 
 
 @dataclass
@@ -56,7 +63,6 @@ class _RouteInstance(RuleInstance):
     def references_changed(self) -> None:
         sc = self.context.scenario
         static = bool(sc.polygons) or any(not o.moving for o in sc.obstacles)
-        by_radius: dict[float, RoadMap] = {}
         self.maps, self.goals, self.tracking = [], [], []
         for i in self.context.own:
             robot = sc.robots[int(i)]
@@ -65,10 +71,8 @@ class _RouteInstance(RuleInstance):
                 self.maps.append(None)
                 self.goals.append(None)
             else:
-                r = 0.5 * robot.diameter
-                if r not in by_radius:
-                    by_radius[r] = RoadMap(sc.polygons, sc.obstacles, r, self.rule.margin)
-                self.maps.append(by_radius[r])
+                self.maps.append(_road_map(tuple(sc.polygons), tuple(sc.obstacles),
+                                           0.5 * robot.diameter, self.rule.margin))
                 self.goals.append(np.asarray(ref.goal, dtype=float))
             self.tracking.append(None)
 
