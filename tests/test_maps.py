@@ -185,3 +185,31 @@ def test_built_in_maps() -> None:
         assert all(road.route(p, g) is not None for p, g in
                    zip(sc.initial_states()[:, :2], goals, strict=True))
     assert math.isfinite(load_scenario("warehouse").t_end)
+
+
+def test_every_view_draws_the_polygons(tmp_path) -> None:
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from sqpmpc.io.animate import load_run, render_frames
+    from sqpmpc.io.files import write_run
+
+    sc = parse_scenario(_wall()).with_changes(t_end=2.0)
+    metrics = write_run(tmp_path, simulate(sc, "decentralized"))
+    assert metrics["obstacle_collisions"] == 0
+    assert {"trajectories.png", "recording.mcap"} <= {p.name for p in tmp_path.iterdir()}
+    run = load_run(tmp_path)  # from trajectory.npz alone
+    assert len(run.polygons) == 1
+    np.testing.assert_allclose(run.polygons[0], np.asarray(sc.polygons[0].points))
+    assert next(render_frames(run, step=4)).ndim == 3
+    factory = DecoderFactory()
+    entities = set()
+    with open(tmp_path / "recording.mcap", "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages():
+            if channel.topic == "/scene":
+                scene = factory.decoder_for("protobuf", schema)(message.data)
+                for e in scene.entities:
+                    if e.id.startswith("polygon_"):
+                        entities.add(e.id)
+                        assert len(e.triangles[0].points) % 3 == 0 and e.lines
+    assert entities == {"polygon_0"}
