@@ -18,6 +18,7 @@ from sqpmpc.problem.scenario_file import (
     _OBSTACLE_KEYS,
     _OPTIONAL_TOP_KEYS,
     _PLANT_KEYS,
+    _POLYGON_KEYS,
     _ROBOT_KEYS,
     _TOP_KEYS,
 )
@@ -53,8 +54,11 @@ def test_constructor_keywords_are_the_scenario_file_keys() -> None:
     def keywords(cls: type) -> set[str]:
         return set(inspect.signature(cls).parameters)
 
-    assert keywords(sqpmpc.Scenario) - {"source"} == set(_TOP_KEYS + _OPTIONAL_TOP_KEYS)
+    # polygons are the file's [[obstacles]] tables with points (CONTRACT 1d)
+    assert keywords(sqpmpc.Scenario) - {"source", "polygons"} == set(
+        _TOP_KEYS + _OPTIONAL_TOP_KEYS)
     assert keywords(sqpmpc.Obstacle) == set(_OBSTACLE_KEYS)
+    assert keywords(sqpmpc.PolygonObstacle) == set(_POLYGON_KEYS)
     assert keywords(sqpmpc.PlantSpec) == set(_PLANT_KEYS)
     assert keywords(sqpmpc.RobotSpec) == set(_ROBOT_KEYS)
     assert keywords(sqpmpc.Weights) == {"Q", "R"}

@@ -8,6 +8,8 @@ import tomllib
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ScenarioError
@@ -74,7 +76,7 @@ def test_polygons_are_read_written_and_either_orientation_is_the_same_obstacle()
 @pytest.mark.parametrize(("points", "needle"), [
     ("[[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]",
      "obstacles[2].points: expected a simple polygon .* self-intersecting one near (0.5, 0.5)"),
-    ("[[0.0, 0.0], [1.0, 1.0]]", "obstacles[2].points: expected an array of at least 3"),
+    ("[[0.0, 0.0], [1.0, 1.0]]", "obstacles[2].points: expected an array of 3 to 128"),
     ("[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]", "obstacles[2].points: expected a simple "),
     ("[[-2.1, 0.0], [-1.9, 0.0], [-1.9, 1.0]]", "obstacles[2].points: polygon obstacle "
                                                 "overlaps robot id 1"),
@@ -213,3 +215,27 @@ def test_every_view_draws_the_polygons(tmp_path) -> None:
                         entities.add(e.id)
                         assert len(e.triangles[0].points) % 3 == 0 and e.lines
     assert entities == {"polygon_0"}
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.one_of(st.lists(st.floats(-1e6, 1e6) | st.floats(), min_size=0,
+                                   max_size=3), st.integers(), st.text(max_size=3)),
+                max_size=8))
+def test_any_points_value_is_a_polygon_or_one_scenario_error(points: list) -> None:
+    data = _wall()
+    data["obstacles"].append({"points": points})
+    try:
+        sc = parse_scenario(data, "fuzz.toml")
+    except ScenarioError as exc:
+        assert exc.key.startswith("obstacles[2]")
+    else:
+        assert len(sc.polygons) == 2 and all(len(p) >= 3 for p in sc.polygons[1].pieces)
+
+
+def test_a_many_sided_non_convex_polygon_is_split_quickly() -> None:
+    angles = np.linspace(0.0, 2.0 * np.pi, 128, endpoint=False)
+    radius = np.where(np.arange(128) % 2, 1.0, 2.0)  # a star
+    star = PolygonObstacle(np.column_stack((radius * np.cos(angles),
+                                            radius * np.sin(angles))).tolist())
+    union = shapely.union_all([shapely.Polygon(p) for p in star.pieces])
+    assert union.symmetric_difference(star.shape).area < 1e-9

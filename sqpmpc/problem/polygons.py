@@ -33,14 +33,17 @@ from shapely.geometry import Polygon
 
 from sqpmpc.errors import ProblemError
 
-__all__ = ["PolygonObstacle", "pack_pieces", "polygon_clearances"]
+__all__ = ["MAX_VERTICES", "PolygonObstacle", "pack_pieces", "polygon_clearances"]
 
 _AREA_RTOL = 1e-9
+#: Most vertices a polygon obstacle may have (its convex pieces are rows of every QP).
+MAX_VERTICES = 128
 
 
 def _points(value: object) -> tuple[tuple[float, float], ...]:
-    what = "an array of at least 3 vertices [x, y] of finite numbers (m)"
-    if not isinstance(value, list | tuple | np.ndarray) or len(value) < 3:
+    what = (f"an array of 3 to {MAX_VERTICES} vertices [x, y] of finite numbers (m)")
+    if (not isinstance(value, list | tuple | np.ndarray) or len(value) < 3
+            or len(value) > MAX_VERTICES):
         raise ProblemError(f"points: expected {what}, found {value!r}")
     out = []
     for v in value:
@@ -69,21 +72,22 @@ def _decompose(poly: Polygon) -> list[Polygon]:
     tris = [t for t in shapely.constrained_delaunay_triangles(poly).geoms if t.area > 0.0]
     pieces = list(tris)
     merged = True
-    while merged:
+    while merged:  # grow each piece by its neighbours while the union stays convex
         merged = False
-        for a in range(len(pieces)):
-            for b in range(a + 1, len(pieces)):
-                shared = pieces[a].intersection(pieces[b])
-                if shared.length <= 1e-12:
-                    continue
-                union = shapely.union(pieces[a], pieces[b]).simplify(0.0)
+        a = 0
+        while a < len(pieces):
+            b = a + 1
+            while b < len(pieces):
+                union = None
+                if pieces[a].intersection(pieces[b]).length > 1e-12:  # a shared edge
+                    union = shapely.union(pieces[a], pieces[b]).simplify(0.0)
                 if isinstance(union, Polygon) and _convex(union):
                     pieces[a] = union
                     del pieces[b]
                     merged = True
-                    break
-            if merged:
-                break
+                else:
+                    b += 1
+            a += 1
     return pieces
 
 
@@ -94,8 +98,8 @@ class PolygonObstacle:
     Parameters
     ----------
     points
-        Vertices :math:`(x, y)`, m, at least 3, in either orientation, forming a
-        simple polygon of positive area.
+        Vertices :math:`(x, y)`, m, 3 to :data:`MAX_VERTICES`, in either
+        orientation, forming a simple polygon of positive area.
 
     Raises
     ------
