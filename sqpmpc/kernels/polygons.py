@@ -88,8 +88,10 @@ def polygon_rows(me: np.ndarray, own: np.ndarray, vertices: np.ndarray, counts: 
     A_out, lower_out
         ``(P, N, 2)`` and ``(P, N)`` outputs.
 
-    Stage 1 is the hard row: its normal falls back to the current one when the
-    measured position violates it (``stage-one-override``), and its right-hand
+    A stage normal that turns by more than 90 degrees from the previous stage's (from
+    the current one for stage 1) is the prediction tunnelling through the piece: the
+    previous normal is kept. Stage 1 is the hard row: its normal falls back to the
+    current one when the measured position violates it (``stage-one-override``), and its right-hand
     side is capped at the measured position's value, so standing still always
     satisfies it. Returns the number of overrides.
     """
@@ -101,8 +103,14 @@ def polygon_rows(me: np.ndarray, own: np.ndarray, vertices: np.ndarray, counts: 
         verts = vertices[e]
         n0x, n0y = _normal(mx, my, verts, c_count, 1.0, 0.0)
         d = required[e]
+        px, py = n0x, n0y
         for i in range(N):
-            nx, ny = _normal(own[i, 0], own[i, 1], verts, c_count, n0x, n0y)
+            nx, ny = _normal(own[i, 0], own[i, 1], verts, c_count, px, py)
+            if nx * px + ny * py < 0.0:
+                # the prediction tunnelled through the piece between two stages (a thin
+                # wall): keep the side it came from, or the plan stays locked beyond it
+                nx, ny = px, py
+            px, py = nx, ny
             c, sn = rotation[i, 0], rotation[i, 1]
             ax, ay = nx * c - ny * sn, nx * sn + ny * c
             A_out[e, i, 0], A_out[e, i, 1] = ax, ay

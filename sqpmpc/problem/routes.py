@@ -152,6 +152,18 @@ class RoadMap:
                                              axis=1))
         return ~shapely.intersects(self._hard, lines)
 
+    def away_from_walls(self, p: np.ndarray) -> tuple[float, np.ndarray]:
+        """Clearance of a robot centred at ``p`` (distance to the static map minus the
+        radius, m) and the unit direction from the nearest obstacle point to ``p``."""
+        if self.empty:
+            return math.inf, np.array([1.0, 0.0])
+        point = Point(p)
+        q = np.asarray(nearest_points(self.bare, point)[0].coords[0])
+        d = np.asarray(p, dtype=float) - q
+        norm = float(np.hypot(*d))
+        away = d / norm if norm > 1e-12 else np.array([1.0, 0.0])
+        return norm - self.radius, away
+
     def _entry(self, p: np.ndarray) -> list[np.ndarray] | None:
         """``[p]``, or ``[p, nearest outline point]`` inside the band; ``None`` if too near."""
         point = Point(p)

@@ -15,7 +15,9 @@ it and can end up pinned against it). The route is
 re-planned from the robot's position when the robot has not progressed by
 ``progress`` metres for ``patience`` seconds or has been pushed more than
 ``deviation`` metres off it, and dropped once the straight way to the goal
-is free. Safety is the collision rows' business, as for every rule: the
+is free. A robot pressed against a wall, stopped and far from its goal for a
+few samples backs away from it first (facing a wall, a unicycle's
+linearization has no way out). Safety is the collision rows' business, as for every rule: the
 route only chooses where the robot heads.
 """
 
@@ -50,7 +52,8 @@ class _Tracking:
 
 class _RouteInstance(RuleInstance):
     rule: RouteFollowing
-    counter_names = ("route_plans", "route_replans", "route_samples", "routes_missing")
+    counter_names = ("route_plans", "route_replans", "route_samples", "routes_missing",
+                     "wall_escapes")
 
     def __init__(self, rule: RouteFollowing, context: RuleContext) -> None:
         super().__init__(rule, context)
@@ -58,6 +61,10 @@ class _RouteInstance(RuleInstance):
         self.goals: list[np.ndarray | None] = []
         self.tracking: list[_Tracking | None] = []
         self.speed = rule.speed * context.max_speed
+        m = context.own.size
+        self.pinned = np.zeros(m, dtype=np.int64)  # samples pressed against a wall
+        self.escape = np.zeros(m, dtype=np.int64)  # samples of escape left
+        self.escape_to = np.zeros((m, 2))
         self.references_changed()
 
     def references_changed(self) -> None:
@@ -85,6 +92,29 @@ class _RouteInstance(RuleInstance):
             return
         self.tracking[k] = _Tracking(route, t, 0.0, 0.0, t)
 
+    def _escaping(self, k: int, p: np.ndarray, goal: np.ndarray, view: SampleView) -> bool:
+        """Whether robot ``k`` backs away from a wall it is pressed against, stopped, far
+        from its goal (a unicycle facing a wall has no linearized way out)."""
+        rule = self.rule
+        if self.escape[k] > 0:
+            self.escape[k] -= 1
+            return True
+        road = self.maps[k]
+        if road is None or np.hypot(*(goal - p)) < rule.escape_distance:
+            self.pinned[k] = 0
+            return False
+        gap, away = road.away_from_walls(p)
+        stopped = abs(float(view.applied[k, 0])) < rule.stopped_speed
+        self.pinned[k] = self.pinned[k] + 1 if stopped and gap < rule.pressed else 0
+        if self.pinned[k] < rule.pinned_samples:
+            return False
+        self.pinned[k] = 0
+        self.escape[k] = rule.escape_samples - 1
+        self.escape_to[k] = p + rule.escape_distance * away
+        self.tracking[k] = None  # re-planned from where the escape ends
+        self.counts["wall_escapes"] += 1
+        return True
+
     def shape_references(self, view: SampleView) -> None:
         rule = self.rule
         out: np.ndarray | None = None
@@ -95,6 +125,11 @@ class _RouteInstance(RuleInstance):
             if road is None or goal is None:
                 continue
             p = view.own_states[k, :2]
+            if self._escaping(k, p, goal, view):
+                if out is None:
+                    out = view.references.copy()
+                out[k] = self.escape_to[k]
+                continue
             track = self.tracking[k]
             if track is None:
                 if view.sample % rule.check_every or road.free(p, goal):
@@ -157,6 +192,13 @@ class RouteFollowing(Rule):
         Re-plan when the robot is farther than this from its route, m.
     check_every
         Samples between the checks of a robot without a route (is its way blocked?).
+    pressed, stopped_speed, pinned_samples
+        A robot nearer than ``pressed`` m beyond its radius to a wall, whose applied
+        speed stayed below ``stopped_speed`` m/s for ``pinned_samples`` samples, is
+        pinned (facing the wall, a unicycle's linearization has no way out) ...
+    escape_distance, escape_samples
+        ... and heads for the point ``escape_distance`` m straight away from the wall
+        for ``escape_samples`` samples, then goes on (its goal, or a new route).
     """
 
     name = "route"
@@ -169,7 +211,13 @@ class RouteFollowing(Rule):
     patience: float = 8.0
     deviation: float = 1.0
     check_every: int = 1
+    pressed: float = 0.03
+    stopped_speed: float = 0.05
+    pinned_samples: int = 4
+    escape_distance: float = 0.4
+    escape_samples: int = 4
 
     def __post_init__(self) -> None:
         check_positive(self, "margin", "speed", "lead", "progress", "patience", "deviation",
-                       "check_every")
+                       "check_every", "pressed", "stopped_speed", "pinned_samples",
+                       "escape_distance", "escape_samples")
