@@ -78,6 +78,7 @@ _EXPORTS: dict[str, str] = {
     "SimulationOptions": "simulation",
     "simulate": "simulation",
     "RunRecord": "metrics",
+    "RunRecorder": "recorder",
     "compute_metrics": "metrics",
     "load_trajectory": "metrics",
     "write_metrics": "metrics",
@@ -127,6 +128,7 @@ __all__ = [
     "SimulationOptions",
     "simulate",
     "RunRecord",
+    "RunRecorder",
     "compute_metrics",
     "load_trajectory",
     "write_metrics",
@@ -158,6 +160,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from .obstacles import Obstacle
     from .plant import Plant, PlantSpec
     from .qp import OSQPSettings
+    from .recorder import RunRecorder
     from .references import (
         HarmonicReference,
         PointReference,

@@ -61,6 +61,7 @@ from .errors import ProblemError
 from .paths import obstacle_clearances, plant_paths
 
 __all__ = [
+    "ARRIVAL_TOLERANCE",
     "COLLISION_TOLERANCE",
     "BOUND_TOLERANCE",
     "RunRecord",
@@ -78,6 +79,8 @@ log = logging.getLogger(__name__)
 
 COLLISION_TOLERANCE = 1e-6
 """A (sample, pair) is a collision when its clearance is below ``-COLLISION_TOLERANCE``."""
+ARRIVAL_TOLERANCE = 0.05
+"""A robot arrived when its final position error is at most this, m (contract section 3)."""
 BOUND_TOLERANCE = 1e-9
 """An input or position violates its bound when outside it by more than this."""
 
@@ -329,8 +332,10 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         ``closed_loop_cost``, ``input_bound_violations``, ``solver_failures``,
         ``solve_time``) plus ``completed``, ``planned_steps``, ``ids``,
         ``min_clearance_at`` (``{"t", "pair"}`` of the minimum),
-        ``final_position_error``, ``max_final_position_error``,
-        ``state_bound_violations``, ``intersample_min_clearance`` and
+        ``final_position_error`` (per robot id, m, at the last sample against the
+        reference then), ``max_final_position_error``, ``arrived`` (per robot id:
+        final error <= :data:`ARRIVAL_TOLERANCE`), ``all_arrived``,
+        ``arrival_tolerance``, ``state_bound_violations``, ``intersample_min_clearance`` and
         ``intersample_collisions`` (the same between samples, see
         :func:`intersample_distances`; ``None``/0 before the first step) and
         the record's ``extra`` entries (an
@@ -414,6 +419,10 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         "min_clearance_at": min_at,
         "final_position_error": {str(i): _float(v) for i, v in zip(ids, final, strict=True)},
         "max_final_position_error": _float(final.max()),
+        "arrived": {str(i): bool(v <= ARRIVAL_TOLERANCE) for i, v in zip(ids, final,
+                                                                         strict=True)},
+        "all_arrived": bool(np.all(final <= ARRIVAL_TOLERANCE)),
+        "arrival_tolerance": ARRIVAL_TOLERANCE,
         "state_bound_violations": state_violations,
         "intersample_min_clearance": intersample_min_clearance,
         "intersample_collisions": intersample_collisions,
@@ -532,7 +541,9 @@ def write_run(
 ) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` and return its metrics.
 
-    ``trajectory.npz`` and ``metrics.json`` are written first; then, when
+    ``trajectory.npz`` and ``metrics.json`` are written first, then ``record.msgpack``
+    (:func:`sqpmpc.runlog.write_record`, read by ``sqpmpc metrics``) unless the folder
+    has one (a distributed plant writes its own as it runs); then, when
     ``recording`` is true, ``recording.mcap`` (:func:`sqpmpc.recording.write_recording`,
     for Foxglove); then, when ``plots`` is true, the PNG figures via ``plotter``
     (default :func:`sqpmpc.plots.plot_run`). An exception while recording or
@@ -562,6 +573,10 @@ def write_run(
     write_trajectory(out / "trajectory.npz", record)
     metrics = compute_metrics(record)
     write_metrics(out / "metrics.json", metrics)
+    if not (out / "record.msgpack").exists() and hasattr(record.scenario, "to_toml"):
+        from .runlog import write_record  # a distributed plant writes its own as it runs
+
+        write_record(out / "record.msgpack", record)
     if recording:
         from .recording import write_recording
 

@@ -25,6 +25,8 @@ order (a torn last frame is ignored); ``sqpmpc metrics RUN_DIR`` writes
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import os
 import sys
 import time
@@ -47,6 +49,7 @@ __all__ = [
     "add_parser",
     "main",
     "read_record",
+    "write_record",
 ]
 
 FORMAT = "sqpmpc-record"
@@ -224,28 +227,82 @@ def read_record(path: str | os.PathLike[str]) -> RunRecord:
                      plant_inputs=plant_inputs)
 
 
+def write_record(path: str | os.PathLike[str], record: RunRecord,
+                 settings: dict[str, Any] | None = None) -> Path:
+    """Write a whole run record as a record file (header, every sample, end), so that
+    ``sqpmpc metrics`` reads an in-process run's folder as it reads a distributed one.
+
+    Parameters
+    ----------
+    path
+        The record file to write (atomically).
+    record
+        The run; its scenario must be a :class:`~sqpmpc.scenario.Scenario` (``to_toml``).
+    settings
+        The writer's settings worth keeping (JSON-like values).
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    from .metrics import atomic_path
+
+    path = Path(path)
+    scenario = record.scenario
+    text = scenario.to_toml()
+    extra = json.loads(json.dumps(record.extra or {}, default=str))
+    with atomic_path(path) as tmp:
+        writer = RecordWriter(tmp, scenario, record.scheme, record.solve_times.shape[1],
+                              record.states[0], settings or {},
+                              hashlib.sha256(text.encode()).hexdigest()[:16])
+        try:
+            for k in range(record.k):  # the run's fallbacks counted with its last sample
+                writer.sample(k, record.inputs[k], record.states[k + 1],
+                              record.solve_times[k],
+                              int(record.solver_failures) if k == record.k - 1 else 0, [],
+                              None if record.plant_inputs is None else record.plant_inputs[k])
+            writer.end(record.completed, extra)
+        finally:
+            writer.close()
+    return path
+
+
 # ---------------------------------------------------------------- sqpmpc metrics RUN_DIR
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add ``metrics RUN_DIR`` to the ``sqpmpc`` subcommands; returns its parser."""
     parser = subparsers.add_parser(
-        "metrics", help="recompute metrics.json and trajectory.npz of a run folder from its "
-                        f"incremental record ({RECORD_FILE}; e.g. after the plant was killed)")
+        "metrics", help="recompute metrics.json and trajectory.npz of any run folder "
+                        "(sqpmpc run, launch, plant, RunRecorder) from its record "
+                        f"({RECORD_FILE}; e.g. after the plant was killed) and summarize it")
     parser.add_argument("run_dir", type=Path, help="the run's output folder")
     parser.add_argument("--plots", action="store_true", help="draw the PNG plots too")
+    parser.add_argument("--fail-on-miss", action="store_true",
+                        help="exit with status 4 when a robot did not arrive, a collision "
+                             "happened or the run did not complete")
     parser.set_defaults(handler=main)
     return parser
 
 
 def main(args: argparse.Namespace) -> int:
-    """Handle ``sqpmpc metrics``: 0 written, 2 no readable record."""
+    """Handle ``sqpmpc metrics``: 0 written, 2 no readable record, 4 with ``--fail-on-miss``
+    when the run missed its goal (:func:`sqpmpc.reporting.missed_goal`)."""
+    from .reporting import missed_goal, summarize
+
     try:
         record = read_record(args.run_dir)
     except RecordError as exc:
         print(f"sqpmpc metrics: error: {exc}", file=sys.stderr)
         return 2
     out = args.run_dir if args.run_dir.is_dir() else args.run_dir.parent
-    metrics = write_run(out, record, plots=args.plots)
-    print(f"{out}: {metrics['steps']} samples of {record.scenario.steps} "
-          f"(completed: {record.completed}, recovered: {record.extra['recovered_from_record']}),"
-          f" min clearance {metrics['min_clearance']:.4g} m, collisions {metrics['collisions']}")
+    # a recording.mcap written by the run has the plans, which the record does not keep
+    metrics = write_run(out, record, plots=args.plots,
+                        recording=not (out / "recording.mcap").is_file())
+    print(summarize(metrics))
+    print(f"wrote {out} (recovered from the record alone: "
+          f"{record.extra['recovered_from_record']})")
+    miss = missed_goal(metrics)
+    if args.fail_on_miss and miss:
+        print(f"sqpmpc metrics: goal missed: {miss}", file=sys.stderr)
+        return 4
     return 0

@@ -4,7 +4,8 @@ A scenario is read from a TOML file or a built-in name (the ``*.toml`` files of
 package :mod:`sqpmpc.scenarios`, by stem: ``paper-s1``, ``paper-s2``) and fully
 validated before anything runs; every problem is one
 :class:`~sqpmpc.errors.ScenarioError` naming the file, the key (e.g.
-``robots[2].diameter``, with robots indexed from 0 in file order) and what was
+``robots[2].diameter``, with robots indexed from 0 in file order), the robot's
+id when it has one (``robot id 3 (the 3rd [[robots]] table)``) and what was
 expected.
 
 The problem it describes: robots :math:`j = 1..n` with unicycle states
@@ -330,7 +331,8 @@ class Scenario:
             if robot.id in first:
                 raise ScenarioError(self.source, f"robots[{i}].id",
                                     f"expected a unique id, found {robot.id} already used by "
-                                    f"robots[{first[robot.id]}]")
+                                    f"robots[{first[robot.id]}] (robots[i] is the (i+1)-th "
+                                    "[[robots]] table)")
             first[robot.id] = i
         lower, upper = self.bounds.position_lower(), self.bounds.position_upper()
         for i, robot in enumerate(self.robots):
@@ -550,11 +552,14 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     robots = []
     for i, raw in enumerate(raw_robots):
         key = f"robots[{i}]"
-        r = _table(raw, source, key, _ROBOT_KEYS, _ROBOT_KEYS)
-        reference = reference_from_dict(r["reference"], source, f"{key}.reference")
-        robots.append(_build(RobotSpec, source, key, id=r["id"],
-                             initial_state=r["initial_state"], diameter=r["diameter"],
-                             reference=reference))
+        try:
+            r = _table(raw, source, key, _ROBOT_KEYS, _ROBOT_KEYS)
+            reference = reference_from_dict(r["reference"], source, f"{key}.reference")
+            robots.append(_build(RobotSpec, source, key, id=r["id"],
+                                 initial_state=r["initial_state"], diameter=r["diameter"],
+                                 reference=reference))
+        except ScenarioError as exc:  # name the robot by its id, not only its table's index
+            raise ScenarioError(source, exc.key, f"{_robot_label(raw, i)}: {exc.detail}") from None
     obstacles = []
     raw_obstacles = data.get("obstacles", [])
     if not isinstance(raw_obstacles, list | tuple):
@@ -572,6 +577,17 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
                     horizon=data["horizon"], weights=weights, bounds=bounds,
                     robots=tuple(robots), obstacles=tuple(obstacles), plant=plant,
                     source=source)
+
+
+def _robot_label(raw: Any, index: int) -> str:
+    """``robot id 2 (the 2nd [[robots]] table)``, or the table alone without a valid id."""
+    n = index + 1
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    table = f"the {n}{suffix} [[robots]] table"
+    rid = raw.get("id") if isinstance(raw, dict) else None
+    if isinstance(rid, int) and not isinstance(rid, bool) and rid > 0:
+        return f"robot id {rid} ({table})"
+    return table
 
 
 def _build_checked(cls: type, source: str, prefix: str, **kwargs: Any) -> Any:
