@@ -83,16 +83,10 @@ def prepare_output(out: str | os.PathLike[str], overwrite: bool = False) -> Path
     return path
 
 
-def _inputs_of(inputs: Any) -> tuple[np.ndarray, float | np.ndarray | None, int]:
-    """``(inputs, solve_time, fallbacks)`` of an array or of controller outputs."""
+def _outputs(inputs: Any) -> list[Any] | None:
+    """The controller outputs in ``inputs`` (one, or a list), or ``None`` for an array."""
     outputs = inputs if isinstance(inputs, list | tuple) else [inputs]
-    if outputs and all(hasattr(o, "inputs") for o in outputs):
-        u = np.concatenate([np.asarray(o.inputs, dtype=float).reshape(-1, 2)
-                            for o in outputs])
-        times = np.array([float(o.compute_time) for o in outputs])
-        fallbacks = sum(getattr(o, "fallback", None) is not None for o in outputs)
-        return u, times if len(outputs) > 1 else float(times[0]), int(fallbacks)
-    return np.asarray(inputs, dtype=float), None, 0
+    return outputs if outputs and all(hasattr(o, "inputs") for o in outputs) else None
 
 
 class RunRecorder:
@@ -122,8 +116,19 @@ class RunRecorder:
         self.inputs: list[np.ndarray] = []
         self.plant_inputs: list[np.ndarray | None] = []
         self.solve_times: list[np.ndarray] = []
+        self.horizons: list[np.ndarray | None] = []
         self.solver_failures = 0
         self.extra: dict[str, Any] = {}
+
+    @staticmethod
+    def inputs_of(outputs: Any) -> np.ndarray:
+        """The ``(n, 2)`` inputs of a controller output or a list of them (one per robot,
+        in the scenario's order), to give to the plant."""
+        found = _outputs(outputs)
+        if found is None:
+            return np.asarray(outputs, dtype=float)
+        return np.concatenate([np.asarray(o.inputs, dtype=float).reshape(-1, 2)
+                               for o in found])
 
     def append(self, t: float, states: np.ndarray, inputs: Any = None,
                solve_time: float | Sequence[float] | None = None,
@@ -163,7 +168,7 @@ class RunRecorder:
         t = float(t)
         if not np.isfinite(t) or (k and t <= self.t[-1]):
             raise ProblemError(f"sample {k}: t = {t!r} must be finite and after the previous "
-                               f"sample's {self.t[-1] if k else ''}".rstrip())
+                               f"sample's t = {self.t[-1] if k else None!r}")
         x = np.asarray(states, dtype=float)
         if x.shape != (self.n, 3) or not np.all(np.isfinite(x)):
             raise ProblemError(f"sample {k}: states must be finite with shape ({self.n}, 3), "
@@ -172,7 +177,18 @@ class RunRecorder:
         self.states.append(x.copy())
         if inputs is None:
             return
-        u, times, failed = _inputs_of(inputs)
+        outputs = _outputs(inputs)
+        u = self.inputs_of(inputs)
+        times = failed = None
+        horizon = None
+        if outputs is not None:
+            times = [float(o.compute_time) for o in outputs]
+            failed = sum(o.fallback is not None for o in outputs)
+            try:
+                horizon = np.concatenate([np.asarray(o.predicted_states, dtype=float)
+                                          for o in outputs])
+            except (AttributeError, ValueError):
+                horizon = None
         if u.shape != (self.n, 2) or not np.all(np.isfinite(u)):
             self.t.pop()
             self.states.pop()
@@ -180,6 +196,11 @@ class RunRecorder:
                                f"got {u.shape}")
         st = np.atleast_1d(np.asarray(solve_time if solve_time is not None else
                                       (times if times is not None else 0.0), dtype=float))
+        if st.size not in (1, self.n):
+            self.t.pop()
+            self.states.pop()
+            raise ProblemError(f"sample {k}: solve_time must be one number or one per robot "
+                               f"({self.n}), got {st.size}")
         if self.solve_times and st.shape != self.solve_times[0].shape:
             self.t.pop()
             self.states.pop()
@@ -189,7 +210,8 @@ class RunRecorder:
         self.solve_times.append(st)
         self.plant_inputs.append(None if plant_inputs is None
                                  else np.asarray(plant_inputs, dtype=float).reshape(self.n, 2))
-        self.solver_failures += failed + int(fallbacks)
+        self.horizons.append(horizon)
+        self.solver_failures += int(failed or 0) + int(fallbacks)
 
     def record(self) -> RunRecord:
         """The run collected so far (an input without a state after it is left out).
@@ -204,6 +226,8 @@ class RunRecorder:
         k = len(self.t) - 1
         columns = self.solve_times[0].size if self.solve_times else 1
         applied = self.plant_inputs[:k]
+        plans = self.horizons[:k]
+        shape = (self.n, int(self.scenario.horizon) + 1, 3)
         steps = int(self.scenario.steps)
         return RunRecord(
             self.scenario, self.scheme, np.asarray(self.t), np.asarray(self.states),
@@ -211,7 +235,9 @@ class RunRecorder:
             np.asarray(self.solve_times[:k]).reshape(k, columns), self.solver_failures,
             completed=k >= steps, extra=dict(self.extra),
             plant_inputs=(np.asarray(applied) if k and all(a is not None for a in applied)
-                          else None))
+                          else None),
+            horizons=(np.asarray(plans) if k and all(h is not None and h.shape == shape
+                                                     for h in plans) else None))
 
     def write(self, out: str | os.PathLike[str], plots: bool = True, recording: bool = True,
               overwrite: bool = False) -> dict[str, Any]:

@@ -137,3 +137,37 @@ def test_a_summary_of_a_distributed_run_says_the_deadlines() -> None:
     text = summarize(sqpmpc.compute_metrics(recorder.record()))
     assert "(lockstep)" in text and "missed deadlines 3 (most: id 1: 3)" in text
     assert "1.23 s wall" in text
+
+
+def test_a_recorded_loop_has_the_metrics_of_the_same_simulated_run() -> None:
+    scenario = load_scenario("head-on").with_changes(t_end=4.0)
+    simulated = sqpmpc.simulate(scenario, "decentralized")
+    recorder = sqpmpc.RunRecorder(scenario, "decentralized")
+    for k in range(simulated.k):
+        recorder.append(simulated.t[k], simulated.states[k], simulated.inputs[k],
+                        solve_time=simulated.solve_times[k])
+    recorder.append(simulated.t[-1], simulated.states[-1])
+    mine, theirs = (sqpmpc.compute_metrics(r) for r in (recorder.record(), simulated))
+    for key in ("steps", "completed", "min_clearance", "collisions", "rms_tracking_error",
+                "closed_loop_cost", "final_position_error", "arrived", "solve_time"):
+        assert mine[key] == theirs[key], key
+
+
+def test_the_recorder_refuses_bad_samples_by_number() -> None:
+    scenario = load_scenario("head-on")
+    recorder = sqpmpc.RunRecorder(scenario)
+    x = scenario.initial_states()
+    recorder.append(0.0, x, np.zeros((2, 2)))
+    with pytest.raises(sqpmpc.ProblemError, match=r"sample 1: inputs must be finite"):
+        recorder.append(0.5, x, np.zeros((3, 2)))
+    with pytest.raises(sqpmpc.ProblemError, match=r"sample 1: t = 0.0"):
+        recorder.append(0.0, x, np.zeros((2, 2)))
+    with pytest.raises(sqpmpc.ProblemError, match=r"sample 1: states"):
+        recorder.append(0.5, np.full((2, 3), np.nan), np.zeros((2, 2)))
+    recorder.append(0.5, x)  # the final states
+    with pytest.raises(sqpmpc.ProblemError, match="final states were already appended"):
+        recorder.append(1.0, x, np.zeros((2, 2)))
+    record = recorder.record()
+    assert record.k == 1 and record.inputs.shape == (1, 2, 2) and not record.completed
+    with pytest.raises(sqpmpc.ProblemError, match="nothing recorded"):
+        sqpmpc.RunRecorder(scenario).record()
