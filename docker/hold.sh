@@ -9,11 +9,19 @@
 # $SQPMPC_HOLD_STATUS (default /tmp/sqpmpc-status; the healthcheck reads it) and is this
 # script's exit status when the stack stops it. A failing command still shows: its
 # container turns unhealthy.
-"$@"
+"$@" &
+child=$!
+# a stop while the command runs is passed on to it (init forwards signals to this shell only)
+trap 'kill -TERM "$child" 2>/dev/null' TERM INT
+wait "$child"
 status=$?
-echo "$1 $2 $3 exited with status $status; holding until the stack stops"
+while kill -0 "$child" 2>/dev/null; do  # woken by a signal: wait for the command itself
+    wait "$child"
+    status=$?
+done
 echo "$status" > "${SQPMPC_HOLD_STATUS:-/tmp/sqpmpc-status}"
 trap 'exit "$status"' TERM INT
+echo "$1 $2 $3 exited with status $status; holding until the stack stops"
 while :; do
     sleep 3600 &
     wait $!

@@ -199,3 +199,21 @@ def test_compose_services_run_locally_through_a_secured_router(tmp_path):
     assert metrics["steps"] == 40 and metrics["missed_deadlines"] == 0
     assert metrics["invalid_messages"] == 0
     assert (out / "trajectory.npz").exists()
+
+
+def test_hold_passes_a_stop_on_to_its_command(tmp_path) -> None:
+    env = dict(os.environ, SQPMPC_HOLD_STATUS=str(tmp_path / "status"))
+    script = "import signal, sys, time; signal.signal(signal.SIGTERM, lambda *a: sys.exit(7))" \
+             "; print('up', flush=True); time.sleep(60)"
+    proc = subprocess.Popen(["sh", str(ROOT / "docker" / "hold.sh"), sys.executable, "-c",
+                             script], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "up"
+        proc.send_signal(signal.SIGTERM)  # the command gets it, ends with 7, then held
+        assert "exited with status 7; holding" in proc.stdout.readline()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 7
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
