@@ -18,8 +18,8 @@ import sys
 from pathlib import Path
 
 import sqpmpc
-from sqpmpc.recorder import prepare_output
-from sqpmpc.reporting import summarize
+from sqpmpc.io.recorder import prepare_output
+from sqpmpc.io.reporting import summarize
 
 
 def main() -> int:

@@ -47,9 +47,9 @@ import time
 import foxglove
 import numpy as np
 
-from sqpmpc.options import Parser, nonnegative_float, port_number
-from sqpmpc.recording import FleetLog
-from sqpmpc.scenario import Scenario
+from sqpmpc.cli.options import Parser, nonnegative_float, port_number
+from sqpmpc.io.recording import FleetLog
+from sqpmpc.problem.scenario import Scenario
 
 from .messages import CmdMsg, DoneMsg, Message, PlanMsg, StateMsg
 from .node import (

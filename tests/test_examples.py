@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 import sqpmpc
-import sqpmpc.cli
+from sqpmpc.cli.main import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -75,7 +75,7 @@ def test_record_own_loop(tmp_path: Path) -> None:
     for name in ("trajectory.npz", "record.msgpack", "recording.mcap", "trajectories.png"):
         assert (out / name).is_file(), name
     # the folder reads back like any run's, and a second write is refused
-    assert sqpmpc.cli.main(["metrics", str(out)]) == 0
+    assert cli_main(["metrics", str(out)]) == 0
     assert json.loads((out / "metrics.json").read_text())["steps"] == 8
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     again = subprocess.run([sys.executable, str(EXAMPLES / "record_own_loop.py"), "--steps", "2",

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqpmpc.metrics import RunRecord, write_run
-from sqpmpc.plots import plot_run
-from sqpmpc.scenario import Scenario
+from sqpmpc.io.files import write_run
+from sqpmpc.io.plots import plot_run
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 from tests.scenarios import circle_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -64,16 +65,16 @@ def test_a_long_run_is_plotted(tmp_path: Path) -> None:
 @pytest.mark.parametrize("n", [4, 16, 64])
 def test_fleet_figures_at_4_16_and_64_robots(tmp_path: Path, n: int) -> None:
     """Every figure is drawn for a fleet (heat maps and aggregates past 8 robots)."""
-    from sqpmpc.fleets import antipodal_swap
+    from sqpmpc.problem.fleets import antipodal_swap
 
     sc = antipodal_swap(n).with_changes(t_end=5.0)
     assert_pngs(plot_run(make_record(sc, sc.steps), tmp_path))
 
 
 def test_the_fleet_clearance_names_the_pair_of_the_metrics() -> None:
-    from sqpmpc.fleetplots import fleet_clearances, nearest_clearances, time_marks
-    from sqpmpc.fleets import antipodal_swap
-    from sqpmpc.metrics import compute_metrics
+    from sqpmpc.io.fleetplots import fleet_clearances, nearest_clearances, time_marks
+    from sqpmpc.io.metrics import compute_metrics
+    from sqpmpc.problem.fleets import antipodal_swap
 
     sc = antipodal_swap(12).with_changes(t_end=10.0)
     record = make_record(sc, sc.steps)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import sqpmpc
-from sqpmpc.cli import main
+from sqpmpc.cli.main import main
 from sqpmpc.errors import ScenarioError
-from sqpmpc.reporting import id_ranges, missed_goal, quantity, summarize
-from sqpmpc.scenario import load_scenario
+from sqpmpc.io.reporting import id_ranges, missed_goal, quantity, summarize
+from sqpmpc.problem.scenario_file import load_scenario
 
 ARRIVAL_KEYS = {"final_position_error", "max_final_position_error", "arrived", "all_arrived"}
 
