@@ -40,7 +40,7 @@ class CentralizedController(ControllerPipeline):
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
-                          _has_position_bounds(scenario))
+                          _has_position_bounds(scenario), scenario.robot_model())
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required

@@ -104,7 +104,8 @@ class DecentralizedController(ControllerPipeline):
         slots = others.size if settings.neighbour_slots is None else min(
             others.size, settings.neighbour_slots)
         layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64),
-                          slots + len(scenario.obstacles), _has_position_bounds(scenario))
+                          slots + len(scenario.obstacles), _has_position_bounds(scenario),
+                          scenario.robot_model())
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
         self.index = index

@@ -196,7 +196,8 @@ class RobotModel(ABC):
         shape = (initial.shape[0], horizon, 0)
         return np.zeros(shape), np.zeros(shape)
 
-    def clip_first_input(self, states: np.ndarray, inputs: np.ndarray) -> None:
+    def clip_first_input(self, states: np.ndarray, inputs: np.ndarray,
+                         sample_time: float) -> None:
         """Clip the first inputs ``inputs[:, 0]`` of a plan from ``states (m, nx)`` to what
         the bounds allow (in place)."""
         np.clip(inputs[:, 0], self.input_lower, self.input_upper, out=inputs[:, 0])

@@ -55,7 +55,9 @@ class MultipleShootingSQP:
     sample_time
         :math:`T_s`, s.
     Q_diag, R_diag
-        Cost weights on (x, y) and on the model's inputs (the unicycle's (v, omega)).
+        Cost weights on (x, y) and (v, omega) (the paper's objective); a model with
+        velocity states has ``R`` on them (stages 1..N, the commands) and
+        ``R Ts^2`` on its acceleration inputs.
     input_lower, input_upper
         ``(nu,)`` input bounds.
     position_lower, position_upper
@@ -94,7 +96,13 @@ class MultipleShootingSQP:
         self.input_lower = np.asarray(input_lower, float)
         self.input_upper = np.asarray(input_upper, float)
         self.qp = SparseQP(layout, settings.osqp, settings.qp_solver)
-        self.qp.update_cost_weights(Q_diag, R_diag, settings.slack_penalty)
+        if self.model.velocity_states:
+            # the paper's R on the velocities (the commands), R Ts^2 on the accelerations: the
+            # same price on a velocity change over a sample as on the velocity itself
+            self.qp.update_cost_weights(Q_diag, np.asarray(R_diag) * self.sample_time ** 2,
+                                        settings.slack_penalty, R_diag)
+        else:
+            self.qp.update_cost_weights(Q_diag, R_diag, settings.slack_penalty)
         self.qp.update_input_bounds(self.input_lower, self.input_upper)
         if layout.position_bounds:
             self.qp.update_position_bounds(position_lower, position_upper)

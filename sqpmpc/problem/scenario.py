@@ -31,6 +31,9 @@ from typing import Any
 import numpy as np
 
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.models.acceleration import AccelerationUnicycle
+from sqpmpc.models.base import RobotModel
+from sqpmpc.models.paper import UnicycleModel
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.references import (
@@ -98,7 +101,7 @@ class Weights:
 
 @dataclass(frozen=True)
 class Bounds:
-    """Inclusive box bounds on inputs and (optionally) positions.
+    """Inclusive box bounds on velocities, (optionally) positions and accelerations.
 
     Parameters
     ----------
@@ -107,12 +110,21 @@ class Bounds:
     x, y
         Optional ``(lower, upper)`` of the position coordinates, m; ``None``
         means unbounded.
+    acceleration, angular_acceleration
+        Optional ``(lower, upper)`` of how fast the robot can change ``v``
+        (m/s^2) and ``omega`` (rad/s^2), CONTRACT 1c; both or neither, each
+        with ``lower <= 0 <= upper`` and ``lower < upper``. With them the robots are
+        the unicycle with velocity states and acceleration inputs
+        (:class:`~sqpmpc.models.acceleration.AccelerationUnicycle`); without them
+        the paper's, whose velocities change at once.
     """
 
     v: tuple[float, float]
     omega: tuple[float, float]
     x: tuple[float, float] | None = None
     y: tuple[float, float] | None = None
+    acceleration: tuple[float, float] | None = None
+    angular_acceleration: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "v", _pair(self.v, "v", "m/s"))
@@ -121,6 +133,40 @@ class Bounds:
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, _pair(value, name, "m"))
+        limits = {"acceleration": "m/s^2", "angular_acceleration": "rad/s^2"}
+        given = [name for name in limits if getattr(self, name) is not None]
+        if len(given) == 1:
+            other = next(name for name in limits if name not in given)
+            raise _FieldError(other, f"expected {other} with {given[0]} (a robot's dynamic "
+                              "limits are declared together), found none")
+        for name in given:
+            lo, hi = _pair(getattr(self, name), name, limits[name])
+            if not lo <= 0.0 <= hi or lo == hi:
+                raise _FieldError(name, f"expected lower <= 0 <= upper with lower < upper (a "
+                                  f"robot must be able to speed up and to brake), found "
+                                  f"[{lo!r}, {hi!r}]")
+            object.__setattr__(self, name, (lo, hi))
+
+    @property
+    def dynamic_limits(self) -> bool:
+        """Whether acceleration bounds are declared (the velocities are then states)."""
+        return self.acceleration is not None
+
+    def acceleration_lower(self) -> np.ndarray:
+        """Lower bounds of ``(a, alpha)``, shape ``(2,)`` (only with :attr:`dynamic_limits`)."""
+        return np.array([self.acceleration[0], self.angular_acceleration[0]])
+
+    def acceleration_upper(self) -> np.ndarray:
+        """Upper bounds of ``(a, alpha)``, shape ``(2,)`` (only with :attr:`dynamic_limits`)."""
+        return np.array([self.acceleration[1], self.angular_acceleration[1]])
+
+    def robot_model(self) -> RobotModel:
+        """The robots' model: the paper's unicycle, or with :attr:`dynamic_limits` the
+        unicycle with velocity states and acceleration inputs."""
+        if not self.dynamic_limits:
+            return UnicycleModel(self.input_lower(), self.input_upper())
+        return AccelerationUnicycle(self.input_lower(), self.input_upper(),
+                                    self.acceleration_lower(), self.acceleration_upper())
 
     def input_lower(self) -> np.ndarray:
         """:math:`u_{\\min} = (v_{\\min}, \\omega_{\\min})`, shape ``(2,)``."""
@@ -360,6 +406,11 @@ class Scenario:
         """States at :math:`t = 0`, shape ``(n, 3)``."""
         return np.array([r.initial_state for r in self.robots], dtype=np.float64)
 
+    def robot_model(self) -> RobotModel:
+        """The robots' model (:meth:`Bounds.robot_model`); the footprint is a disc of each
+        robot's ``diameter``."""
+        return self.bounds.robot_model()
+
     def diameters(self) -> np.ndarray:
         """Diameters :math:`d_j`, shape ``(n,)``."""
         return np.array([r.diameter for r in self.robots], dtype=np.float64)
@@ -410,7 +461,7 @@ class Scenario:
                  f"horizon = {self.horizon}", "", "[weights]",
                  f"Q = {_toml_value(self.weights.Q)}",
                  f"R = {_toml_value(self.weights.R)}", "", "[bounds]"]
-        for key in ("v", "omega", "x", "y"):
+        for key in ("v", "omega", "x", "y", "acceleration", "angular_acceleration"):
             value = getattr(self.bounds, key)
             if value is not None:
                 lines.append(f"{key} = {_toml_value(value)}")

@@ -69,8 +69,9 @@ class PIQPBackend:
         kind = np.full(L.n_con, _ROW)
         kind[L.init_rows.ravel()] = kind[L.dyn_rows.ravel()] = _EQUALITY
         # rows that bound one variable with coefficient 1 (inputs, positions, velocities, slacks)
-        self.bound_rows = np.concatenate([L.input_rows.ravel(), L.position_rows.ravel(),
-                                          L.velocity_rows.ravel(), L.slack_rows.ravel()]).astype(np.int64)
+        self.bound_rows = np.concatenate(
+            [L.input_rows.ravel(), L.position_rows.ravel(), L.velocity_rows.ravel(),
+             L.slack_rows.ravel()]).astype(np.int64)
         kind[self.bound_rows] = _BOUND
         self.eq_rows = np.flatnonzero(kind == _EQUALITY)
         self.ineq_rows = np.flatnonzero(kind == _ROW)

@@ -144,16 +144,23 @@ class SparseQP:
         return self._q_cost + self._q_curvature
 
     def update_cost_weights(
-        self, Q_diag: np.ndarray, R_diag: np.ndarray, slack_penalty: float
+        self, Q_diag: np.ndarray, R_diag: np.ndarray, slack_penalty: float,
+        velocity_weights: np.ndarray | None = None,
     ) -> None:
         r"""Set :math:`P` of :math:`\sum_i \|p_i - r_i\|_Q^2 + \|u_{i-1}\|_R^2`; the slack price.
 
         ``Q`` weighs positions of stages 1..N, ``R`` inputs of stages 0..N-1;
         OSQP's :math:`\tfrac12 z^\top P z` convention gives :math:`P = 2Q`, :math:`2R`.
+        ``velocity_weights`` weigh the model's velocity states of stages 1..N
+        (models with velocity states; default none).
         """
         L = self.layout
         self._P_diag_cost[:] = 0.0
         self._P_diag_cost[L.input_index] = 2.0 * np.asarray(R_diag, float)
+        if velocity_weights is not None:
+            vel = np.asarray(L.model.velocity_states, dtype=np.int64)
+            self._P_diag_cost[L.state_index[:, 1:][:, :, vel]] = 2.0 * np.asarray(
+                velocity_weights, float)
         self._Q_diag = np.asarray(Q_diag, float)
         self._write_position_weights(np.ones(L.n_robots))
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
