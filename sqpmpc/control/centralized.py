@@ -10,6 +10,7 @@ import numpy as np
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
+from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
@@ -81,6 +82,29 @@ class CentralizedController(ControllerPipeline):
         if not self.collisions.first_input_safe(now, p, growth):
             return False
         return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+
+    def _brakes_safely(self, next_states: np.ndarray) -> bool:
+        """With acceleration limits: braking right after the first input, every robot as hard
+        as its limits allow, keeps every pair's distance along the braking paths.
+
+        If it does, the braking fallback of the next sample (all robots brake from where
+        the first input took them) follows a path checked here: the fallback is safe by
+        induction, as standing still is for the paper's unicycle (which stops at once).
+        Each braking sample's true path may stray from its segment by the growth of
+        :func:`~sqpmpc.problem.plant.acceleration_path_deviation`.
+        """
+        if not self.model.velocity_states:
+            return True
+        path, inputs = self.braking_path(next_states)
+        for j in range(inputs.shape[1]):
+            alpha, beta = acceleration_path_deviation(
+                path[:, j, 3:5], inputs[:, j], self.sample_time,
+                self.settings.discretization, self.scenario.plant.model, self._noise_bound)
+            now = np.ascontiguousarray(path[:, j, :2])
+            nxt = np.ascontiguousarray(path[:, j + 1, :2])
+            if not self.collisions.first_input_safe(now, nxt, alpha + np.maximum(beta, 0.0)):
+                return False
+        return True
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.

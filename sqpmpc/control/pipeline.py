@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import numbers
 import time
 from collections.abc import Mapping
@@ -364,6 +365,22 @@ class ControllerPipeline:
         """Whether braking from the next states ``(m, nx)`` keeps the distances (override;
         the paper's unicycle stops at once: always)."""
         return True
+
+    def braking_path(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""The model's braking from ``states (m, nx)`` until every robot stands still:
+        states ``(m, B+1, nx)`` and inputs ``(m, B, nu)``, :math:`B \ge 1` samples
+        (:meth:`~sqpmpc.models.base.RobotModel.braking_inputs`; one sample for the paper's
+        unicycle, :math:`\lceil \max |v| / (|a| T_s) \rceil` with acceleration limits)."""
+        model, h = self.model, self.sample_time
+        samples = 1
+        if model.velocity_states:
+            vel = np.abs(states[:, list(model.velocity_states)])
+            slowest = np.minimum(-model.input_lower, model.input_upper)
+            slowest = np.where(slowest > 0.0, slowest, np.inf)
+            need = float((vel / slowest).max(initial=0.0)) / h
+            samples = int(min(max(1, math.ceil(need - 1e-9)), 10_000))
+        inputs = model.braking_inputs(states, samples, h)
+        return self.engine.rollout(states, inputs), inputs
 
     def _count(self, out: ControlOutput) -> None:
         """Counters and the applied-input history (rules read both)."""

@@ -111,7 +111,7 @@ class SparseQP:
         L = layout
         self.A_values = np.zeros(L.A_nnz)
         sl = L.A_slices
-        for name in ("init", "dyn_I", "input", "position", "internal_slack",
+        for name in ("init", "dyn_I", "input", "position", "velocity", "internal_slack",
                      "external_slack", "slack"):
             self.A_values[sl[name]] = 1.0
         self.P_values = np.zeros(L.P_nnz)
