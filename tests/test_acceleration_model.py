@@ -15,7 +15,6 @@ from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.models.acceleration import AccelerationUnicycle
 from sqpmpc.models.paper import UnicycleModel
 from sqpmpc.models.unicycle import discrete_dynamics as paper_step
-from sqpmpc.problem.paths import plant_paths
 from sqpmpc.problem.plant import Plant, PlantSpec, acceleration_path_deviation, model_margin
 from sqpmpc.problem.scenario_file import parse_scenario
 from sqpmpc.qp.backend import OSQPSettings
@@ -129,6 +128,49 @@ def test_braking_respects_the_limits_and_stops() -> None:
     assert (u >= MODEL.input_lower - 1e-12).all() and (u <= MODEL.input_upper + 1e-12).all()
     path = MODEL.rollout(x, u, 0.5)
     np.testing.assert_allclose(path[:, 2:, 3:5], 0.0, atol=1e-12)  # 0.6 m/s at 1 m/s^2: 2 samples
+
+
+def test_kernels_match_the_numpy_model() -> None:
+    """The compiled Euler kernels (the model's, chosen through it) equal its NumPy functions."""
+    kernels = MODEL.kernels("euler")
+    assert kernels is not None and MODEL.kernels("rk4") is None
+    rng = np.random.default_rng(10)
+    m, n_stages, h = 2, 3, 0.4
+    x0, _ = _random(rng, (m,))
+    u = rng.normal(size=(m, n_stages, 2)) * 0.5
+    out = np.empty((m, n_stages + 1, 5))
+    kernels.rollout(np.ascontiguousarray(x0), u, h, out)
+    step = x0
+    for i in range(n_stages):
+        step = MODEL.discrete_dynamics(step, u[:, i], h)
+        np.testing.assert_allclose(out[:, i + 1], step, atol=1e-13)
+    layout = QPLayout(m, n_stages, model=MODEL)
+    z = layout.join_primal(out + rng.normal(size=out.shape) * 0.1, u)
+    qp = SparseQP(layout)
+    sl = layout.A_slices
+    dyn = layout.dyn_rows.ravel()
+    lower, upper = np.zeros(dyn.size), np.zeros(dyn.size)
+    kernels.linearize(z, m, n_stages, layout.block_size, h, qp.A_values[sl["dyn_A"]],
+                      qp.A_values[sl["dyn_B"]], lower, upper)
+    states, inputs = layout.split_primal(z)
+    nxt, A, B = MODEL.discrete_jacobians(states[:, :-1], inputs, h)
+    c = nxt - np.einsum("mnij,mnj->mni", A, states[:, :-1]) - np.einsum("mnij,mnj->mni", B,
+                                                                        inputs)
+    ref = SparseQP(layout)
+    ref.update_dynamics(A, B, c)
+    np.testing.assert_allclose(qp.A_values[sl["dyn_A"]], ref.A_values[sl["dyn_A"]], atol=1e-15)
+    np.testing.assert_allclose(qp.A_values[sl["dyn_B"]], ref.A_values[sl["dyn_B"]], atol=1e-15)
+    np.testing.assert_allclose(lower, ref.lower[dyn], atol=1e-13)
+    np.testing.assert_array_equal(lower, upper)
+    defect = np.abs(states[:, 1:] - nxt).sum() + np.abs(states[:, 0] - x0).sum()
+    assert kernels.defect_l1(z, x0, m, n_stages, layout.block_size, h) == pytest.approx(defect)
+    z_out, y_out = np.empty_like(z), np.empty(3)
+    order = np.arange(z.size)
+    kernels.shift(z, np.zeros(3), order, np.arange(3), m, n_stages, layout.block_size, h,
+                  z_out, y_out)
+    np.testing.assert_allclose(z_out[layout.state_index[:, -1]],
+                               MODEL.discrete_dynamics(states[:, -1], inputs[:, -1], h),
+                               atol=1e-13)
 
 
 # ---------------------------------------------------------------- the QP: update vs rebuild

@@ -322,7 +322,8 @@ class ControllerPipeline:
         engine, model, h = self.engine, self.model, self.sample_time
         if report.success:
             plan_u = engine.inputs()
-            if self._kernels is not None:  # clip, check and roll out in one kernel
+            if self._kernels is not None and self._kernels.clip_and_roll_out is not None:
+                # clip, check and roll out in one kernel
                 plan_x = np.empty((plan_u.shape[0], self.horizon + 1, model.nx))
                 finite = self._kernels.clip_and_roll_out(own, plan_u, model.input_lower,
                                                          model.input_upper, h, plan_x)

@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from sqpmpc.kernels import collision as ck
+from sqpmpc.kernels.acceleration import warm_up_acceleration
 from sqpmpc.kernels.ocp import (
     all_finite,
     clip_and_roll_out,
@@ -83,6 +84,7 @@ def warm_up() -> float:
     kkt_residual(np.ones(1), idx, idx, z, np.ones(3), np.ones(3), np.ones(3), z, z,
                  np.zeros(3), np.zeros(26))
     warm_up_rules()
+    warm_up_acceleration()
     warm_up_roundabout()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     return time.perf_counter() - t0

@@ -45,6 +45,12 @@ from typing import ClassVar
 import numpy as np
 
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.acceleration import (
+    acceleration_defect_l1,
+    acceleration_linearize,
+    acceleration_rollout,
+    acceleration_shift_iterate,
+)
 from sqpmpc.models.base import ModelKernels, RobotModel, check_box
 
 __all__ = ["ACCELERATION_DISCRETIZATIONS", "AccelerationUnicycle", "acceleration_dynamics"]
@@ -169,6 +175,11 @@ def acceleration_dynamics(states: np.ndarray, inputs: np.ndarray, sample_time: f
                  method, False)[0]
 
 
+_EULER_KERNELS = ModelKernels(linearize=acceleration_linearize, rollout=acceleration_rollout,
+                              shift=acceleration_shift_iterate,
+                              defect_l1=acceleration_defect_l1, clip_and_roll_out=None)
+
+
 @dataclass(frozen=True, eq=False)
 class AccelerationUnicycle(RobotModel):
     r"""The unicycle with velocity states and acceleration inputs (module notes).
@@ -263,8 +274,19 @@ class AccelerationUnicycle(RobotModel):
         return 0.5 * (H + np.swapaxes(H, -1, -2))
 
     def kernels(self, method: str) -> ModelKernels | None:
-        """None: the NumPy functions run (vectorized over robots and stages)."""
-        return None
+        """The compiled Euler kernels of :mod:`sqpmpc.kernels.acceleration` (``None`` for rk4
+        and exact: the NumPy functions run, vectorized over robots and stages)."""
+        return _EULER_KERNELS if method == "euler" else None
+
+    def rollout(self, initial: np.ndarray, inputs: np.ndarray, sample_time: float,
+                method: str = "euler") -> np.ndarray:
+        """States ``(m, N+1, 5)`` of ``inputs (m, N, 2)``: the Euler kernel, else step by step."""
+        if method != "euler" or np.ndim(inputs) != 3:
+            return super().rollout(initial, inputs, sample_time, method)
+        out = np.empty((inputs.shape[0], inputs.shape[1] + 1, 5))
+        acceleration_rollout(np.ascontiguousarray(initial, dtype=float),
+                             np.ascontiguousarray(inputs, dtype=float), float(sample_time), out)
+        return out
 
     # ------------------------------------------------------------ what others see
     def velocity_plan(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:

@@ -62,14 +62,15 @@ class ModelKernels:
         dynamics and initial-state defects.
     clip_and_roll_out
         ``(initial, inputs, lower, upper, h, out) -> bool``: the first input
-        clipped to its bounds in place, then rolled out (``False``: not finite).
+        clipped to its bounds in place, then rolled out (``False``: not finite);
+        ``None``: :meth:`RobotModel.clip_first_input` and the rollout run instead.
     """
 
     linearize: object
     rollout: object
     shift: object
     defect_l1: object
-    clip_and_roll_out: object
+    clip_and_roll_out: object | None
 
 
 def check_box(lower: object, upper: object, size: int, what: str) -> tuple[np.ndarray, np.ndarray]:
