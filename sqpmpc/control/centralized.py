@@ -114,7 +114,9 @@ class CentralizedController(ControllerPipeline):
         t
             Time ``t_k``, s.
         states
-            Measured states of all robots ``(n, 3)`` (scenario order).
+            Measured states of all robots (scenario order): ``(n, 3)`` poses, or ``(n, 5)``
+            with the measured ``(v, omega)`` appended (CONTRACT 1c; with poses alone a robot
+            with acceleration limits is taken to move at what it was last commanded).
         sample
             Sample index ``k`` (default: one more than the last call's, 0 at first).
 

@@ -437,7 +437,9 @@ class DecentralizedController(ControllerPipeline):
         t
             Time ``t_k``.
         states
-            Measured states of all robots ``(n, 3)`` (scenario order).
+            Measured states of all robots (scenario order): ``(n, 3)`` poses, or ``(n, 5)``
+            with the measured ``(v, omega)`` appended (CONTRACT 1c; with poses alone a robot
+            with acceleration limits is taken to move at what it was last commanded).
         plans
             Latest plan received from each neighbour id (``None`` or absent if
             none); ``None`` (default): the plans kept by
