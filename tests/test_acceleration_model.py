@@ -407,3 +407,13 @@ def test_closed_loop_on_paper_s2_with_acceleration_limits(scheme: str) -> None:
     err = np.linalg.norm(ideal.positions - ideal.references(), axis=-1)
     band = max(0.05, float(err[-(err.shape[0] // 10):].max()))
     assert m["max_final_position_error"] <= band
+
+
+def test_braking_robots_keep_clear_of_obstacles() -> None:
+    """corridor (pillars) with acceleration limits, decentralized: braking takes several
+    samples, and the braking check keeps the obstacles too (146 obstacle collisions
+    without it)."""
+    sc = _with_limits("corridor")
+    m = sqpmpc.compute_metrics(sqpmpc.ClosedLoopSimulation(sc, "decentralized").run())
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0

@@ -90,21 +90,25 @@ class CentralizedController(ControllerPipeline):
         If it does, the braking fallback of the next sample (all robots brake from where
         the first input took them) follows a path checked here: the fallback is safe by
         induction, as standing still is for the paper's unicycle (which stops at once).
+        The obstacles are checked along the same paths as they move on.
         Each braking sample's true path may stray from its segment by the growth of
         :func:`~sqpmpc.problem.plant.acceleration_path_deviation`.
         """
         if not self.model.velocity_states:
             return True
         path, inputs = self.braking_path(next_states)
+        growth = np.empty(inputs.shape[:2])
         for j in range(inputs.shape[1]):
             alpha, beta = acceleration_path_deviation(
                 path[:, j, 3:5], inputs[:, j], self.sample_time,
                 self.settings.discretization, self.scenario.plant.model, self._noise_bound)
+            growth[:, j] = alpha + np.maximum(beta, 0.0)
             now = np.ascontiguousarray(path[:, j, :2])
             nxt = np.ascontiguousarray(path[:, j + 1, :2])
-            if not self.collisions.first_input_safe(now, nxt, alpha + np.maximum(beta, 0.0)):
+            if not self.collisions.first_input_safe(now, nxt, growth[:, j]):
                 return False
-        return True
+        return self.obstacle_rows is None or self.obstacle_rows.braking_safe(path[..., :2],
+                                                                             growth)
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.

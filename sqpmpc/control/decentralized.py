@@ -168,7 +168,8 @@ class DecentralizedController(ControllerPipeline):
                 and self._in_position_bounds(next_state[:, :2]))
 
     def _brakes_safely(self, next_states: np.ndarray) -> bool:
-        """With acceleration limits: braking right after the first input keeps this robot on
+        """With acceleration limits: braking right after the first input keeps this robot
+        clear of the obstacles as they move on and on
         its side of every shared hyperplane of this sample (stage ``1 + j`` of the braking
         against the row of stage ``1 + j``, the last row beyond the horizon) and its true
         distance from the predicted stages of the neighbours held as obstacles or missing.
@@ -185,14 +186,17 @@ class DecentralizedController(ControllerPipeline):
         c = self.collisions
         pos = path[0, 1:, :2]                                   # stages 2..B+1
         rows = np.minimum(np.arange(1, pos.shape[0] + 1), self.horizon - 1)
+        alpha, beta = acceleration_path_deviation(
+            path[0, :-1, 3:5], inputs[0], self.sample_time, self.settings.discretization,
+            self.scenario.plant.model, self._noise_bound)
+        growth = alpha + np.maximum(beta, 0.0)                  # (B,)
+        if self.obstacle_rows is not None and not self.obstacle_rows.braking_safe(
+                path[..., :2], growth[None]):
+            return False
         shared = c.kind == SHARED
         if shared.any():
             # each robot keeps half the true distance plus its own deviation: the rows' half
             # margin less the braking path's growth may be used
-            alpha, beta = acceleration_path_deviation(
-                path[0, :-1, 3:5], inputs[0], self.sample_time, self.settings.discretization,
-                self.scenario.plant.model, self._noise_bound)
-            growth = alpha + np.maximum(beta, 0.0)              # (B,)
             slack = 0.5 * (c.required - c.safe_distance)[shared][:, None] - growth[None]
             normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
