@@ -162,7 +162,8 @@ class ControllerPipeline:
         self.model = layout.model if isinstance(layout.model, RobotModel) \
             else scenario.robot_model()
         self._unicycle = self.model.nx == 3
-        self._kernels = self.model.kernels(settings.discretization)
+        kernels = self.model.kernels(settings.discretization)
+        self._clip_kernel = None if kernels is None else kernels.clip_and_roll_out
         self.engine = MultipleShootingSQP(
             layout, scenario.sample_time, np.asarray(scenario.weights.Q),
             np.asarray(scenario.weights.R), self.model.input_lower, self.model.input_upper,
@@ -224,7 +225,8 @@ class ControllerPipeline:
             measured, states = states[self.indices], np.ascontiguousarray(states[:, :3])
         else:
             measured = states[self.indices]
-        own = self.model.measured_states(measured, self._applied)
+        own = measured if self._unicycle else self.model.measured_states(measured,
+                                                                         self._applied)
         self._own = own
         # 2. predict neighbours (and the obstacles)
         if self.obstacle_rows is not None:
@@ -232,7 +234,8 @@ class ControllerPipeline:
         self._predict_neighbours(sample, states, plans or {}, previous_states)
         # 3. rules shape the references
         raw = self.reference(t)
-        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]), own[:, :3], raw, raw,
+        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]),
+                          own if self._unicycle else own[:, :3], raw, raw,
                           self._applied, self._applied_before,
                           np.ascontiguousarray(states[:, 2]))
         for rule in self._reference_rules:
@@ -322,18 +325,20 @@ class ControllerPipeline:
         engine, model, h = self.engine, self.model, self.sample_time
         if report.success:
             plan_u = engine.inputs()
-            if self._kernels is not None and self._kernels.clip_and_roll_out is not None:
-                # clip, check and roll out in one kernel
+            if self._clip_kernel is not None:  # clip, check and roll out in one kernel
                 plan_x = np.empty((plan_u.shape[0], self.horizon + 1, model.nx))
-                finite = self._kernels.clip_and_roll_out(own, plan_u, model.input_lower,
-                                                         model.input_upper, h, plan_x)
+                finite = self._clip_kernel(own, plan_u, model.input_lower, model.input_upper, h,
+                                           plan_x)
             else:
                 model.clip_first_input(own, plan_u, h)
                 finite = all_finite(plan_u.ravel())
                 plan_x = engine.rollout(own, plan_u) if finite else None
             # stage 1 of the rollout is exactly the next state of the first input
-            if finite and self._safe(own, plan_x[:, 1], plan_u[:, 0]) and \
-                    self._brakes_safely(plan_x[:, 1]):
+            if finite and self._safe(own, plan_x[:, 1], plan_u[:, 0]) and (
+                    self._unicycle or self._brakes_safely(plan_x[:, 1])):
+                if self._unicycle:
+                    return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
+                                         time.perf_counter() - t0)
                 return self._output(plan_x, plan_u, None, report, t0)
         fallback, plan_u, plan_x = "brake", None, None
         if shifted is not None:

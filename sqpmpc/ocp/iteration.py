@@ -113,7 +113,8 @@ class MultipleShootingSQP:
         self._initial_index = np.ascontiguousarray(layout.state_index[:, 0])
         self._command_speed = np.ascontiguousarray(
             np.arange(layout.n_robots) * layout.block_size + self.model.command_speed_offset)
-        if layout.velocity_rows.size:
+        self._velocity_rows = bool(layout.velocity_rows.size)
+        if self._velocity_rows:
             self.qp.update_velocity_bounds(self.model.state_lower, self.model.state_upper)
         self._build_views()
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
@@ -225,7 +226,7 @@ class MultipleShootingSQP:
             L = self.layout
             self.set_guess(initial_states, np.zeros((L.n_robots, L.horizon, self.model.nu)))
         self.z[self._initial_index] = initial_states
-        if self.layout.velocity_rows.size:
+        if self._velocity_rows:
             self.qp.update_velocity_bounds(*self.model.velocity_bounds(
                 initial_states, self.layout.horizon, self.sample_time))
 
