@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from sqpmpc.cli.main import runlog
+from sqpmpc.cli import animate, runlog
 from sqpmpc.cli.options import (
     Parser,
     add_controller_options,
@@ -35,7 +35,6 @@ from sqpmpc.cli.options import (
     with_overrides,
 )
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.io.animate import animate
 from sqpmpc.io.files import write_run
 from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
 from sqpmpc.problem.fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
