@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import tomllib
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -417,3 +421,27 @@ def test_braking_robots_keep_clear_of_obstacles() -> None:
     m = sqpmpc.compute_metrics(sqpmpc.ClosedLoopSimulation(sc, "decentralized").run())
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
+
+
+@pytest.mark.timeout(120)
+def test_services_plant_respects_the_limits(tmp_path: Path) -> None:
+    """The distributed run (plant and robot processes, poses only over the wire: each
+    controller takes its robot to move at what it last commanded): the plant changes the
+    velocities within the limits, no collision, no bound violated."""
+    sc = _with_limits(t_end=8.0)
+    path = tmp_path / "s2-acc.toml"
+    path.write_text(sc.to_toml())
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "services.launch", "--scenario", str(path), "--scheme",
+           "decentralized", "--out", str(out), "--no-plots"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=110,
+                         cwd=Path(__file__).resolve().parent.parent)
+    assert res.returncode == 0, res.stderr
+    traj = np.load(out / "trajectory.npz")
+    v = traj["plant_inputs"]
+    change = np.diff(np.concatenate((np.zeros((1,) + v.shape[1:]), v)), axis=0) / sc.sample_time
+    assert (change >= sc.bounds.acceleration_lower() - 1e-9).all()
+    assert (change <= sc.bounds.acceleration_upper() + 1e-9).all()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["collisions"] == 0 and metrics["intersample_collisions"] == 0
+    assert metrics["input_bound_violations"] == 0
