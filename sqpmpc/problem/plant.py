@@ -85,7 +85,8 @@ Braking takes several samples: from :math:`v` it takes
 :math:`\lceil |v|/(|a_{\min}|T_s)\rceil` samples and about :math:`v^2/(2|a_{\min}|)`
 of travel (0.18 m from 0.6 m/s at 1 m/s^2). The controllers therefore accept a
 first input only if braking right after it keeps every distance too
-(:meth:`sqpmpc.control.centralized.CentralizedController._brakes_safely`), so the
+(:meth:`sqpmpc.control.pipeline.ControllerPipeline.braking_path` and the schemes'
+braking checks), so the
 braking fallback of the next sample follows a path already checked.
 """
 
