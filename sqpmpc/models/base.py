@@ -101,6 +101,10 @@ class RobotModel(ABC):
     nu: ClassVar[int]
     state_names: ClassVar[tuple[str, ...]]
     input_names: ClassVar[tuple[str, ...]]
+    #: the footprint: a disc of each robot's diameter (the scenario's ``robots[].diameter``);
+    #: two robots keep ``(d_a + d_b) / 2`` between their positions, a robot and an obstacle
+    #: ``(d + d_o) / 2``
+    footprint: ClassVar[str] = "disc"
     #: index of the heading psi in the state (the position is always states 0, 1)
     heading: ClassVar[int] = 2
     #: offset of the forward speed in a stage block ``(chi_i, u_i)`` (states first)
