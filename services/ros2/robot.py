@@ -1,0 +1,418 @@
+"""``sqpmpc robot --id ID --scenario S --ros2``: one robot's controller driving a ROS 2 robot.
+
+No plant process: the robot runs on its own clock (wall time, the
+scenario's ``Ts``), takes its own state from the robot's ``nav_msgs/Odometry``
+on ``NS/odom`` and sends ``geometry_msgs/Twist`` (``--twist-stamped``:
+``TwistStamped``) on ``NS/cmd_vel`` and its plan as ``nav_msgs/Path`` on
+``NS/plan``, in rmw_zenoh's format (:mod:`services.ros2.graph`) on a Zenoh
+session of its own (``--ros2-connect``, default the ROS 2 router
+``tcp/127.0.0.1:7447``). Its plans also go to its neighbours over the
+sqpmpc keys (``robot/<id>/plan``, secured by ``--credentials`` as in every
+run), with the wall time of their stage 0 in ``stamp``.
+
+One sample ``k`` (instant ``T_k = T_0 + k Ts``, ``t_k = T_k - epoch`` for the
+references):
+
+1. at ``T_k - lead``: the own state at ``T_k`` from the newest odometry (pose
+   and ``v``, ``omega``), carried forward on the exact unicycle arc with the
+   measured twist and then the commands sent since; each neighbour's state at
+   ``T_k`` and ``T_{k-1}`` from its newest plan stamped before that time
+   (:func:`services.ros2.timing.neighbour_estimate`; exact within one sample of
+   the plan's stamp, then within ``v_max`` times the extra age);
+2. the controller's step with no exchanged plans: no two robots share a sample
+   grid, so no pair shares a row, and every neighbour is held by the
+   ``missing-neighbour-reach`` rule (its distance plus its reach, here
+   ``v_max Ts`` + the largest uncertainty of a neighbour within reach +
+   ``--ros2-margin``, from its position at ``T_k``), which holds whatever it
+   does within its bounds; the first input is checked along the exact arc
+   (the scenario's plant model is ``exact`` in this mode);
+3. the plan is sent at once, the command at ``T_k``.
+
+The command is zero when the odometry is older than ``--odom-timeout``
+(checked continuously, so within one sample of its loss), at the end
+(``t_end``), and on SIGINT/SIGTERM; while the odometry is stale the robot
+publishes a plan that stands still where the odometry and the commands sent
+put it. A neighbour that has not sent a plan yet is unknown (it is not
+running); one whose token disappears (it stopped, commanding zero) is held
+where its last plan put it, standing still. Before moving, the robot waits up
+to ``--timeout`` for a plan of every neighbour whose token it sees.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import threading
+import time
+from dataclasses import replace
+
+import numpy as np
+import zenoh
+
+from sqpmpc.controllers import DecentralizedController
+from sqpmpc.options import nonnegative_float, positive_float
+from sqpmpc.scenario import Scenario
+
+from ..control import controller_settings
+from ..messages import Message, PlanMsg, encode
+from ..node import POLL, Node, options_of
+from ..transport import make_config
+from . import msgs
+from .graph import Received, Ros2Node, check_name
+from .timing import Estimate, TimedPlan, arc, neighbour_estimate
+
+__all__ = ["FAR", "Ros2Robot", "add_ros2_arguments", "main_ros2", "ros2_problem"]
+
+log = logging.getLogger(__name__)
+
+FAR = 1.0e4
+"""Where a neighbour never heard from is put (m): beyond every interaction radius."""
+KEPT_PLANS = 4
+"""Plans kept per neighbour (the newest few: one stamped before each of the own instants)."""
+
+
+def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
+    """The ``--ros2`` options of ``sqpmpc robot``."""
+    g = parser.add_argument_group("ROS 2 robot (CONTRACT 4)")
+    g.add_argument("--ros2", action="store_true",
+                   help="drive a ROS 2 robot (odom, cmd_vel, plan topics over rmw_zenoh) on "
+                        "this robot's own clock, without a plant process")
+    g.add_argument("--ros2-namespace", default=None, metavar="NS",
+                   help="the robot's ROS 2 namespace (default /robot<ID>)")
+    g.add_argument("--ros2-domain", type=int, default=0, metavar="D",
+                   help="ROS domain id, 0..232 (default 0)")
+    g.add_argument("--twist-stamped", action="store_true",
+                   help="send geometry_msgs/TwistStamped on cmd_vel (Jazzy's "
+                        "diff_drive_controller) instead of Twist")
+    g.add_argument("--ros2-connect", action="append", default=None, metavar="EP",
+                   help="Zenoh endpoint of the ROS 2 side, e.g. the rmw_zenoh router "
+                        "(repeatable; default tcp/127.0.0.1:7447)")
+    g.add_argument("--ros2-zenoh-mode", choices=("client", "peer"), default="client",
+                   help="the ROS 2 session's mode (default client of the router)")
+    g.add_argument("--epoch", type=float, default=None, metavar="UNIX_S",
+                   help="wall time (Unix s) of the scenario's t = 0, shared by the fleet "
+                        "(default: this robot's start)")
+    g.add_argument("--odom-timeout", type=positive_float, default=0.2, metavar="S",
+                   help="odometry older than this is stale: command zero (default 0.2 s)")
+    g.add_argument("--lead", type=positive_float, default=None, metavar="S",
+                   help="start each sample's computation this long before its instant "
+                        "(default 0.3 Ts)")
+    g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
+                   help="added to every neighbour's reach: odometry and timing errors, m "
+                        "(default 0.02)")
+
+
+def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
+    """Why the ``--ros2`` options cannot run, if so (one message naming the flag)."""
+    if len(args.id) != 1:
+        return "--ros2 drives one robot: give one --id"
+    if not 0 <= args.ros2_domain <= 232:
+        return f"--ros2-domain: expected 0..232, got {args.ros2_domain}"
+    ns = args.ros2_namespace or f"/robot{args.id[0]}"
+    try:
+        check_name(ns, "--ros2-namespace")
+    except ValueError as exc:
+        return str(exc)
+    lead = args.lead if args.lead is not None else 0.3 * scenario.sample_time
+    if lead >= scenario.sample_time:
+        return f"--lead: must be less than Ts = {scenario.sample_time:g} s, got {lead:g}"
+    if options_of(args).decentralized_mode != "shared":
+        return "--ros2 runs the shared mode (every neighbour held by its reach)"
+    return None
+
+
+class Ros2Robot(Node):
+    """The controller of one ROS 2 robot (see the module notes).
+
+    Parameters
+    ----------
+    scenario
+        The problem (its plant model is taken as ``exact``: a real robot moves on arcs).
+    args
+        Parsed ``sqpmpc robot`` arguments with ``--ros2``.
+    """
+
+    def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
+        scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
+        self.robot_id = int(args.id[0])
+        self.controller = DecentralizedController(scenario, self.robot_id,
+                                                  controller_settings(args), "shared")
+        super().__init__(scenario, args, f"robot/{self.robot_id}", "decentralized")
+        self.index = scenario.index_of(self.robot_id)
+        self.neighbours = [i for i in self.ids if i != self.robot_id]
+        self.Ts = scenario.sample_time
+        self.v_max = float(self.controller.context.max_speed)
+        self.base_reach = self.Ts * self.v_max + float(args.ros2_margin)
+        self.lead = args.lead if args.lead is not None else 0.3 * self.Ts
+        self.odom_timeout = float(args.odom_timeout)
+        self.timeout = float(args.timeout)
+        self.startup_timeout = args.startup_timeout
+        self.epoch = args.epoch
+        self.plans: dict[int, list[TimedPlan]] = {i: [] for i in self.neighbours}
+        self.departed: dict[int, Estimate] = {}
+        self.counts = {"samples": 0, "late_commands": 0, "stale_odometry": 0,
+                       "zero_commands": 0, "plans_received": 0, "plans_refused": 0}
+        self._lock = threading.Lock()
+        self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
+        self._frame = ("odom", "base_link")
+        self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
+        self._braked = False
+        self._own_prev: np.ndarray | None = None
+        ns = args.ros2_namespace or f"/robot{self.robot_id}"
+        self.twist_stamped = bool(args.twist_stamped)
+        connect = args.ros2_connect if args.ros2_connect is not None else [
+            "tcp/127.0.0.1:7447"]
+        self.ros_session = zenoh.open(make_config((), connect, args.ros2_zenoh_mode))
+        try:
+            self.ros = Ros2Node(self.ros_session, f"sqpmpc_robot{self.robot_id}", ns,
+                                args.ros2_domain)
+            self.ros.subscribe("odom", "nav_msgs/msg/Odometry", self._on_odom)
+            self.cmd_pub = self.ros.publisher(
+                "cmd_vel", "geometry_msgs/msg/TwistStamped" if self.twist_stamped
+                else "geometry_msgs/msg/Twist")
+            self.path_pub = self.ros.publisher("plan", "nav_msgs/msg/Path")
+        except Exception:
+            self.ros_session.close()
+            raise
+
+    # ------------------------------------------------------------------ inputs
+    def _on_odom(self, rec: Received) -> None:
+        """Keep the newest odometry (runs on a Zenoh thread)."""
+        o: msgs.Odometry = rec.msg
+        p = o.pose.pose
+        pose = np.array([p.position.x, p.position.y, msgs.quaternion_yaw(p.orientation)])
+        v, w = float(o.twist.twist.linear.x), float(o.twist.twist.angular.z)
+        if not (np.isfinite(pose).all() and math.isfinite(v) and math.isfinite(w)):
+            return
+        stamp = o.header.stamp.seconds()
+        # the stamp if it is plausible (same clock), else the arrival
+        t = stamp if abs(stamp - rec.arrival) < 1.0 else rec.arrival
+        with self._lock:
+            if self._odom is None or t > self._odom[0]:
+                self._odom = (t, pose, v, w)
+                self._frame = (o.header.frame_id or "odom", o.child_frame_id or "base_link")
+
+    def on_message(self, kind: str, msg: Message) -> None:
+        if not isinstance(msg, PlanMsg) or msg.id not in self.plans:
+            return
+        now = time.time()
+        if msg.stamp > now + self.Ts or msg.stamp < now - self.scenario.horizon * self.Ts:
+            self.counts["plans_refused"] += 1  # from the future, or too old to matter
+            return
+        kept = self.plans[msg.id]
+        if any(p.stamp == msg.stamp for p in kept):
+            return
+        kept.append(TimedPlan(msg.stamp, msg.states, msg.inputs))
+        kept.sort(key=lambda p: p.stamp)
+        del kept[:-KEPT_PLANS]
+        self.departed.pop(msg.id, None)  # back
+        self.counts["plans_received"] += 1
+
+    def on_liveliness(self, name: str, alive: bool) -> None:
+        if alive or not name.startswith("robot/"):
+            return
+        try:
+            rid = int(name.split("/", 1)[1])
+        except ValueError:
+            return
+        if rid in self.plans and self.plans[rid]:
+            # it stopped (zero on shutdown): standing where its plan had it now
+            est = neighbour_estimate(self.plans[rid], time.time(), self.Ts, self.v_max)
+            if est is not None:
+                self.departed[rid] = Estimate(est.state, est.uncertainty + self.v_max * self.Ts)
+            self.plans[rid].clear()
+
+    # ------------------------------------------------------------------ states
+    def own_state(self, t: float) -> np.ndarray | None:
+        """The own state at wall time ``t`` from the newest odometry and the commands sent
+        since (``None``: no odometry yet)."""
+        with self._lock:
+            if self._odom is None:
+                return None
+            t0, state, v, w = self._odom
+        for ts, cv, cw in self._sent:
+            if ts <= t0:
+                continue
+            if ts >= t:
+                break
+            state = arc(state, v, w, ts - t0)
+            t0, v, w = ts, cv, cw
+        return arc(state, v, w, max(0.0, t - t0))
+
+    def odometry_age(self, now: float) -> float:
+        """Seconds since the newest odometry (infinite: none yet)."""
+        with self._lock:
+            return math.inf if self._odom is None else now - self._odom[0]
+
+    def neighbour_states(self, t: float) -> tuple[np.ndarray, float]:
+        """Every robot's state at wall time ``t`` (own row left zero; unknown robots far
+        away) and the largest uncertainty of a neighbour that may be within reach."""
+        states = np.zeros((len(self.ids), 3))
+        worst = 0.0
+        for j, rid in enumerate(self.ids):
+            if rid == self.robot_id:
+                continue
+            est = self.departed.get(rid) or neighbour_estimate(self.plans[rid], t, self.Ts,
+                                                               self.v_max)
+            if est is None:
+                states[j] = (FAR + 10.0 * j, FAR, 0.0)
+                continue
+            states[j] = est.state
+            worst = max(worst, est.uncertainty)
+        return states, worst
+
+    # ------------------------------------------------------------------ outputs
+    def command(self, v: float, omega: float, at: float) -> None:
+        """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state)."""
+        twist = msgs.Twist(msgs.Vector3(float(v)), msgs.Vector3(0.0, 0.0, float(omega)))
+        if self.twist_stamped:
+            self.cmd_pub.publish(msgs.TwistStamped(
+                msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
+        else:
+            self.cmd_pub.publish(twist)
+        self._sent.append((at, float(v), float(omega)))
+        del self._sent[:-16]
+        if v == 0.0 and omega == 0.0:
+            self.counts["zero_commands"] += 1
+
+    def publish_plan(self, sample: int, stamp: float, states: np.ndarray,
+                     inputs: np.ndarray) -> None:
+        """The plan to the neighbours (sqpmpc keys) and as a Path on ``NS/plan``."""
+        t = stamp - (self.epoch or 0.0)
+        self.bus.put(encode(PlanMsg(self.robot_id, sample, t, stamp, states, inputs)),
+                     "robot", self.robot_id, "plan")
+        frame = self._frame[0]
+        poses = tuple(msgs.PoseStamped(
+            msgs.Header(msgs.Time.from_seconds(stamp + i * self.Ts), frame),
+            msgs.Pose(msgs.Point(float(s[0]), float(s[1])), msgs.yaw_quaternion(float(s[2]))))
+            for i, s in enumerate(states))
+        self.path_pub.publish(msgs.Path(msgs.Header(msgs.Time.from_seconds(stamp), frame),
+                                        poses))
+
+    def brake(self, now: float, sample: int) -> None:
+        """Zero on cmd_vel; a plan standing where the robot is."""
+        self.command(0.0, 0.0, now)
+        state = self.own_state(now)
+        if state is not None:
+            N = self.scenario.horizon
+            self.publish_plan(sample, now, np.repeat(state[None], N + 1, axis=0),
+                              np.zeros((N, 2)))
+
+    def _watch(self, until: float, sample: int) -> None:
+        """Handle events until wall time ``until``; brake at once if the odometry goes
+        stale."""
+        while not self.stop.is_set():
+            now = time.time()
+            if not self._braked and self.odometry_age(now) > self.odom_timeout:
+                self._braked = True
+                self.counts["stale_odometry"] += 1
+                log.warning("%s: odometry %.3f s old: commanding zero", self.name,
+                            self.odometry_age(now))
+                self.brake(now, sample)
+            if now >= until:
+                return
+            self.pump(min(POLL, max(until - now, 0.0), 0.01))
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> int:
+        """Serve until ``t_end``, SIGINT or SIGTERM; returns the exit status."""
+        self.start([("robot", i, "plan") for i in self.neighbours])
+        log.info("%s waiting for odometry on %s", self.name, self.ros.resolve("odom"))
+        if not self.wait_until(lambda: self.odometry_age(time.time()) < self.odom_timeout,
+                               self.startup_timeout):
+            if not self.stop.is_set():
+                log.error("%s: no odometry within %s s", self.name, self.startup_timeout)
+            return 0 if self.stop.is_set() else 1
+        start = time.time()
+        epoch = self.epoch if self.epoch is not None else start
+        self.epoch = epoch
+        self._announce(start)
+        T0 = time.time() + self.lead
+        k, end = 0, epoch + self.scenario.t_end
+        try:
+            while not self.stop.is_set():
+                Tk = T0 + k * self.Ts
+                if Tk > end:
+                    break
+                self._watch(Tk - self.lead, k)
+                if self.stop.is_set():
+                    break
+                self._step(k, Tk)
+                k += 1
+                behind = time.time() + self.lead - (T0 + k * self.Ts)
+                if behind > 0.0:  # overran: skip to the next instant still ahead
+                    k += math.ceil(behind / self.Ts)
+        finally:
+            self.command(0.0, 0.0, time.time())
+        log.info("%s: %s, %d invalid messages dropped", self.name,
+                 ", ".join(f"{v} {k}" for k, v in self.counts.items()), self.validator.invalid)
+        return 0
+
+    def _announce(self, start: float) -> None:
+        """Publish standing plans until a plan of every neighbour seen alive has come (or
+        ``--timeout``): a robot that moves knows every running neighbour's position."""
+        deadline = start + self.timeout
+        while not self.stop.is_set() and time.time() < deadline:
+            now = time.time()
+            self.brake(now, 0)
+            alive = [i for i in self.neighbours if f"robot/{i}" in self.alive]
+            if all(self.plans[i] for i in alive):
+                self.wait_until(lambda: False, min(self.Ts, 0.2))  # their first plans too
+                return
+            self.wait_until(lambda: False, min(self.Ts, 0.2))
+        log.warning("%s starts without plans from %s", self.name,
+                    [i for i in self.neighbours if not self.plans[i]])
+
+    def _step(self, k: int, Tk: float) -> None:
+        """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
+        now = time.time()
+        if self.odometry_age(now) > self.odom_timeout:
+            self.brake(now, k)  # stays braked while the odometry is stale
+            self._own_prev = None
+            return
+        self._braked = False
+        own = self.own_state(Tk)
+        states, worst = self.neighbour_states(Tk)
+        prev, _ = self.neighbour_states(Tk - self.Ts)
+        states[self.index] = own
+        prev[self.index] = own if self._own_prev is None else self._own_prev
+        self._own_prev = own
+        self.controller.collisions.reach = self.base_reach + worst
+        out = self.controller.step(k, Tk - self.epoch, states, {}, prev)
+        plan = self.controller.published
+        self.publish_plan(k, Tk, plan.states, plan.inputs)
+        self._watch(Tk, k)
+        if self._braked:  # the odometry went stale meanwhile: the zero stands
+            return
+        u = out.inputs[0]
+        if time.time() > Tk + 0.5 * self.Ts:
+            self.counts["late_commands"] += 1
+        self.command(float(u[0]), float(u[1]), time.time())
+        self.counts["samples"] += 1
+        if out.fallback is not None:
+            log.debug("%s sample %d: fallback %s", self.name, k, out.fallback)
+
+    def close(self) -> None:
+        """Undeclare the ROS 2 node, close both sessions."""
+        try:
+            self.ros.close()
+        finally:
+            self.ros_session.close()
+            super().close()
+
+
+def main_ros2(args: argparse.Namespace, scenario: Scenario, prog: str) -> int:
+    """Run ``sqpmpc robot --ros2`` (called by :func:`services.robot.main`)."""
+    from ..node import fail, open_node, session_lost
+
+    problem = ros2_problem(args, scenario)
+    if problem:
+        fail(prog, problem)
+    node = open_node(prog, lambda: Ros2Robot(scenario, args))
+    try:
+        return node.run()
+    except zenoh.ZError as exc:
+        return session_lost(prog, exc)
+    finally:
+        node.close()
