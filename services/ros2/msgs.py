@@ -145,6 +145,8 @@ def _referenced(name: str, seen: set[str]) -> None:
 
 def type_hash(name: str) -> str:
     """The ``RIHS01_<sha256>`` type hash of ``name`` (REP 2011, version 1)."""
+    if name not in DEFINITIONS:
+        raise ValueError(f"unknown message type {name!r}; known: {', '.join(DEFINITIONS)}")
     refs: set[str] = set()
     _referenced(name, refs)
     body = {"type_description": _description(name),

@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import random
 import threading
 import time
 from dataclasses import replace
@@ -328,7 +329,8 @@ class Ros2Robot(Node):
         epoch = self.epoch if self.epoch is not None else start
         self.epoch = epoch
         self._announce(start)
-        T0 = time.time() + self.lead
+        # its own phase: no two robots' instants line up
+        T0 = max(time.time() + self.lead, epoch) + random.random() * self.Ts
         k, end = 0, epoch + self.scenario.t_end
         try:
             while not self.stop.is_set():
@@ -350,19 +352,21 @@ class Ros2Robot(Node):
         return 0
 
     def _announce(self, start: float) -> None:
-        """Publish standing plans until a plan of every neighbour seen alive has come (or
-        ``--timeout``): a robot that moves knows every running neighbour's position."""
+        """Publish standing plans until the epoch and until a plan of every neighbour seen
+        alive has come (at most ``--timeout``): a robot that moves knows where every
+        running neighbour is."""
         deadline = start + self.timeout
-        while not self.stop.is_set() and time.time() < deadline:
+        while not self.stop.is_set():
             now = time.time()
             self.brake(now, 0)
             alive = [i for i in self.neighbours if f"robot/{i}" in self.alive]
-            if all(self.plans[i] for i in alive):
-                self.wait_until(lambda: False, min(self.Ts, 0.2))  # their first plans too
-                return
+            if now >= self.epoch - self.Ts and (all(self.plans[i] for i in alive)
+                                                or now >= deadline):
+                break
             self.wait_until(lambda: False, min(self.Ts, 0.2))
-        log.warning("%s starts without plans from %s", self.name,
-                    [i for i in self.neighbours if not self.plans[i]])
+        missing = [i for i in self.neighbours if not self.plans[i]]
+        if missing:
+            log.warning("%s starts without plans from %s", self.name, missing)
 
     def _step(self, k: int, Tk: float) -> None:
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
