@@ -71,6 +71,40 @@ class LoggedChild(Child):
                                          stdout=err)
 
 
+def _start_clock(port: int, ids: list[int], epoch_file: Path, timeout: float,
+                 stop: threading.Event) -> bool:
+    """Once every controller's ROS 2 node is in the graph (seen on the ROS 2 router), write
+    the epoch (2 s from then) into ``epoch_file``; ``False`` if not all came in time."""
+    import zenoh
+
+    from ..transport import make_config
+
+    wanted = {f"sqpmpc_robot{i}" for i in ids}
+    seen: set[str] = set()
+    lock = threading.Lock()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if len(parts) == 9 and parts[5] == "NN":
+            with lock:
+                seen.add(parts[8])
+
+    deadline = time.time() + timeout
+    with zenoh.open(make_config((), [f"tcp/127.0.0.1:{port}"], "client")) as session:
+        sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)
+        while not stop.is_set() and time.time() < deadline:
+            with lock:
+                if wanted <= seen:
+                    break
+            time.sleep(0.2)
+        sub.undeclare()
+    ok = wanted <= seen
+    tmp = epoch_file.with_suffix(".tmp")
+    tmp.write_text(repr(time.time() + 2.0))
+    tmp.replace(epoch_file)
+    return ok
+
+
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     """The argument parser of ``python -m services.ros2.demo``."""
     p = Parser(prog=prog, description=__doc__.splitlines()[0])
@@ -84,8 +118,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     p.add_argument("--twist-stamped", action="store_true", help="cmd_vel as TwistStamped")
     p.add_argument("--insecure", action="store_true",
                    help="plans over plain TCP without credentials (debugging only)")
-    p.add_argument("--startup", type=positive_float, default=None, metavar="S",
-                   help="seconds from the start to t = 0 (default 6 + 0.6 per robot)")
+    p.add_argument("--startup", type=positive_float, default=600.0, metavar="S",
+                   help="longest wait for every controller to be up, s (default 600)")
     p.add_argument("--tolerance", type=positive_float, default=0.05,
                    help="arrival: final distance to the reference, m")
     p.add_argument("--log-level", default="INFO", help="log level of the processes")
@@ -131,11 +165,11 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         children.append(LoggedChild("router", [*py, "services.router", "--listen", sq_ep,
                                                "--log-level", "WARNING", *secure],
                                     logs / "router.log", env))
-        startup = args.startup if args.startup is not None else 6.0 + 0.6 * len(ids)
-        epoch = time.time() + startup
+        epoch_file = out / "epoch"
+        epoch_file.unlink(missing_ok=True)
         sim = [*py, "services.ros2.simfleet", "--scenario", args.scenario, "--router",
                f"127.0.0.1:{ros_port}", "--out", str(out), "--rate", repr(args.rate),
-               "--epoch", repr(epoch), "--log-level", args.log_level]
+               "--epoch-file", str(epoch_file), "--log-level", args.log_level]
         sim += [a for s in args.odom_stop for a in ("--odom-stop", s)]
         if args.twist_stamped:
             sim.append("--twist-stamped")
@@ -144,15 +178,17 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         for rid in ids:
             cmd = [*py, "services.robot", "--id", str(rid), "--scenario", args.scenario,
                    "--t-end", repr(t_end), "--run", run, "--ros2", "--ros2-connect", ros_ep,
-                   "--zenoh-mode", "client", "--connect", sq_ep, "--epoch", repr(epoch),
-                   "--timeout", repr(startup), "--log-level", args.log_level, *secure,
+                   "--zenoh-mode", "client", "--connect", sq_ep, "--epoch-file",
+                   str(epoch_file), "--log-level", args.log_level, *secure,
                    *extra]
             if args.twist_stamped:
                 cmd.append("--twist-stamped")
             robots.append(LoggedChild(f"robot/{rid}", cmd, logs / f"robot-{rid}.log", env))
         children.extend(robots)
-        log.info("%d robots, t = 0 at +%.0f s, t_end %g s; logs in %s", len(ids), startup,
-                 t_end, logs)
+        log.info("%d robots, t_end %g s; logs in %s", len(ids), t_end, logs)
+        if not _start_clock(ros_port, ids, epoch_file, args.startup, stop):
+            log.error("the controllers were not all up within %g s (see %s)", args.startup,
+                      logs)
         while not stop.is_set() and any(r.poll() is None for r in robots):
             time.sleep(0.2)
         failed = [r.name for r in robots if r.poll() not in (None, 0)]

@@ -47,6 +47,7 @@ import random
 import threading
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -94,6 +95,10 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--epoch", type=float, default=None, metavar="UNIX_S",
                    help="wall time (Unix s) of the scenario's t = 0, shared by the fleet "
                         "(default: this robot's start)")
+    g.add_argument("--epoch-file", type=Path, default=None, metavar="FILE",
+                   help="wait (publishing standing plans) until FILE exists and holds the "
+                        "epoch in Unix s: a launcher starts the fleet's clock once every "
+                        "controller is up")
     g.add_argument("--odom-timeout", type=positive_float, default=0.2, metavar="S",
                    help="odometry older than this is stale: command zero (default 0.2 s)")
     g.add_argument("--lead", type=positive_float, default=None, metavar="S",
@@ -118,6 +123,8 @@ def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
     lead = args.lead if args.lead is not None else 0.3 * scenario.sample_time
     if lead >= scenario.sample_time:
         return f"--lead: must be less than Ts = {scenario.sample_time:g} s, got {lead:g}"
+    if args.epoch is not None and args.epoch_file is not None:
+        return "give --epoch or --epoch-file, not both"
     if options_of(args).decentralized_mode != "shared":
         return "--ros2 runs the shared mode (every neighbour held by its reach)"
     return None
@@ -150,6 +157,7 @@ class Ros2Robot(Node):
         self.timeout = float(args.timeout)
         self.startup_timeout = args.startup_timeout
         self.epoch = args.epoch
+        self.epoch_file: Path | None = args.epoch_file
         self.plans: dict[int, list[TimedPlan]] = {i: [] for i in self.neighbours}
         self.departed: dict[int, Estimate] = {}
         self.counts = {"samples": 0, "late_commands": 0, "stale_odometry": 0,
@@ -325,6 +333,10 @@ class Ros2Robot(Node):
             if not self.stop.is_set():
                 log.error("%s: no odometry within %s s", self.name, self.startup_timeout)
             return 0 if self.stop.is_set() else 1
+        if self.epoch_file is not None:
+            self.epoch = self._wait_for_epoch()
+            if self.epoch is None:
+                return 0 if self.stop.is_set() else 1
         start = time.time()
         epoch = self.epoch if self.epoch is not None else start
         self.epoch = epoch
@@ -350,6 +362,22 @@ class Ros2Robot(Node):
         log.info("%s: %s, %d invalid messages dropped", self.name,
                  ", ".join(f"{v} {k}" for k, v in self.counts.items()), self.validator.invalid)
         return 0
+
+    def _wait_for_epoch(self) -> float | None:
+        """Publish standing plans until ``--epoch-file`` holds a number (``None``: stopped,
+        or a file that is not a number)."""
+        while not self.stop.is_set():
+            if self.epoch_file.exists():
+                text = self.epoch_file.read_text().strip()
+                try:
+                    return float(text)
+                except ValueError:
+                    log.error("%s: --epoch-file %s holds %r, not a time in Unix s",
+                              self.name, self.epoch_file, text[:40])
+                    return None
+            self.brake(time.time(), 0)
+            self.wait_until(lambda: False, min(self.Ts, 0.2))
+        return None
 
     def _announce(self, start: float) -> None:
         """Publish standing plans until the epoch and until a plan of every neighbour seen

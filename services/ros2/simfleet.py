@@ -2,7 +2,7 @@
 
 ``python -m services.ros2.simfleet --scenario S --router HOST:PORT --out DIR
 [--ids 1,2] [--rate 50] [--domain D] [--twist-stamped] [--odom-stop ID:T]
-[--duration S] [--epoch UNIX_S] [--seed K]``
+[--duration S] [--epoch UNIX_S | --epoch-file FILE] [--seed K]``
 
 Each robot of the scenario (or of ``--ids``) is a unicycle that starts at the
 scenario's initial state, obeys ``/robot<ID>/cmd_vel`` (``Twist`` or
@@ -106,6 +106,14 @@ def _odom_message(pub, classes: dict, robot: SimRobot, t: float) -> None:
                 twist=c["TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
 
 
+def _read_epoch(path: Path) -> float | None:
+    """The epoch in ``path`` once it exists (``None`` before)."""
+    try:
+        return float(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     """The argument parser of ``python -m services.ros2.simfleet``."""
     p = Parser(prog=prog, description=__doc__.splitlines()[0])
@@ -123,6 +131,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S s (default: on SIGINT/SIGTERM)")
     p.add_argument("--epoch", type=float, default=None, help="wall time of t = 0 (Unix s)")
+    p.add_argument("--epoch-file", type=Path, default=None, metavar="FILE",
+                   help="the epoch is in FILE once it exists (as for the controllers)")
     p.add_argument("--seed", type=int, default=0, help="seed of the odometry phases")
     p.add_argument("--log-level", default="INFO")
     return p
@@ -170,7 +180,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     stop = threading.Event()
     install_signal_handlers(stop)
     start = time.time()
-    epoch = args.epoch if args.epoch is not None else start
+    epoch = args.epoch if args.epoch is not None or args.epoch_file else start
+    looked = 0.0
     robots = {rid: SimRobot(rid, float(scenario.robots[scenario.index_of(rid)].diameter),
                             scenario.initial_states()[scenario.index_of(rid)], start)
               for rid in ids}
@@ -211,13 +222,17 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                 break
             t = time.time()
             due[rid] += period * max(1, int((t - due[rid]) // period) + 1)
-            if rid in stops and t - epoch >= stops[rid]:
+            if epoch is None and t - looked > 0.1:
+                looked = t
+                epoch = _read_epoch(args.epoch_file)
+            if rid in stops and epoch is not None and t - epoch >= stops[rid]:
                 continue  # the sensor failed
             _odom_message(pubs[rid], classes, robots[rid], t)
             sent[rid] += 1
     finally:
         now = time.time()
-        out = {"epoch": epoch, "start": start, "end": now, "rate": args.rate,
+        out = {"epoch": start if epoch is None else epoch, "start": start, "end": now,
+               "rate": args.rate,
                "odom_stop": {str(k): v for k, v in stops.items()},
                "robots": {str(rid): {"diameter": r.diameter, "segments": r.segments,
                                      "odometry_sent": sent[rid]}
