@@ -28,7 +28,7 @@ sdk = pytest.importorskip("zenoh_ros2_sdk")
 
 SCENARIO = """
 name = "ros2-three"
-t_end = 11.0
+t_end = 16.0
 sample_time = 0.5
 horizon = 8
 
@@ -58,7 +58,7 @@ initial_state = [0.0, 1.4, -1.5707963267948966]
 diameter = 0.3
 reference = { type = "point", position = [0.0, -1.4] }
 """
-STOP = 2.0  # robot 3's odometry stops at t = 2 s
+STOP = 0.7  # robot 3's odometry stops at t = 0.7 s (it stands clear of the crossing)
 
 
 def _wait_for_nodes(port: int, names: set[str], timeout: float) -> bool:

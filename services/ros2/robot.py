@@ -15,18 +15,26 @@ references):
 
 1. at ``T_k - lead``: the own state at ``T_k`` from the newest odometry (pose
    and ``v``, ``omega``), carried forward on the exact unicycle arc with the
-   measured twist and then the commands sent since; each neighbour's state at
-   ``T_k`` and ``T_{k-1}`` from its newest plan stamped before that time
-   (:func:`services.ros2.timing.neighbour_estimate`; exact within one sample of
-   the plan's stamp, then within ``v_max`` times the extra age);
-2. the controller's step with no exchanged plans: no two robots share a sample
-   grid, so no pair shares a row, and every neighbour is held by the
-   ``missing-neighbour-reach`` rule (its distance plus its reach, here
-   ``v_max Ts`` + the largest uncertainty of a neighbour within reach +
-   ``--ros2-margin``, from its position at ``T_k``), which holds whatever it
-   does within its bounds; the first input is checked along the exact arc
-   (the scenario's plant model is ``exact`` in this mode);
-3. the plan is sent at once, the command at ``T_k``.
+   measured twist and then the commands sent since; each neighbour's motion
+   from its plans (:func:`services.ros2.timing.committed`): a robot applies a
+   plan's first input from the plan's stamp for one sample, so that arc is
+   exact, and after it the neighbour either decides again knowing this
+   robot's new plan or is bounded by its reach;
+2. the controller's step with every neighbour a moving obstacle (its exact
+   arcs, then standing where they end, at the own stage times);
+3. the check of the first input (:meth:`Ros2Robot.path_is_safe`): along the
+   exact arc of the whole sample, every neighbour's distance plus
+   ``--ros2-margin`` from where it is (arcs, then standing still for a
+   neighbour that will see this plan before it decides, or the disc it may
+   reach otherwise); if not, the robot stands still, which is always safe:
+   every neighbour deciding later keeps out of where this robot stops (it
+   checks the same way), and one deciding at about the same time had to keep
+   out of it already (it took this robot's previous arc, then standing still);
+4. the plan is sent at once, the command at ``T_k``.
+
+Every robot of a fleet uses the same ``--lead`` (it tells when a neighbour
+decides). The safety argument is per pair: at every instant the robot that
+decided last knew the other's motion up to then and kept the distance from it.
 
 The command is zero when the odometry is older than ``--odom-timeout``
 (checked continuously, so within one sample of its loss), at the end
@@ -52,7 +60,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import DecentralizedController
+from sqpmpc.controllers import DecentralizedController, PlanMessage
 from sqpmpc.options import nonnegative_float, positive_float
 from sqpmpc.scenario import Scenario
 
@@ -62,7 +70,7 @@ from ..node import POLL, Node, options_of
 from ..transport import make_config
 from . import msgs
 from .graph import Received, Ros2Node, check_name
-from .timing import Estimate, TimedPlan, arc, neighbour_estimate
+from .timing import Estimate, TimedPlan, arc, arcs, committed, neighbour_estimate
 
 __all__ = ["FAR", "Ros2Robot", "add_ros2_arguments", "main_ros2", "ros2_problem"]
 
@@ -72,6 +80,19 @@ FAR = 1.0e4
 """Where a neighbour never heard from is put (m): beyond every interaction radius."""
 KEPT_PLANS = 4
 """Plans kept per neighbour (the newest few: one stamped before each of the own instants)."""
+ROW_MARGIN_FACTOR = 3.0
+"""The QP's collision margin is at least this many times ``--ros2-margin``."""
+CHECK_STEPS = 100
+"""Points per sample at which :meth:`Ros2Robot.path_is_safe` measures the distances."""
+
+
+class _NoPaperWarning(logging.Filter):
+    """The controller's warning about its obstacle mode, which alone has no guarantee: here
+    :meth:`Ros2Robot.path_is_safe` verifies every input."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "decentralized mode 'paper'" not in record.getMessage()
+
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,8 +126,12 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
                    help="start each sample's computation this long before its instant "
                         "(default 0.3 Ts)")
     g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
-                   help="added to every neighbour's reach: odometry and timing errors, m "
-                        "(default 0.02)")
+                   help="added to every required distance in the check of each input: "
+                        "odometry and timing errors, m (default 0.02)")
+    g.add_argument("--ros2-guard", type=nonnegative_float, default=0.1, metavar="S",
+                   help="a neighbour whose next input is decided less than this after a "
+                        "plan is sent may not have it: held by its reach (default 0.1 s; "
+                        "the fleet shares --lead)")
 
 
 def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
@@ -126,7 +151,7 @@ def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
     if args.epoch is not None and args.epoch_file is not None:
         return "give --epoch or --epoch-file, not both"
     if options_of(args).decentralized_mode != "shared":
-        return "--ros2 runs the shared mode (every neighbour held by its reach)"
+        return "--decentralized-mode: --ros2 holds every neighbour by its own check"
     return None
 
 
@@ -144,14 +169,23 @@ class Ros2Robot(Node):
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
         self.robot_id = int(args.id[0])
-        self.controller = DecentralizedController(scenario, self.robot_id,
-                                                  controller_settings(args), "shared")
+        # every neighbour is a moving obstacle (its committed arcs); the robot's own
+        # check (path_is_safe) is what keeps the distance
+        logging.getLogger("sqpmpc.controllers").addFilter(_NoPaperWarning())
+        settings = controller_settings(args)
+        # the QP keeps more room than the check asks for (the check is continuous, the
+        # QP's rows are at the stage instants)
+        settings = replace(settings, collision_margin=max(
+            settings.collision_margin, ROW_MARGIN_FACTOR * float(args.ros2_margin)))
+        self.controller = DecentralizedController(scenario, self.robot_id, settings, "paper")
         super().__init__(scenario, args, f"robot/{self.robot_id}", "decentralized")
         self.index = scenario.index_of(self.robot_id)
         self.neighbours = [i for i in self.ids if i != self.robot_id]
         self.Ts = scenario.sample_time
         self.v_max = float(self.controller.context.max_speed)
-        self.base_reach = self.Ts * self.v_max + float(args.ros2_margin)
+        self.margin = float(args.ros2_margin)
+        self.guard = float(args.ros2_guard)
+        self.required = scenario.required_distances()[self.index]
         self.lead = args.lead if args.lead is not None else 0.3 * self.Ts
         self.odom_timeout = float(args.odom_timeout)
         self.timeout = float(args.timeout)
@@ -160,14 +194,13 @@ class Ros2Robot(Node):
         self.epoch_file: Path | None = args.epoch_file
         self.plans: dict[int, list[TimedPlan]] = {i: [] for i in self.neighbours}
         self.departed: dict[int, Estimate] = {}
-        self.counts = {"samples": 0, "late_commands": 0, "stale_odometry": 0,
+        self.counts = {"samples": 0, "brakes": 0, "late_commands": 0, "stale_odometry": 0,
                        "zero_commands": 0, "plans_received": 0, "plans_refused": 0}
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
         self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
         self._braked = False
-        self._own_prev: np.ndarray | None = None
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
         connect = args.ros2_connect if args.ros2_connect is not None else [
@@ -254,22 +287,67 @@ class Ros2Robot(Node):
         with self._lock:
             return math.inf if self._odom is None else now - self._odom[0]
 
-    def neighbour_states(self, t: float) -> tuple[np.ndarray, float]:
+    def neighbour_plans(self, t: float, sample: int
+                        ) -> tuple[np.ndarray, dict[int, PlanMessage]]:
         """Every robot's state at wall time ``t`` (own row left zero; unknown robots far
-        away) and the largest uncertainty of a neighbour that may be within reach."""
+        away) and, per neighbour heard from, its committed motion sampled at the own
+        stage times ``t + i Ts`` as a plan of the previous sample (what the controller
+        shifts to stages 1..N): exact arcs, then standing where the last one ends."""
+        N = self.scenario.horizon
         states = np.zeros((len(self.ids), 3))
-        worst = 0.0
+        plans: dict[int, PlanMessage] = {}
+        times = t + self.Ts * np.arange(-1, N)
         for j, rid in enumerate(self.ids):
             if rid == self.robot_id:
                 continue
-            est = self.departed.get(rid) or neighbour_estimate(self.plans[rid], t, self.Ts,
-                                                               self.v_max)
-            if est is None:
+            left = self.departed.get(rid)
+            if left is not None:
+                states[j] = left.state
+                pos = np.repeat(left.state[None, :2], N + 1, axis=0)
+            elif self.plans[rid]:
+                pos, _ = committed(self.plans[rid], times, self.Ts, self.v_max, True)
+                now = committed(self.plans[rid], np.array([t]), self.Ts, self.v_max, True)[0]
+                states[j, :2] = now[0]
+            else:
                 states[j] = (FAR + 10.0 * j, FAR, 0.0)
                 continue
-            states[j] = est.state
-            worst = max(worst, est.uncertainty)
-        return states, worst
+            stage = np.zeros((N + 1, 3))
+            stage[:, :2] = pos
+            plans[rid] = PlanMessage(rid, sample - 1, stage, np.zeros((N, 2)))
+        return states, plans
+
+    def path_is_safe(self, own: np.ndarray, u: np.ndarray, Tk: float) -> bool:
+        """Whether applying ``u`` from ``own`` at ``Tk`` for one sample keeps every
+        neighbour's distance (plus ``--ros2-margin``) at every instant.
+
+        A neighbour whose next input is decided after this robot's plan reaches
+        it (its next stamp minus the lead is after now plus the guard) is checked
+        against its exact arcs and then standing still (keeping out of where it
+        stops is this robot's part: it then avoids this robot's new plan);
+        any other one against its exact arcs and then the disc it may reach.
+        Neighbours that left: their resting place plus a sample's reach.
+        """
+        dt = self.Ts / CHECK_STEPS
+        times = Tk + dt * np.arange(CHECK_STEPS + 1)
+        path = arcs(own, float(u[0]), float(u[1]), times - Tk)
+        now = time.time()
+        slack = self.margin + self.v_max * dt  # between check points both move v_max dt/2
+        for j, rid in enumerate(self.ids):
+            if rid == self.robot_id:
+                continue
+            left = self.departed.get(rid)
+            if left is not None:
+                pos, rad = left.state[None, :2], np.full(1, left.uncertainty)
+            elif self.plans[rid]:
+                kept = self.plans[rid]
+                later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
+                pos, rad = committed(kept, times, self.Ts, self.v_max, later)
+            else:
+                continue
+            gap = np.hypot(path[:, 0] - pos[:, 0], path[:, 1] - pos[:, 1]) - rad
+            if float(gap.min()) < self.required[j] + slack:
+                return False
+        return True
 
     # ------------------------------------------------------------------ outputs
     def command(self, v: float, omega: float, at: float) -> None:
@@ -401,29 +479,28 @@ class Ros2Robot(Node):
         now = time.time()
         if self.odometry_age(now) > self.odom_timeout:
             self.brake(now, k)  # stays braked while the odometry is stale
-            self._own_prev = None
             return
         self._braked = False
         own = self.own_state(Tk)
-        states, worst = self.neighbour_states(Tk)
-        prev, _ = self.neighbour_states(Tk - self.Ts)
+        states, plans = self.neighbour_plans(Tk, k)
         states[self.index] = own
-        prev[self.index] = own if self._own_prev is None else self._own_prev
-        self._own_prev = own
-        self.controller.collisions.reach = self.base_reach + worst
-        out = self.controller.step(k, Tk - self.epoch, states, {}, prev)
-        plan = self.controller.published
-        self.publish_plan(k, Tk, plan.states, plan.inputs)
+        out = self.controller.step(k, Tk - self.epoch, states, plans, None)
+        u = out.inputs[0]
+        if self.path_is_safe(own, u, Tk):
+            plan = self.controller.published
+            self.publish_plan(k, Tk, plan.states, plan.inputs)
+        else:  # standing still is safe: every neighbour keeps out of where this one stops
+            u = np.zeros(2)
+            self.counts["brakes"] += 1
+            N = self.scenario.horizon
+            self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0), np.zeros((N, 2)))
         self._watch(Tk, k)
         if self._braked:  # the odometry went stale meanwhile: the zero stands
             return
-        u = out.inputs[0]
         if time.time() > Tk + 0.5 * self.Ts:
             self.counts["late_commands"] += 1
         self.command(float(u[0]), float(u[1]), time.time())
         self.counts["samples"] += 1
-        if out.fallback is not None:
-            log.debug("%s sample %d: fallback %s", self.name, k, out.fallback)
 
     def close(self) -> None:
         """Undeclare the ROS 2 node, close both sessions."""

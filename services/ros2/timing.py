@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Estimate", "TimedPlan", "arc", "neighbour_estimate", "plan_position"]
+__all__ = ["Estimate", "TimedPlan", "arc", "arcs", "committed", "neighbour_estimate",
+           "plan_position"]
 
 
 def arc(state: np.ndarray, v: float, omega: float, dt: float) -> np.ndarray:
@@ -94,3 +95,52 @@ def neighbour_estimate(plans: Sequence[TimedPlan], t: float, sample_time: float,
         return Estimate(plan_position(best, t, sample_time), 0.0)
     return Estimate(plan_position(best, best.stamp + sample_time, sample_time),
                     max_speed * late)
+
+
+def arcs(state: np.ndarray, v: float, omega: float, dt: np.ndarray) -> np.ndarray:
+    """:func:`arc` at every ``dt`` (array): positions ``(T, 2)``."""
+    x, y, psi = float(state[0]), float(state[1]), float(state[2])
+    turn = omega * dt
+    if abs(omega) * float(np.max(dt, initial=0.0)) < 1e-9:
+        return np.stack((x + v * dt * math.cos(psi), y + v * dt * math.sin(psi)), axis=-1)
+    r = v / omega
+    return np.stack((x + r * (np.sin(psi + turn) - math.sin(psi)),
+                     y - r * (np.cos(psi + turn) - math.cos(psi))), axis=-1)
+
+
+def committed(plans: Sequence[TimedPlan], times: np.ndarray, sample_time: float,
+              max_speed: float, hold_after: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Where a neighbour is at ``times`` from its plans: positions ``(T, 2)`` and radii ``(T,)``.
+
+    A robot applies each plan's first input from the plan's stamp for one
+    sample: at ``t`` within the first sample of the newest plan stamped at or
+    before ``t`` it is exactly on that arc (radius 0). Past the end of a plan's
+    first sample it is within ``max_speed`` times the time since of that arc's
+    end: a gap before a newer plan (one was lost), or after the newest one,
+    unless ``hold_after`` (the neighbour decides its next input knowing this
+    robot's new plan, so that it stands still at the arc's end counts as
+    this robot's obligation, not a bound on where it is). Before the oldest
+    plan: within ``max_speed`` times the time until its stamp of its stage 0.
+    ``plans`` sorted by stamp, not empty.
+    """
+    pos = np.empty((times.size, 2))
+    rad = np.zeros(times.size)
+    stamps = np.array([p.stamp for p in plans])
+    which = np.searchsorted(stamps, times, side="right") - 1
+    for i in np.unique(which):
+        sel = which == i
+        t = times[sel]
+        if i < 0:
+            first = plans[0]
+            pos[sel] = first.states[0, :2]
+            rad[sel] = max_speed * (first.stamp - t)
+            continue
+        plan = plans[i]
+        u = plan.inputs[0]
+        tau = t - plan.stamp
+        inside = tau <= sample_time
+        pos[sel] = arcs(plan.states[0], float(u[0]), float(u[1]),
+                        np.minimum(tau, sample_time))
+        if not (i == len(plans) - 1 and hold_after):
+            rad[sel] = np.where(inside, 0.0, max_speed * (tau - sample_time))
+    return pos, rad
