@@ -176,3 +176,75 @@ def test_bad_cdr_is_one_clear_error():
         msgs.deserialize(huge, "nav_msgs/msg/Path")
     with pytest.raises(ValueError, match="unknown message type"):
         msgs.type_hash("nav_msgs/msg/Nothing")
+
+
+def test_an_independent_node_reads_what_a_node_of_this_encoder_sends(tmp_path):
+    """Over a router on loopback: TwistStamped and Path from services.ros2.graph to
+    zenoh-ros2-sdk subscribers, Odometry the other way, and the SDK's graph query."""
+    import time
+
+    import zenoh
+
+    from services.ros2.graph import Ros2Node
+    from services.testing import free_ports, start_service, stop_processes
+    from services.transport import make_config
+
+    port = free_ports(1)[0]
+    router = start_service("router", ["--listen", f"tcp/127.0.0.1:{port}"], tmp_path)
+    use_local_definitions(tmp_path / "msgs")
+    sdk_session = session = None
+    try:
+        sdk_session = sdk.ZenohSession.get_instance("127.0.0.1", port)
+        got: dict[str, list] = {"cmd": [], "plan": [], "odom": []}
+        subs = [sdk.ROS2Subscriber("/r7/cmd_vel", "geometry_msgs/msg/TwistStamped",
+                                   callback=got["cmd"].append, router_port=port, domain_id=5),
+                sdk.ROS2Subscriber("/r7/plan", "nav_msgs/msg/Path",
+                                   callback=got["plan"].append, router_port=port, domain_id=5)]
+        odom_pub = sdk.ROS2Publisher("/r7/odom", "nav_msgs/msg/Odometry", router_port=port,
+                                     domain_id=5, node_name="base")
+        session = zenoh.open(make_config((), [f"tcp/127.0.0.1:{port}"], "client"))
+        node = Ros2Node(session, "sqpmpc_robot7", "/r7", domain=5)
+        node.subscribe("odom", "nav_msgs/msg/Odometry", got["odom"].append)
+        cmd = node.publisher("cmd_vel", "geometry_msgs/msg/TwistStamped")
+        path = node.publisher("plan", "nav_msgs/msg/Path")
+        sent_cmd = msgs.TwistStamped(msgs.Header(msgs.Time(3, 4), "base_link"),
+                                     msgs.Twist(msgs.Vector3(0.25), msgs.Vector3(0, 0, -0.5)))
+        sent_path = msgs.Path(msgs.Header(msgs.Time(3, 4), "odom"), tuple(
+            msgs.PoseStamped(msgs.Header(msgs.Time(3 + i, 0), "odom"), _mine_pose(i, -i, 0.1))
+            for i in range(9)))
+        deadline = time.time() + 20.0
+        while time.time() < deadline and not all(got.values()):
+            cmd.publish(sent_cmd)
+            path.publish(sent_path)
+            odom_pub.publish(header=T["std_msgs/msg/Header"](
+                stamp=T["builtin_interfaces/msg/Time"](1, 2), frame_id="odom"),
+                child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](_theirs_pose(1.0, 2.0, 0.5),
+                                                               np.zeros(36)),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    _theirs_twist((0.3, 0, 0), (0, 0, 0.2)), np.zeros(36)))
+            time.sleep(0.2)
+        info = sdk.get_topic_info("/r7/plan", domain_id=5, router_port=port, timeout=1.0,
+                                  verbose=True)
+        topics = dict(sdk.get_topic_names_and_types(domain_id=5, router_port=port,
+                                                    timeout=1.0))
+        for ep in [*subs, odom_pub]:
+            ep.close()
+        node.close()
+    finally:
+        if session is not None:
+            session.close()
+        if sdk_session is not None:
+            sdk_session.close()
+        stop_processes([router])
+    c = got["cmd"][-1]
+    assert (c.header.frame_id, c.twist.linear.x, c.twist.angular.z) == ("base_link", 0.25, -0.5)
+    p = got["plan"][-1]
+    assert len(p.poses) == 9 and p.poses[8].pose.position.x == 8.0
+    o = got["odom"][-1]
+    assert o.attachment is not None and o.attachment.sequence >= 0
+    assert math.isclose(msgs.quaternion_yaw(o.msg.pose.pose.orientation), 0.5)
+    assert (o.msg.twist.twist.linear.x, o.msg.twist.twist.angular.z) == (0.3, 0.2)
+    assert topics["/r7/cmd_vel"] == ["geometry_msgs/msg/TwistStamped"]
+    assert any(e.node_name == "sqpmpc_robot7" and e.node_namespace == "/r7"
+               for e in info.publishers)
