@@ -42,10 +42,7 @@ def use_local_definitions(folder: Path) -> Path:
             ref = _nested(desc)
             if ref is not None:
                 todo.append(ref)
-    if message_registry._registry is None:  # noqa: SLF001 - the SDK's documented global
-        message_registry.get_registry(str(folder))
-    elif Path(message_registry.get_registry().messages_dir) != folder:
-        message_registry.get_registry().messages_dir = folder
+    message_registry.get_registry(str(folder)).messages_dir = folder
     return folder
 
 
