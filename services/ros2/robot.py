@@ -128,10 +128,10 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
                    help="added to every required distance in the check of each input: "
                         "odometry and timing errors, m (default 0.02)")
-    g.add_argument("--ros2-guard", type=nonnegative_float, default=0.1, metavar="S",
-                   help="a neighbour whose next input is decided less than this after a "
-                        "plan is sent may not have it: held by its reach (default 0.1 s; "
-                        "the fleet shares --lead)")
+    g.add_argument("--ros2-guard", type=nonnegative_float, default=0.02, metavar="S",
+                   help="bound on the clock offset between robots, s (default 0.02): a "
+                        "neighbour deciding less than this after this robot's check is held "
+                        "by its reach (every robot of a fleet uses the same --lead)")
 
 
 def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
@@ -320,11 +320,13 @@ class Ros2Robot(Node):
         """Whether applying ``u`` from ``own`` at ``Tk`` for one sample keeps every
         neighbour's distance (plus ``--ros2-margin``) at every instant.
 
-        A neighbour whose next input is decided after this robot's plan reaches
-        it (its next stamp minus the lead is after now plus the guard) is checked
-        against its exact arcs and then standing still (keeping out of where it
-        stops is this robot's part: it then avoids this robot's new plan);
-        any other one against its exact arcs and then the disc it may reach.
+        A neighbour that decides its next input after this check (its next stamp
+        minus the lead is after now plus ``--ros2-guard``, the bound on the clock
+        offset) is checked against its exact arcs and then standing still: when
+        it decides, it either has this robot's new plan and avoids it, or it has
+        an older one and keeps out of everywhere this robot may be. Any other
+        neighbour (it decided before this check, its plan not here yet) is
+        checked against its exact arcs and then the disc it may reach.
         Neighbours that left: their resting place plus a sample's reach.
         """
         dt = self.Ts / CHECK_STEPS
