@@ -58,12 +58,13 @@ def run_case(name: str, folder: Path) -> dict:
 
 def _table(rows: list[dict]) -> str:
     head = ("| run | robots | collisions | smallest clearance (certified), m | arrived "
-            "(0.05 m) | largest final error, m | stop to zero, s | samples | late "
-            "commands | wall, s |\n|---|---|---|---|---|---|---|---|---|---|\n")
+            "(0.05 m) | largest final error, m | stop to zero, s | samples | stood still "
+            "(check) | phase shifts | late samples | stale odometry | wall, s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
         if "robots" not in r:
-            lines.append(f"| {r['name']} | failed (status {r['status']}) |||||||||")
+            lines.append(f"| {r['name']} | failed (status {r['status']}) ||||||||||||")
             continue
         stops = ", ".join(f"robot {k}: {v:.3f}" if v is not None else f"robot {k}: none"
                           for k, v in r["stop_to_zero"].items()) or "-"
@@ -71,8 +72,9 @@ def _table(rows: list[dict]) -> str:
             f"| {r['name']} | {r['robots']} | {r['collisions']} | {r['min_clearance']:.3f} "
             f"({r['certified_clearance']:.3f}) | {r['arrived']}/{r['robots']} | "
             f"{max(r['final_errors'].values()):.3f} | {stops} | "
-            f"{r['counts'].get('samples', 0)} | {r['counts'].get('late_commands', 0)} | "
-            f"{r['wall']:.0f} |")
+            + " | ".join(str(r["counts"].get(key, 0)) for key in (
+                "samples", "brakes", "phase_shifts", "late_samples", "stale_odometry"))
+            + f" | {r['wall']:.0f} |")
     return head + "\n".join(lines) + "\n"
 
 
@@ -109,17 +111,29 @@ with the run's credentials.
 
 ## How a robot stays safe without a common clock
 
-No two robots sample at the same instants, so no pair can build a shared row from
-the same two plans. Every neighbour is held by the `missing-neighbour-reach` safety
-row: the robot keeps the required distance plus the neighbour's reach (`v_max Ts`,
-plus `--ros2-margin`, plus the uncertainty of a late plan) from the neighbour's
-position at the own sample instant, along its whole path of the sample, or stands
-still. That position is exact within one sample of the neighbour's plan stamp (a
-robot applies its plan's first input from the plan's stamp on); after that the
-neighbour is within `v_max` times the extra age of where the plan had it. A robot
-whose odometry is older than `--odom-timeout` (0.2 s) commands zero at once (checked
-between samples too) and publishes a plan standing where it stopped; the others keep
-their distance from it.
+No two robots sample at the same instants, so no pair can build a shared row from the
+same two plans. What a robot does know: a neighbour applies each plan's first input from
+the plan's stamp for one sample, so that arc is exact. Each sample, at `T_k - lead`, the
+robot plans with every neighbour as a moving obstacle (its exact arcs, then standing
+where they end) and then checks the first input along the exact arc of the whole sample
+(100 points, the distance change between points added): every required distance plus
+`--ros2-margin` from
+
+- a neighbour that decides its next input after this check: its exact arcs, then
+  standing still (when it decides it has this robot's new plan and avoids it, or has an
+  older one and keeps out of everywhere this robot may reach);
+- a neighbour that decided before this check but whose plan is not here yet (or was
+  lost): its exact arcs, then the disc it may reach since;
+- a neighbour that left: where it stopped, plus a sample's reach.
+
+A failed check makes the robot stand still, which is always safe: whoever decides later
+avoids it, whoever decided earlier kept out of where it stops or of all it could reach.
+So at every instant the robot of a pair that decided last kept the distance from what
+the other does. The assumptions: every robot follows its published arc (odometry and
+command latency within the margins), the fleet shares `--lead`, clocks agree within
+`--ros2-guard` (0.02 s). A robot whose odometry is older than `--odom-timeout` (0.2 s)
+commands zero at once (checked between samples too) and publishes a plan standing where
+the odometry and its commands put it; the others keep their distance from it.
 
 ## Runs
 
@@ -129,8 +143,12 @@ poses (exact arcs between commands, checked on a 2 ms grid; the certified cleara
 bounds every instant in between).
 
 {table}
-*samples* and *late commands* add up every controller's counts (a late command: sent
-more than half a sample after its instant).
+The counts add up every controller's: *samples* computed, *stood still* (the check
+refused the QP's input), *phase shifts* (a robot blocked by a neighbour deciding at
+about the same instants moved its own instants by 0.2-0.4 Ts), *late samples* (a plan
+not ready before its instant: the robot stood still), *stale odometry* (times a
+controller found its odometry older than `--odom-timeout` and commanded zero). A robot
+whose odometry stops cannot arrive: arrival counts it as not arrived.
 """
 
 if __name__ == "__main__":

@@ -82,6 +82,10 @@ KEPT_PLANS = 4
 """Plans kept per neighbour (the newest few: one stamped before each of the own instants)."""
 ROW_MARGIN_FACTOR = 3.0
 """The QP's collision margin is at least this many times ``--ros2-margin``."""
+STOP_GRACE = 0.01
+"""Seconds after a sample's instant without its command before the robot is stopped."""
+PUBLISH_SLACK = 0.005
+"""A plan not ready this long before its instant is dropped: the robot stands still."""
 CHECK_STEPS = 100
 """Points per sample at which :meth:`Ros2Robot.path_is_safe` measures the distances."""
 
@@ -120,8 +124,9 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
                    help="wait (publishing standing plans) until FILE exists and holds the "
                         "epoch in Unix s: a launcher starts the fleet's clock once every "
                         "controller is up")
-    g.add_argument("--odom-timeout", type=positive_float, default=0.2, metavar="S",
-                   help="odometry older than this is stale: command zero (default 0.2 s)")
+    g.add_argument("--odom-timeout", type=positive_float, default=0.3, metavar="S",
+                   help="odometry older than this is stale: command zero at once (default "
+                        "0.3 s; keep it below Ts: zero within one sample)")
     g.add_argument("--lead", type=positive_float, default=None, metavar="S",
                    help="start each sample's computation this long before its instant "
                         "(default 0.3 Ts)")
@@ -194,7 +199,11 @@ class Ros2Robot(Node):
         self.epoch_file: Path | None = args.epoch_file
         self.plans: dict[int, list[TimedPlan]] = {i: [] for i in self.neighbours}
         self.departed: dict[int, Estimate] = {}
-        self.counts = {"samples": 0, "brakes": 0, "late_commands": 0, "stale_odometry": 0,
+        self.blocked_by_concurrent = False
+        self._cmd_lock = threading.RLock()
+        self.counts = {"samples": 0, "brakes": 0, "phase_shifts": 0, "late_samples": 0,
+                       "stopped_late": 0,
+                       "stale_odometry": 0,
                        "zero_commands": 0, "plans_received": 0, "plans_refused": 0}
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
@@ -338,16 +347,19 @@ class Ros2Robot(Node):
             if rid == self.robot_id:
                 continue
             left = self.departed.get(rid)
+            concurrent = False
             if left is not None:
                 pos, rad = left.state[None, :2], np.full(1, left.uncertainty)
             elif self.plans[rid]:
                 kept = self.plans[rid]
                 later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
                 pos, rad = committed(kept, times, self.Ts, self.v_max, later)
+                concurrent = not later
             else:
                 continue
             gap = np.hypot(path[:, 0] - pos[:, 0], path[:, 1] - pos[:, 1]) - rad
             if float(gap.min()) < self.required[j] + slack:
+                self.blocked_by_concurrent = concurrent
                 return False
         return True
 
@@ -355,15 +367,16 @@ class Ros2Robot(Node):
     def command(self, v: float, omega: float, at: float) -> None:
         """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state)."""
         twist = msgs.Twist(msgs.Vector3(float(v)), msgs.Vector3(0.0, 0.0, float(omega)))
-        if self.twist_stamped:
-            self.cmd_pub.publish(msgs.TwistStamped(
-                msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
-        else:
-            self.cmd_pub.publish(twist)
-        self._sent.append((at, float(v), float(omega)))
-        del self._sent[:-16]
-        if v == 0.0 and omega == 0.0:
-            self.counts["zero_commands"] += 1
+        with self._cmd_lock:  # the main thread and the stop timer
+            if self.twist_stamped:
+                self.cmd_pub.publish(msgs.TwistStamped(
+                    msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
+            else:
+                self.cmd_pub.publish(twist)
+            self._sent.append((at, float(v), float(omega)))
+            del self._sent[:-16]
+            if v == 0.0 and omega == 0.0:
+                self.counts["zero_commands"] += 1
 
     def publish_plan(self, sample: int, stamp: float, states: np.ndarray,
                      inputs: np.ndarray) -> None:
@@ -434,6 +447,12 @@ class Ros2Robot(Node):
                     break
                 self._step(k, Tk)
                 k += 1
+                if self.blocked_by_concurrent:
+                    # blocked by a neighbour that decides at about the same instants: it
+                    # would stay so every sample; move this robot's instants away from it
+                    self.blocked_by_concurrent = False
+                    self.counts["phase_shifts"] += 1
+                    T0 += random.uniform(0.2, 0.4) * self.Ts
                 behind = time.time() + self.lead - (T0 + k * self.Ts)
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
@@ -483,26 +502,44 @@ class Ros2Robot(Node):
             self.brake(now, k)  # stays braked while the odometry is stale
             return
         self._braked = False
-        own = self.own_state(Tk)
-        states, plans = self.neighbour_plans(Tk, k)
-        states[self.index] = own
-        out = self.controller.step(k, Tk - self.epoch, states, plans, None)
-        u = out.inputs[0]
-        if self.path_is_safe(own, u, Tk):
-            plan = self.controller.published
-            self.publish_plan(k, Tk, plan.states, plan.inputs)
-        else:  # standing still is safe: every neighbour keeps out of where this one stops
-            u = np.zeros(2)
-            self.counts["brakes"] += 1
-            N = self.scenario.horizon
-            self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0), np.zeros((N, 2)))
-        self._watch(Tk, k)
-        if self._braked:  # the odometry went stale meanwhile: the zero stands
-            return
-        if time.time() > Tk + 0.5 * self.Ts:
-            self.counts["late_commands"] += 1
-        self.command(float(u[0]), float(u[1]), time.time())
-        self.counts["samples"] += 1
+        # the previous plan commits its input until Tk only: if this sample's command is
+        # not out by then (a stalled process), stop the robot there
+        sent = threading.Event()
+
+        def stop_if_late() -> None:
+            with self._cmd_lock:
+                if not sent.is_set():
+                    self.counts["stopped_late"] += 1
+                    self.command(0.0, 0.0, time.time())
+
+        timer = threading.Timer(max(0.0, Tk + STOP_GRACE - time.time()), stop_if_late)
+        timer.daemon = True
+        timer.start()
+        try:
+            own = self.own_state(Tk)
+            states, plans = self.neighbour_plans(Tk, k)
+            states[self.index] = own
+            out = self.controller.step(k, Tk - self.epoch, states, plans, None)
+            u = out.inputs[0]
+            late = time.time() > Tk - PUBLISH_SLACK
+            if not late and self.path_is_safe(own, u, Tk):
+                plan = self.controller.published
+                self.publish_plan(k, Tk, plan.states, plan.inputs)
+            else:  # standing still is safe: every neighbour keeps out of where it stops
+                u = np.zeros(2)
+                self.counts["late_samples" if late else "brakes"] += 1
+                N = self.scenario.horizon
+                self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0),
+                                  np.zeros((N, 2)))
+            self._watch(Tk, k)
+            if self._braked:  # the odometry went stale meanwhile: the zero stands
+                return
+            with self._cmd_lock:
+                sent.set()
+            self.command(float(u[0]), float(u[1]), time.time())
+            self.counts["samples"] += 1
+        finally:
+            timer.cancel()
 
     def close(self) -> None:
         """Undeclare the ROS 2 node, close both sessions."""
