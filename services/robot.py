@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """One robot's decentralized controller as a service.
 
 ``python -m services.robot --id J --scenario S [--decentralized-mode shared|paper]
@@ -6,11 +7,11 @@
 
 At sample ``k`` the robot waits for the plant's states of sample ``k`` and
 for the plan its shared row with each neighbour is built from (of sample
-:func:`sqpmpc.controllers.pair_sample`: ``k - 1``, or older when plans have
+:func:`sqpmpc.control.plans.pair_sample`: ``k - 1``, or older when plans have
 been late, from the ``plan_ages`` the plant relays with the states) of every
 neighbour whose liveliness token is present and was present at its step
 ``k - 1`` (up to ``--timeout`` in lockstep, a fifth of the plant's budget in
-real time), then calls :class:`sqpmpc.controllers.DecentralizedController`
+real time), then calls :class:`sqpmpc.control.decentralized.DecentralizedController`
 exactly as the in-process simulation does: ``plans`` holds, per neighbour, the
 newest plan computed before sample ``k`` (and any older one kept, on request),
 ``previous_states`` the states of ``k - 1``, ``plan_ages`` the relayed
@@ -26,6 +27,11 @@ the lockstep loop can be lost and the run is deterministic.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
+
 import argparse
 import logging
 import sys
@@ -36,10 +42,11 @@ from contextlib import AbstractContextManager, nullcontext
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import DecentralizedController, pair_sample
+from sqpmpc.cli.options import Parser, combination_problem
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import pair_sample
 from sqpmpc.errors import ProblemError
-from sqpmpc.options import Parser, combination_problem
-from sqpmpc.scenario import Scenario
+from sqpmpc.problem.scenario import Scenario
 
 from .control import (
     ControllerNode,

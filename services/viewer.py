@@ -9,7 +9,7 @@ states (``plant/state``), the controllers' plans (``robot/<id>/plan``; the
 central service publishes one per robot too) and inputs (``robot/<id>/cmd``,
 for the solve times), and serves them with Foxglove's WebSocket server
 (``foxglove-sdk``) on ``ws://H:P`` (default ``ws://127.0.0.1:8765``), as the
-topics of :mod:`sqpmpc.recording` (the same as ``recording.mcap``), stamped
+topics of :mod:`sqpmpc.io.recording` (the same as ``recording.mcap``), stamped
 with the wall clock. Open it in Foxglove (desktop or app.foxglove.dev): *Open
 connection* -> *Foxglove WebSocket* -> ``ws://127.0.0.1:8765``, add a 3D panel
 (fixed frame ``world``, topic ``/scene``) and a Plot panel
@@ -38,9 +38,9 @@ import time
 import foxglove
 import numpy as np
 
-from sqpmpc.options import Parser, nonnegative_float, port_number
-from sqpmpc.recording import FleetLog
-from sqpmpc.scenario import Scenario
+from sqpmpc.cli.options import Parser, nonnegative_float, port_number
+from sqpmpc.io.recording import FleetLog
+from sqpmpc.problem.scenario import Scenario
 
 from .messages import CmdMsg, DoneMsg, Message, PlanMsg, StateMsg
 from .node import (

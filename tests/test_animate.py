@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sqpmpc.cli import main
-from sqpmpc.metrics import write_run
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import simulate
+from sqpmpc.cli.main import main
+from sqpmpc.io.files import write_run
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import simulate
 
 
 @pytest.fixture(scope="module")

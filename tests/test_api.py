@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import sqpmpc
-from sqpmpc.model import discrete_dynamics
-from sqpmpc.scenario import (
+from sqpmpc.models.unicycle import discrete_dynamics
+from sqpmpc.problem.scenario_file import (
     _OBSTACLE_KEYS,
     _OPTIONAL_TOP_KEYS,
     _PLANT_KEYS,

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 CONTRACT_KEYS = {
     "scenario", "scheme", "steps", "sample_time", "horizon", "min_distance", "min_clearance",
@@ -87,7 +87,7 @@ def test_bad_rule_options_are_refused_by_name(tmp_path: Path, args: list[str],
 
 
 def test_rules_subcommand_lists_every_rule_and_safety_row() -> None:
-    from sqpmpc.registry import SAFETY_ROWS, rule_names
+    from sqpmpc.rules.registry import SAFETY_ROWS, rule_names
 
     proc = run_cli("rules")
     assert proc.returncode == 0
@@ -136,7 +136,7 @@ def _bad_cases() -> list[tuple[str, str, str]]:
 def test_every_kind_of_bad_file_exits_2_with_one_message(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], description: str, text: str,
         key: str) -> None:
-    from sqpmpc.cli import main
+    from sqpmpc.cli.main import main
 
     path = tmp_path / "bad-case.toml"
     path.write_text(text, encoding="utf-8")

@@ -19,8 +19,8 @@ import pytest
 import yaml
 
 from services.testing import free_ports, start_service, stop_processes
-from sqpmpc.cli import main as sqpmpc_main
-from sqpmpc.scenario import load_scenario
+from sqpmpc.cli.main import main as sqpmpc_main
+from sqpmpc.problem.scenario_file import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
 

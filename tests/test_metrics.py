@@ -11,16 +11,10 @@ import numpy as np
 import pytest
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.metrics import (
-    RunRecord,
-    compute_metrics,
-    intersample_distances,
-    load_trajectory,
-    write_metrics,
-    write_run,
-    write_trajectory,
-)
-from sqpmpc.scenario import Scenario
+from sqpmpc.io.files import load_trajectory, write_metrics, write_run, write_trajectory
+from sqpmpc.io.metrics import compute_metrics, intersample_distances
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 from tests.scenarios import goal_scenario
 
 CONTRACT_KEYS = {

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqpmpc.metrics import RunRecord, write_run
-from sqpmpc.plots import plot_run
-from sqpmpc.scenario import Scenario
+from sqpmpc.io.files import write_run
+from sqpmpc.io.plots import plot_run
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 from tests.scenarios import circle_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -22,7 +22,7 @@ from services.ros2.check import check_fleet
 from services.ros2.sdk import use_local_definitions
 from services.testing import free_ports, start_service, stop_processes
 from services.transport import make_config
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 sdk = pytest.importorskip("zenoh_ros2_sdk")
 

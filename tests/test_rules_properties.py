@@ -9,10 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController, DecentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import Detour, StallRepair, _repair_speeds, limit_turning
-from sqpmpc.registry import RULES
+from sqpmpc.kernels.rules import limit_turning, repair_speeds
+from sqpmpc.rules.liveness import Detour, StallRepair
+from sqpmpc.rules.registry import RULES
 from tests.rule_helpers import fleet, only, view
 
 # robot 1 at the origin heading for (3, 0); robot 2 right in front of it, heading back
@@ -115,7 +117,7 @@ def test_stall_repair_kernel_counts_only_the_robots_it_may_change() -> None:
     goals = np.array([[2.0, 0.0], [-2.0, 0.0], [2.0, 0.0], [0.0, 2.0]])
     states = np.zeros((4, 3))
     only_mask = np.array([True, True, True, False])
-    repaired = _repair_speeds(speeds, goals, states, only_mask, 0.05, 0.1, 0.05, -0.04)
+    repaired = repair_speeds(speeds, goals, states, only_mask, 0.05, 0.1, 0.05, -0.04)
     assert repaired == 2
     np.testing.assert_array_equal(speeds[0], 0.05)  # goal ahead
     np.testing.assert_array_equal(speeds[1], -0.04)  # goal behind: the back speed
@@ -123,7 +125,7 @@ def test_stall_repair_kernel_counts_only_the_robots_it_may_change() -> None:
     np.testing.assert_array_equal(speeds[3], 0.0)  # not in the mask
     # a goal exactly abeam counts as ahead
     abeam = np.zeros((1, 5))
-    assert _repair_speeds(abeam, goals[3:], states[:1], only_mask[:1], 0.05, 0.1, 0.05,
+    assert repair_speeds(abeam, goals[3:], states[:1], only_mask[:1], 0.05, 0.1, 0.05,
                           -0.05) == 1
     np.testing.assert_array_equal(abeam, 0.05)
 

@@ -30,7 +30,7 @@ from services.testing import (
     start_service,
     stop_processes,
 )
-from sqpmpc.recording import POSE_TOPIC
+from sqpmpc.io.recording import POSE_TOPIC
 
 pytestmark = pytest.mark.timeout(120)
 

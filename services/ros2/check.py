@@ -25,10 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
+from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.metrics import atomic_path
-from sqpmpc.options import Parser, positive_float
-from sqpmpc.scenario import Scenario, load_scenario
+from sqpmpc.io.atomic import atomic_path
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 __all__ = ["FleetCheck", "check_fleet", "main", "poses_at"]
 

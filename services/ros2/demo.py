@@ -42,9 +42,9 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.options import Parser, positive_float
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 from ..credentials import write_credentials
 from ..launch import Child, free_ports, stop_children

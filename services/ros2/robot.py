@@ -60,9 +60,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import DecentralizedController, PlanMessage
-from sqpmpc.options import nonnegative_float, positive_float
-from sqpmpc.scenario import Scenario
+from sqpmpc.cli.options import nonnegative_float, positive_float
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.problem.scenario import Scenario
 
 from ..control import controller_settings
 from ..messages import Message, PlanMsg, encode

@@ -22,7 +22,10 @@ SDK_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/Twist",
 
 def use_local_definitions(folder: Path) -> Path:
     """Write the Jazzy ``.msg`` files of :data:`SDK_TYPES` and their dependencies into
-    ``folder`` and make it zenoh-ros2-sdk's message registry; returns ``folder``."""
+    ``folder`` and make it zenoh-ros2-sdk's message registry; returns ``folder``.
+
+    Call it before the SDK's session of a router is opened (once per session).
+    """
     from rosbags.typesys import Stores, get_typestore
     from zenoh_ros2_sdk import message_registry
 
@@ -42,7 +45,9 @@ def use_local_definitions(folder: Path) -> Path:
             ref = _nested(desc)
             if ref is not None:
                 todo.append(ref)
-    message_registry.get_registry(str(folder)).messages_dir = folder
+    # a fresh registry: the SDK's global one remembers the types loaded into the store of
+    # a session closed since (a later session's store would lack them)
+    message_registry._registry = message_registry.MessageRegistry(str(folder))
     return folder
 
 

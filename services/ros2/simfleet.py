@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.metrics import atomic_path
-from sqpmpc.options import Parser, positive_float
-from sqpmpc.scenario import load_scenario
+from sqpmpc.io.atomic import atomic_path
+from sqpmpc.problem.scenario_file import load_scenario
 
 from ..node import install_signal_handlers, setup_logging
 from .sdk import use_local_definitions
