@@ -15,8 +15,8 @@ it and can end up pinned against it). The route is
 re-planned from the robot's position when the robot has not progressed by
 ``progress`` metres for ``patience`` seconds or has been pushed more than
 ``deviation`` metres off it, and dropped once the straight way to the goal
-is free. A robot pressed against a wall, stopped and far from its goal for a
-few samples backs away from it first (facing a wall, a unicycle's
+is free. A robot pressed against a wall, facing it, stopped with no neighbour
+near and far from its goal for a few samples backs away from it first (facing a wall, a unicycle's
 linearization has no way out). Safety is the collision rows' business, as for every rule: the
 route only chooses where the robot heads.
 """
@@ -105,7 +105,13 @@ class _RouteInstance(RuleInstance):
             return False
         gap, away = road.away_from_walls(p)
         stopped = abs(float(view.applied[k, 0])) < rule.stopped_speed
-        self.pinned[k] = self.pinned[k] + 1 if stopped and gap < rule.pressed else 0
+        psi = float(view.own_states[k, 2])
+        facing = -(np.cos(psi) * away[0] + np.sin(psi) * away[1]) > rule.facing
+        # a robot held up by a neighbour waits for it, it is not trapped by the wall
+        others = np.delete(view.positions, self.context.own[k], axis=0)
+        crowded = others.size and float(np.hypot(*(others - p).T).min()) < rule.neighbour
+        self.pinned[k] = (self.pinned[k] + 1 if stopped and facing and not crowded
+                          and gap < rule.pressed else 0)
         if self.pinned[k] < rule.pinned_samples:
             return False
         self.pinned[k] = 0
@@ -192,10 +198,12 @@ class RouteFollowing(Rule):
         Re-plan when the robot is farther than this from its route, m.
     check_every
         Samples between the checks of a robot without a route (is its way blocked?).
-    pressed, stopped_speed, pinned_samples
-        A robot nearer than ``pressed`` m beyond its radius to a wall, whose applied
-        speed stayed below ``stopped_speed`` m/s for ``pinned_samples`` samples, is
-        pinned (facing the wall, a unicycle's linearization has no way out) ...
+    pressed, stopped_speed, pinned_samples, facing, neighbour
+        A robot nearer than ``pressed`` m beyond its radius to a wall, heading into it
+        (the cosine between its heading and the wall's direction above ``facing``),
+        no other robot within ``neighbour`` m, whose applied speed stayed below
+        ``stopped_speed`` m/s for ``pinned_samples`` samples, is pinned (facing the
+        wall, a unicycle's linearization has no way out) ...
     escape_distance, escape_samples
         ... and heads for the point ``escape_distance`` m straight away from the wall
         for ``escape_samples`` samples, then goes on (its goal, or a new route).
@@ -214,10 +222,13 @@ class RouteFollowing(Rule):
     pressed: float = 0.03
     stopped_speed: float = 0.05
     pinned_samples: int = 4
+    facing: float = 0.5
+    neighbour: float = 0.8
     escape_distance: float = 0.4
     escape_samples: int = 4
 
     def __post_init__(self) -> None:
         check_positive(self, "margin", "speed", "lead", "progress", "patience", "deviation",
-                       "check_every", "pressed", "stopped_speed", "pinned_samples",
+                       "check_every", "pressed", "stopped_speed", "pinned_samples", "facing",
+                       "neighbour",
                        "escape_distance", "escape_samples")
