@@ -15,7 +15,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.rules import limit_turning, repair_speeds
 from sqpmpc.rules.liveness import Detour, StallRepair
 from sqpmpc.rules.registry import RULES
-from tests.rule_helpers import fleet, only, view
+from tests.rule_helpers import fleet, only, shape, view
 
 # robot 1 at the origin heading for (3, 0); robot 2 right in front of it, heading back
 STARTS = [[0.0, 0.0, 0.0], [0.35, 0.0, np.pi]]
@@ -27,7 +27,7 @@ def _detoured(ctrl: DecentralizedController | CentralizedController,
     """Per own robot, whether the detour rule replaced its references this sample."""
     v = view(ctrl, states, sample=sample)
     raw = v.references.copy()
-    ctrl.rule("detour").shape_references(v)
+    v = shape(ctrl, ctrl.rule("detour"), v)
     return np.array([not np.array_equal(v.references[i], raw[i]) for i in range(raw.shape[0])])
 
 
@@ -53,7 +53,7 @@ def test_detour_target_stays_put_while_the_robots_stand_still() -> None:
     targets = []
     for k in range(4):
         v = view(ctrl, states, sample=k)
-        ctrl.rule("detour").shape_references(v)
+        v = shape(ctrl, ctrl.rule("detour"), v)
         targets.append(v.references[0, 0].copy())
     np.testing.assert_array_equal(np.diff(targets, axis=0), 0.0)
     assert ctrl.counters()["detour_activations"] == 1
@@ -70,7 +70,7 @@ def test_centralized_head_on_pair_detours_on_opposite_sides_after_longer_patienc
     assert np.all(flags[patience - 1:])
     assert ctrl.counters()["detour_activations"] == 2
     v = view(ctrl, states, sample=patience)
-    ctrl.rule("detour").shape_references(v)
+    v = shape(ctrl, ctrl.rule("detour"), v)
     first, second = v.references[0, 0], v.references[1, 0]
     assert first[1] < 0.0 < second[1]  # robot 1 heads +x: its right is -y; robot 2's is +y
     D = ctrl.scenario.required_distances()[0, 1]
@@ -130,19 +130,23 @@ def test_stall_repair_kernel_counts_only_the_robots_it_may_change() -> None:
     np.testing.assert_array_equal(abeam, 0.05)
 
 
-def test_stall_repair_writes_the_engine_linearization_point() -> None:
-    """The hook receives a strided view of the iterate: the repair lands in the engine."""
+def test_stall_repair_lands_in_the_engine_linearization_point() -> None:
+    """The hook sees the iterate's speeds read-only and returns new ones; the pipeline
+    writes them into the engine."""
     sc = fleet([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0]], [[-2.0, 0.5], [0.0, 3.05]])
     ctrl = CentralizedController(sc, only().with_rule(StallRepair(speed=0.07)))
     ctrl.step(0.0, sc.initial_states())
     engine = ctrl.engine
-    engine.z[engine._speed_index] = 0.0
-    speeds = engine.guess_speeds()
-    assert not speeds.flags.c_contiguous
+    engine.update_guess_speeds(np.zeros((2, sc.horizon)))
+    v = view(ctrl, sc.initial_states()).but(guess_speeds=engine.guess_speeds())
+    assert not v.guess_speeds.flags.writeable and not v.references.flags.writeable
+    with pytest.raises(ValueError):
+        v.guess_speeds[0, 0] = 1.0
     before = ctrl.counters()["stall_repairs"]
-    ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
-    np.testing.assert_array_equal(engine.z[engine._speed_index[0]], -0.07)  # goal behind
-    np.testing.assert_array_equal(engine.z[engine._speed_index[1]], 0.0)  # near its goal
+    v = ctrl.apply(ctrl.rule("stall-repair").shape_guess(v), v)
+    np.testing.assert_array_equal(engine.guess_speeds()[0], -0.07)  # goal behind
+    np.testing.assert_array_equal(engine.guess_speeds()[1], 0.0)  # near its goal
+    np.testing.assert_array_equal(v.guess_speeds, engine.guess_speeds())
     assert ctrl.counters()["stall_repairs"] == before + 1
 
 

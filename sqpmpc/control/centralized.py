@@ -8,16 +8,17 @@ from collections.abc import Mapping
 import numpy as np
 
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
+from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
-__all__ = ["CentralizedController"]
+__all__ = ["CentralizedController", "has_position_bounds"]
 
 
-
-def _has_position_bounds(scenario: Scenario) -> bool:
+def has_position_bounds(scenario: Scenario) -> bool:
+    """Whether the scenario bounds the positions (the QP then has position rows)."""
     b = scenario.bounds
     return bool(np.isfinite(b.position_lower()).any() or np.isfinite(b.position_upper()).any())
 
@@ -40,7 +41,7 @@ class CentralizedController(ControllerPipeline):
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
-                          _has_position_bounds(scenario))
+                          has_position_bounds(scenario))
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
@@ -58,14 +59,18 @@ class CentralizedController(ControllerPipeline):
         if self.slots is not None:
             self.counts["stage_one_pairs"] = 0
 
-    def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
-                            previous_states: np.ndarray | None) -> None:
+    def predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                           previous_states: np.ndarray | None,
+                           plan_ages: PlanAges | None = None) -> None:
+        """The pair rows from the current positions (the neighbours' data are unused: every
+        robot is in this QP)."""
         self.collisions.set_current_positions(states[:, :2])
         if self.slots is not None:
             _, first_only = self.collisions.select(self.interaction_radius, self.slots)
             self.counts["stage_one_pairs"] += first_only
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+    def first_input_safe(self, states: np.ndarray, next_states: np.ndarray,
+                         inputs: np.ndarray) -> bool:
         """Every pair keeps its distance along the paths of the sample.
 
         With the Euler model the robots move on straight segments at constant
@@ -80,7 +85,7 @@ class CentralizedController(ControllerPipeline):
         p = np.ascontiguousarray(next_states[:, :2])
         if not self.collisions.first_input_safe(now, p, growth):
             return False
-        return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+        return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.
