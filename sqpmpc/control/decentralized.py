@@ -23,27 +23,26 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Literal
 
 import numpy as np
 
 from sqpmpc.control.centralized import has_position_bounds
-from sqpmpc.control.neighbours import NeighbourSelector
+from sqpmpc.control.neighbours import NeighbourSelector, NeighbourSlots
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput, braking_input
 from sqpmpc.control.plans import (
     PlanAges,
     PlanBook,
     PlanMessage,
     PlanSource,
+    fill_from_plan,
     pair_sample,
     predict_from_plan,
     predict_from_states,
 )
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import shift_plan
 from sqpmpc.ocp.collision_rows import (
     MISSING,
     OBSTACLE,
@@ -66,44 +65,6 @@ DecentralizedMode = Literal["shared", "paper"]
 log = logging.getLogger(__name__)
 paper_mode_warned = False
 """Whether this process logged the warning of ``"paper"`` mode (logged once)."""
-
-
-@dataclass
-class NeighbourSlots:
-    """What the slots of a decentralized robot's QP hold at the current sample.
-
-    Attributes
-    ----------
-    index
-        ``(slots,)`` scenario index of the neighbour in each slot (free slots:
-        the robot's own index; their rows are off).
-    neighbours
-        ``(slot, id)`` of the occupied slots, nearest first.
-    kinds
-        ``(slots,)`` row kind of each slot (:mod:`sqpmpc.ocp.collision_rows`:
-        shared, obstacle, missing, off).
-    age_margins
-        ``(slots,)`` extra distance for a neighbour whose plans are late, m.
-    predictions, own_predictions
-        ``(slots, N, 3)`` stages 1..N of each neighbour, and of this robot
-        from the plan of the pair's common sample (shared rows).
-    """
-
-    index: np.ndarray
-    neighbours: list[tuple[int, int]]
-    kinds: np.ndarray
-    age_margins: np.ndarray
-    predictions: np.ndarray
-    own_predictions: np.ndarray
-
-    @classmethod
-    def empty(cls, others: np.ndarray, other_ids: np.ndarray, slots: int,
-              horizon: int) -> NeighbourSlots:
-        """Slots filled with the first ``slots`` others (the fixed assignment without
-        selection)."""
-        return cls(others[:slots].copy(), list(enumerate(other_ids[:slots].tolist())),
-                   np.zeros(slots, dtype=np.int8), np.zeros(slots),
-                   np.zeros((slots, horizon, 3)), np.zeros((slots, horizon, 3)))
 
 
 class DecentralizedController(ControllerPipeline):
@@ -211,22 +172,9 @@ class DecentralizedController(ControllerPipeline):
                 and self.in_position_bounds(next_state[:, :2]))
 
     def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int) -> bool:
-        """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan of an earlier sample.
-
-        A plan of ``k - 1`` (the usual case) is shifted by one stage, holding its
-        last input (one kernel call); older ones by :func:`predict_from_plan`.
-        Returns ``False`` for a plan that cannot be used (from the future, too old).
-        """
-        N, h, method = self.horizon, self.sample_time, self.settings.discretization
-        if (sample - plan.sample == 1 and method == "euler" and plan.states.shape[0] == N + 1
-                and plan.states.flags.c_contiguous and plan.inputs.flags.c_contiguous):
-            shift_plan(plan.states, plan.inputs, h, out)
-            return True
-        pred = predict_from_plan(plan, sample, N, h, method)
-        if pred is None:
-            return False
-        out[:] = pred[1:]
-        return True
+        """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan (:func:`fill_from_plan`)."""
+        return fill_from_plan(out, plan, sample, self.horizon, self.sample_time,
+                              self.settings.discretization)
 
     def _own_at(self, pair: int, sample: int, cache: dict[int, np.ndarray | None]
                 ) -> np.ndarray | None:

@@ -31,7 +31,7 @@ import numpy as np
 from sqpmpc.kernels.collision import nearest_within
 from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["NeighbourSelection", "NeighbourSelector", "recipients"]
+__all__ = ["NeighbourSelection", "NeighbourSelector", "NeighbourSlots", "recipients"]
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,44 @@ class NeighbourSelection:
 
     slotted: np.ndarray
     unslotted: np.ndarray
+
+
+@dataclass
+class NeighbourSlots:
+    """What the slots of a decentralized robot's QP hold at the current sample.
+
+    Attributes
+    ----------
+    index
+        ``(slots,)`` scenario index of the neighbour in each slot (free slots:
+        the robot's own index; their rows are off).
+    neighbours
+        ``(slot, id)`` of the occupied slots, nearest first.
+    kinds
+        ``(slots,)`` row kind of each slot (:mod:`sqpmpc.ocp.collision_rows`:
+        shared, obstacle, missing, off).
+    age_margins
+        ``(slots,)`` extra distance for a neighbour whose plans are late, m.
+    predictions, own_predictions
+        ``(slots, N, 3)`` stages 1..N of each neighbour, and of this robot
+        from the plan of the pair's common sample (shared rows).
+    """
+
+    index: np.ndarray
+    neighbours: list[tuple[int, int]]
+    kinds: np.ndarray
+    age_margins: np.ndarray
+    predictions: np.ndarray
+    own_predictions: np.ndarray
+
+    @classmethod
+    def empty(cls, others: np.ndarray, other_ids: np.ndarray, slots: int,
+              horizon: int) -> NeighbourSlots:
+        """Slots filled with the first ``slots`` others (the fixed assignment without
+        selection)."""
+        return cls(others[:slots].copy(), list(enumerate(other_ids[:slots].tolist())),
+                   np.zeros(slots, dtype=np.int8), np.zeros(slots),
+                   np.zeros((slots, horizon, 3)), np.zeros((slots, horizon, 3)))
 
 
 class NeighbourSelector:

@@ -60,11 +60,12 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from sqpmpc.kernels.ocp import shift_plan
 from sqpmpc.models.unicycle import discrete_dynamics, estimate_input, rollout
 
 __all__ = [
-    "AGE_HOLD", "LATE_STEPS", "PlanAges", "PlanBook", "PlanMessage", "PlanSource", "pair_sample",
-    "predict_from_plan", "predict_from_states",
+    "AGE_HOLD", "LATE_STEPS", "PlanAges", "PlanBook", "PlanMessage", "PlanSource",
+    "fill_from_plan", "pair_sample", "predict_from_plan", "predict_from_states",
 ]
 
 
@@ -161,6 +162,25 @@ def predict_from_plan(
         tail = rollout(known[-1], np.repeat(plan.inputs[-1:], missing, axis=0), sample_time,
                        method)[1:]
     return np.concatenate((known, tail), axis=0)
+
+
+def fill_from_plan(out: np.ndarray, plan: PlanMessage, sample: int, horizon: int,
+                   sample_time: float, method: str) -> bool:
+    """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan of an earlier sample.
+
+    A plan of ``k - 1`` (the usual case) is shifted by one stage, holding its
+    last input (one kernel call); older ones by :func:`predict_from_plan`.
+    Returns ``False`` for a plan that cannot be used (from the future, too old).
+    """
+    if (sample - plan.sample == 1 and method == "euler" and plan.states.shape[0] == horizon + 1
+            and plan.states.flags.c_contiguous and plan.inputs.flags.c_contiguous):
+        shift_plan(plan.states, plan.inputs, sample_time, out)
+        return True
+    pred = predict_from_plan(plan, sample, horizon, sample_time, method)
+    if pred is None:
+        return False
+    out[:] = pred[1:]
+    return True
 
 
 def predict_from_states(
