@@ -13,6 +13,9 @@ import pytest
 
 from services.messages import PlanMsg
 from services.robot import RobotNode, build_parser
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.scenario_file import load_scenario
 
@@ -50,3 +53,31 @@ def test_a_robot_sends_its_plan_to_a_robot_that_gives_it_a_slot_on_an_exact_plan
     finally:
         sender.close()
         receiver.close()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_every_selector_addresses_the_robots_that_slot_it(seed: int) -> None:
+    """Without Zenoh: 12 robots on an exact plant, 3 slots each, random states and any
+    motion within v_max Ts per robot; a robot that slots j at k + 1 is among the robots
+    j's selector addresses at k."""
+    scenario = antipodal_swap(12).with_changes(plant=PlantSpec("exact"))
+    settings = SolverSettings(neighbour_slots=3)
+    controllers = [DecentralizedController(scenario, int(rid), settings)
+                   for rid in scenario.ids]
+    selectors = [c.selector for c in controllers]
+    assert controllers[0].model_margin > 0.0
+    rng = np.random.default_rng(seed)
+    v_max, ts = controllers[0].context.max_speed, scenario.sample_time
+    now = np.zeros((12, 3))
+    now[:, :2] = rng.normal(scale=2.0 + seed, size=(12, 2))
+    sent = {j: set(s.recipients(now).tolist()) for j, s in enumerate(selectors)}
+    assert sum(map(len, sent.values())) < 12 * 11  # something was filtered
+    for _ in range(20):
+        angle = rng.uniform(0, 2 * np.pi, 12)
+        step = v_max * ts * rng.choice([0.0, 1.0, rng.uniform()], size=12)
+        nxt = now.copy()
+        nxt[:, 0] += step * np.cos(angle)
+        nxt[:, 1] += step * np.sin(angle)
+        for i, s in enumerate(selectors):
+            for j in s.others[s.select(nxt).slotted]:
+                assert i in sent[int(j)], (i, int(j))

@@ -5,6 +5,7 @@ every rule parameter refused by rule and field name."""
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from sqpmpc.control.centralized import CentralizedController
 from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.rules import limit_turning, repair_speeds
+from sqpmpc.rules.base import Contribution, Rule, RuleInstance, SampleView
 from sqpmpc.rules.liveness import Detour, StallRepair
 from sqpmpc.rules.registry import RULES
 from tests.rule_helpers import fleet, only, shape, view
@@ -165,3 +167,36 @@ def test_every_rule_has_parameters_or_none_to_check() -> None:
     """The parametrization above covers each rule with fields; touching-pairs has none."""
     assert {name for name, _ in _FIELDS} == set(RULES) - {"touching-pairs"}
     assert RULES["touching-pairs"]().parameters() == {}
+
+
+class _Undeclared(RuleInstance):
+    hooks = ("references",)
+    calls = 0
+
+    def shape_guess(self, view: SampleView) -> Contribution | None:  # not declared
+        type(self).calls += 1
+        return None
+
+
+@dataclass(frozen=True)
+class _Probe(Rule):
+    name = "probe"
+    instance = _Undeclared
+
+
+def test_hooks_are_declared_explicitly() -> None:
+    """The pipeline calls the hooks a rule declares (a method alone is not a hook), and an
+    unknown hook name is refused at binding."""
+    sc = fleet([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0]], [[2.0, 0.0], [2.0, 3.0]])
+    ctrl = CentralizedController(sc, only().with_rule(_Probe()))
+    inst = ctrl.rule("probe")
+    assert ctrl.rules_with("guess") == [] and ctrl.rules_with("references") == [inst]
+    for k in range(3):
+        ctrl.step(k * sc.sample_time, sc.initial_states())
+    assert _Undeclared.calls == 0
+
+    class Unknown(RuleInstance):
+        hooks = ("reference",)
+
+    with pytest.raises(ProblemError, match="unknown hooks"):
+        Unknown(_Probe(), ctrl.context)

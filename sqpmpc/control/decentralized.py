@@ -89,7 +89,8 @@ class DecentralizedController(ControllerPipeline):
     selecting
         Whether the slots are chosen per sample (``neighbour_slots`` set).
     slot_data
-        What the slots hold at the current sample (:class:`NeighbourSlots`).
+        What the slots hold at the current sample
+        (:class:`~sqpmpc.control.neighbours.NeighbourSlots`).
     own_prediction
         ``(N, 3)`` this robot's stages 1..N from its published plan (or the fallback).
     plan_ages

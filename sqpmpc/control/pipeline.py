@@ -7,11 +7,11 @@ one function that reads top to bottom:
 2. **predict neighbours**: the scheme's collision data (centralized: the
    current positions; decentralized: the neighbours' exchanged plans, or the
    paper's fallback prediction when a plan is missing);
-3. **rules shape**: the scenario's references of stages 1..N, then every
-   rule's ``"references"`` hook (detour targets, parking weights);
-4. **shift**: the previous solution moved one stage (kept as the fallback
-   plan), the measured state put in stage 0, then every rule's
-   ``"guess"`` hook on the linearization point (stall repair, parking);
+3. **shift**: the previous solution moved one stage (kept as the fallback
+   plan), the measured state put in stage 0;
+4. **rules shape**: the scenario's references of stages 1..N, then every
+   rule's ``"references"`` hook (detour targets, parking weights), then every
+   rule's ``"guess"`` hook on the linearization point (stall repair, parking);
 5. **linearize and solve**: :meth:`sqpmpc.ocp.iteration.MultipleShootingSQP.solve`
    (one QP in RTI, iterations in SQP);
 6. **rules after solve**: a rule may ask for the sample to be iterated to
@@ -57,7 +57,7 @@ from sqpmpc.problem.plant import model_margin, path_deviation
 from sqpmpc.problem.references import Reference, ReferenceSet
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
-from sqpmpc.rules.base import Contribution, RuleContext, RuleInstance, SampleView
+from sqpmpc.rules.base import Contribution, RuleContext, RuleInstance, SampleView, read_only
 
 if TYPE_CHECKING:
     from sqpmpc.control.plans import PlanAges, PlanMessage
@@ -172,8 +172,8 @@ class ControllerPipeline:
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
-        self._applied = np.zeros((m, 2))
-        self._applied_before = np.zeros((m, 2))
+        self._applied = read_only(np.zeros((m, 2)))  # the rules read both (read-only)
+        self._applied_before = self._applied
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
@@ -213,24 +213,31 @@ class ControllerPipeline:
         if self.obstacle_rows is not None:
             self.obstacle_rows.set_sample(t, own)
         self.predict_neighbours(sample, states, plans or {}, previous_states, plan_ages)
-        # 3. rules shape the references
-        raw = self.reference(t)
-        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]), own, raw, raw,
-                          self._applied, self._applied_before,
-                          np.ascontiguousarray(states[:, 2]))
-        for rule in self._reference_rules:
-            view = self.apply(rule.shape_references(view), view)
-        # 4. shift, then rules shape the linearization point
+        # 3. shift the previous solution (kept as the fallback plan), x0 in stage 0
         engine = self.engine
         shifted = None
         if engine.has_solution:
             engine.shift()
             shifted = engine.inputs()
         engine.start_sample(own)
-        if self._guess_rules:
-            view = view.but(guess_speeds=engine.guess_speeds())
-            for rule in self._guess_rules:
-                view = self.apply(rule.shape_guess(view), view)
+        # 4. rules shape the references, then the linearization point; their view's arrays:
+        # this sample's new ones made read-only, the pipeline's and the engine's as views
+        raw = self.reference(t)
+        positions = np.ascontiguousarray(states[:, :2])
+        headings = np.ascontiguousarray(states[:, 2])
+        for fresh in (raw, positions, headings):
+            fresh.setflags(write=False)
+        view = SampleView.of_sample(
+            sample, t, positions, read_only(own), raw, self._applied, self._applied_before,
+            headings, engine.guess_speeds() if self._guess_rules else None)
+        for rule in self._reference_rules:
+            contribution = rule.shape_references(view)
+            if contribution is not None:
+                view = self.apply(contribution, view)
+        for rule in self._guess_rules:
+            contribution = rule.shape_guess(view)
+            if contribution is not None:
+                view = self.apply(contribution, view)
         # 5. linearize and solve
         budget = self.settings.time_budget
         deadline = None if budget is None else t0 + budget
@@ -258,9 +265,8 @@ class ControllerPipeline:
         c = contribution
         if c.position_weight_scale is not None:
             self.engine.update_position_weight_scale(c.position_weight_scale)
-        if c.guess_speeds is not None:
+        if c.guess_speeds is not None:  # view.guess_speeds views the iterate: it shows them
             self.engine.update_guess_speeds(c.guess_speeds)
-            view = view.but(guess_speeds=self.engine.guess_speeds())
         if c.references is not None:
             view = view.but(references=c.references)
         return view
@@ -369,7 +375,7 @@ class ControllerPipeline:
         for rows in self._rows.values():
             c["stage_one_overrides"] += rows.stage_one_overrides
         self._applied_before = self._applied
-        self._applied = out.inputs
+        self._applied = read_only(out.inputs)  # the rules' view of it
         out.counters = dict(c)
 
     def in_position_bounds(self, positions: np.ndarray) -> bool:

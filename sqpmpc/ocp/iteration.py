@@ -213,7 +213,7 @@ class MultipleShootingSQP:
         L = self.layout
         out = self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
             :, 3:5 * L.horizon:5]
-        out.flags.writeable = False
+        out.setflags(write=False)
         return out
 
     def update_guess_speeds(self, speeds: np.ndarray) -> None:

@@ -46,6 +46,10 @@ __all__ = [
     "solve_interior_point",
 ]
 
+# every combination, built once (a solve looks its own up)
+_CHANGES = {(P, A, v): Changes(P, A, v) for P in (False, True) for A in (False, True)
+            for v in (False, True)}
+
 #: The row blocks :meth:`SparseQP.row_bounds` hands out (the layout's ``<name>_rows``).
 ROW_BLOCKS = ("init", "dyn", "input", "position", "internal", "external")
 
@@ -150,7 +154,7 @@ class SparseQP:
     @property
     def pending(self) -> Changes:
         """What changed since the last solve (the backend gets only that)."""
-        return Changes(self._dirty_P, self._dirty_A, self._dirty_vec)
+        return _CHANGES[self._dirty_P, self._dirty_A, self._dirty_vec]
 
     # ---------------------------------------------------------------- values
     @property
@@ -381,6 +385,8 @@ class SparseQP:
             if not ok and self.rescue is not None:
                 sol, rescued = self.rescue.apply(sol, self.matrices)
                 ok = rescued
+        extra = sol.extra  # the backend's, new per solve
+        extra["rescued"] = float(rescued)
         return QPResult(ok, sol.status, sol.x, sol.y, sol.objective, sol.primal_residual,
                         sol.dual_residual, sol.iterations, sol.solve_time,
-                        time.perf_counter() - t0, {**sol.extra, "rescued": float(rescued)})
+                        time.perf_counter() - t0, extra)

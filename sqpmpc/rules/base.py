@@ -108,7 +108,7 @@ def read_only(array: np.ndarray | None) -> np.ndarray | None:
     if array is None:
         return None
     out = array.view()
-    out.flags.writeable = False
+    out.setflags(write=False)
     return out
 
 
@@ -167,10 +167,28 @@ class SampleView:
     holding: Callable[[], np.ndarray] | None = None
 
     def __post_init__(self) -> None:
+        fields = self.__dict__  # a frozen instance: its arrays become read-only views here
         for name in _ARRAYS:
-            value = getattr(self, name)
+            value = fields[name]
             if value is not None and value.flags.writeable:
-                object.__setattr__(self, name, read_only(value))
+                fields[name] = read_only(value)
+
+    @classmethod
+    def of_sample(cls, sample: int, t: float, positions: np.ndarray, own_states: np.ndarray,
+                  references: np.ndarray, applied: np.ndarray, applied_before: np.ndarray,
+                  headings: np.ndarray | None, guess_speeds: np.ndarray | None
+                  ) -> SampleView:
+        """The view of a sample as the pipeline builds it, once per sample and controller,
+        from arrays that are already read-only (not checked again: the pipeline's hot
+        path); the scenario's references are also the references the QP tracks until a
+        rule changes them."""
+        view = object.__new__(cls)
+        view.__dict__.update(
+            sample=sample, t=t, positions=positions, own_states=own_states,
+            scenario_references=references, references=references, applied=applied,
+            applied_before=applied_before, headings=headings, guess_speeds=guess_speeds,
+            first_speeds=None, holding=None)
+        return view
 
     def engaged(self) -> np.ndarray:
         """``(m,)`` bool, read-only: own robots a collision row holds in the solution."""
@@ -179,8 +197,27 @@ class SampleView:
         return read_only(self.holding())
 
     def but(self, **changes: object) -> SampleView:
-        """This view with ``changes`` (the arrays read-only)."""
-        return dataclasses.replace(self, **changes)
+        """This view with ``changes`` of its fields (arrays made read-only).
+
+        Raises
+        ------
+        ProblemError
+            A name that is not a field of the view.
+        """
+        if changes.keys() - _FIELDS:
+            raise ProblemError(f"SampleView has no field "
+                               f"{', '.join(sorted(changes.keys() - _FIELDS))}")
+        new = object.__new__(SampleView)  # a copy without re-checking the unchanged arrays
+        fields = new.__dict__
+        fields.update(self.__dict__)
+        for name, value in changes.items():
+            if isinstance(value, np.ndarray) and value.flags.writeable:
+                value = read_only(value)
+            fields[name] = value
+        return new
+
+
+_FIELDS = frozenset(f.name for f in dataclasses.fields(SampleView))
 
 
 @dataclass(frozen=True)

@@ -229,6 +229,8 @@ class _ParkingInstance(RuleInstance):
         return out
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
+        if not self.parking.any():  # nobody parks: nothing to repair
+            return None
         speeds = view.guess_speeds.copy()
         repaired = repair_speeds(speeds, view.references[:, -1].copy(), view.own_states,
                                  self.parking, self._slow, self.rule.tolerance, self._ahead,
