@@ -139,6 +139,7 @@ class DecentralizedController(ControllerPipeline):
         self.slot_data = NeighbourSlots.empty(self.selector.others, self.selector.other_ids,
                                               slots, N)
         self.own_prediction = np.zeros((N, 3))
+        self._timing = (N, scenario.sample_time, settings.discretization)  # of the plans
         self.book = PlanBook(N)
         self.plan_ages: dict[int, int] = {}
         self.published: PlanMessage | None = None
@@ -172,11 +173,6 @@ class DecentralizedController(ControllerPipeline):
         return (self.obstacles_safe(states, next_state, growth)
                 and self.in_position_bounds(next_state[:, :2]))
 
-    def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int) -> bool:
-        """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan (:func:`fill_from_plan`)."""
-        return fill_from_plan(out, plan, sample, self.horizon, self.sample_time,
-                              self.settings.discretization)
-
     def _own_at(self, pair: int, sample: int, cache: dict[int, np.ndarray | None]
                 ) -> np.ndarray | None:
         """Own stages 1..N at ``sample`` from the own plan of sample ``pair`` (``None``: not
@@ -189,7 +185,7 @@ class DecentralizedController(ControllerPipeline):
                 cache[pair] = self.own_prediction  # filled from it by the own prediction
             else:
                 out = np.empty((self.horizon, 3))
-                cache[pair] = out if self._fill_from_plan(out, plan, sample) else None
+                cache[pair] = out if fill_from_plan(out, plan, sample, *self._timing) else None
         return cache[pair]
 
     # ------------------------------------------------------- predict neighbours
@@ -247,8 +243,8 @@ class DecentralizedController(ControllerPipeline):
 
     def predict_own(self, sample: int, states: np.ndarray) -> None:
         """:attr:`own_prediction` from the published plan, or the paper's fallback."""
-        if self.published is None or not self._fill_from_plan(self.own_prediction,
-                                                                self.published, sample):
+        if self.published is None or not fill_from_plan(self.own_prediction, self.published,
+                                                        sample, *self._timing):
             self.own_prediction[:] = predict_from_states(
                 states[self.index], None, self.horizon, self.sample_time,
                 self.settings.discretization)[1:]
@@ -289,14 +285,14 @@ class DecentralizedController(ControllerPipeline):
                 mine = self._own_at(pair, sample, own_cache)
                 theirs = None if mine is None else self.book.neighbour_plan(plans, jid, pair,
                                                                             plan)
-                if theirs is not None and self._fill_from_plan(d.predictions[e], theirs,
-                                                               sample):
+                if theirs is not None and fill_from_plan(d.predictions[e], theirs, sample,
+                                                         *self._timing):
                     d.own_predictions[e] = mine
                     d.kinds[e] = SHARED
                     if pair != sample - 1:
                         self.counts["older_shared_neighbours"] += 1
                     continue
-            elif plan is not None and self._fill_from_plan(d.predictions[e], plan, sample):
+            elif plan is not None and fill_from_plan(d.predictions[e], plan, sample, *self._timing):
                 d.kinds[e] = OBSTACLE
                 continue
             self.predict_fallback(e, sample, states, plan, previous_states)
@@ -310,8 +306,8 @@ class DecentralizedController(ControllerPipeline):
         """The paper's fallback for the neighbour in ``slot``: its newest late plan (it
         still says where it was going), else the input estimated from two states, held."""
         d = self.slot_data
-        if d.age_margins[slot] == 0.0 or plan is None or not self._fill_from_plan(
-                d.predictions[slot], plan, sample):
+        if d.age_margins[slot] == 0.0 or plan is None or not fill_from_plan(
+                d.predictions[slot], plan, sample, *self._timing):
             j = d.index[slot]
             prev = None if previous_states is None else previous_states[j]
             d.predictions[slot] = predict_from_states(states[j], prev, self.horizon,

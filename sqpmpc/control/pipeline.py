@@ -244,11 +244,13 @@ class ControllerPipeline:
         report = engine.solve(own, view.references, deadline=deadline, **self._rows)
         # 6. rules after the solve
         if report.success and self._after_rules:
-            view = view.but(first_speeds=engine.first_speeds(),
-                            holding=functools.partial(engaged_robots, engine.layout, engine.y))
-            wants = [rule.after_solve(view) for rule in self._after_rules]
-            if any(w is not None and w.iterate for w in wants) and (
-                    deadline is None or time.perf_counter() <= deadline):
+            view = view.solved(engine.first_speeds(),
+                               functools.partial(engaged_robots, engine.layout, engine.y))
+            iterate = False
+            for rule in self._after_rules:  # every rule sees the solution
+                contribution = rule.after_solve(view)
+                iterate = iterate or (contribution is not None and contribution.iterate)
+            if iterate and (deadline is None or time.perf_counter() <= deadline):
                 report = self.converge(own, view.references, report, deadline)
         # 7. verify the first input, fall back if needed
         out = self.verify(own, report, shifted, t0)

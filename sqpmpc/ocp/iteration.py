@@ -252,7 +252,6 @@ class MultipleShootingSQP:
         if s.discretization == "euler":
             euler_linearize(z, L.n_robots, N, self._block, self.sample_time, self._dyn_A,
                             self._dyn_B, self._dyn_lower, self._dyn_upper)
-            qp.mark_changed()
             states = None
         else:
             states, inputs = L.split_primal(z)
@@ -264,7 +263,7 @@ class MultipleShootingSQP:
         flat = initial_states.ravel()
         self._init_lower[:] = flat
         self._init_upper[:] = flat
-        qp.mark_changed(matrix=False)
+        qp.mark_changed()  # the views written: the dynamics (Euler) and the initial state
         if internal is not None or external is not None:
             if states is None and (internal is not None or external.needs_states):
                 states = z[L.state_index]

@@ -372,7 +372,8 @@ class SparseQP:
         t0 = time.perf_counter()
         q = self._q_cost if self._no_curvature else self.q
         sol = self.backend.solve(self.P_values, q, self.A_values, self.lower, self.upper,
-                                 self.pending, warm_x, warm_y)
+                                 _CHANGES[self._dirty_P, self._dirty_A, self._dirty_vec],
+                                 warm_x, warm_y)
         self._dirty_P = self._dirty_A = self._dirty_vec = False
         ok = sol.solved and sol.x.size == self.layout.n_var and all_finite(sol.x) and (
             all_finite(sol.y))

@@ -190,6 +190,18 @@ class SampleView:
             first_speeds=None, holding=None)
         return view
 
+    def solved(self, first_speeds: np.ndarray, holding: Callable[[], np.ndarray]
+               ) -> SampleView:
+        """This view after the solve, for the ``"after_solve"`` hooks (the pipeline's hot
+        path: ``first_speeds`` is a new array of the solution, made read-only here)."""
+        first_speeds.setflags(write=False)
+        view = object.__new__(SampleView)
+        fields = view.__dict__
+        fields.update(self.__dict__)
+        fields["first_speeds"] = first_speeds
+        fields["holding"] = holding
+        return view
+
     def engaged(self) -> np.ndarray:
         """``(m,)`` bool, read-only: own robots a collision row holds in the solution."""
         if self.holding is None:
