@@ -141,7 +141,9 @@ class PlantNode(Node):
         self.scheme = args.scheme
         self.timeout = float(args.timeout)
         self.startup_timeout = float(args.startup_timeout)
-        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots)
+        limits = (scenario.bounds.acceleration_lower(), scenario.bounds.acceleration_upper()) \
+            if scenario.bounds.dynamic_limits else None  # CONTRACT 1c: velocities change within
+        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots, limits)
         self.method = scenario.plant.model
         n, steps = scenario.n_robots, scenario.steps
         self.t = scenario.sample_time * np.arange(steps + 1)
@@ -352,7 +354,8 @@ class PlantNode(Node):
         if self.writer is not None:
             self.writer.sample(k, self.inputs[k], self.states[k + 1], self.solve_times[k],
                                self.solver_failures - failures, sorted(missing),
-                               self.plant_inputs[k] if self.plant.spec.noisy else None)
+                               self.plant_inputs[k] if self.plant.spec.noisy
+                               or self.plant.has_velocities else None)
 
     def run(self) -> None:
         """Run the samples until ``t_end`` or a stop signal."""
@@ -468,7 +471,8 @@ class PlantNode(Node):
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
                          k == self.scenario.steps, extra,
-                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy
+                         or self.plant.has_velocities else None,
                          horizons=self.horizons[:k].copy())
 
     def never_controlled(self) -> list[int]:

@@ -47,7 +47,7 @@ _PLANT_KEYS = ("model", "input_noise", "seed")
 _WEIGHT_KEYS = ("Q", "R")
 
 
-_BOUND_KEYS = ("v", "omega", "x", "y")
+_BOUND_KEYS = ("v", "omega", "x", "y", "acceleration", "angular_acceleration")
 
 
 _BOUND_REQUIRED = ("v", "omega")
