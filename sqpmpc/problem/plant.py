@@ -230,10 +230,33 @@ class Plant:
         return inputs + noise * self._sigma
 
     def step(self, states: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Next states and the inputs really applied, from ``states (n, 3)``, ``inputs (n, 2)``.
+        """Advance every robot by one sample :math:`T_s` with the commanded inputs held.
 
-        With acceleration bounds the applied inputs are the velocities reached at the end
-        of the sample (the commands when the bounds allow them).
+        Parameters
+        ----------
+        states
+            ``(n, 3)`` states :math:`(x, y, \\psi)` at :math:`t_k`, in the scenario's
+            robot order.
+        inputs
+            ``(n, 2)`` commanded inputs :math:`(v, \\omega)`, held on
+            :math:`[t_k, t_{k+1})`.
+
+        Returns
+        -------
+        next_states : np.ndarray
+            ``(n, 3)`` states at :math:`t_{k+1}`, from the spec's model (``euler``,
+            ``rk4`` or ``exact``) with the applied inputs.
+        applied : np.ndarray
+            ``(n, 2)`` inputs the robots really applied: ``inputs`` plus the truncated
+            Gaussian input noise of the ``[plant]`` table (a copy of ``inputs``
+            without noise); with acceleration bounds (CONTRACT 1c) the velocities the
+            robots reach at the end of the sample (the commands when the bounds allow
+            them). Give it to :meth:`sqpmpc.RunRecorder.append` as
+            ``plant_inputs`` so the metrics see the true paths.
+
+        Examples
+        --------
+        >>> x, applied = plant.step(x, out.inputs)  # doctest: +SKIP
         """
         applied = self.applied_inputs(inputs)
         if not self.has_velocities:

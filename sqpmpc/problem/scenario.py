@@ -4,7 +4,8 @@ A scenario is read from a TOML file or a built-in name (the ``*.toml`` files of
 package :mod:`sqpmpc.scenarios`, by stem: ``paper-s1``, ``paper-s2``) and fully
 validated before anything runs; every problem is one
 :class:`~sqpmpc.errors.ScenarioError` naming the file, the key (e.g.
-``robots[2].diameter``, with robots indexed from 0 in file order) and what was
+``robots[2].diameter``, with robots indexed from 0 in file order), the robot's
+id when it has one (``robot id 3 (the 3rd [[robots]] table)``) and what was
 expected.
 
 The problem it describes: robots :math:`j = 1..n` with unicycle states
@@ -265,7 +266,8 @@ class Scenario:
             if robot.id in first:
                 raise ScenarioError(self.source, f"robots[{i}].id",
                                     f"expected a unique id, found {robot.id} already used by "
-                                    f"robots[{first[robot.id]}]")
+                                    f"robots[{first[robot.id]}] (robots[i] is the (i+1)-th "
+                                    "[[robots]] table)")
             first[robot.id] = i
         lower, upper = self.bounds.position_lower(), self.bounds.position_upper()
         for i, robot in enumerate(self.robots):
