@@ -20,6 +20,7 @@ from sqpmpc.kernels.acceleration import bulging_segment_distance
 from sqpmpc.models.acceleration import AccelerationUnicycle
 from sqpmpc.models.paper import UnicycleModel
 from sqpmpc.models.unicycle import discrete_dynamics as paper_step
+from sqpmpc.problem.paths import plant_paths
 from sqpmpc.problem.plant import (
     Plant,
     PlantSpec,
@@ -429,6 +430,13 @@ def test_closed_loop_on_paper_s2_with_acceleration_limits(scheme: str) -> None:
     assert (change <= sc.bounds.acceleration_upper() + 1e-9).all()
     assert (v >= sc.bounds.input_lower() - 1e-9).all() and (v <= sc.bounds.input_upper()
                                                              + 1e-9).all()
+    # the metrics measure between samples along the ramping paths (not uniform chords)
+    _, path = plant_paths(rec.states, rec.plant_inputs, sc.sample_time, "euler", True)
+    pairs = np.asarray(sc.pairs()).reshape(-1, 2)
+    need = sc.required_distances()[pairs[:, 0], pairs[:, 1]]
+    along = np.linalg.norm(path[:, pairs[:, 0]] - path[:, pairs[:, 1]], axis=-1) - need
+    measured = min(m["min_clearance"], m["intersample_min_clearance"])
+    assert along.min() - 2e-3 <= measured <= along.min() + 1e-12
     ideal = sqpmpc.ClosedLoopSimulation(sqpmpc.load_scenario("paper-s2"), scheme).run()
     err = np.linalg.norm(ideal.positions - ideal.references(), axis=-1)
     band = max(0.05, float(err[-(err.shape[0] // 10):].max()))
