@@ -52,7 +52,7 @@ from sqpmpc.ocp.collision_rows import (
     ExternalCollisionModel,
 )
 from sqpmpc.ocp.obstacle_rows import StackedRows
-from sqpmpc.problem.plant import acceleration_path_deviation
+from sqpmpc.problem.plant import acceleration_path_deviation, largest_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
@@ -163,6 +163,9 @@ class DecentralizedController(ControllerPipeline):
         if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
                                                 beta=float(beta[0])):
             return False
+        if not self._unicycle:  # robots with velocity states: the bound itself
+            return (self._obstacles_safe(states, next_state, alpha, beta)
+                    and self._in_position_bounds(next_state[:, :2]))
         growth = alpha + np.maximum(beta, 0.0)
         return (self._obstacles_safe(states, next_state, growth)
                 and self._in_position_bounds(next_state[:, :2]))
@@ -189,10 +192,10 @@ class DecentralizedController(ControllerPipeline):
         alpha, beta = acceleration_path_deviation(
             path[0, :-1, 3:5], inputs[0], self.sample_time, self.settings.discretization,
             self.scenario.plant.model, self._noise_bound)
-        growth = alpha + np.maximum(beta, 0.0)                  # (B,)
         if self.obstacle_rows is not None and not self.obstacle_rows.braking_safe(
-                path[..., :2], growth[None]):
+                path[..., :2], alpha[None], beta[None]):
             return False
+        growth = largest_deviation(alpha, beta)                 # (B,)
         shared = c.kind == SHARED
         if shared.any():
             # each robot keeps half the true distance plus its own deviation: the rows' half

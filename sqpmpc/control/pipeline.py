@@ -294,11 +294,13 @@ class ControllerPipeline:
             self.scenario.plant.model, self._noise_bound)
 
     def _obstacles_safe(self, states: np.ndarray, next_states: np.ndarray,
-                        growth: np.ndarray) -> bool:
-        """The own robots' paths keep their distances to the obstacles over the sample."""
+                        growth: np.ndarray, beta: np.ndarray | None = None) -> bool:
+        """The own robots' paths keep their distances to the obstacles over the sample (a
+        path strays ``growth s``, or with ``beta`` ``growth s + beta s (1 - s)``)."""
         if self.obstacle_rows is None:
             return True
-        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth)
+        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth,
+                                                   beta)
 
     def _publish(self, sample: int, out: ControlOutput) -> None:
         """Hand the sample's result to the scheme (override if there is something to send)."""

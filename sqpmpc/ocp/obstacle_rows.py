@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sqpmpc.kernels.acceleration import moving_points_keep_bulging_distance
 from sqpmpc.kernels.collision import moving_points_keep_distance, obstacle_rows
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.problem.obstacles import Obstacle, obstacle_positions
@@ -93,11 +94,11 @@ class ObstacleRows:
             np.minimum(lower_out[r, :, 0], cap, out=lower_out[r, :, 0])
         self.stage_one_overrides = overrides
 
-    def braking_safe(self, paths: np.ndarray, growth: np.ndarray) -> bool:
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
         """Every own robot's braking path ``paths (m, B+1, 2)`` (stage 1 on, one point a
         sample) keeps its distance to every obstacle as they move on: segment ``j`` against
         the obstacles' motion from stage ``1 + j`` to ``2 + j``; the path may stray
-        ``growth[r, j] * s`` from segment ``j`` (``growth (m, B)``)."""
+        ``alpha[r, j] s + beta[r, j] s (1 - s)`` from segment ``j`` (``(m, B)`` each)."""
         B = paths.shape[1] - 1
         if B < 1 or not self.n_obstacles:
             return True
@@ -107,16 +108,26 @@ class ObstacleRows:
             start = np.ascontiguousarray(track[j])
             end = np.ascontiguousarray(track[j + 1])
             for r in range(paths.shape[0]):
-                if not moving_points_keep_distance(
+                if not moving_points_keep_bulging_distance(
                         float(paths[r, j, 0]), float(paths[r, j, 1]), float(paths[r, j + 1, 0]),
                         float(paths[r, j + 1, 1]), start, end, self.safe_distance[r],
-                        float(growth[r, j])):
+                        float(alpha[r, j]), float(beta[r, j])):
                     return False
         return True
 
-    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray) -> bool:
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
         """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its distance to every
-        obstacle over the sample (its path may stray ``growth[r] * s`` from the segment)."""
+        obstacle over the sample (its path may stray ``growth[r] * s`` from the segment; with
+        ``beta``, ``growth[r] s + beta[r] s (1 - s)``)."""
+        if beta is not None:
+            for r in range(now.shape[0]):
+                if not moving_points_keep_bulging_distance(
+                        float(now[r, 0]), float(now[r, 1]), float(nxt[r, 0]), float(nxt[r, 1]),
+                        self.now, self._next, self.safe_distance[r], float(growth[r]),
+                        float(beta[r])):
+                    return False
+            return True
         for r in range(now.shape[0]):
             if not moving_points_keep_distance(float(now[r, 0]), float(now[r, 1]),
                                                float(nxt[r, 0]), float(nxt[r, 1]), self.now,
