@@ -9,7 +9,7 @@ linearization at :math:`(\bar p_j, \bar p_l)` is the separating hyperplane
 
 Safety rows (always on; listed by ``sqpmpc rules``)
 ----------------------------------------------------
-These three are the safety argument, not heuristics; no option removes them.
+These are the safety argument, not heuristics; no option removes them.
 
 ``inner-approximation``
     :math:`\|p_j - p_l\| \ge n^\top(p_j - p_l)` for any unit :math:`n`, so a
@@ -23,6 +23,21 @@ These three are the safety argument, not heuristics; no option removes them.
     current projected gap: stopping (``v = 0``, exact for every
     discretization) always satisfies stage 1, so the QP stays feasible and a
     safe configuration stays safe.
+``overlap-recovery``
+    A pair already inside its true distance (a push, a slip, a robot that did
+    not move as predicted) cannot keep it over the next sample, so the check
+    of the first input below would refuse every input, and the brake that
+    follows never separates it: the controller would brake for ever. For such
+    a pair alone the check asks instead that the predicted relative segment
+    comes no closer than the current distance (less the solver tolerance,
+    ``collision_margin``). The stage-1 row of the pair is then the
+    ``stage-one-override``'s non-decreasing separation along the current
+    normal (which implies it), and its rows of stages 2..N ask for the full
+    distance (with slacks), so the plan separates the pair as fast as its
+    bounds let it and the robots go on. Pairs that are apart keep every
+    guarantee above unchanged. The same holds against obstacles
+    (:class:`sqpmpc.ocp.obstacle_rows.ObstacleRows`) and, decentralized, is
+    what the shared check already does inside the margin band.
 ``missing-neighbour-reach``
     Decentralized: a neighbour whose fresh plan is missing can do anything
     within its bounds. Stage 1 keeps :math:`d + r` from its current position,
@@ -84,10 +99,14 @@ class PairwiseCollisionModel:
         Added to ``required`` in the QP rows, m.
     geometry
         Row geometry from the rules.
+    recovery
+        The ``overlap-recovery`` rule's tolerance, m (see :meth:`first_input_safe`);
+        negative: off (a pair inside its distance fails every check).
     """
 
     def __init__(self, pairs: np.ndarray, required: np.ndarray, margin: float,
-                 geometry: RowGeometry) -> None:
+                 geometry: RowGeometry, recovery: float = -1.0) -> None:
+        self.recovery = float(recovery)
         self.pairs = np.ascontiguousarray(np.asarray(pairs, dtype=np.int64).reshape(-1, 2))
         self.safe_distance = np.asarray(required, dtype=float)
         self.required = self.safe_distance + float(margin)
@@ -120,11 +139,13 @@ class PairwiseCollisionModel:
     def first_input_safe(self, now: np.ndarray, nxt: np.ndarray,
                          growth: np.ndarray | None = None) -> bool:
         """Every pair keeps its true distance along the straight segments ``now -> nxt``
-        (``growth (m,)``: how far each robot's true path may stray, per unit of ``s``)."""
+        (``growth (m,)``: how far each robot's true path may stray, per unit of ``s``);
+        a pair already inside it comes no closer (``overlap-recovery``, if on)."""
         if growth is None:
             growth = np.zeros(now.shape[0])
         return bool(pairs_keep_distance(self.pairs, now, nxt, self.safe_distance,
-                                        np.ascontiguousarray(growth, dtype=float)))
+                                        np.ascontiguousarray(growth, dtype=float),
+                                        self.recovery))
 
 
 class ExternalCollisionModel:
