@@ -133,7 +133,7 @@ def fleet_xml(scenario: Scenario, robot: RobotModel) -> str:
         '<default><geom contype="2" conaffinity="1" solref="0.005 1"/></default>',
         '<worldbody>',
         '<geom name="floor" type="plane" size="0 0 1" contype="1" conaffinity="2" solref="0.005 1" '
-        f'friction="{mu!r} 0.005 0.0001"/>',
+        f'friction="{mu!r} 0.0001 0.00001"/>',
     ]
     actuators = []
     for spec in scenario.robots:
@@ -160,8 +160,8 @@ def fleet_xml(scenario: Scenario, robot: RobotModel) -> str:
                 f'<body name="{name}_{side}" pos="0 {sign * half_track!r} 0">',
                 f'<joint name="{name}_{side}" type="hinge" axis="0 1 0" '
                 f'armature="{robot.wheel_armature!r}"/>',
-                f'<geom type="cylinder" size="{r!r} 0.01" zaxis="0 1 0" '
-                f'mass="{robot.wheel_mass!r}" condim="3" friction="{mu!r} 0.005 0.0001"/>',
+                f'<geom type="cylinder" size="{r!r} 0.003" zaxis="0 1 0" '
+                f'mass="{robot.wheel_mass!r}" condim="3" friction="{mu!r} 0.0001 0.00001"/>',
                 '</body>',
             ]
             actuators.append(
