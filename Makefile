@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.real_plants
 	$(BIN)/python -m benchmarks.bench_services
 	$(BIN)/python -m benchmarks.faults
+	$(BIN)/python -m benchmarks.lifecycle
 	$(BIN)/python -m benchmarks.security
 	$(BIN)/python -m benchmarks.physical
 

@@ -30,6 +30,8 @@ fallback), lockstep timeouts, invalid messages counted, plus the loop's wall tim
 Then the property-based tests of ``tests/test_fuzz.py`` with ``--fuzz-examples``
 examples each.
 Robots wait at most 0.1 s for a plan (``--timeout``), the plant 2 s for an input.
+The lifecycle rows (restart of a killed robot, SIGTERM at random times) are
+:mod:`benchmarks.lifecycle`'s; a run of this module keeps its section of the document.
 """
 
 from __future__ import annotations
@@ -117,7 +119,7 @@ def _inject(kind: str, probe: Probe, scenario, seen: set[bytes]) -> None:
             probe.put(e.payload, *parts)
 
 
-def arrival_tolerance(scenario_name: str) -> tuple[float, str]:
+def arrival_tolerance(scenario_name: str, t_end: float | None = None) -> tuple[float, str]:
     """How close to its reference a robot must end to count as arrived, and why.
 
     A fixed goal: ``ARRIVAL`` (0.05 m). A reference still moving at the end (paper-s2's
@@ -125,9 +127,11 @@ def arrival_tolerance(scenario_name: str) -> tuple[float, str]:
     tracking error over the last tenth of the in-process run of the same scenario
     without any fault (computed here, in the same run of the benchmark), so a robot
     counts as arrived when it ends as close to its reference as the undisturbed
-    controller keeps it; a jam ends metres away.
+    controller keeps it; a jam ends metres away. ``t_end``: of a run shortened so.
     """
     scenario = load_scenario(scenario_name)
+    if t_end is not None:
+        scenario = scenario.with_changes(t_end=t_end)
     t_end = scenario.steps * scenario.sample_time
     moving = not np.allclose(scenario.reference_positions(t_end),
                              scenario.reference_positions(t_end - scenario.sample_time))
@@ -274,8 +278,12 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     print(f"fuzzing ({args.fuzz_examples} examples per property): {fuzz[0]} ({fuzz[1]:.0f} s)")
     if not args.no_write and not args.only:
+        from benchmarks.lifecycle import BEGIN, END  # its section is kept as it is
+
+        old = OUT.read_text() if OUT.exists() else ""
+        kept = old[old.index(BEGIN):old.index(END) + len(END)] if BEGIN in old else ""
         OUT.write_text(_doc(table, rows, fuzz, args.fuzz_examples, started, total,
-                            tolerances))
+                            tolerances) + (f"\n{kept}\n" if kept else ""))
         print(f"wrote {OUT}")
     return 0
 
@@ -347,7 +355,7 @@ under random 1-3-sample delays, that both robots of every shared pair hold the s
   (braking input) is the last resort. Zenoh errors (a session that times out) are
   logged in one line and the loop goes on or ends cleanly: *tracebacks* counts the
   `Traceback` lines in every process's output.
-- **Late and lost plans are designed for** (`sqpmpc/controllers.py`): stage 1 and the
+- **Late and lost plans are designed for** (`sqpmpc/control/decentralized.py`): stage 1 and the
   first-input check use the measured positions and keep distance plus one-sample reach
   from a neighbour without a fresh plan; a shared row needs both robots' plans of the
   pair's agreed sample (above); a neighbour whose newest plan is `a >= 2` samples old

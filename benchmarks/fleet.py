@@ -126,7 +126,7 @@ every stage, pairs within reach that neither robot chose keep their stage-1 row 
 sample after next is then covered by the first-input check over every pair), pairs beyond
 reach get none; the pattern still holds every pair and only values change.
 
-**The roundabout rule** (`sqpmpc rules`; `sqpmpc/roundabout.py`). In a dense swap every
+**The roundabout rule** (`sqpmpc rules`; `sqpmpc/rules/roundabout.py`). In a dense swap every
 straight path ends in one jam at the centre, which the pairwise rules (keep-right, detour)
 only make rotate slowly in place: before this rule 15/16, 23/32 and 31/64 robots arrived.
 Conflict resolution for many vehicles whose paths cross is classically a roundabout

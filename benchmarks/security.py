@@ -12,7 +12,12 @@
    certificate) or robot 2's certificate. Reported: collisions, the samples on
    which the plant applied the forged input of robot 1, whether the run
    completed, and whether the trajectory equals the undisturbed run.
-2. **TLS overhead**: ``services.launch`` on paper-s2 lockstep (``--t-end``,
+2. **Flood**: paper-s2 in real time at Ts 0.1 s while a forger holding robot
+   2's certificate publishes on robot 2's own keys as fast as it can
+   (well-formed messages, or 8 MB payloads), with and without the
+   per-publisher limits (:mod:`services.limits`); missed deadlines of the
+   other robots, collisions (``--only-floods``: these rows only).
+3. **TLS overhead**: ``services.launch`` on paper-s2 lockstep (``--t-end``,
    default 100 s: 200 samples), alternately ``--insecure`` and with
    credentials, peer to peer and through a router; the plant's median sample
    wall time (publish states, wait for the 4 inputs, integrate).
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -39,7 +45,7 @@ from services.forger import forged_speed
 from services.testing import REPO, ServiceProcess, free_ports, start_service, stop_processes
 from sqpmpc.problem.scenario_file import load_scenario
 
-__all__ = ["Probe", "main", "run_attacked", "wait_ready"]
+__all__ = ["FLOODS", "Flood", "Probe", "main", "run_attacked", "run_flooded", "wait_ready"]
 
 DOC = REPO / "docs" / "security.md"
 BEGIN, END = "<!-- measured: benchmarks/security.py -->", "<!-- /measured -->"
@@ -125,6 +131,92 @@ def run_attacked(work: Path, probe: Probe | None, t_end: float) -> dict:
             "applied": applied, "forger": summary}
 
 
+@dataclass(frozen=True)
+class Flood:
+    """One flood experiment: robot 2's certificate publishing on robot 2's own keys."""
+
+    label: str
+    payload: int | None  # None: no flood; 0: well-formed messages; else bytes per payload
+    limits: bool  # services.limits in the run's processes
+    niced: bool  # the flooder at the lowest CPU priority (as if on a computer of its own)
+
+
+FLOODS = [
+    Flood("no flood", None, True, False),
+    Flood("well-formed messages at the highest rate", 0, False, True),
+    Flood("well-formed messages at the highest rate", 0, True, True),
+    Flood("8 MB payloads", 8_000_000, False, True),
+    Flood("8 MB payloads", 8_000_000, True, True),
+    Flood("well-formed messages at the highest rate", 0, True, False),
+    Flood("8 MB payloads", 8_000_000, True, False),
+]
+
+
+def run_flooded(work: Path, flood: Flood, t_end: float) -> dict:
+    """paper-s2 in real time at Ts 0.1 s (``services.launch``, credentials) while a
+    forger holding robot 2's certificate floods robot 2's keys, linked to every process."""
+    run = f"flood-{time.monotonic_ns() % 10**9}"
+    creds = work / "creds"
+    write_credentials(creds, load_scenario(SCENARIO), run, "decentralized")
+    (port,) = free_ports(1)
+    endpoint = f"tls/127.0.0.1:{port}"
+    forger = None
+    if flood.payload is not None:
+        forger = start_service("forger", [
+            "--scenario", SCENARIO, "--sample-time", "0.1", "--t-end", repr(t_end),
+            "--run", run, "--credentials", str(creds), "--identity",
+            "robot-2", "--target", "2", "--attack", "flood", "--flood-bytes", str(flood.payload),
+            "--duration", "900", "--listen", endpoint, "--log-level", "ERROR"], work / "logs")
+        if flood.niced:
+            os.setpriority(os.PRIO_PROCESS, forger.pid, 19)
+        wait_ready(forger, 60.0)
+    out = work / "out"
+    try:
+        subprocess.run([sys.executable, "-m", "services.launch", "--scenario", SCENARIO,
+                        "--scheme", "decentralized", "--mode", "realtime", "--sample-time",
+                        "0.1", "--t-end", repr(t_end), "--run", run, "--credentials",
+                        str(creds), "--out", str(out), "--no-plots",
+                        *(["--connect", endpoint] if forger else []),
+                        *([] if flood.limits else ["--no-flood-limits"])],
+                       cwd=REPO, capture_output=True, timeout=900)
+    finally:
+        if forger is not None:
+            stop_processes([forger], grace=30.0)
+    summary = {}
+    if forger is not None:
+        lines = [ln for ln in forger.output().splitlines() if ln.startswith('{"opened"')]
+        summary = json.loads(lines[-1]) if lines else {}
+    return {"metrics": json.loads((out / "metrics.json").read_text()), "forger": summary}
+
+
+def render_floods(rows: list[tuple[Flood, dict]], t_end: float) -> list[str]:
+    """The flood table of ``docs/security.md``."""
+    lines = ["", f"Flood: {SCENARIO} in real time at Ts 0.1 s, {int(round(t_end / 0.1))} "
+             "samples (`services.launch` with credentials, every process linked to the "
+             "flooder), a `services.forger` holding robot 2's certificate publishing robot 2's "
+             "`cmd` and `plan` (also addressed to robots 1, 3, 4) of the newest sample it saw "
+             "in a loop without pause; "
+             "limits: `services.limits` (`--max-rate` 200 Hz per key, 64 KiB payloads); "
+             "niced: the flooder at `nice 19`, as if it ran on its own computer (unniced, it "
+             "also takes one of the machine's 2 shared cores).", "",
+             "| flood | limits | flooder | messages/s sent | MB/s offered | missed deadlines "
+             "robots 1, 3, 4 | robot 2 | collisions | completed |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for flood, res in rows:
+        m, f = res["metrics"], res["forger"]
+        by = m["missed_deadlines_by_robot"]
+        others = sum(by[k] for k in ("1", "3", "4"))
+        seconds = f.get("seconds") or 0.0
+        rate = f"{sum(f['sent'].values()) / seconds:,.0f}" if seconds else "-"
+        mb = f"{f['flood_bytes'] / seconds / 1e6:,.0f}" if seconds else "-"
+        lines.append(f"| {flood.label} | {'yes' if flood.limits else 'no'} | "
+                     f"{'-' if flood.payload is None else 'nice 19' if flood.niced else 'nice 0'}"
+                     f" | {rate} | {mb} | {others} / {3 * m['steps']} "
+                     f"({100 * others / max(3 * m['steps'], 1):.1f} %) | {by['2']} | "
+                     f"{m['collisions']} | {m['completed']} |")
+    return lines
+
+
 def wait_ready(proc: ServiceProcess, timeout: float) -> None:
     """Wait until a forger printed its ready line (or exited)."""
     deadline = time.monotonic() + timeout
@@ -154,7 +246,7 @@ def bench_overhead(t_end: float, repeat: int) -> dict[str, list[float]]:
 
 
 def render(rows: list[tuple[Probe, dict]], reference: dict, overhead: dict[str, list[float]],
-           t_end: float, wall: float) -> str:
+           t_end: float, wall: float, floods: list[str] | None = None) -> str:
     """The measured section of ``docs/security.md``."""
     steps = reference["metrics"]["steps"]
     lines = [BEGIN, "",
@@ -190,7 +282,7 @@ def render(rows: list[tuple[Probe, dict]], reference: dict, overhead: dict[str, 
     for name, values in overhead.items():
         lines.append(f"| {name} | {np.median(values):.2f} "
                      f"({', '.join(f'{v:.2f}' for v in values)}) |")
-    lines += ["", END]
+    lines += [*(floods or []), "", END]
     return "\n".join(lines)
 
 
@@ -205,6 +297,21 @@ def publish(section: str, path: Path | None) -> None:
     print(f"wrote {path}")
 
 
+def publish_floods(lines: list[str], path: Path | None) -> None:
+    """Print the flood table and put it in place of the one between the markers of
+    ``path`` (from its first line to the end marker)."""
+    section = "\n".join(lines)
+    print(section)
+    if path is None:
+        return
+    text = path.read_text()
+    end = text.index(END)
+    start = text.find("\nFlood: ", text.index(BEGIN))
+    start = end if start < 0 or start > end else start
+    path.write_text(text[:start] + section + "\n\n" + text[end:])
+    print(f"wrote {path}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -212,8 +319,23 @@ def main(argv: list[str] | None = None) -> int:
                         help="run length, s (default 100: 200 samples of paper-s2)")
     parser.add_argument("--repeat", type=int, default=3, help="runs per overhead setting")
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--flood-t-end", type=float, default=30.0,
+                        help="length of the real-time flood runs, s (default 30: 300 samples)")
+    parser.add_argument("--only-floods", action="store_true",
+                        help="run the flood rows only and replace the flood table")
     args = parser.parse_args(argv)
     t0 = time.time()
+    floods = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for j, flood in enumerate(FLOODS):
+            res = run_flooded(Path(tmp) / f"flood-{j}", flood, args.flood_t_end)
+            print(flood, res["metrics"]["missed_deadlines_by_robot"],
+                  res["metrics"]["collisions"], res["forger"], flush=True)
+            floods.append((flood, res))
+    flood_lines = render_floods(floods, args.flood_t_end)
+    if args.only_floods:
+        publish_floods(flood_lines, None if args.no_write else DOC)
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         reference = run_attacked(Path(tmp) / "reference", None, args.t_end)
         rows = []
@@ -223,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
                   res["metrics"]["missed_deadlines"], res["forger"], flush=True)
             rows.append((probe, res))
     overhead = bench_overhead(args.t_end, args.repeat)
-    publish(render(rows, reference, overhead, args.t_end, time.time() - t0),
+    publish(render(rows, reference, overhead, args.t_end, time.time() - t0, flood_lines),
             None if args.no_write else DOC)
     return 0
 

@@ -5,9 +5,10 @@ overrides), its scheme and its controller options (:mod:`sqpmpc.cli.options`), a
 its digest (:func:`settings_digest`). The plant sends the digest with every
 state; a controller whose digest differs does not step: it answers with one
 ``cmd`` carrying its own settings (``detail``) and exits with status 2, and the
-plant, on such a ``cmd`` (or any ``cmd`` carrying another digest), stops the
-run with one message naming what differs (:func:`describe_difference`), writes
-what it has (``completed: false``) and exits with status 2.
+plant, on such a ``cmd`` of its current sample (or any ``cmd`` of it carrying
+another digest), logs one message naming what differs
+(:func:`describe_difference`), brakes that robot at that sample, runs on to
+the end and exits with status 2 (an older ``cmd`` is stale: dropped first).
 """
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """The centralized controller as one service speaking the robots' protocol.
 
 ``python -m services.central --scenario S [--settings FILE.toml] [controller options as
@@ -11,6 +12,11 @@ robot's plan on ``robot/<id>/plan`` (for the plant's recording and the viewer).
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
 
 import argparse
 import logging

@@ -35,6 +35,7 @@ from .protocol import StateCursor, Verdict
 
 __all__ = [
     "RESEND_GAP",
+    "STARTUP_TIMEOUT",
     "ControllerNode",
     "SampleStates",
     "add_controller_arguments",
@@ -43,6 +44,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+STARTUP_TIMEOUT = 120.0
+"""Default longest wait for the plant's first state, s."""
 RESEND_GAP = 0.01
 """Shortest time between two re-sends of a sample's outputs, s (a flood of repeated
 states cannot make a controller flood the network)."""
@@ -58,8 +61,9 @@ def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str,
                         help="bound on one QP solve and on one sample's iterations, s (0: "
                              "none); real-time runs pass a fraction of Ts, a QP out of time "
                              "is a counted fallback")
-    parser.add_argument("--startup-timeout", type=positive_float, default=None,
-                        help="give up when no state came within this time, s (default: wait)")
+    parser.add_argument("--startup-timeout", type=positive_float, default=STARTUP_TIMEOUT,
+                        help="give up with one error line when no state of the plant came "
+                             f"within this time, s (default {STARTUP_TIMEOUT:g})")
     add_controller_options(parser, decentralized=decentralized, all_plans=decentralized,
                            overrides=False)
 
@@ -92,8 +96,9 @@ class ControllerNode(Node):
     ----------
     scenario, args, name
         See :class:`~services.node.Node`; ``args.timeout`` bounds waits for
-        peers' messages, ``args.startup_timeout`` (``None``: forever) the wait
-        for the plant's first state. Subclasses set ``controller`` first.
+        peers' messages, ``args.startup_timeout`` the wait for the plant's first
+        state (then the process ends with one error line, status 1). Subclasses set
+        ``controller`` first.
     """
 
     controller: CentralizedController | DecentralizedController
@@ -230,7 +235,13 @@ class ControllerNode(Node):
         log.info("%s waiting for the plant's states", self.name)
         if not self.wait_until(lambda: self.pending is not None or self._finished(),
                                self.startup_timeout) and self.mismatch is None:
-            log.error("no state from the plant within %s s", self.startup_timeout)
+            if self.stop.is_set():
+                log.info("%s stopping on signal %s before any state", self.name,
+                         self.signals.get("signal"))
+                return 0
+            log.error("%s: no state from the plant within %.3g s (--startup-timeout): "
+                      "is it running with the same --run and endpoints?", self.name,
+                      self.startup_timeout)
             return 1
         while not self._finished():
             self.drain()  # so that a late controller skips to the newest sample

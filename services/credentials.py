@@ -1,17 +1,20 @@
 """A run's credentials: a certificate authority, one certificate per process, Zenoh configs.
 
-``sqpmpc credentials --scenario S --run R --out DIR [--scheme ...] [--host NAME]
-[--router-listen EP] [--valid-hours H]``
+``sqpmpc credentials --scenario S --run R --out DIR [--scheme decentralized|centralized]
+[--host NAME] [--router] [--router-listen EP] [--no-viewer] [--valid-hours H]``
 
 Every process of a secured run speaks Zenoh over mutual TLS with a
 certificate of its own, signed by the run's certificate authority, whose
-common name is its identity: ``plant``, ``central``, ``robot-<id>`` (one per
-robot of the scenario), ``router`` and ``viewer``. The CA's private key is
-never written: once the folder is made nobody can issue another certificate
-for the run. Each process's Zenoh configuration (``DIR/<identity>.json5``)
-holds its certificate, its key, the CA and the run's access-control rules
-(:func:`acl_config`), the same in every process: a node accepts from a
-connected process (identified by the common name of its certificate) only
+common name is its identity. Only the identities the run's processes use are
+issued: ``plant``; ``robot-<id>`` (one per robot of the scenario) for the
+decentralized scheme or ``central`` for the centralized one; ``router`` only
+for a run through a router (``--router``); ``viewer`` (read only) unless
+``--no-viewer``. The CA's private key is never written: once the folder is
+made nobody can issue another certificate for the run. Each process's Zenoh
+configuration (``DIR/<identity>.json5``) holds its certificate, its key, the
+CA and the run's access-control rules (:func:`acl_config`): a node accepts
+from a connected process (identified by the common name of its certificate)
+only
 
 - what any process of the run may send: subscriptions, liveliness
   subscriptions and queries on the run's keys (and replies on ``alive/**``);
@@ -19,24 +22,29 @@ connected process (identified by the common name of its certificate) only
   ``alive/plant``; robot ``<id>`` ``robot/<id>/**`` (its ``cmd``, its
   ``plan``, its addressed ``plan/<to>``) and ``alive/robot/<id>``; the central
   controller ``robot/*/cmd`` and ``alive/central``; the viewer nothing but
-  its token ``alive/viewer``; the router everything on the run's keys (it
-  enforces the same rules on what it receives, so a client of a router
-  trusts it).
+  its token ``alive/viewer``; the router, at its clients, what it forwards
+  (it enforces these rules on what each client sends, so a client of a
+  router trusts it), and at the router itself nothing: the router's key
+  cannot publish through the router.
 
 Everything else is dropped by Zenoh's ACL interceptor on ingress
 (``default_permission: deny``); the plain ``tcp`` protocol is disabled, so a
 process without a certificate of the run's CA cannot connect at all.
+:mod:`services.launch` issues its run's credentials in memory
+(:func:`issue`) and hands each process only its own (:mod:`services.handover`).
 ``docs/security.md`` has the threat model and the measurements.
 """
 
 from __future__ import annotations
 
 import argparse
+import base64
 import datetime
 import json
 import os
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -52,10 +60,12 @@ __all__ = [
     "META_FILE",
     "SCHEMES",
     "acl_config",
+    "Issued",
     "add_parser",
     "config_for",
     "identities",
     "identity_of",
+    "issue",
     "main",
     "read_meta",
     "session_config",
@@ -66,7 +76,7 @@ CA_FILE = "ca.pem"
 """The run's CA certificate in a credentials folder."""
 META_FILE = "credentials.json"
 """What a credentials folder was made for: run, scenario, identities."""
-SCHEMES = ("decentralized", "centralized", "both")
+SCHEMES = ("decentralized", "centralized")
 """Which controllers a run's credentials are made for."""
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
 """Names every certificate is valid for besides its identity (``verify_name_on_connect``)."""
@@ -81,14 +91,16 @@ def identity_of(name: str) -> str:
     return name.replace("/", "-")
 
 
-def identities(scenario: Scenario, scheme: str = "both") -> list[str]:
-    """Every identity of a run of ``scenario`` with the ``scheme``'s controllers."""
+def identities(scenario: Scenario, scheme: str = "decentralized", router: bool = False,
+               viewer: bool = False) -> list[str]:
+    """The identities of a run of ``scenario`` with the ``scheme``'s controllers: only
+    those its processes use (the ``router`` and the ``viewer`` only when asked)."""
     if scheme not in SCHEMES:
         raise ProblemError(f"--scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
-    names = ["plant", "router", "viewer"]
-    if scheme in ("centralized", "both"):
+    names = ["plant", *(["router"] if router else []), *(["viewer"] if viewer else [])]
+    if scheme == "centralized":
         names.append("central")
-    if scheme in ("decentralized", "both"):
+    else:
         names += [f"robot-{int(i)}" for i in scenario.ids]
     return names
 
@@ -107,8 +119,14 @@ def _may_publish(identity: str, prefix: str) -> tuple[list[str], list[str]]:
     raise ProblemError(f"unknown identity {identity!r}")
 
 
-def acl_config(run: str, names: Sequence[str]) -> dict[str, Any]:
-    """Zenoh ``access_control`` of a run whose processes are ``names`` (module docstring)."""
+def acl_config(run: str, names: Sequence[str], me: str | None = None) -> dict[str, Any]:
+    """Zenoh ``access_control`` of process ``me`` in a run whose processes are ``names``
+    (module docstring).
+
+    The ``router`` may forward: its clients accept from it what any identity may
+    publish; the router itself accepts nothing but subscriptions from another holder
+    of the ``router`` key (``me == "router"``), so that key cannot publish through it.
+    """
     prefix = run_prefix(run)
     everything = [f"{prefix}/**"]
     rules: list[dict[str, Any]] = [
@@ -125,9 +143,11 @@ def acl_config(run: str, names: Sequence[str]) -> dict[str, Any]:
         subjects.append({"id": name, "cert_common_names": [name]})
         own = ["read", "reply-alive"]
         if name == "router":
-            rules.append({"id": "router-all", "flows": ["ingress"], "permission": "allow",
-                          "messages": _ALL, "key_exprs": everything})
-            own = ["router-all"]
+            if me != "router":  # what it forwards from the run's processes
+                rules.append({"id": "router-forward", "flows": ["ingress"],
+                              "permission": "allow", "messages": _ALL,
+                              "key_exprs": everything})
+                own = ["router-forward"]
         else:
             keys, tokens = _may_publish(name, prefix)
             if keys:
@@ -142,24 +162,35 @@ def acl_config(run: str, names: Sequence[str]) -> dict[str, Any]:
             "subjects": subjects, "policies": policies}
 
 
-def session_config(folder: Path, identity: str, acl: dict[str, Any],
-                   listen: Sequence[str] = ()) -> dict[str, Any]:
-    """The Zenoh configuration of ``identity`` with the certificates in ``folder``.
+def session_config(folder: Path | None, identity: str, acl: dict[str, Any],
+                   listen: Sequence[str] = (),
+                   inline: tuple[bytes, bytes, bytes] | None = None) -> dict[str, Any]:
+    """The Zenoh configuration of ``identity`` with the certificates in ``folder``, or
+    ``inline`` (CA certificate, certificate, private key; PEM, held in the config itself).
 
     Only ``tls`` links are enabled; the endpoints, and the mode of a service,
     come from its command line (``listen``: the router's endpoints).
     """
-    cert, key = str(folder / f"{identity}.pem"), str(folder / f"{identity}.key")
+    if inline is not None:
+        ca, cert_pem, key_pem = (base64.b64encode(b).decode() for b in inline)
+        tls: dict[str, Any] = {"root_ca_certificate_base64": ca,
+                               "listen_certificate_base64": cert_pem,
+                               "listen_private_key_base64": key_pem,
+                               "connect_certificate_base64": cert_pem,
+                               "connect_private_key_base64": key_pem}
+    elif folder is not None:
+        cert, key = str(folder / f"{identity}.pem"), str(folder / f"{identity}.key")
+        tls = {"root_ca_certificate": str(folder / CA_FILE),
+               "listen_certificate": cert, "listen_private_key": key,
+               "connect_certificate": cert, "connect_private_key": key}
+    else:
+        raise ValueError("session_config needs a folder or inline certificates")
     conf: dict[str, Any] = {
         "mode": "router" if identity == "router" else "peer",
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {
             "protocols": ["tls"],
-            "tls": {"root_ca_certificate": str(folder / CA_FILE),
-                    "enable_mtls": True,
-                    "listen_certificate": cert, "listen_private_key": key,
-                    "connect_certificate": cert, "connect_private_key": key,
-                    "verify_name_on_connect": True},
+            "tls": {**tls, "enable_mtls": True, "verify_name_on_connect": True},
         }},
         "access_control": acl,
     }
@@ -176,9 +207,46 @@ def _write_private(path: Path, data: bytes) -> None:
         fh.write(data)
 
 
-def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "both",
+@dataclass(frozen=True)
+class Issued:
+    """A run's certificates in memory (:func:`issue`): the CA's certificate, and per
+    identity its private key and certificate (PEM); ``meta`` as in :data:`META_FILE`."""
+
+    ca: bytes
+    keys: dict[str, tuple[bytes, bytes]]
+    meta: dict[str, Any]
+
+    def config(self, identity: str, listen: Sequence[str] = ()) -> dict[str, Any]:
+        """``identity``'s Zenoh configuration holding its certificate and key inline (for
+        :mod:`services.handover`: nothing on disk)."""
+        key_pem, cert_pem = self.keys[identity]
+        acl = acl_config(self.meta["run"], self.meta["identities"], identity)
+        return session_config(None, identity, acl, listen, (self.ca, cert_pem, key_pem))
+
+
+def issue(scenario: Scenario, run: str, names: Sequence[str], hosts: Sequence[str] = (),
+          valid_hours: float = 24.0, scheme: str = "decentralized") -> Issued:
+    """Make a run's CA (kept in memory only, then dropped) and one key and certificate per
+    identity in ``names``, valid for ``valid_hours`` from now."""
+    check_run_name(run)
+    if not valid_hours > 0.0:
+        raise ProblemError(f"--valid-hours must be > 0, got {valid_hours}")
+    # cryptography takes about half a second to import: only the processes that make
+    # certificates pay for it, not every service
+    from .certificates import CertificateAuthority
+
+    now = datetime.datetime.now(datetime.UTC)
+    start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(hours=valid_hours)
+    ca = CertificateAuthority(f"sqpmpc run {run} CA", start, end)
+    keys = {name: ca.issue(name, [name, *DEFAULT_HOSTS, *hosts]) for name in names}
+    meta = {"run": run, "scenario": scenario.name, "scheme": scheme, "identities": list(names),
+            "valid_until": end.isoformat(timespec="seconds")}
+    return Issued(ca.certificate_pem(), keys, meta)
+
+
+def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "decentralized",
                       hosts: Sequence[str] = (), valid_hours: float = 24.0,
-                      router_listen: Sequence[str] = ("tls/127.0.0.1:7447",),
+                      router_listen: Sequence[str] | None = None, viewer: bool = False,
                       folder: Path | None = None) -> dict[str, Path]:
     """Write a run's CA certificate, per-process certificates, keys and Zenoh configs.
 
@@ -191,14 +259,17 @@ def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "bo
     run
         The run name: the rules cover the keys ``sqpmpc/@v1/<run>/...`` only.
     scheme
-        ``"decentralized"`` (robots), ``"centralized"`` (central) or ``"both"``.
+        ``"decentralized"`` (robots) or ``"centralized"`` (central).
     hosts
         Host names or addresses the certificates are also valid for (besides
         the identity, ``localhost``, ``127.0.0.1`` and ``::1``).
     valid_hours
         Validity of every certificate from now.
     router_listen
-        Endpoints in the router's config.
+        ``None``: no router (peer to peer: no ``router`` identity is issued);
+        else the endpoints in the router's config.
+    viewer
+        Also issue the ``viewer`` identity (read only).
     folder
         Where the processes will find the files, if not ``out`` (e.g. the path
         of a shared volume in a container); the configs name files there.
@@ -208,33 +279,22 @@ def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "bo
     dict
         Identity -> path of its Zenoh config in ``out``.
     """
-    check_run_name(run)
-    if not valid_hours > 0.0:
-        raise ProblemError(f"--valid-hours must be > 0, got {valid_hours}")
-    names = identities(scenario, scheme)
+    names = identities(scenario, scheme, router_listen is not None, viewer)
+    issued = issue(scenario, run, names, hosts, valid_hours, scheme)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
     folder = folder or out.resolve()
-    # cryptography takes about half a second to import: only the command that makes
-    # certificates pays for it, not every service
-    from .certificates import CertificateAuthority
-
-    now = datetime.datetime.now(datetime.UTC)
-    start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(hours=valid_hours)
-    ca = CertificateAuthority(f"sqpmpc run {run} CA", start, end)
-    _write_private(out / CA_FILE, ca.certificate_pem())
-    acl = acl_config(run, names)
+    _write_private(out / CA_FILE, issued.ca)
     configs: dict[str, Path] = {}
     for name in names:
-        key_pem, cert_pem = ca.issue(name, [name, *DEFAULT_HOSTS, *hosts])
+        key_pem, cert_pem = issued.keys[name]
         _write_private(out / f"{name}.key", key_pem)
         _write_private(out / f"{name}.pem", cert_pem)
-        conf = session_config(folder, name, acl, router_listen if name == "router" else ())
+        conf = session_config(folder, name, acl_config(run, names, name),
+                              (router_listen or ()) if name == "router" else ())
         configs[name] = out / f"{name}.json5"
         _write_private(configs[name], (json.dumps(conf, indent=2) + "\n").encode())
-    meta = {"run": run, "scenario": scenario.name, "scheme": scheme, "identities": names,
-            "valid_until": end.isoformat(timespec="seconds")}
-    _write_private(out / META_FILE, (json.dumps(meta, indent=2) + "\n").encode())
+    _write_private(out / META_FILE, (json.dumps(issued.meta, indent=2) + "\n").encode())
     return configs
 
 
@@ -257,36 +317,45 @@ def read_meta(folder: Path) -> dict[str, Any]:
     return meta
 
 
-def config_for(args: argparse.Namespace, name: str) -> Path | None:
-    """The Zenoh config file of process ``name`` (liveliness name) from ``--zenoh-config``
-    or ``--credentials DIR``; ``None`` when neither was given.
+def config_for(args: argparse.Namespace, name: str) -> Path | str | None:
+    """The Zenoh config of process ``name`` (liveliness name) from ``--zenoh-config``,
+    ``--credentials DIR`` (a file) or ``--credentials-fd FD`` (JSON text handed over by
+    :mod:`services.launch`, :mod:`services.handover`); ``None`` when none was given.
 
     Raises
     ------
     ProblemError
-        A missing file, or credentials made for another run.
+        A missing file, or credentials made for another run or without this identity.
     """
     path = getattr(args, "zenoh_config", None)
     folder = getattr(args, "credentials", None)
-    if path is not None and folder is not None:
-        raise ProblemError("give --zenoh-config or --credentials, not both")
+    fd = getattr(args, "credentials_fd", None)
+    if sum(x is not None for x in (path, folder, fd)) > 1:
+        raise ProblemError("give one of --zenoh-config, --credentials, --credentials-fd")
     if path is not None:
         if not Path(path).is_file():
             raise ProblemError(f"--zenoh-config {path}: no such file")
         return Path(path)
-    if folder is None:
+    identity = identity_of(name)
+    if fd is not None:
+        from .handover import received
+
+        meta, configs = received(fd)
+        where = f"--credentials-fd {fd}"
+    elif folder is not None:
+        meta, configs, where = read_meta(Path(folder)), None, f"--credentials {folder}"
+    else:
         return None
-    folder = Path(folder)
-    meta = read_meta(folder)
     run = getattr(args, "run", None)
     if run is not None and meta.get("run") != run:
-        raise ProblemError(f"--credentials {folder} were made for run {meta.get('run')!r}, "
-                           f"not --run {run!r}")
-    identity = identity_of(name)
-    if identity not in meta.get("identities", []):
-        raise ProblemError(f"--credentials {folder} hold no identity {identity!r} (they have "
-                           f"{', '.join(meta.get('identities', []))})")
-    return folder / f"{identity}.json5"
+        raise ProblemError(f"{where} were made for run {meta.get('run')!r}, not --run {run!r}")
+    if identity not in meta.get("identities", []) or (configs is not None
+                                                       and identity not in configs):
+        raise ProblemError(f"{where} hold no identity {identity!r} (they have "
+                           f"{', '.join(configs or meta.get('identities', []))})")
+    if configs is not None:
+        return json.dumps(configs[identity])
+    return Path(folder) / f"{identity}.json5"
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -296,14 +365,19 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True, help="TOML file or built-in name (robot ids)")
     p.add_argument("--run", required=True, help="run name the services are started with")
     p.add_argument("--out", type=Path, required=True, help="folder to write (mode 0700)")
-    p.add_argument("--scheme", choices=SCHEMES, default="both",
-                   help="identities of which controllers: robots, central or both (default)")
+    p.add_argument("--scheme", choices=SCHEMES, default="decentralized",
+                   help="whose controllers: the robots' (default) or the central one")
     p.add_argument("--host", action="append", default=[], metavar="NAME",
                    help="a host name or address the processes connect to, added to every "
                         "certificate (repeatable; localhost and 127.0.0.1 always are)")
+    p.add_argument("--router", action="store_true",
+                   help="the run goes through a router: issue the 'router' identity "
+                        "(implied by --router-listen; none for a peer-to-peer run)")
     p.add_argument("--router-listen", action="append", default=[], metavar="EP",
                    help="endpoint in the router's config (repeatable; default "
                         "tls/127.0.0.1:7447)")
+    p.add_argument("--no-viewer", dest="viewer", action="store_false",
+                   help="issue no 'viewer' identity (read only; default: issued)")
     p.add_argument("--valid-hours", type=positive_float, default=24.0,
                    help="validity of the certificates, hours (default 24)")
     p.add_argument("--folder", type=Path, default=None,
@@ -318,9 +392,10 @@ def main(args: argparse.Namespace) -> int:
     try:
         scenario = load_scenario(args.scenario)
         check_run_name(args.run)
+        router = (args.router_listen or ["tls/127.0.0.1:7447"]) if (
+            args.router or args.router_listen) else None
         configs = write_credentials(args.out, scenario, args.run, args.scheme, args.host,
-                                    args.valid_hours,
-                                    args.router_listen or ["tls/127.0.0.1:7447"], args.folder)
+                                    args.valid_hours, router, args.viewer, args.folder)
     except (ScenarioError, ProblemError, ValueError) as exc:
         print(f"sqpmpc credentials: error: {exc}", file=sys.stderr)
         return 2

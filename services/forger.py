@@ -18,7 +18,16 @@ possibly none) and, for ``--duration`` seconds, publishes:
   by (1.0, 0.5) m;
 - ``done``: the plant's end of run (once, at sample 3 or later, or after
   2 s when it sees no state, once it has ``--links`` links);
-- ``alive``: the liveliness token of robot ``--target``.
+- ``alive``: the liveliness token of robot ``--target``;
+- ``settings``: once, at the first state of sample ``--at`` or later it sees,
+  an input for robot ``--target`` of that sample plus ``--sample-offset``
+  (default -1: one the plant has already applied) carrying another settings
+  digest and settings (what a controller started with other settings
+  sends); with robot ``--target``'s own credentials the access control
+  lets it through;
+- ``flood``: as fast as it can (no pause between rounds), robot ``--target``'s
+  own ``cmd`` and ``plan`` (also addressed to every other robot) of the newest
+  sample, well formed, or with ``--flood-bytes N`` payloads of ``N`` bytes.
 
 It subscribes to ``plant/state`` to learn the samples (a process without
 credentials sees nothing), prints ``{"ready": true}`` once its session is
@@ -54,7 +63,7 @@ from .transport import make_config, run_prefix
 __all__ = ["ATTACKS", "FORGED_SPEED", "build_parser", "forged_input", "forged_speed", "main"]
 
 PROG = "services.forger"
-ATTACKS = ("cmd", "plan", "state", "done", "alive")
+ATTACKS = ("cmd", "plan", "state", "done", "alive", "settings", "flood")
 """What the forger can send."""
 FORGED_SPEED = 0.987654321
 """Forged speed as a fraction of the upper speed bound."""
@@ -80,12 +89,20 @@ def build_parser() -> argparse.ArgumentParser:
     add_common_arguments(parser)
     parser.add_argument("--identity", default="viewer",
                         help="with --credentials: whose certificate to use (e.g. robot-2)")
-    parser.add_argument("--attack", default=",".join(ATTACKS),
-                        help=f"comma-separated, of {', '.join(ATTACKS)} (default all)")
+    parser.add_argument("--attack", default=",".join(ATTACKS[:5]),
+                        help=f"comma-separated, of {', '.join(ATTACKS)} (default all but "
+                             "settings)")
     parser.add_argument("--target", type=int, default=1, help="robot whose keys to forge")
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to forge for")
     parser.add_argument("--links", type=int, default=0,
                         help="send 'done' only once linked to this many processes")
+    parser.add_argument("--at", type=int, default=3,
+                        help="'settings': the first sample at or after which to send it")
+    parser.add_argument("--sample-offset", type=int, default=-1,
+                        help="'settings': the forged input's sample relative to the state seen")
+    parser.add_argument("--flood-bytes", type=int, default=0,
+                        help="'flood': payloads of this many bytes (default: well-formed "
+                             "messages)")
     parser.add_argument("--period", type=float, default=0.001,
                         help="seconds between rounds (each round sends every attack again)")
     return parser
@@ -126,13 +143,23 @@ def main(argv: list[str] | None = None) -> int:
     token = None
 
     reported: tuple[int, int, bool] = (0, 0, False)
+    bulk = bytes(max(args.flood_bytes, 0))
+    flooded = 0
+
+    begun = time.monotonic()
 
     def report() -> None:
         print(json.dumps({"opened": True, "states_seen": len(seen), "links": links,
-                          "sent": sent}), flush=True)
+                          "sent": sent, "newest": last.sample if last else None,
+                          "flood_bytes": flooded,
+                          "seconds": round(time.monotonic() - begun, 3)}),
+              flush=True)
 
-    def put(payload: bytes, key: str) -> None:
-        session.put(f"{prefix}/{key}", payload, express=True)  # dropped when congested
+    def put(payload: bytes, key: str, block: bool = False) -> None:
+        # dropped when congested, unless ``block`` (a message that must arrive)
+        session.put(f"{prefix}/{key}", payload, express=True,
+                    congestion_control=zenoh.CongestionControl.BLOCK if block
+                    else zenoh.CongestionControl.DROP)
 
     # the plant's states, not its own forged ones
     states = session.declare_subscriber(f"{prefix}/plant/state",
@@ -151,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
                             + len(list(session.info.routers_zid())))
                 polled = time.monotonic()
             try:
-                msg = decode(inbox.get(timeout=args.period), scenario.horizon)
+                wait = 0.0 if "flood" in attacks else args.period
+                msg = decode(inbox.get(timeout=wait) if wait else inbox.get_nowait(),
+                             scenario.horizon)
                 if isinstance(msg, StateMsg) and msg.scenario == digest:
                     seen.add(msg.sample)
                     if last is None or msg.sample >= last.sample:
@@ -186,6 +215,31 @@ def main(argv: list[str] | None = None) -> int:
                 put(encode(DoneMsg(k, True)), "plant/done")
                 sent["done"] += 1
                 done_sent = True
+            if "flood" in attacks:
+                own = f"robot/{args.target}"
+                if args.flood_bytes > 0:
+                    payloads = [bulk] * 2
+                else:
+                    payloads = [encode(CmdMsg(args.target, k, np.zeros(2), 0.0, None, 0)),
+                                encode(PlanMsg(args.target, k, k * scenario.sample_time,
+                                               time.time(), np.repeat(x[target][None, :],
+                                                                      scenario.horizon + 1, 0),
+                                               np.zeros((scenario.horizon, 2))))]
+                put(payloads[0], f"{own}/cmd")
+                put(payloads[1], f"{own}/plan")
+                for rid in ids:
+                    if rid != args.target:
+                        put(payloads[1], f"{own}/plan/{rid}")
+                sent["flood"] += 2 + len(ids) - 1
+                flooded += sum(map(len, payloads)) + (len(ids) - 1) * len(payloads[1])
+            if "settings" in attacks and not sent["settings"] and last is not None \
+                    and last.sample >= args.at and last.sample + args.sample_offset >= 0:
+                detail = {"process": f"robot/{args.target}", "collision_margin": "0.5"}
+                put(encode(CmdMsg(args.target, last.sample + args.sample_offset,
+                                  np.array([forged_speed(upper), 0.0]), 0.0,
+                                  "settings-mismatch", 0, None, "0123456789abcdef", detail)),
+                    f"robot/{args.target}/cmd", block=True)
+                sent["settings"] += 1
             if (len(seen), links, done_sent) != reported:  # what it learned, as it goes
                 reported = (len(seen), links, done_sent)
                 report()

@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """Run a distributed closed loop on this machine: the plant and the controllers as processes.
 
 ``python -m services.launch --scenario S --scheme centralized|decentralized [--out DIR]
@@ -11,12 +12,17 @@ Every process gets the same controller options (the flags given here and the
 ``sqpmpc run`` with the same flags. The plant's status lines (every 10 s) and
 warnings reach the launcher's stderr.
 
-The launcher first writes the run's credentials (:mod:`services.credentials`:
-a CA, one certificate per process, Zenoh configs with the access-control
-rules) into a private temporary folder (mode 0700, removed at exit) and
-hands each child its identity (``--credentials``): every link is mutual TLS
-and a process may publish only its own keys, so a local process that was
-not given them cannot move a robot (``docs/security.md``). ``--insecure``
+The launcher first issues the run's credentials in its memory
+(:func:`services.credentials.issue`: a CA, one certificate per process of this
+run only -- no ``central`` in a decentralized run, no ``router`` peer to peer)
+and hands each child only its own identity over an inherited socket
+(``--credentials-fd``, :mod:`services.handover`; the launcher and the children
+are non-dumpable): no key is written to disk, so a launch leaves nothing of
+its credentials behind whatever its end (SIGKILL included), and a process
+holding robot 2's key cannot read another's. Every link is mutual TLS and a
+process may publish only its own keys, so a local process that was not
+given them cannot move a robot (``docs/security.md``). ``--credentials DIR``
+uses a folder made by ``sqpmpc credentials`` instead; ``--insecure``
 (debugging only) runs on plain TCP without credentials.
 
 Every process is a Zenoh peer on loopback only (multicast scouting off): the
@@ -31,12 +37,22 @@ only, and the children share one scheduling autogroup, which matters on few
 cores) and, on Linux, receives SIGTERM if the launcher dies. When the launcher
 exits (normally, on an error, SIGINT or SIGTERM) it stops and reaps every
 child: SIGINT to the plant (which then writes what it has) and SIGTERM to the
-controllers, SIGKILL after a grace period.
+controllers, SIGKILL after a grace period. A stop at any moment, start-up
+included, ends every process without a traceback (a signal that comes while
+a service still imports its modules is honoured once it can be,
+:mod:`services.early`) and leaves a run folder readable by ``sqpmpc metrics``:
+stopped before the plant started, the launcher still starts it, and a run
+stopped before its first sample says so (``steps 0``, ``interrupted``).
 
 Exit status: the plant's (0 when the run completed), 2 for bad input.
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
 
 import argparse
 import ctypes
@@ -44,12 +60,10 @@ import json
 import logging
 import os
 import secrets
-import shutil
 import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -68,7 +82,8 @@ from sqpmpc.cli.options import (
 from sqpmpc.errors import ProblemError
 from sqpmpc.io.reporting import STATUS_PERIOD
 
-from .credentials import config_for, read_meta, write_credentials
+from .credentials import config_for, identities, issue, read_meta
+from .handover import Handover, make_private
 from .node import install_signal_handlers, options_of, scenario_from_args
 from .plant import summarize
 
@@ -78,6 +93,10 @@ log = logging.getLogger("services.launch")
 PROG = "services.launch"
 PLANT_GRACE = 30.0
 """Seconds the plant may take to write its outputs after being interrupted."""
+MAX_RATE_PER_SAMPLE = 20.0
+"""Real time: messages per sample period a robot may publish on one of its keys."""
+SIGNAL_READY = 5.0
+"""Longest wait for a child to handle signals before one is sent to it anyway, s."""
 CONTROLLER_GRACE = 5.0
 """Seconds the controllers may take to exit after the plant finished."""
 
@@ -116,11 +135,11 @@ class Child:
     """A service process in its own process group (same session as the launcher)."""
 
     def __init__(self, name: str, argv: list[str], cpu: int | None = None,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, pass_fds: tuple[int, ...] = ()) -> None:
         self.name = name
         self.argv = argv
         self.reported = False
-        self.proc = subprocess.Popen(argv, process_group=0, env=env,
+        self.proc = subprocess.Popen(argv, process_group=0, env=env, pass_fds=pass_fds,
                                      preexec_fn=_child_setup(cpu))
         log.info("started %s (pid %d)%s", name, self.proc.pid,
                  f" on CPU {cpu}" if cpu is not None else "")
@@ -130,8 +149,29 @@ class Child:
         """Process id (also the process group id)."""
         return self.proc.pid
 
+    def catches_signals(self, timeout: float = SIGNAL_READY) -> bool:
+        """Wait (up to ``timeout`` s) until the child handles SIGTERM (Linux: its
+        ``/proc/<pid>/status`` ``SigCgt``): a service does from its first lines on
+        (:mod:`services.early`), so a signal sent then cannot hit the interpreter's start
+        (a ``KeyboardInterrupt`` traceback, or an end that writes nothing)."""
+        deadline = time.monotonic() + timeout
+        while self.proc.poll() is None:
+            try:
+                with open(f"/proc/{self.proc.pid}/status") as fh:
+                    caught = next(int(ln.split()[1], 16) for ln in fh
+                                  if ln.startswith("SigCgt:"))
+            except (OSError, StopIteration, ValueError):
+                return False  # not Linux: no way to tell
+            if caught & (1 << (signal.SIGTERM - 1)) or time.monotonic() >= deadline:
+                return bool(caught & (1 << (signal.SIGTERM - 1)))
+            time.sleep(0.01)
+        return False
+
     def signal(self, sig: int) -> None:
-        """Send ``sig`` to the child's process group (if it has not been reaped)."""
+        """Send ``sig`` to the child's process group (if it has not been reaped), once it
+        handles signals (:meth:`catches_signals`, a few seconds at most)."""
+        if sig != signal.SIGKILL:
+            self.catches_signals()
         if self.proc.returncode is None:
             try:
                 os.killpg(self.proc.pid, sig)
@@ -202,6 +242,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--insecure", action="store_true",
                         help="debugging only: plain TCP without credentials (any local "
                              "process can then publish on the run's keys)")
+    parser.add_argument("--no-flood-limits", action="store_true",
+                        help="benchmarks only: no per-publisher rate or size limit "
+                             "(services.limits) in the run's processes")
     parser.add_argument("--credentials", type=Path, default=None, metavar="DIR",
                         help="the run's credentials made by 'sqpmpc credentials' (same "
                              "--run) instead of fresh ones, e.g. to let a services.viewer "
@@ -216,12 +259,19 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
 
 
 def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
-              sample_time: float, credentials: Path | None = None) -> list[tuple[str, list[str]]]:
+              sample_time: float, credentials: Path | None = None,
+              secured: bool = False) -> list[tuple[str, list[str]]]:
+    """``(name, argv)`` of every child; ``secured`` without a ``credentials`` folder: the
+    caller adds ``--credentials-fd`` (:mod:`services.handover`)."""
     py = [sys.executable, "-m"]
     common = ["--scenario", args.scenario, "--run", run, "--log-level", args.log_level]
+    if args.no_flood_limits:
+        common.append("--no-flood-limits")
+    elif args.mode == "realtime":  # per-publisher rate limit (services.limits)
+        common += ["--max-rate", repr(MAX_RATE_PER_SAMPLE / sample_time)]
     secure = [] if credentials is None else ["--credentials", str(credentials)]
     common += secure
-    proto = "tcp" if credentials is None else "tls"
+    proto = "tcp" if credentials is None and not secured else "tls"
     k = args.robots_per_process or 1
     groups = [ids[j:j + k] for j in range(0, len(ids), k)]
     names = ["central"] if args.scheme == "centralized" else [
@@ -268,6 +318,13 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     return cmds
 
 
+def _identities_of(name: str) -> list[str]:
+    """The identities a child serves: ``"robot/1,2"`` -> ``["robot-1", "robot-2"]``."""
+    if name.startswith("robot/"):
+        return [f"robot-{i}" for i in name.split("/", 1)[1].split(",")]
+    return [name]
+
+
 def _run_of(credentials: Path | None) -> str | None:
     """The run a credentials folder was made for (``None``: no folder or unreadable)."""
     if credentials is None:
@@ -301,6 +358,7 @@ def _credential_problem(args: argparse.Namespace) -> str | None:
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
     args = build_parser(prog).parse_args(argv)
+    make_private()  # it holds every identity's key for a moment
     logging.basicConfig(level=logging.INFO, format="%(asctime)s launch %(message)s",
                         stream=sys.stderr)
     args.connect, args.listen = [], []
@@ -327,20 +385,28 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     before = metrics_file.stat().st_mtime_ns if metrics_file.exists() else None
     children: list[Child] = []
     status = 1
-    credentials = None
+    issued = None
     try:
-        if args.credentials is not None:  # the user's: used, kept
-            credentials = args.credentials
-        elif not args.insecure:  # private to this user, removed at exit
-            credentials = Path(tempfile.mkdtemp(prefix="sqpmpc-credentials-"))
-            write_credentials(credentials, scenario, run, args.scheme, router_listen=())
+        if args.credentials is None and not args.insecure:
+            # in this process's memory only; each child receives its own over a socket
+            issued = issue(scenario, run, identities(scenario, args.scheme, args.router),
+                           scheme=args.scheme)
         commands = _commands(args, [int(i) for i in scenario.ids], run, out,
-                             scenario.sample_time, credentials)
+                             scenario.sample_time, args.credentials, issued is not None)
+        handover = Handover(issued.meta) if issued is not None else None
         for j, (name, cmd) in enumerate(commands):
-            if stop.is_set():
-                break
+            if stop.is_set() and name != "plant":
+                continue  # stopped already: only the plant, which writes the (empty) run
             cpu = cpus[(j - 1) % len(cpus)] if args.pin_cpus and cpus and j > 0 else None
-            children.append(Child(name, cmd, cpu, env))
+            if handover is None or issued is None:
+                children.append(Child(name, cmd, cpu, env))
+                continue
+            fd = handover.child_end({i: issued.config(i) for i in _identities_of(name)})
+            try:
+                children.append(Child(name, [*cmd, "--credentials-fd", str(fd)], cpu, env,
+                                      (fd,)))
+            finally:
+                handover.started()
         plant = next((c for c in children if c.name == "plant"), None)
         services = [c for c in children if c.name != "router"]
         while plant is not None and not stop.is_set():
@@ -370,8 +436,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         stop_children([c for c in children if c.name != "router"], {"plant": signal.SIGINT},
                       PLANT_GRACE)
         stop_children([c for c in children if c.name == "router"], {}, PLANT_GRACE)
-        if credentials is not None and args.credentials is None:
-            shutil.rmtree(credentials, ignore_errors=True)
     if metrics_file.exists() and metrics_file.stat().st_mtime_ns != before:
         print(summarize(json.loads(metrics_file.read_text())))
         print(f"wrote {out}")

@@ -24,17 +24,25 @@ from typing import NoReturn, TypeVar
 import zenoh
 
 from sqpmpc import __version__
-from sqpmpc.cli.options import RunOptions, add_override_options, resolve_options, with_overrides
+from sqpmpc.cli.options import (
+    RunOptions,
+    add_override_options,
+    positive_float,
+    resolve_options,
+    with_overrides,
+)
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario
 
 from .agreement import agreed_settings, scenario_digest, settings_digest
 from .credentials import config_for
+from .early import RECEIVED
 from .faults import FaultInjector
+from .limits import interceptors
 from .messages import InvalidMessage, Message, MessageValidator, Mismatch
 from .protocol import AcceptancePolicy
-from .transport import Bus, Event, check_run_name
+from .transport import Bus, Event, check_run_name, run_prefix
 
 __all__ = [
     "POLL",
@@ -86,6 +94,12 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              "tcp/127.0.0.1:0 for a peer)")
     parser.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
                         help="peer (default) or client of a router")
+    parser.add_argument("--max-rate", type=positive_float, default=None, metavar="HZ",
+                        help="drop what a robot publishes on one of its keys faster than this "
+                             "(services.limits; services.launch passes 20/Ts in real time; "
+                             "default: no rate limit, payloads above 64 KiB are always dropped)")
+    parser.add_argument("--no-flood-limits", action="store_true",
+                        help="benchmarks only: neither the rate nor the size limit")
     add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
 
@@ -98,6 +112,9 @@ def add_credential_arguments(parser: argparse.ArgumentParser) -> None:
                              "control) by its identity; endpoints are then tls/...")
     parser.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
                         help="a Zenoh config file to start from (e.g. DIR/robot-1.json5)")
+    parser.add_argument("--credentials-fd", type=int, default=None, metavar="FD",
+                        help="services.launch hands this process its own credentials over "
+                             "this inherited socket (services.handover)")
 
 
 def options_of(args: argparse.Namespace) -> RunOptions:
@@ -142,7 +159,8 @@ def session_lost(prog: str, exc: zenoh.ZError) -> int:
 
 
 def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
-    """SIGINT and SIGTERM set ``stop``; the returned dict records the signal number."""
+    """SIGINT and SIGTERM set ``stop``; the returned dict records the signal number (also
+    of one received during start-up, :mod:`services.early`: ``stop`` is then set at once)."""
     received: dict[str, int] = {}
 
     def handler(signum: int, _frame: object) -> None:
@@ -151,6 +169,8 @@ def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    if "signal" in RECEIVED:  # it came during start-up (services.early)
+        handler(RECEIVED["signal"], None)
     return received
 
 
@@ -190,7 +210,10 @@ class Node:
         config = config_for(args, name)
         try:
             self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode, config,
-                           FaultInjector.from_env(name))
+                           FaultInjector.from_env(name),
+                           None if getattr(args, "no_flood_limits", False) else
+                           interceptors(run_prefix(args.run), self.ids, name,
+                                        getattr(args, "max_rate", None)))
         except ValueError as exc:
             raise ProblemError(str(exc)) from exc
         if config is None:
@@ -221,6 +244,10 @@ class Node:
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         """A token ``alive/<name>`` appeared or disappeared (override to react)."""
+
+    def on_invalid(self, kind: str, key_id: int | None, reason: str) -> None:
+        """A message on a ``kind`` key (of robot ``key_id``) was refused by the validator and
+        counted invalid (override to attribute it)."""
 
     def on_mismatch(self, msg: Message, reason: str) -> None:
         """A message from a process started with another scenario or other settings
@@ -272,6 +299,7 @@ class Node:
             return
         except InvalidMessage as exc:
             self._log_invalid(f"on {event.key}: {exc}")
+            self.on_invalid(kind, key_id, str(exc))
             return
         self.on_message(kind, msg)
 

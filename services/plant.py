@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """The plant service: holds the true state, publishes it, applies the controllers' inputs.
 
 ``python -m services.plant --scenario S [--scheme decentralized|centralized]
@@ -8,9 +9,19 @@
 
 The plant takes the controller options too: with the scenario they make the
 settings every process of the run must share (:mod:`services.agreement`). A
-controller started with others answers the plant's first state with them and
-the plant stops with one message naming what differs, writes what it has
-(``completed: false``) and exits with status 2. Every ``--status-every``
+controller started with others answers the plant's first state with them: the
+plant logs one message naming what differs and goes on, braking that
+controller's robots while it answers so (it then exits); at the end it exits
+with status 2 (``refused`` in ``metrics.json``).
+
+No message on a robot's keys can stop, stall or rewind the run. The plant
+judges an input's sample before anything else: an input of an older sample
+is stale and dropped whatever it carries; one of a later sample is refused.
+An input of the current sample that carries another settings digest marks
+its robot faulty at this sample: braked, not waited for, even if a
+consistent input came too. Every input on robot ``j``'s key that is
+inconsistent with the run (schema, sample ahead, settings digest) is dropped
+and counted in ``faulty_messages[j]``. Every ``--status-every``
 seconds (default 10) it writes a status line to stderr (sample, time, smallest
 clearance so far, braked inputs).
 
@@ -22,13 +33,20 @@ robots, which were braked all along, and status 3 (``never_controlled`` in
 states of all robots (one message) and collects one ``cmd`` per robot:
 
 - ``lockstep``: it advances as soon as every robot whose controller is alive
-  has sent its input for ``k``, or after ``--timeout`` seconds;
+  has sent its input for ``k``, or after ``--timeout`` seconds; a controller
+  that leaves mid-run (its liveliness token gone: killed, crashed) is waited
+  for up to ``--rejoin-timeout`` seconds (default 30): restarted with its
+  command, it rejoins at the sample where it left;
 - ``realtime``: it advances every ``Ts`` of wall time with the newest valid
   input received for ``k``. Sample 0 is the exception: the robots are at
   rest and the controllers converge their first plan (several QPs, the
   settings' ``first_sample_iterations``), so the plant waits for its inputs as
   in lockstep and starts the wall clock after it (``--timed-start``: sample 0
   gets ``Ts`` too); ``metrics.json`` records that start as ``start_wall_s``.
+
+When every controller has been gone for ``--rejoin-timeout`` seconds (any
+mode) the plant stops with one error line (``abandoned`` in ``metrics.json``),
+writes what it has and exits with status 1.
 
 A robot without an input (late, timed out, or its controller gone) gets the
 braking input (``v = omega = 0`` clipped to the bounds), counted in
@@ -47,6 +65,11 @@ plots into ``--out``. As it goes it appends every sample to ``--out``/``record.m
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
 
 import argparse
 import logging
@@ -89,13 +112,15 @@ from .node import (
 )
 from .protocol import Verdict
 
-__all__ = ["PlantNode", "build_parser", "main", "summarize"]
+__all__ = ["REJOIN_TIMEOUT", "PlantNode", "build_parser", "main", "summarize"]
 
 log = logging.getLogger(__name__)
 PROG = "services.plant"
 RESEND = 0.05
 """Lockstep: while inputs of a sample are missing, its states are published again this
 often, s (at most every half ``--timeout``; real time: every ``Ts / 4``)."""
+REJOIN_TIMEOUT = 30.0
+"""Default ``--rejoin-timeout``, s."""
 
 
 class PlantNode(Node):
@@ -133,6 +158,8 @@ class PlantNode(Node):
         self.cmds: dict[int, CmdMsg] = {}
         self.relay: dict[int, dict[int, int]] = {}  # plan ages sent with the current states
         self.missed = dict.fromkeys(self.ids, 0)
+        self.faulty = dict.fromkeys(self.ids, 0)  # inconsistent inputs dropped, per robot
+        self.faulty_now: set[int] = set()  # robots braked at this sample for such an input
         self.late_commands = 0
         self.timeouts = 0
         self._missing: set[int] = set()
@@ -146,6 +173,10 @@ class PlantNode(Node):
         self.sample_walls: list[float] = []
         self.writer: RecordWriter | None = None
         self.refused: str | None = None  # a controller runs with other settings
+        self.rejoin_timeout = float(getattr(args, "rejoin_timeout", REJOIN_TIMEOUT))
+        self.departed: dict[str, float] = {}  # controller -> when it left (perf_counter)
+        self.all_gone_since: float | None = None
+        self.gave_up: str | None = None  # every controller left for good
         self.status = StatusLines(scenario, "plant", float(getattr(args, "status_every",
                                                                    STATUS_PERIOD)))
 
@@ -174,21 +205,87 @@ class PlantNode(Node):
     def on_liveliness(self, name: str, alive: bool) -> None:
         # a controller joining mid-run missed the current sample's states: send them again
         # (the others ignore a sample they already handled); runs on the main thread
-        if alive and self.running and name in self.controllers:
+        if not self.running or name not in self.controllers:
+            return
+        if alive:
+            self.departed.pop(name, None)
+            self.all_gone_since = None
             log.info("%s joined at sample %d", name, self.k)
             self.publish_states(self.k)
+            return
+        now = time.perf_counter()
+        self.departed[name] = now
+        if not self.expected():
+            self.all_gone_since = now
+        log.warning("%s left at sample %d%s", name, self.k,
+                    f": waiting up to {self.rejoin_timeout:g} s for it to rejoin"
+                    if self.mode == "lockstep" else "")
+
+    def awaited(self) -> list[str]:
+        """Lockstep: controllers that left less than ``--rejoin-timeout`` ago (the plant
+        waits for them); one whose time is up is braked from then on (logged once)."""
+        if self.mode != "lockstep":
+            return []
+        now = time.perf_counter()
+        for name, left in list(self.departed.items()):
+            if now - left >= self.rejoin_timeout:
+                del self.departed[name]
+                log.warning("%s did not rejoin within %g s: its robots are braked", name,
+                            self.rejoin_timeout)
+        return list(self.departed)
+
+    def _rejoin_deadline(self) -> float:
+        return max((t + self.rejoin_timeout for t in self.departed.values()), default=0.0) \
+            if self.mode == "lockstep" else 0.0
+
+    def abandoned(self) -> bool:
+        """Every controller left during the run and none came back within
+        ``--rejoin-timeout``: the run stops (one error line, status 1)."""
+        if self.all_gone_since is None or self.expected():
+            return False
+        if time.perf_counter() - self.all_gone_since < self.rejoin_timeout:
+            return False
+        self.gave_up = (f"every controller left ({', '.join(self.controllers)}) and none came "
+                        f"back within {self.rejoin_timeout:g} s (--rejoin-timeout): stopping at "
+                        f"sample {self.k}")
+        log.error("%s", self.gave_up)
+        return True
 
     def on_mismatch(self, msg: Message, reason: str) -> None:
         if not isinstance(msg, CmdMsg):
             super().on_mismatch(msg, reason)
             return
+        # the sample first: an old input is stale whatever it carries (it cannot act)
+        decision = self.policy.cmd(self.k, msg.sample)
+        if decision.verdict is Verdict.STALE:
+            self.late_commands += 1
+            return
+        if decision.verdict is Verdict.REFUSE or not self.running:
+            self.faulty_message(msg.id, decision.reason or reason)
+            return
+        # an input of this sample from a controller with other settings: that robot is
+        # faulty at this sample (braked, not waited for); the run goes on
+        self.faulty_message(msg.id, reason)
+        self.faulty_now.add(msg.id)
         if self.refused is None:
             detail = msg.detail or {}
             who = detail.get("process") or (
                 "central" if self.scheme == "centralized" else f"robot/{msg.id}")
             self.refused = describe_difference(self.agreed or {}, detail or None, who)
-            log.error("%s", self.refused)
-        self.stop.set()
+            log.error("%s; its robots are braked while it does", self.refused)
+
+    def on_invalid(self, kind: str, key_id: int | None, reason: str) -> None:
+        if kind == "cmd" and key_id is not None:
+            self.faulty_message(key_id, reason)
+
+    def faulty_message(self, rid: int, reason: str) -> None:
+        """Count a message on robot ``rid``'s cmd key inconsistent with the run (schema,
+        sample, settings digest); it is dropped (``faulty_messages`` in the metrics)."""
+        if rid in self.faulty:
+            self.faulty[rid] += 1
+            if self.faulty[rid] <= 3 or self.faulty[rid] % 1000 == 0:
+                log.warning("robot %d: inconsistent input dropped (%d so far): %s", rid,
+                            self.faulty[rid], reason)
 
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, PlanMsg):
@@ -200,11 +297,12 @@ class PlantNode(Node):
         decision = self.policy.cmd(self.k, msg.sample)
         if decision.verdict is Verdict.REFUSE:
             self._refused(decision.reason)
+            self.faulty_message(msg.id, decision.reason)
             return
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
         self.reported_invalid[sender] = msg.invalid
         self.reported_counts[sender] = msg.counters or {}
-        if decision.accepted:
+        if decision.accepted and msg.id not in self.faulty_now:
             self.cmds[msg.id] = msg  # the newest valid input for this sample
         else:
             self.late_commands += 1
@@ -220,6 +318,8 @@ class PlantNode(Node):
 
     def apply(self, k: int) -> None:
         """Apply the inputs collected for sample ``k`` and integrate to ``k + 1``."""
+        for rid in self.faulty_now:
+            self.cmds.pop(rid, None)  # a robot that sent an inconsistent input is braked
         missing = set(self.ids) - set(self.cmds)
         if missing != self._missing:
             if missing - self._missing:
@@ -267,7 +367,7 @@ class PlantNode(Node):
         start = time.perf_counter()
         for k in range(self.scenario.steps):
             t0 = time.perf_counter()
-            self.k, self.cmds = k, {}
+            self.k, self.cmds, self.faulty_now = k, {}, set()
             self.publish_states(k)
             if self.mode == "lockstep" or (k == 0 and not self.timed_start):
                 if not self.collect(k, t0 + self.timeout, min(RESEND, self.timeout / 2)) \
@@ -282,7 +382,7 @@ class PlantNode(Node):
                 deadline = start + (k + 1) * ts
                 self.collect(k, deadline, ts / 4.0)
                 self.wait_until(lambda: self.stop.is_set(), deadline - time.perf_counter())
-            if self.stop.is_set():
+            if self.stop.is_set() or self.abandoned():
                 break
             self.apply(k)
             self.k = k + 1
@@ -317,13 +417,15 @@ class PlantNode(Node):
         the states of ``k`` again every ``resend`` s (a state or an input was lost: the
         controllers answer a repeated state by sending their outputs again)."""
         def ready() -> bool:
-            return all(i in self.cmds for i in self.expected())
+            return (all(i in self.cmds or i in self.faulty_now for i in self.expected())
+                    and not self.awaited())
 
         while True:
-            now = time.perf_counter()
-            if self.wait_until(ready, min(resend, deadline - now)):
+            end = max(deadline, self._rejoin_deadline())  # lockstep: wait for a rejoin
+            if self.wait_until(ready, min(resend, end - time.perf_counter())):
                 return True
-            if self.stop.is_set() or time.perf_counter() >= deadline:
+            if self.stop.is_set() or time.perf_counter() >= max(deadline,
+                                                                 self._rejoin_deadline()):
                 return False
             self.publish_states(k)
             self.republished += 1
@@ -340,6 +442,7 @@ class PlantNode(Node):
             "run": self.bus.prefix.rsplit("/", 1)[-1],
             "missed_deadlines": int(sum(self.missed.values())),
             "missed_deadlines_by_robot": {str(i): int(v) for i, v in self.missed.items()},
+            "faulty_messages": {str(i): int(v) for i, v in self.faulty.items()},
             "never_controlled": self.never_controlled(),
             "late_commands": int(self.late_commands),
             "lockstep_timeouts": int(self.timeouts),
@@ -348,8 +451,9 @@ class PlantNode(Node):
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
             "counters": _summed(self.reported_counts.values()),
-            "interrupted": signal.Signals(sig).name if sig and not self.refused else None,
+            "interrupted": signal.Signals(sig).name if sig else None,
             "refused": self.refused,
+            "abandoned": self.gave_up,
             "agreed_settings": self.agreed,
             "plant_discretization": self.method,
             "sample_loop_wall_s": float(self.loop_wall),
@@ -409,6 +513,12 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="lockstep: longest wait for a sample's inputs, s")
     parser.add_argument("--startup-timeout", type=positive_float, default=60.0,
                         help="longest wait for the controllers before sample 0, s")
+    parser.add_argument("--rejoin-timeout", type=positive_float, default=REJOIN_TIMEOUT,
+                        metavar="S",
+                        help="lockstep: wait this long for a controller that left mid-run to "
+                             "come back (restarted) before braking its robots; any mode: stop "
+                             "when every controller has been gone this long, s (default "
+                             f"{REJOIN_TIMEOUT:g})")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
     parser.add_argument("--timed-start", action="store_true",
@@ -483,6 +593,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         if not args.quiet:
             print(summarize(metrics))
             print(f"wrote {out}")
+    sig = node.signals.get("signal")
+    if sig and record.t.size == 1:
+        log.warning("stopped by %s before the first sample: the run in %s has no samples",
+                    signal.Signals(sig).name, out)
     if node.refused:
         return 2
     absent = record.extra.get("never_controlled") or []
@@ -493,7 +607,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         return 3
     if record.completed and not failed:
         return 0
-    sig = node.signals.get("signal")
     return 128 + sig if sig else 1
 
 

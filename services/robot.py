@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """One robot's decentralized controller as a service.
 
 ``python -m services.robot --id J --scenario S [--decentralized-mode shared|paper]
@@ -25,6 +26,11 @@ the lockstep loop can be lost and the run is deterministic.
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
 
 import argparse
 import logging

@@ -1,3 +1,4 @@
+# ruff: noqa: E402
 """A Zenoh router in Python (the same wheel as the services: no version skew).
 
 ``python -m services.router [--listen tcp/127.0.0.1:7447] [--connect EP]
@@ -13,6 +14,11 @@ this lets docker-compose and the tests use one image and one interpreter.
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # before the slow imports: a stop during them is honoured
+    from services.early import catch_signals
+
+    catch_signals()
 
 import argparse
 import json

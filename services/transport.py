@@ -42,9 +42,10 @@ import logging
 import queue
 import re
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import zenoh
@@ -83,7 +84,8 @@ def make_config(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     mode: str = "peer",
-    config: Path | None = None,
+    config: Path | str | None = None,
+    extra: Mapping[str, Any] | None = None,
 ) -> zenoh.Config:
     """A Zenoh configuration with multicast scouting off and explicit endpoints.
 
@@ -100,7 +102,10 @@ def make_config(
     config
         A Zenoh configuration file to start from, e.g. a process's file made by
         :func:`services.credentials.write_credentials` (mutual TLS and access
-        control); its endpoints must then be ``tls/`` ones.
+        control), or such a configuration as JSON text (handed over by
+        :mod:`services.handover`); its endpoints must then be ``tls/`` ones.
+    extra
+        More entries, config path -> value (e.g. :func:`services.limits.interceptors`).
     """
     if mode not in ("peer", "client", "router"):
         raise ValueError(f"zenoh mode must be peer, client or router, got {mode!r}")
@@ -108,7 +113,8 @@ def make_config(
     if config is None:
         conf = zenoh.Config()
     else:
-        conf = zenoh.Config.from_file(str(config))
+        conf = (zenoh.Config.from_json5(config) if isinstance(config, str)
+                else zenoh.Config.from_file(str(config)))
         for ep in [*listen, *connect]:
             if not ep.startswith("tls/"):
                 raise ValueError(f"endpoint {ep}: a session with credentials takes tls/ "
@@ -117,6 +123,8 @@ def make_config(
             listen = json.loads(conf.get_json("listen/endpoints"))  # the file's own
     if not listen and mode != "client":
         listen = ["tcp/127.0.0.1:0" if config is None else "tls/127.0.0.1:0"]
+    for path, value in (extra or {}).items():
+        conf.insert_json5(path, json.dumps(value))
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
@@ -144,7 +152,7 @@ class Bus:
     ----------
     run
         Run name (namespace).
-    listen, connect, mode, config
+    listen, connect, mode, config, extra
         See :func:`make_config`.
     faults
         Lose or delay incoming messages (:mod:`services.faults`; tests, benchmarks).
@@ -162,8 +170,9 @@ class Bus:
     """
 
     def __init__(self, run: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 mode: str = "peer", config: Path | None = None,
-                 faults: FaultInjector | None = None) -> None:
+                 mode: str = "peer", config: Path | str | None = None,
+                 faults: FaultInjector | None = None,
+                 extra: Mapping[str, Any] | None = None) -> None:
         self.prefix = run_prefix(run)
         self.express = mode != "client"
         self.inbox: queue.SimpleQueue[Event] = queue.SimpleQueue()
@@ -171,7 +180,7 @@ class Bus:
         self.send_failures = 0
         self._released: deque[Event] = deque()
         self.secured = config is not None
-        self.session = zenoh.open(make_config(listen, connect, mode, config))
+        self.session = zenoh.open(make_config(listen, connect, mode, config, extra))
         self._subscribers: list[zenoh.Subscriber] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._tokens: list[zenoh.LivelinessToken] = []

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks.decomposition import OraclePredictionSimulation
-from sqpmpc import controllers
+from sqpmpc.control import decentralized as controllers
 from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.ocp.collision_rows import SHARED

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from sqpmpc import collision_kernels, kernels
+from sqpmpc.kernels import collision as collision_kernels
+from sqpmpc.kernels import ocp as kernels
 from sqpmpc.models.unicycle import discrete_dynamics, discrete_jacobians, rollout
 from sqpmpc.problem.paths import segment_distances
 from sqpmpc.qp.layout import A_PATTERN, B_PATTERN, QPLayout

@@ -8,8 +8,13 @@ Every process is a real Zenoh session in a process of its own on 127.0.0.1
 from __future__ import annotations
 
 import json
+import os
 import stat
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,7 +23,15 @@ from cryptography.x509.oid import NameOID
 
 from services.credentials import META_FILE, write_credentials
 from services.forger import forged_speed
-from services.testing import ServiceProcess, free_ports, start_service, stop_processes
+from services.testing import (
+    REPO,
+    ServiceProcess,
+    child_pids,
+    free_ports,
+    pid_alive,
+    start_service,
+    stop_processes,
+)
 from sqpmpc.cli.main import main as sqpmpc_main
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.scenario_file import load_scenario
@@ -28,7 +41,7 @@ pytestmark = pytest.mark.timeout(150)
 
 SCENARIO = "paper-s2"
 T_END = 20.0  # 40 samples
-IDENTITIES = ["plant", "router", "viewer", "central", "robot-1", "robot-2", "robot-3", "robot-4"]
+IDENTITIES = ["plant", "viewer", "robot-1", "robot-2", "robot-3", "robot-4"]
 
 
 def test_credentials_command_writes_a_private_folder_per_identity(tmp_path, capsys):
@@ -51,6 +64,26 @@ def test_credentials_command_writes_a_private_folder_per_identity(tmp_path, caps
         cert.verify_directly_issued_by(ca)
         hours = (cert.not_valid_after_utc - cert.not_valid_before_utc).total_seconds() / 3600
         assert hours <= 2.1
+    # least privilege: a decentralized peer-to-peer run has no central and no router key
+    assert not {"central", "router"} & set(meta["identities"])
+    for extra, expected in ((["--no-viewer"], ["plant", "robot-1", "robot-2", "robot-3",
+                                                "robot-4"]),
+                            (["--scheme", "centralized", "--router"],
+                             ["plant", "router", "viewer", "central"])):
+        other = tmp_path / f"creds{len(expected)}"
+        assert sqpmpc_main(["credentials", "--scenario", SCENARIO, "--run", "r1", "--out",
+                            str(other), *extra]) == 0
+        assert json.loads((other / META_FILE).read_text())["identities"] == expected
+        assert {p.name for p in other.iterdir()} == {"ca.pem", META_FILE} | {
+            f"{i}.{ext}" for i in expected for ext in ("pem", "key", "json5")}
+    # the router forwards (its clients accept from it) but its key publishes nothing at
+    # the router itself
+    at_router = json.loads((other / "router.json5").read_text())["access_control"]
+    at_plant = json.loads((other / "plant.json5").read_text())["access_control"]
+    router_rules = {p["subjects"][0]: p["rules"] for p in at_router["policies"]}
+    assert router_rules["router"] == ["read", "reply-alive"]
+    plant_rules = {p["subjects"][0]: p["rules"] for p in at_plant["policies"]}
+    assert plant_rules["router"] == ["router-forward"]
     conf = json.loads((out / "robot-1.json5").read_text())
     assert conf["transport"]["link"]["protocols"] == ["tls"]
     assert conf["transport"]["link"]["tls"]["enable_mtls"] is True
@@ -89,8 +122,10 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
     run = f"sec-{topology}"
     creds, other = tmp_path / "creds", tmp_path / "other-ca"
     scenario = load_scenario(SCENARIO)
-    write_credentials(creds, scenario, run, "decentralized")
-    write_credentials(other, scenario, run, "decentralized")  # a CA the run does not trust
+    router_listen = None if topology == "peer" else ()
+    write_credentials(creds, scenario, run, "decentralized", router_listen=router_listen)
+    # a CA the run does not trust
+    write_credentials(other, scenario, run, "decentralized", router_listen=router_listen)
     ports = free_ports(9)
     eps = [f"tls/127.0.0.1:{p}" for p in ports[:5]]  # plant (or router), robots 1-4
     common = ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END), "--log-level",
@@ -115,6 +150,9 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
             "other-ca": ["--credentials", str(other), "--identity", "robot-1"],
             "no-certificate": [],
         }
+        if topology == "router":  # the router's own key, as a client of the router
+            hostile["router-key"] = ["--credentials", str(creds), "--identity", "router",
+                                     "--links", "1"]
         forgers = {}
         for name, extra in hostile.items():
             proto = "tcp" if name == "no-certificate" else "tls"
@@ -143,6 +181,9 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
     assert insider["opened"] and insider["links"] == len(targets), insider
     assert insider["states_seen"] == 40, insider
     assert insider["sent"]["done"] == 1 and insider["sent"]["cmd"] >= 40, insider
+    if topology == "router":  # linked, forging all along: the router took nothing of it
+        assert summaries["router-key"]["links"] == 1, summaries["router-key"]
+        assert summaries["router-key"]["sent"]["cmd"] >= 40, summaries["router-key"]
     # no certificate of the run's CA: no link at all
     for name in ("other-ca", "no-certificate"):
         s = summaries[name]
@@ -178,3 +219,120 @@ def test_a_service_refuses_credentials_of_another_run_or_plain_endpoints(tmp_pat
         assert proc.wait(60) == 2, proc.output()
         lines = [ln for ln in proc.output().splitlines() if "error" in ln]
         assert len(lines) == 1 and message in lines[0], proc.output()
+
+
+@pytest.mark.parametrize("offset", [-1, 0], ids=["stale", "current"])
+def test_one_inconsistent_input_on_a_robots_own_key_cannot_stop_the_run(tmp_path, offset):
+    """Robot 2's own certificate sends one input for robot 2 carrying another settings
+    digest (what a controller with other settings sends) at sample 20. Of an older sample
+    (``stale``) it is dropped before its digest is read: the run equals the undisturbed one,
+    bit for bit. Of the plant's current sample it marks robot 2 faulty at that sample
+    (braked); either way the run completes and the forged input is never applied."""
+    run = f"one-{'stale' if offset else 'current'}"
+    creds = tmp_path / "creds"
+    scenario = load_scenario(SCENARIO)
+    write_credentials(creds, scenario, run, "decentralized")
+    ports = free_ports(6)
+    eps = [f"tls/127.0.0.1:{p}" for p in ports]
+    common = ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END), "--log-level",
+              "WARNING", "--credentials", str(creds)]
+    logs, out = tmp_path / "logs", tmp_path / "out"
+    procs: list[ServiceProcess] = []
+    try:
+        plant = start_service("plant", [*common, "--listen", eps[0], "--out", str(out),
+                                        "--no-plots", "--quiet", "--timeout", "5"], logs)
+        procs.append(plant)
+        forger = start_service(
+            "forger", ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END),
+                       "--credentials", str(creds), "--identity", "robot-2", "--target", "2",
+                       "--attack", "settings", "--at", "20", "--sample-offset", str(offset),
+                       "--duration", "120", "--connect", eps[0], "--listen", eps[5]], logs,
+            name="forger")
+        procs.append(forger)
+        _wait_ready(forger, 60.0)
+        for j, rid in enumerate(scenario.ids, start=1):
+            procs.append(start_service("robot", ["--id", str(rid), *common, "--listen", eps[j],
+                                                 "--connect", eps[0]], logs,
+                                       name=f"robot-{rid}"))
+        status = plant.wait(90)
+    finally:
+        stop_processes(procs)
+    assert _summary(forger)["sent"]["settings"] == 1, forger.output()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["completed"] is True and metrics["steps"] == 40, plant.output()
+    assert metrics["collisions"] == 0
+    faulty = metrics["faulty_messages"]
+    assert faulty["1"] == faulty["3"] == faulty["4"] == 0
+    traj = np.load(out / "trajectory.npz")
+    assert not np.any(traj["inputs"][:, :, 0] == forged_speed(scenario.bounds.input_upper()))
+    assert "Traceback" not in plant.output()
+    if offset < 0:
+        assert status == 0, plant.output()
+        assert faulty["2"] == 0 and metrics["late_commands"] >= 1
+        reference = ClosedLoopSimulation(scenario.with_changes(t_end=T_END), "decentralized",
+                                         SolverSettings(),
+                                         SimulationOptions(decentralized_mode="shared")).run()
+        assert np.array_equal(traj["states"], reference.states)
+        assert np.array_equal(traj["inputs"], reference.inputs)
+    else:  # it reached the plant at sample 20 or, if the plant had moved on, was stale
+        assert faulty["2"] + metrics["late_commands"] >= 1
+        assert metrics["missed_deadlines"] == faulty["2"] <= 1
+        assert status == (2 if faulty["2"] else 0), plant.output()
+        if faulty["2"]:
+            assert "collision_margin 0.5 (the plant: 0.001)" in metrics["refused"]
+
+
+def _key_material(text: bytes) -> bool:
+    return b"PRIVATE KEY" in text or b"_private_key" in text or b"LS0tLS1CRUdJTi" in text
+
+
+def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
+    """``services.launch`` issues the credentials in memory and hands each child its own
+    over a socket: no private key in any file (the launcher's temporary folder is gone),
+    command line or environment, while running and after a SIGKILL of the launcher; every
+    process is non-dumpable (another unprivileged process of the user cannot read its
+    memory or descriptors)."""
+    before = set(os.listdir(tempfile.gettempdir()))
+    out = tmp_path / "out"
+    launcher = subprocess.Popen(
+        [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
+         "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots"],
+        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 90
+        record = out / "record.msgpack"
+        while time.monotonic() < deadline and not (record.exists()
+                                                   and record.stat().st_size > 0):
+            time.sleep(0.1)
+        children = child_pids(launcher.pid)
+        assert len(children) == 5, "plant and 4 robots"
+        for pid in children:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                argv = fh.read().split(b"\0")
+            assert b"--credentials-fd" in argv and b"--credentials" not in argv
+            with open(f"/proc/{pid}/environ", "rb") as fh:  # readable here: root
+                assert not _key_material(fh.read())
+        launcher.kill()  # SIGKILL: the children get SIGTERM (parent death signal)
+        launcher.wait(10)
+        deadline = time.monotonic() + 60
+        while any(pid_alive(pid) for pid in children) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(pid_alive(pid) for pid in children)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+    created = [Path(tempfile.gettempdir()) / n for n in set(os.listdir(tempfile.gettempdir()))
+               - before]
+    for root in [out, *[p for p in created if p.name.startswith("sqpmpc")]]:
+        for path in [root, *root.rglob("*")] if root.is_dir() else [root]:
+            if path.is_file():
+                assert not _key_material(path.read_bytes()), path
+    assert not [p for p in created if p.name.startswith("sqpmpc-credentials")]
+    assert json.loads((out / "metrics.json").read_text())["interrupted"] == "SIGTERM"
+    # what the services do with the handed-over socket: non-dumpable first
+    probe = subprocess.run(
+        [sys.executable, "-c", "import ctypes; from services.handover import make_private; "
+         "print(make_private(), ctypes.CDLL(None).prctl(3, 0, 0, 0, 0))"],
+        cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert probe.stdout.split() == ["True", "0"], probe.stderr

@@ -187,7 +187,8 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
 def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
     run = "kill"
     probe, plant, robots, _ = _start_run(
-        tmp_path, run, [1, 2, 3, 4], 150.0, plant_args=("--timeout", "0.3"),
+        tmp_path, run, [1, 2, 3, 4], 150.0, plant_args=("--timeout", "0.3",
+                                                         "--rejoin-timeout", "1"),
         robot_args=("--timeout", "0.05"), subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
@@ -314,3 +315,126 @@ def test_a_run_no_controller_ever_answered_is_not_a_success(tmp_path):
     assert m["missed_deadlines"] == 4 * m["steps"]
     assert "no controller ever sent an input for robots 1, 2, 3, 4" in plant.output()
     assert "Traceback" not in plant.output()
+
+
+def _newest(probe: Probe) -> int:
+    return max((decode(e.payload, 8).sample for e in probe.events), default=-1)
+
+
+def test_a_robot_killed_and_restarted_rejoins_the_lockstep_run(tmp_path):
+    """kill -9 of robot 2 at sample 20 of a lockstep run, then its command again: the plant
+    waits for it (``--rejoin-timeout``) and it rejoins at the sample where it left."""
+    run = "rejoin"
+    probe, plant, robots, plant_ep = _start_run(
+        tmp_path, run, [1, 2, 3, 4], T_END, plant_args=("--rejoin-timeout", "90"),
+        subscriptions=(("plant", "state"),))
+    procs = [plant, *robots.values()]
+    try:
+        assert probe.wait_for(lambda: _newest(probe) >= 20, 60), plant.output()
+        robots[2].proc.kill()
+        robots[2].wait(10)
+        assert probe.wait_for(lambda: "robot/2" not in probe.alive, 10)
+        robots[2] = start_service("robot", robots[2].argv[3:], tmp_path / "logs",
+                                  name="robot-2-again")
+        procs.append(robots[2])
+        assert plant.wait(90) == 0, plant.output()
+        for r in robots.values():
+            assert r.wait(30) == 0, r.output()
+    finally:
+        probe.close()
+        stop_processes(procs)
+    m = _metrics(tmp_path / "out")
+    assert m["completed"] is True and m["collisions"] == 0
+    assert m["missed_deadlines"] <= 1  # the sample it was killed in, at most
+    assert "robot/2 left at sample" in plant.output()
+    assert "robot/2 joined at sample" in plant.output()
+    final = np.load(tmp_path / "out" / "trajectory.npz")["states"][-1]
+    reference = _in_process("decentralized", T_END).states[-1]
+    assert np.max(np.hypot(*(final[:, :2] - reference[:, :2]).T)) < 0.1  # the fleet arrives
+
+
+def test_every_process_ends_with_one_line_when_the_others_are_gone(tmp_path):
+    """A robot with no plant gives up after --startup-timeout; a plant whose controllers all
+    left gives up after --rejoin-timeout and writes what it has."""
+    (port,) = free_ports(1)
+    alone = start_service("robot", ["--id", "1", "--scenario", SCENARIO, "--run", "nobody",
+                                    "--connect", f"tcp/127.0.0.1:{port}",
+                                    "--startup-timeout", "2"], tmp_path / "logs",
+                          name="robot-alone")
+    run = "orphan"
+    probe, plant, robots, _ = _start_run(tmp_path, run, [1, 2, 3, 4], 3000.0,
+                                         plant_args=("--rejoin-timeout", "2"),
+                                         subscriptions=(("plant", "state"),))
+    procs = [alone, plant, *robots.values()]
+    try:
+        assert alone.wait(60) == 1, alone.output()
+        assert probe.wait_for(lambda: _newest(probe) >= 5, 60), plant.output()
+        for r in robots.values():
+            r.proc.kill()
+        assert plant.wait(60) == 1, plant.output()
+    finally:
+        probe.close()
+        stop_processes(procs)
+    errors = [ln for ln in alone.output().splitlines() if "ERROR" in ln]
+    assert len(errors) == 1 and "no state from the plant within 2 s" in errors[0]
+    errors = [ln for ln in plant.output().splitlines() if "ERROR" in ln]
+    assert len(errors) == 1 and "every controller left" in errors[0], plant.output()
+    m = _metrics(tmp_path / "out")
+    assert m["completed"] is False and m["abandoned"] and m["steps"] >= 5
+    assert "Traceback" not in alone.output() + plant.output()
+
+
+def test_sigterm_during_start_up_leaves_a_readable_run_without_samples(tmp_path):
+    """SIGTERM to the launcher while every process still imports its modules: no traceback,
+    every child gone, and a run folder that says it has no samples."""
+    out = tmp_path / "early"
+    cmd = [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
+           "decentralized", "--out", str(out), "--no-plots"]
+    root = Path(__file__).resolve().parent.parent
+    launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                cwd=root)
+    try:
+        time.sleep(0.5)
+        launcher.send_signal(signal.SIGTERM)
+        stdout, err = launcher.communicate(timeout=90)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+    assert launcher.returncode == 128 + signal.SIGTERM, err
+    assert "Traceback" not in err + stdout and "killing" not in err, err
+    res = subprocess.run([sys.executable, "-m", "sqpmpc", "metrics", str(out)],
+                         capture_output=True, text=True, timeout=60, cwd=root)
+    assert res.returncode == 0 and "0 samples" in res.stdout, res.stderr
+    m = _metrics(out)
+    assert m["steps"] == 0 and m["completed"] is False and m["interrupted"] == "SIGINT"
+
+
+def test_oversized_and_too_frequent_messages_are_dropped_before_the_service(tmp_path):
+    """Zenoh's interceptors (services.limits) drop a payload above 64 KiB and what a robot
+    key carries faster than --max-rate before the plant's Python sees them."""
+    run = "limits"
+    (port,) = free_ports(1)
+    plant = start_service("plant", ["--scenario", SCENARIO, "--run", run, "--listen",
+                                    f"tcp/127.0.0.1:{port}", "--max-rate", "20",
+                                    "--startup-timeout", "600", "--out", str(tmp_path / "out"),
+                                    "--no-plots"], tmp_path / "logs")
+    probe = Probe(run, [f"tcp/127.0.0.1:{port}"])
+    try:
+        assert probe.wait_alive(["plant"], 60), plant.output()
+        probe.put(b"\x00" * (1 << 17), "robot", 1, "cmd")  # 128 KiB: dropped by Zenoh
+        time.sleep(0.2)
+        start = time.monotonic()
+        for _ in range(2000):  # small garbage, as fast as it goes: a few per 50 ms pass
+            probe.put(b"\x00garbage", "robot", 3, "cmd")
+        elapsed = time.monotonic() - start
+        probe.put(b"\x00garbage", "robot", 4, "cmd")  # another key: its own budget
+        time.sleep(1.0)
+    finally:
+        probe.close()
+        stop_processes([plant])
+    m = _metrics(tmp_path / "out")
+    faulty = m["faulty_messages"]
+    assert faulty["1"] == 0 and faulty["4"] == 1
+    assert 1 <= faulty["3"] <= 2 + 20 * (elapsed + 1.2) < 2000
+    assert m["invalid_messages_by_process"]["plant"] == faulty["3"] + faulty["4"]

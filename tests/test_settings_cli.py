@@ -70,7 +70,7 @@ def test_a_distributed_run_with_options_equals_sqpmpc_run(tmp_path: Path, scheme
     ("decentralized", ["--t-end", "30"], "robot/2 runs with t_end 30 (the plant: 20)"),
     ("centralized", ["--iteration", "sqp"], "central runs with iteration sqp (the plant: rti)"),
 ])
-def test_processes_with_other_settings_refuse_to_run_together(tmp_path: Path, scheme: str,
+def test_a_process_with_other_settings_is_braked_and_named(tmp_path: Path, scheme: str,
                                                              odd: list[str],
                                                              needle: str) -> None:
     port, *ports = free_ports(3)
@@ -104,7 +104,11 @@ def test_processes_with_other_settings_refuse_to_run_together(tmp_path: Path, sc
     assert "the plant runs with other" in odd_one.output() or \
         "the plant runs with another scenario" in odd_one.output()
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert m["completed"] is False and m["refused"] and needle in m["refused"]
+    # the run went on to its end, the odd controller's robots braked: never applied
+    assert m["completed"] is True and m["refused"] and needle in m["refused"]
+    braked = [2] if scheme == "decentralized" else [1, 2]
+    assert all(m["missed_deadlines_by_robot"][str(i)] == m["steps"] for i in braked)
+    assert m["collisions"] == 0
 
 
 def _one_error(res: subprocess.CompletedProcess[str], prog: str, *needles: str) -> None:

@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from sqpmpc.cli.main import animate, runlog
+from sqpmpc.cli import animate, runlog
 from sqpmpc.cli.options import (
     Parser,
     add_controller_options,
