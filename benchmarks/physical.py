@@ -45,9 +45,9 @@ from typing import Any
 import numpy as np
 
 from sqpmpc.io.metrics import compute_metrics
-from sqpmpc.problem.scenario import Bounds, Scenario
+from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario
-from sqpmpc.sim.physics import PhysicalSimulation, PhysicsFleet, RobotModel
+from sqpmpc.sim.physics import PhysicalRobot, PhysicalSimulation, PhysicsFleet
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import simulate
 
@@ -71,10 +71,11 @@ FROZEN_SECONDS = 2.0
 CLEAR_M = 0.3
 STILL_SPEED = 1e-3
 SCHEMES = ("centralized", "decentralized")
-HAS_ACCELERATION = "acceleration" in {f.name for f in dataclasses.fields(Bounds)}
+HAS_ACCELERATION = "acceleration" in {
+    f.name for f in dataclasses.fields(load_scenario("head-on").bounds)}
 
 
-def step_response(robot: RobotModel, v_max: float = 0.6, w_max: float = np.pi / 4,
+def step_response(robot: PhysicalRobot, v_max: float = 0.6, w_max: float = np.pi / 4,
                   sample_time: float = 0.5) -> dict[str, float]:
     """The robot's measured response to full steps (one robot alone, MuJoCo).
 
@@ -181,7 +182,7 @@ def tolerance_of(ideal: RunRecord) -> float:
     return max(GOAL_TOLERANCE, float(err.max()))
 
 
-def run_physical(scenario: Scenario, scheme: str, robot: RobotModel, ideal: RunRecord
+def run_physical(scenario: Scenario, scheme: str, robot: PhysicalRobot, ideal: RunRecord
                  ) -> dict[str, Any]:
     """One physical run with its counts against the ideal-plant ``ideal``."""
     started = time.perf_counter()
@@ -260,7 +261,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--no-write", action="store_true")
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    nominal = RobotModel()
+    nominal = PhysicalRobot()
     response = step_response(nominal)
     bounds = declared_bounds(response)
     lines = [

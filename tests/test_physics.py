@@ -13,9 +13,9 @@ from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.physics import (
     OVERLAP_TOLERANCE,
+    PhysicalRobot,
     PhysicalSimulation,
     PhysicsFleet,
-    RobotModel,
     load_mujoco,
 )
 
@@ -32,12 +32,12 @@ def test_a_missing_mujoco_is_one_error_naming_the_extra(monkeypatch: pytest.Monk
                                           ("physics_step", True)])
 def test_robot_model_refuses_bad_values(field: str, value: object) -> None:
     with pytest.raises(ProblemError, match=field):
-        RobotModel(**{field: value})
+        PhysicalRobot(**{field: value})
 
 
 def test_sample_time_must_be_a_multiple_of_the_physics_step() -> None:
     with pytest.raises(ProblemError, match="multiple"):
-        RobotModel().substeps(0.0503)
+        PhysicalRobot().substeps(0.0503)
 
 
 def _one_robot():

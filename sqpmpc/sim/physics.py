@@ -5,7 +5,7 @@ this module imports it only when a fleet is built and otherwise raises one
 :class:`~sqpmpc.errors.DependencyError` naming the extra.
 
 Every robot of the scenario becomes a differential-drive robot
-(:class:`RobotModel`): a cylindrical chassis of the robot's diameter and
+(:class:`PhysicalRobot`): a cylindrical chassis of the robot's diameter and
 ``mass`` (its inertia from the shape), two wheels on a track of
 ``track_fraction`` of the diameter, each driven by a velocity servo
 (torque :math:`\tau = k_v(\bar w - \dot\theta)` clipped to
@@ -39,8 +39,8 @@ from sqpmpc.problem.scenario import Scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, Scheme, SimulationOptions
 
-__all__ = ["PhysicalSimulation", "PhysicsFleet", "RobotModel", "fleet_xml", "load_mujoco",
-           "simulate_physical"]
+__all__ = ["OVERLAP_TOLERANCE", "PhysicalRobot", "PhysicalSimulation", "PhysicsFleet",
+           "fleet_xml", "load_mujoco", "simulate_physical"]
 
 #: Clearance below which a physics step counts as an overlap, m (the QP's 1 mm margin).
 OVERLAP_TOLERANCE = 1e-3
@@ -59,13 +59,13 @@ def load_mujoco() -> Any:
 def _positive(name: str, value: object, unit: str) -> float:
     if (isinstance(value, bool) or not isinstance(value, int | float | np.floating)
             or not math.isfinite(value) or value <= 0):
-        raise ProblemError(f"RobotModel.{name}: expected a finite number > 0 ({unit}), "
+        raise ProblemError(f"PhysicalRobot.{name}: expected a finite number > 0 ({unit}), "
                            f"got {value!r}")
     return float(value)
 
 
 @dataclass(frozen=True)
-class RobotModel:
+class PhysicalRobot:
     """The physical robot every robot of a scenario becomes.
 
     Parameters
@@ -111,7 +111,7 @@ class RobotModel:
                            ("physics_step", "s")):
             object.__setattr__(self, name, _positive(name, getattr(self, name), unit))
         if self.track_fraction >= 1.0:
-            raise ProblemError(f"RobotModel.track_fraction: expected a number in (0, 1) (the "
+            raise ProblemError(f"PhysicalRobot.track_fraction: expected a number in (0, 1) (the "
                                f"wheels inside the footprint), got {self.track_fraction!r}")
 
     def substeps(self, sample_time: float) -> int:
@@ -123,7 +123,7 @@ class RobotModel:
         return n
 
 
-def fleet_xml(scenario: Scenario, robot: RobotModel) -> str:
+def fleet_xml(scenario: Scenario, robot: PhysicalRobot) -> str:
     """The MJCF model of the scenario's robots at their initial poses (see module notes)."""
     r, tau, kv = robot.wheel_radius, robot.actuator_time_constant, robot.servo_gain
     mu = robot.friction
@@ -182,7 +182,7 @@ class PhysicsFleet:
     scenario
         The robots (diameters, initial states), obstacles and sample time.
     robot
-        The physical robot (default :class:`RobotModel`).
+        The physical robot (default :class:`PhysicalRobot`).
 
     Attributes
     ----------
@@ -192,10 +192,10 @@ class PhysicsFleet:
         none); lists of floats.
     """
 
-    def __init__(self, scenario: Scenario, robot: RobotModel | None = None) -> None:
+    def __init__(self, scenario: Scenario, robot: PhysicalRobot | None = None) -> None:
         mj = load_mujoco()
         self._mj = mj
-        self.robot = robot or RobotModel()
+        self.robot = robot or PhysicalRobot()
         self.scenario = scenario
         self.spec = scenario.plant
         self.substeps = self.robot.substeps(scenario.sample_time)
@@ -257,6 +257,19 @@ class PhysicsFleet:
             out[i, 1] = float(xmat[2] @ qv[a + 3:a + 6])
         return out
 
+    @property
+    def has_velocities(self) -> bool:
+        """Whether the controllers take the measured velocities: the scenario declares
+        acceleration bounds (CONTRACT 1c), so its robots have velocity states."""
+        return bool(getattr(self.scenario.bounds, "dynamic_limits", False))
+
+    def measure(self, states: np.ndarray) -> np.ndarray:
+        """What the robots' odometry gives the controllers: the poses ``states (n, 3)``,
+        with the measured velocities appended ``(n, 5)`` when :attr:`has_velocities`."""
+        if not self.has_velocities:
+            return states
+        return np.concatenate((states, self.velocities()), axis=1)
+
     def wheel_speeds(self, inputs: np.ndarray) -> np.ndarray:
         """The driver's wheel speed commands ``(n, 2)`` (left, right), rad/s, of ``(v, omega)``."""
         v, w = inputs[:, 0], inputs[:, 1]
@@ -304,7 +317,7 @@ class PhysicalSimulation(ClosedLoopSimulation):
     scenario, scheme, settings, options
         As for :class:`~sqpmpc.sim.simulation.ClosedLoopSimulation`.
     robot
-        The physical robot (default :class:`RobotModel`).
+        The physical robot (default :class:`PhysicalRobot`).
 
     Attributes
     ----------
@@ -317,7 +330,7 @@ class PhysicalSimulation(ClosedLoopSimulation):
     def __init__(self, scenario: Scenario, scheme: Scheme,
                  settings: SolverSettings | None = None,
                  options: SimulationOptions | None = None,
-                 robot: RobotModel | None = None) -> None:
+                 robot: PhysicalRobot | None = None) -> None:
         super().__init__(scenario, scheme, settings, options)
         self.fleet = PhysicsFleet(self.scenario, robot)
         self.plant = self.fleet
@@ -354,6 +367,6 @@ class PhysicalSimulation(ClosedLoopSimulation):
 def simulate_physical(scenario: Scenario, scheme: Scheme,
                       settings: SolverSettings | None = None,
                       options: SimulationOptions | None = None,
-                      robot: RobotModel | None = None) -> RunRecord:
+                      robot: PhysicalRobot | None = None) -> RunRecord:
     """Run a whole closed loop on the physics plant; see :class:`PhysicalSimulation`."""
     return PhysicalSimulation(scenario, scheme, settings, options, robot).run()
