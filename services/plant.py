@@ -92,7 +92,8 @@ from sqpmpc.cli.options import (
 )
 from sqpmpc.control.pipeline import braking_input
 from sqpmpc.io.files import write_run
-from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
+from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines
+from sqpmpc.io.reporting import summarize as summary_of
 from sqpmpc.io.runlog import RECORD_FILE, RecordWriter
 from sqpmpc.problem.plant import Plant
 from sqpmpc.problem.scenario import Scenario
@@ -140,7 +141,9 @@ class PlantNode(Node):
         self.scheme = args.scheme
         self.timeout = float(args.timeout)
         self.startup_timeout = float(args.startup_timeout)
-        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots)
+        limits = (scenario.bounds.acceleration_lower(), scenario.bounds.acceleration_upper()) \
+            if scenario.bounds.dynamic_limits else None  # CONTRACT 1c: velocities change within
+        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots, limits)
         self.method = scenario.plant.model
         n, steps = scenario.n_robots, scenario.steps
         self.t = scenario.sample_time * np.arange(steps + 1)
@@ -351,7 +354,8 @@ class PlantNode(Node):
         if self.writer is not None:
             self.writer.sample(k, self.inputs[k], self.states[k + 1], self.solve_times[k],
                                self.solver_failures - failures, sorted(missing),
-                               self.plant_inputs[k] if self.plant.spec.noisy else None)
+                               self.plant_inputs[k] if self.plant.spec.noisy
+                               or self.plant.has_velocities else None)
 
     def run(self) -> None:
         """Run the samples until ``t_end`` or a stop signal."""
@@ -467,7 +471,8 @@ class PlantNode(Node):
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
                          k == self.scenario.steps, extra,
-                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy
+                         or self.plant.has_velocities else None,
                          horizons=self.horizons[:k].copy())
 
     def never_controlled(self) -> list[int]:
@@ -480,24 +485,9 @@ class PlantNode(Node):
 
 
 def summarize(metrics: dict[str, Any]) -> str:
-    """One-paragraph summary of a distributed run's metrics."""
-    st = metrics.get("solve_time", {})
-    rms = metrics.get("rms_tracking_error", {})
-    return (
-        f"{metrics['scenario']} / {metrics['scheme']} ({metrics.get('mode')}): "
-        f"steps {metrics['steps']} (completed: {metrics.get('completed')}), "
-        f"min clearance {_num(metrics['min_clearance'])} m, collisions {metrics['collisions']}, "
-        f"missed deadlines {metrics.get('missed_deadlines')}, "
-        f"invalid messages {metrics.get('invalid_messages')}, "
-        f"solver failures {metrics['solver_failures']}, "
-        f"RMS error {', '.join(f'{k}: {_num(v)}' for k, v in rms.items())} m, "
-        f"{describe_solve_time({'solve_time': st})}, "
-        f"sample loop {_num(metrics.get('sample_loop_wall_s'))} s wall"
-    )
-
-
-def _num(value: Any) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
+    """A distributed run's summary: :func:`sqpmpc.io.reporting.summarize` (the same as
+    ``sqpmpc run``'s, plus deadlines and messages)."""
+    return summary_of(metrics)
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:

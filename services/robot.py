@@ -67,6 +67,7 @@ from .node import (
     setup_logging,
 )
 from .plans import PlanStore, StepPlans, recipients, slotted
+from .ros2.robot import add_ros2_arguments, main_ros2
 
 __all__ = ["RobotNode", "build_parser", "host", "main"]
 
@@ -278,6 +279,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "listening on a free loopback port)")
     add_common_arguments(parser)
     add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
+    add_ros2_arguments(parser)
     return parser
 
 
@@ -295,6 +297,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     problem = combination_problem(options_of(args), "decentralized", scenario.n_robots)
     if problem:
         fail(prog, problem)
+    if args.ros2:  # a ROS 2 robot on its own clock, no plant (services.ros2.robot)
+        return main_ros2(args, scenario, prog)
     if len(ids) > 1 and args.listen:
         fail(prog, "--listen takes one robot: with several --id every session listens on a "
                    "free loopback port")

@@ -62,6 +62,7 @@ class ObstacleRows:
         self.n_obstacles = len(self.obstacles)
         self._kinds = np.full(self.n_obstacles, 2, dtype=np.int8)  # obstacle slots
         self._stage_offsets = self.sample_time * np.arange(0, self.horizon + 1)
+        self._t = 0.0
         self.now = np.zeros((self.n_obstacles, 2))
         self.predicted = np.zeros((self.n_obstacles, self.horizon, 2))
         self._next = np.zeros((self.n_obstacles, 2))
@@ -74,6 +75,7 @@ class ObstacleRows:
 
     def set_sample(self, t: float, current_states: np.ndarray) -> None:
         """Obstacles at ``t`` and over the horizon; the own robots' states ``(m, 3)``."""
+        self._t = float(t)
         track = obstacle_positions(self.obstacles, t + self._stage_offsets)  # (N+1, O, 2)
         self.now = np.ascontiguousarray(track[0])
         self.predicted = np.ascontiguousarray(np.swapaxes(track[1:], 0, 1))
@@ -97,6 +99,27 @@ class ObstacleRows:
             cap = n1 @ self.current[r] + np.where(self._moving, np.maximum(reach, 0.0), 0.0)
             np.minimum(lower_out[r, :, 0], cap, out=lower_out[r, :, 0])
         self.stage_one_overrides = overrides
+
+    def braking_safe(self, paths: np.ndarray, growth: np.ndarray) -> bool:
+        """Every own robot's braking path ``paths (m, B+1, 2)`` (stage 1 on, one point a
+        sample) keeps its distance to every obstacle as they move on: segment ``j`` against
+        the obstacles' motion from stage ``1 + j`` to ``2 + j``; the path may stray
+        ``growth[r, j] * s`` from segment ``j`` (``growth (m, B)``)."""
+        B = paths.shape[1] - 1
+        if B < 1 or not self.n_obstacles:
+            return True
+        track = obstacle_positions(self.obstacles,
+                                   self._t + self.sample_time * np.arange(1, B + 2))
+        for j in range(B):
+            start = np.ascontiguousarray(track[j])
+            end = np.ascontiguousarray(track[j + 1])
+            for r in range(paths.shape[0]):
+                if not moving_points_keep_distance(
+                        float(paths[r, j, 0]), float(paths[r, j, 1]), float(paths[r, j + 1, 0]),
+                        float(paths[r, j + 1, 1]), start, end, self.safe_distance[r],
+                        float(growth[r, j])):
+                    return False
+        return True
 
     def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray) -> bool:
         """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its distance to every
