@@ -24,7 +24,8 @@ obstacle) overlap by more than 1 mm (the QP's margin); *arrived*, robots within
 0.05 m of their goals at the end (paper-s2's moving references: within the largest
 tracking error of the last tenth of the ideal-plant run); *frozen*, robots that
 command no speed for more than 2 s while their goal is more than 0.05 m away and
-every other robot and obstacle is more than 0.3 m away; the closed-loop cost
+every other robot and obstacle is more than 0.3 m beyond the distance the controller
+keeps (its rows' margin: with acceleration bounds it grows with them); the closed-loop cost
 against the ideal plant.
 
 Reproduce (writes ``docs/physical-robots.md``)::
@@ -136,14 +137,15 @@ def with_bounds(scenario: Scenario, bounds: tuple[float, float]) -> Scenario:
         scenario.bounds, acceleration=(-a, a), angular_acceleration=(-b, b)))
 
 
-def frozen_robots(record: RunRecord, clearances: np.ndarray) -> int:
+def frozen_robots(record: RunRecord, clearances: np.ndarray, margin: float = 0.0) -> int:
     """Robots commanding no speed for more than 2 s while their goal is more than 0.05 m
     away and the way is clear (``clearances (K+1, n)``: each robot's smallest clearance
-    to the others and the obstacles)."""
+    to the others and the obstacles, clear beyond ``margin`` + 0.3 m: the controller's
+    own margin is not free room)."""
     window = int(np.ceil(FROZEN_SECONDS / record.scenario.sample_time)) + 1
     err = np.linalg.norm(record.positions - record.references(), axis=-1)[:-1]
     still = np.abs(record.inputs[..., 0]) <= STILL_SPEED
-    bad = still & (err > GOAL_TOLERANCE) & (clearances[:-1] > CLEAR_M)
+    bad = still & (err > GOAL_TOLERANCE) & (clearances[:-1] > margin + CLEAR_M)
     count = 0
     for j in range(bad.shape[1]):
         run = 0
@@ -200,7 +202,7 @@ def run_physical(scenario: Scenario, scheme: str, robot: PhysicalRobot, ideal: R
         "min_obstacle_clearance": record.extra["physics_min_obstacle_clearance"],
         "arrived": sum(e <= tol for e in errors), "robots": scenario.n_robots,
         "tolerance": tol, "max_error": max(errors),
-        "frozen": frozen_robots(record, clear),
+        "frozen": frozen_robots(record, clear, sim.controllers[0].pair_margin),
         "brakes": sim.counters()["brake_fallbacks"],
         "cost_ratio": m["closed_loop_cost"] / ref["closed_loop_cost"],
         "wall_s": time.perf_counter() - started,

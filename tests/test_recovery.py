@@ -3,6 +3,8 @@ own loop, leads both schemes to separate the robots and then go on (``overlap-re
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,10 +18,15 @@ from sqpmpc.sim.simulation import ClosedLoopSimulation
 GOAL = 0.05
 
 
-def _push_run(scheme: str, scenario_name: str, depth: float) -> tuple[ClosedLoopSimulation, int]:
+def _push_run(scheme: str, scenario_name: str, depth: float, accelerations: bool = False
+              ) -> tuple[ClosedLoopSimulation, int]:
     """Run until robots 0 and 1 are within 1 m, push robot 0 to ``depth`` inside robot 1's
-    distance (its measured state), run to the end; returns the loop and the push sample."""
+    distance (its measured state), run to the end; returns the loop and the push sample.
+    ``accelerations``: the robots declare acceleration bounds (CONTRACT 1c)."""
     sc = load_scenario(scenario_name)
+    if accelerations:
+        sc = sc.with_changes(bounds=dataclasses.replace(
+            sc.bounds, acceleration=(-2.0, 2.0), angular_acceleration=(-7.0, 7.0)))
     sim = ClosedLoopSimulation(sc, scheme, SolverSettings())
     d = sc.required_distances()[0, 1]
     while np.linalg.norm(sim.states[sim.k, 0, :2] - sim.states[sim.k, 1, :2]) > 1.0:
@@ -32,11 +39,23 @@ def _push_run(scheme: str, scenario_name: str, depth: float) -> tuple[ClosedLoop
     return sim, k
 
 
+FROZEN_IN_BAND = pytest.mark.xfail(
+    strict=True, reason="robots with acceleration limits at rest just outside their distance: "
+    "the centralized check's linear path-deviation growth (|a| Ts^2 / 2 per robot) refuses "
+    "every input that does not separate the pair by that much in one sample, so the zero "
+    "shifted plan is applied for ever")
+
+
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
 @pytest.mark.parametrize("scenario_name", ["head-on", "swap-6"])
-def test_a_pushed_pair_separates_and_every_robot_arrives(scheme: str,
-                                                         scenario_name: str) -> None:
-    sim, k = _push_run(scheme, scenario_name, depth=0.1)
+@pytest.mark.parametrize("accelerations", [False, True], ids=["paper-robot", "accelerations"])
+def test_a_pushed_pair_separates_and_every_robot_arrives(scheme: str, scenario_name: str,
+                                                         accelerations: bool,
+                                                         request: pytest.FixtureRequest
+                                                         ) -> None:
+    if accelerations and scheme == "centralized" and scenario_name == "head-on":
+        request.applymarker(FROZEN_IN_BAND)
+    sim, k = _push_run(scheme, scenario_name, depth=0.1, accelerations=accelerations)
     rec = sim.record()
     sc = sim.scenario
     d = sc.required_distances()

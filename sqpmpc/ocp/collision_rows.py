@@ -192,7 +192,9 @@ class ExternalCollisionModel:
 
     def __init__(self, required: np.ndarray, horizon: int, geometry: RowGeometry,
                  reach: float = 0.0, margin: float = 0.0,
-                 stage_one_rule_for_obstacles: bool = True) -> None:
+                 stage_one_rule_for_obstacles: bool = True, recovery: float = -1.0) -> None:
+        #: tolerance of the ``overlap-recovery`` rule, m (negative: off)
+        self.recovery = float(recovery)
         self.safe_distance = np.asarray(required, dtype=float)
         self.required = self.safe_distance + float(margin)
         E = self.required.size
@@ -320,6 +322,13 @@ class ExternalCollisionModel:
                              self.kind, required, self.reach, self.geometry.rotation,
                              self.stage_one_rule_for_obstacles, normals, rhs)
 
+    def inside(self) -> np.ndarray:
+        """``(E,)`` shared slots whose pair is inside its true distance now (a push, a slip):
+        the ``overlap-recovery`` rule checks them against the current mid-line alone."""
+        gap = np.hypot(self.current_others[:, 0] - self.current_self[0],
+                       self.current_others[:, 1] - self.current_self[1])
+        return self._shared_mask & (gap < self.safe_distance)
+
     def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12,
                          alpha: float = 0.0, beta: float = 0.0) -> bool:
         r"""Whether this robot's next position ``(2,)`` keeps every true distance.
@@ -335,9 +344,18 @@ class ExternalCollisionModel:
         """
         p = position
         x0, y0 = float(self.current_self[0]), float(self.current_self[1])
+        normals, rhs = self.check_normals, self.check_rhs
+        if self._any_shared and self.recovery >= 0.0:
+            inside = self.inside()
+            if inside.any():  # overlap-recovery: no closer to the mid-line than now
+                if not halfplanes_hold_path(
+                        np.ascontiguousarray(normals[inside]), rhs[inside], x0, y0,
+                        float(p[0]), float(p[1]), 0.0, 0.0, self.recovery):
+                    return False
+                normals = np.ascontiguousarray(normals[~inside])
+                rhs = rhs[~inside]
         if self._any_shared and not halfplanes_hold_path(
-                self.check_normals, self.check_rhs, x0, y0, float(p[0]), float(p[1]),
-                alpha, beta, tolerance):
+                normals, rhs, x0, y0, float(p[0]), float(p[1]), alpha, beta, tolerance):
             return False
         if self._any_obstacle:
             obst = self.kind == OBSTACLE
