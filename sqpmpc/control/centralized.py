@@ -47,7 +47,7 @@ class CentralizedController(ControllerPipeline):
         self.pairs = pairs
         self.required = required
         self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
-                                                 self.geometry)
+                                                 self.geometry, self.recovery_tolerance)
         self._rows = {"internal": self.collisions}
         if self.obstacle_rows is not None:
             self._rows["external"] = self.obstacle_rows

@@ -129,6 +129,7 @@ class DecentralizedController(ControllerPipeline):
         self.collisions = ExternalCollisionModel(
             self.required[:slots], N, self.geometry, reach=scenario.sample_time * v_max,
             margin=self.pair_margin, stage_one_rule_for_obstacles=mode == "shared",
+            recovery=self.recovery_tolerance,
         )
         self._rows = {"external": self.collisions if self.obstacle_rows is None
                       else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
@@ -197,6 +198,8 @@ class DecentralizedController(ControllerPipeline):
             return False
         growth = largest_deviation(alpha, beta)                 # (B,)
         shared = c.kind == SHARED
+        inside = c.inside()
+        shared &= ~inside
         if shared.any():
             # each robot keeps half the true distance plus its own deviation: the rows' half
             # margin less the braking path's growth may be used
@@ -204,6 +207,12 @@ class DecentralizedController(ControllerPipeline):
             normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
             if (held < -slack - 1e-9).any():
+                return False
+        if inside.any():
+            # overlap-recovery: a pair already inside its distance cannot keep it; braking
+            # must not take this robot across the current mid-line's check line
+            held = pos @ c.check_normals[inside].T - c.check_rhs[inside]
+            if (held < -self.recovery_tolerance).any():
                 return False
         avoid = (c.kind == OBSTACLE) | (c.kind == MISSING)
         if avoid.any():

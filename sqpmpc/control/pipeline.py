@@ -66,7 +66,11 @@ from sqpmpc.rules.base import RuleContext, RuleInstance, SampleView
 if TYPE_CHECKING:
     from sqpmpc.control.plans import PlanMessage
 
-__all__ = ["ControlOutput", "ControllerPipeline", "braking_input", "kernel_warm_up_seconds"]
+__all__ = ["RECOVERY_TOLERANCE", "ControlOutput", "ControllerPipeline", "braking_input",
+           "kernel_warm_up_seconds"]
+
+#: Smallest tolerance of the ``overlap-recovery`` rule, m (the solver's accuracy).
+RECOVERY_TOLERANCE = 1e-4
 
 @functools.cache
 def kernel_warm_up_seconds() -> float:
@@ -201,13 +205,16 @@ class ControllerPipeline:
         self._noise_bound = plant.noise_bound
         #: the margin of the rows between two robots: solver tolerance + plant deviation
         self.pair_margin = settings.collision_margin + self.model_margin
+        #: tolerance of the ``overlap-recovery`` rule (:mod:`sqpmpc.ocp.collision_rows`), m
+        self.recovery_tolerance = max(settings.collision_margin, RECOVERY_TOLERANCE)
         self.obstacle_rows: ObstacleRows | None = None
         if scenario.obstacles:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
                 self.sample_time, self.geometry,
                 settings.collision_margin + 0.5 * self.model_margin,
-                (float(self.input_lower[0]), float(self.input_upper[0])))
+                (float(self.input_lower[0]), float(self.input_upper[0])),
+                self.recovery_tolerance)
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,

@@ -34,13 +34,20 @@ class ObstacleRows:
         Row geometry from the rules (the rotation is applied, as for neighbours).
     margin
         Added to :math:`D_{jo}` in the QP rows, m.
+    speed_bounds
+        :math:`(v_{\min}, v_{\max})`.
+    recovery
+        Tolerance of the ``overlap-recovery`` rule, m
+        (:func:`sqpmpc.kernels.collision.moving_points_keep_distance`); negative: off.
     """
 
     needs_states = True
 
     def __init__(self, obstacles: Sequence[Obstacle], diameters: np.ndarray, horizon: int,
                  sample_time: float, geometry: RowGeometry, margin: float,
-                 speed_bounds: tuple[float, float] = (0.0, 0.0)) -> None:
+                 speed_bounds: tuple[float, float] = (0.0, 0.0),
+                 recovery: float = -1.0) -> None:
+        self.recovery = float(recovery)
         self.obstacles = tuple(obstacles)
         d_o = np.array([o.diameter for o in self.obstacles])
         d = np.asarray(diameters, dtype=float)
@@ -119,7 +126,8 @@ class ObstacleRows:
                          beta: np.ndarray | None = None) -> bool:
         """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its distance to every
         obstacle over the sample (its path may stray ``growth[r] * s`` from the segment; with
-        ``beta``, ``growth[r] s + beta[r] s (1 - s)``)."""
+        ``beta``, ``growth[r] s + beta[r] s (1 - s)``); without ``beta``, a robot already
+        inside an obstacle's distance comes no closer to it (``overlap-recovery``, if on)."""
         if beta is not None:
             for r in range(now.shape[0]):
                 if not moving_points_keep_bulging_distance(
@@ -132,7 +140,7 @@ class ObstacleRows:
             if not moving_points_keep_distance(float(now[r, 0]), float(now[r, 1]),
                                                float(nxt[r, 0]), float(nxt[r, 1]), self.now,
                                                self._next, self.safe_distance[r],
-                                               float(growth[r])):
+                                               float(growth[r]), self.recovery):
                 return False
         return True
 
