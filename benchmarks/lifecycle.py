@@ -180,7 +180,7 @@ def render(restarts: list[dict], alone: dict, launches: list[dict], latest: floa
              "kill -9 of robot 2 at sample 20 and its command started again at once:", "",
              "| mode | samples | collisions (at / between) | arrived | largest final error m | "
              "robot 2 braked inputs | others' braked inputs | robot 2 rejoined at sample | "
-             "back after s | tracebacks | wall s |", "|" + "---|" * 11]
+             "kill to end of run s | tracebacks | wall s |", "|" + "---|" * 11]
     for r in restarts:
         lines.append(f"| {r['mode']} | {r['samples']} | {r['collisions']} | {r['arrived']} | "
                      f"{r['error']} | {r['braked']} | {r['others']} | {r['rejoined']} | "
