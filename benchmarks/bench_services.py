@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -40,10 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.metrics import RunRecord, compute_metrics
-from sqpmpc.scenario import Scenario, load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.record import RunRecord
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 
 from .report import publish, render_report
 from .rows import (

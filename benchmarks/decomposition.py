@@ -40,11 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.controllers import CentralizedController, ControlOutput, PlanMessage
-from sqpmpc.metrics import RunRecord, compute_metrics
-from sqpmpc.scenario import Scenario, builtin_scenario_names, load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions, simulate
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.pipeline import ControlOutput
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario
+from sqpmpc.sim.record import RunRecord
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions, simulate
 
 from .compare_ipopt import machine_info
 from .report import publish
@@ -58,7 +62,7 @@ DOC_PATH = Path(__file__).resolve().parents[1] / "docs" / "decomposition.md"
 class OraclePredictionSimulation(ClosedLoopSimulation):
     """Decentralized closed loop whose robots receive the centralized plans of each sample.
 
-    At sample ``k`` a :class:`~sqpmpc.controllers.CentralizedController`
+    At sample ``k`` a :class:`~sqpmpc.control.centralized.CentralizedController`
     solves on the measured states; robot ``j``'s plan of that solution is
     handed to every decentralized controller (robot ``j`` included) as the
     plan "published at ``k - 1``", shaped so that the controllers' one-step

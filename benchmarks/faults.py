@@ -52,9 +52,9 @@ from services.faults import ENV
 from services.messages import CmdMsg, DoneMsg, PlanMsg, StateMsg, decode, encode
 from services.node import scenario_digest
 from services.testing import Probe, free_ports, start_service, stop_processes
-from sqpmpc.runlog import read_record
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.io.runlog import read_record
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "reliability.md"
@@ -328,7 +328,7 @@ neighbour whose plans came late at 3 steps in a row (`plan_ages`, the largest ag
 last 10 samples), the plant
 relays the inputs' `plan_ages` with the next states, and both robots of a pair build
 their row from their plans of sample `k - a`, `a` the larger of the two ages
-(`sqpmpc.controllers.pair_sample`): the same number on both sides, from the same
+(`sqpmpc.control.plans.pair_sample`): the same number on both sides, from the same
 message. A robot that does not hold both plans of that sample (a plan later than
 usual) handles the pair as missing for that sample, which is safe whatever the other
 does. Stage 1 is clipped to the measured positions as before, so how old the plans
@@ -355,7 +355,7 @@ under random 1-3-sample delays, that both robots of every shared pair hold the s
   (braking input) is the last resort. Zenoh errors (a session that times out) are
   logged in one line and the loop goes on or ends cleanly: *tracebacks* counts the
   `Traceback` lines in every process's output.
-- **Late and lost plans are designed for** (`sqpmpc/controllers.py`): stage 1 and the
+- **Late and lost plans are designed for** (`sqpmpc/control/decentralized.py`): stage 1 and the
   first-input check use the measured positions and keep distance plus one-sample reach
   from a neighbour without a fresh plan; a shared row needs both robots' plans of the
   pair's agreed sample (above); a neighbour whose newest plan is `a >= 2` samples old

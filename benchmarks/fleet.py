@@ -5,11 +5,11 @@ Usage (from the repository root)::
     python -m benchmarks.fleet                       # writes docs/fleet.md
     python -m benchmarks.fleet --sizes 4 8 16 --budget 60 --no-write
 
-Every swap is :func:`sqpmpc.fleets.antipodal_swap` (radius ``3 sqrt(n/6)`` m:
+Every swap is :func:`sqpmpc.problem.fleets.antipodal_swap` (radius ``3 sqrt(n/6)`` m:
 the density of ``swap-6``; ``Ts = 0.5 s``, ``N = 8``; ``t_end`` three times the
 straight trip at full speed), run under several settings (:data:`CONFIGS`):
 the default settings (``"auto"``: OSQP and one collision slot per other robot
-up to :data:`~sqpmpc.settings.FLEET_ROBOTS` robots; above, 8 neighbour slots,
+up to :data:`~sqpmpc.control.settings.FLEET_ROBOTS` robots; above, 8 neighbour slots,
 with PIQP for the decentralized robots and OSQP for the centralized QP) for
 both schemes, and for comparison OSQP with 8 slots, PIQP with 8 slots, and
 OSQP with every robot in every QP (the path before fleets). Each run gets a
@@ -41,11 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.fleets import antipodal_swap, grid_to_grid, random_crossings
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.scenario import Scenario
-from sqpmpc.settings import FLEET_ROBOTS, SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.control.settings import FLEET_ROBOTS, SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid, random_crossings
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_line
 from .report import publish
@@ -126,7 +126,7 @@ every stage, pairs within reach that neither robot chose keep their stage-1 row 
 sample after next is then covered by the first-input check over every pair), pairs beyond
 reach get none; the pattern still holds every pair and only values change.
 
-**The roundabout rule** (`sqpmpc rules`; `sqpmpc/roundabout.py`). In a dense swap every
+**The roundabout rule** (`sqpmpc rules`; `sqpmpc/rules/roundabout.py`). In a dense swap every
 straight path ends in one jam at the centre, which the pairwise rules (keep-right, detour)
 only make rotate slowly in place: before this rule 15/16, 23/32 and 31/64 robots arrived.
 Conflict resolution for many vehicles whose paths cross is classically a roundabout

@@ -48,9 +48,10 @@ from services.launch import free_ports
 from services.messages import PlanMsg, StateMsg, encode
 from services.node import scenario_digest
 from services.transport import Bus
-from sqpmpc.fleets import antipodal_swap
-from sqpmpc.scenario import Scenario, load_scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.fleets import antipodal_swap
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 from .compare_ipopt import machine_line
 from .report import publish
@@ -270,7 +271,7 @@ def bench_realtime(out: Path, per_process: int, router: bool = True) -> dict[str
 
 def bench_lockstep(out: Path, per_process: int, router: bool = True) -> dict[str, Any]:
     """swap-64 lockstep over Zenoh against the in-process run."""
-    from sqpmpc.simulation import simulate
+    from sqpmpc.sim.simulation import simulate
 
     scenario = load_scenario("swap-64")
     run_out = out / "lockstep-64"

@@ -31,9 +31,9 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from sqpmpc.metrics import RunRecord
-from sqpmpc.model import discrete_dynamics
-from sqpmpc.scenario import Scenario
+from sqpmpc.models.unicycle import discrete_dynamics
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 
 __all__ = ["WARM_MU_INIT", "IpoptReference", "IpoptSample", "simulate_ipopt"]
 
@@ -42,7 +42,7 @@ WARM_MU_INIT = 1e-4
 
 
 def _f_d(x: ca.SX, u: ca.SX, h: float, method: str) -> ca.SX:
-    """Symbolic one-step unicycle model, same discretizations as :mod:`sqpmpc.model`."""
+    """Symbolic one-step unicycle model, same discretizations as :mod:`sqpmpc.models.unicycle`."""
 
     def f(xx: ca.SX) -> ca.SX:
         return ca.vertcat(u[0] * ca.cos(xx[2]), u[0] * ca.sin(xx[2]), u[1])

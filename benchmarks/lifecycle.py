@@ -40,7 +40,7 @@ import numpy as np
 from benchmarks.faults import arrival_tolerance
 from services.messages import decode
 from services.testing import REPO, Probe, free_ports, start_service, stop_processes
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 __all__ = ["BEGIN", "END", "main", "restart_case", "sigterm_launch"]
 

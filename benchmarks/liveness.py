@@ -7,7 +7,7 @@ from ``--seeds`` perturbed ones (independent Gaussian noise of ``--noise`` m on
 every position and ``--noise`` rad on every heading; one block per value), with
 sqpmpc's rules (``sqpmpc rules``) all on, without the two symmetry breakers
 (keep-right and detour) and with no rule at all, for contrast (the registry's
-names, :func:`sqpmpc.registry.select_rules`), and
+names, :func:`sqpmpc.rules.registry.select_rules`), and
 counts the runs in which every robot ends within 0.05 m of its goal, the
 collisions at and between samples, the fallbacks, the OSQP rescues and the
 samples iterated to convergence by the gear-cycle rule.
@@ -28,11 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.registry import select_rules
-from sqpmpc.scenario import Scenario, load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.registry import select_rules
+from sqpmpc.sim.simulation import simulate
 
 from .compare_ipopt import machine_line
 from .report import publish

@@ -9,14 +9,14 @@ Every QP of closed loops of ``paper-s2``, ``swap-6``, ``swap-16`` (both
 schemes) and ``swap-64`` (decentralized; the first controller of a
 decentralized run; each under the default settings, so the fleets' QPs have
 8 neighbour slots) is captured as it is handed to
-OSQP, with its warm start, then replayed the way :class:`sqpmpc.qp.SparseQP`
+OSQP, with its warm start, then replayed the way :class:`sqpmpc.qp.sparse.SparseQP`
 does it (set up once, values updated in place, warm-started) under:
 
 - OSQP with the library's settings and one change at a time;
 - PIQP (sparse interior point, ``SparseSolver.setup`` then ``update``);
 - DAQP (dense dual active set: one ``daqp.Model``, updated with each QP's
   values and hot-started from the previous active set, as
-  :mod:`sqpmpc.daqp_backend` runs it);
+  :mod:`sqpmpc.qp.daqp` runs it);
 - OSQP stopped at an iteration cap with PIQP solving the QPs it left (the
   times added per QP): a bounded-effort combination.
 
@@ -41,9 +41,10 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from sqpmpc.qp import OSQPSettings, SparseQP, solve_interior_point
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.qp.backend import OSQPSettings, solve_interior_point
+from sqpmpc.qp.sparse import SparseQP
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
 from .report import publish
@@ -203,7 +204,7 @@ def replay_piqp(qps: list[CapturedQP]) -> Replay:
 
 
 def replay_daqp(qps: list[CapturedQP]) -> Replay:
-    """DAQP as :mod:`sqpmpc.daqp_backend` runs it: one dense model, set up once, then
+    """DAQP as :mod:`sqpmpc.qp.daqp` runs it: one dense model, set up once, then
     updated with each QP's values and hot-started from the previous active set."""
     import daqp
 

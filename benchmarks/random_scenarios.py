@@ -32,10 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.scenario import Scenario, parse_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import SimulationOptions, simulate
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import parse_scenario
+from sqpmpc.sim.simulation import SimulationOptions, simulate
 
 from .compare_ipopt import machine_info
 from .report import publish

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.settings import SolverSettings
+from sqpmpc.control.settings import SolverSettings
 
 from .rows import (
     GOAL_TOLERANCE,

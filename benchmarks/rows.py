@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqpmpc.scenario import Scenario
+from sqpmpc.problem.scenario import Scenario
 
 __all__ = [
     "COMMAND",
@@ -58,7 +58,7 @@ class RowSpec:
     scheme
         ``"centralized"`` or ``"decentralized"``.
     settings
-        Keyword arguments of :class:`sqpmpc.rti.SolverSettings` (sqpmpc rows)
+        Keyword arguments of :class:`sqpmpc.control.settings.SolverSettings` (sqpmpc rows)
         or of :func:`benchmarks.ipopt_reference.simulate_ipopt` (IPOPT rows).
     """
 
@@ -102,7 +102,7 @@ class RowResult:
     spec
         The configuration.
     metrics
-        :func:`sqpmpc.metrics.compute_metrics` of the kept run.
+        :func:`sqpmpc.io.metrics.compute_metrics` of the kept run.
     timing
         sqpmpc only: summed ``assembly_s``, ``qp_s``, ``osqp_solve_s`` and
         ``total_s`` of the kept run (``None`` for IPOPT).

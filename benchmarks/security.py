@@ -43,7 +43,7 @@ import numpy as np
 from services.credentials import write_credentials
 from services.forger import forged_speed
 from services.testing import REPO, ServiceProcess, free_ports, start_service, stop_processes
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 __all__ = ["FLOODS", "Flood", "Probe", "main", "run_attacked", "run_flooded", "wait_ready"]
 

@@ -5,7 +5,7 @@ Usage (from the repository root)::
     python -m benchmarks.stages                      # paper-s2 and swap-6, both schemes
     python -m benchmarks.stages --scenarios head-on
 
-Each stage method of :class:`sqpmpc.pipeline.ControllerPipeline` is wrapped
+Each stage method of :class:`sqpmpc.control.pipeline.ControllerPipeline` is wrapped
 (on the benchmark's controller instances only) with a wall-clock timer, and a
 closed loop is run; the table gives the median and mean per controller sample
 of each stage, the QP's update + solve inside the solve stage, and the rest
@@ -24,9 +24,9 @@ from functools import wraps
 
 import numpy as np
 
-from sqpmpc.pipeline import ControllerPipeline
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.control.pipeline import ControllerPipeline
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
 

@@ -1,7 +1,7 @@
 """What the processes of one run must agree on, and how a mismatch is named.
 
 Every process computes :func:`agreed_settings` from its scenario (with the
-overrides), its scheme and its controller options (:mod:`sqpmpc.options`), and
+overrides), its scheme and its controller options (:mod:`sqpmpc.cli.options`), and
 its digest (:func:`settings_digest`). The plant sends the digest with every
 state; a controller whose digest differs does not step: it answers with one
 ``cmd`` carrying its own settings (``detail``) and exits with status 2, and the
@@ -17,9 +17,9 @@ import hashlib
 import json
 from collections.abc import Mapping
 
-from sqpmpc.options import RunOptions
-from sqpmpc.rules import Rule
-from sqpmpc.scenario import Scenario
+from sqpmpc.cli.options import RunOptions
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.rules.base import Rule
 
 __all__ = ["ADVICE", "agreed_settings", "describe_difference", "scenario_digest",
            "settings_digest"]

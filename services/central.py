@@ -5,7 +5,7 @@
 sqpmpc run] [--run R] [--connect EP] [--listen EP]`` (also ``sqpmpc central ...``)
 
 At every sample it waits for the plant's states of all robots, runs
-:class:`sqpmpc.controllers.CentralizedController` and publishes one ``cmd``
+:class:`sqpmpc.control.centralized.CentralizedController` and publishes one ``cmd``
 per robot (on each robot's key, carrying the whole computation time and the
 fallback flag), so the plant runs both schemes the same way; before them, each
 robot's plan on ``robot/<id>/plan`` (for the plant's recording and the viewer).
@@ -25,9 +25,9 @@ import time
 
 import zenoh
 
-from sqpmpc.controllers import CentralizedController
-from sqpmpc.options import Parser
-from sqpmpc.scenario import Scenario
+from sqpmpc.cli.options import Parser
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.problem.scenario import Scenario
 
 from .control import (
     ControllerNode,

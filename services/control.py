@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sqpmpc.controllers import CentralizedController, DecentralizedController
-from sqpmpc.options import add_controller_options, nonnegative_float, positive_float
-from sqpmpc.scenario import Scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.cli.options import add_controller_options, nonnegative_float, positive_float
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.scenario import Scenario
 
 from .agreement import ADVICE
 from .messages import CmdMsg, DoneMsg, Message, StateMsg, encode
@@ -54,7 +55,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str,
                              decentralized: bool = True) -> None:
     """The options both controller services take (read by :func:`controller_settings`):
     the process's own (timeouts, QP time limit) and the run's
-    (:func:`sqpmpc.options.add_controller_options`; ``decentralized``: the robots')."""
+    (:func:`sqpmpc.cli.options.add_controller_options`; ``decentralized``: the robots')."""
     parser.add_argument("--timeout", type=positive_float, default=5.0, help=timeout_help)
     parser.add_argument("--qp-time-limit", type=nonnegative_float, default=0.0,
                         help="bound on one QP solve and on one sample's iterations, s (0: "

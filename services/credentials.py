@@ -48,9 +48,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sqpmpc.cli.options import positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.options import positive_float
-from sqpmpc.scenario import Scenario, load_scenario
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 from .transport import check_run_name, run_prefix
 

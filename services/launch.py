@@ -70,8 +70,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sqpmpc import __version__
-from sqpmpc.errors import ProblemError
-from sqpmpc.options import (
+from sqpmpc.cli.options import (
     Parser,
     add_controller_options,
     combination_problem,
@@ -80,7 +79,8 @@ from sqpmpc.options import (
     positive_float,
     positive_int,
 )
-from sqpmpc.reporting import STATUS_PERIOD
+from sqpmpc.errors import ProblemError
+from sqpmpc.io.reporting import STATUS_PERIOD
 
 from .credentials import config_for, identities, issue, read_meta
 from .handover import Handover, make_private
@@ -254,6 +254,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                                            "Zenoh endpoint (the router with --router), e.g. "
                                            "a services.viewer's --listen (repeatable; tls/ "
                                            "unless --insecure)")
+    parser.add_argument("--ros2-demo", action="store_true",
+                        help="run simulated ROS 2 robots, one 'sqpmpc robot --ros2' each, "
+                             "instead (services.ros2.demo: its own options)")
     add_controller_options(parser, all_plans=True)
     return parser
 
@@ -357,6 +360,11 @@ def _credential_problem(args: argparse.Namespace) -> str | None:
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--ros2-demo" in argv:  # simulated ROS 2 robots, one --ros2 controller each
+        from .ros2.demo import main as ros2_demo
+
+        return ros2_demo([a for a in argv if a != "--ros2-demo"], prog)
     args = build_parser(prog).parse_args(argv)
     make_private()  # it holds every identity's key for a moment
     logging.basicConfig(level=logging.INFO, format="%(asctime)s launch %(message)s",

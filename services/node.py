@@ -24,15 +24,16 @@ from typing import NoReturn, TypeVar
 import zenoh
 
 from sqpmpc import __version__
-from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.options import (
+from sqpmpc.cli.options import (
     RunOptions,
     add_override_options,
     positive_float,
     resolve_options,
     with_overrides,
 )
-from sqpmpc.scenario import Scenario, load_scenario
+from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 from .agreement import agreed_settings, scenario_digest, settings_digest
 from .credentials import config_for

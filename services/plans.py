@@ -1,10 +1,10 @@
 """Plan filtering: a robot receives and decodes the plans of the robots that can matter.
 
 A decentralized robot with neighbour slots
-(:attr:`sqpmpc.settings.SolverSettings.neighbour_slots`) reads, at sample
+(:attr:`sqpmpc.control.settings.SolverSettings.neighbour_slots`) reads, at sample
 ``k``, the plans (of ``k - 1``) of the neighbours it gives a slot: the
 ``slots`` nearest within the interaction radius ``d + margin + 2 v_max N Ts``
-(:meth:`sqpmpc.controllers.DecentralizedController._select_neighbours`). Every
+(:meth:`sqpmpc.control.decentralized.DecentralizedController._select_neighbours`). Every
 other plan of the fleet is traffic it pays for and never uses.
 
 - The sender filters (:func:`recipients`): after its step at ``k`` a robot
@@ -35,8 +35,9 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
-from sqpmpc.collision_kernels import nearest_within
-from sqpmpc.controllers import DecentralizedController, PlanMessage
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.kernels.collision import nearest_within
 
 from .messages import InvalidMessage, MessageValidator, PlanMsg, peek_plan
 from .protocol import AcceptancePolicy, Verdict
@@ -51,7 +52,7 @@ def slotted(states: np.ndarray, controller: DecentralizedController, chosen: np.
     """Ids of the neighbours ``controller`` gives a slot at ``states`` (nearest first).
 
     The same kernel call as the controller's selection
-    (:meth:`~sqpmpc.controllers.DecentralizedController._select_neighbours`), on
+    (:meth:`~sqpmpc.control.decentralized.DecentralizedController._select_neighbours`), on
     the caller's scratch arrays ``chosen (slots,)`` and ``rest (n - 1,)``, so
     the set is exactly the one the controller's step will read plans of.
     """
@@ -289,7 +290,7 @@ class StepPlans(Mapping[int, PlanMessage]):
 
     def plan_at(self, robot_id: int, sample: int) -> PlanMessage | None:
         """The plan of candidate ``robot_id`` of ``sample`` (before this step's), if kept
-        (:class:`sqpmpc.controllers.PlanSource`)."""
+        (:class:`sqpmpc.control.plans.PlanSource`)."""
         if robot_id not in self._ids or sample >= self.sample:
             return None
         return self.store.at(robot_id, sample)

@@ -51,16 +51,16 @@ writes what it has and exits with status 1.
 A robot without an input (late, timed out, or its controller gone) gets the
 braking input (``v = omega = 0`` clipped to the bounds), counted in
 ``missed_deadlines``. The state advances with the scenario's ``[plant]`` model and
-input noise (:class:`sqpmpc.plant.Plant`), as in
-:class:`sqpmpc.simulation.ClosedLoopSimulation`.
+input noise (:class:`sqpmpc.problem.plant.Plant`), as in
+:class:`sqpmpc.sim.simulation.ClosedLoopSimulation`.
 It also keeps the plans the controllers publish on ``robot/<id>/plan``.
 With the states of ``k + 1`` it relays the ``plan_ages`` of the inputs it
 applied at ``k`` (the same to every robot: both robots of a pair agree on the
-plans of their shared row from it, :func:`sqpmpc.controllers.pair_sample`).
+plans of their shared row from it, :func:`sqpmpc.control.plans.pair_sample`).
 At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
 ``metrics.json``, ``trajectory.npz``, ``recording.mcap`` (with those plans) and the
 plots into ``--out``. As it goes it appends every sample to ``--out``/``record.msgpack``
-(:mod:`sqpmpc.runlog`, flushed every sample): after a ``kill -9`` of the plant,
+(:mod:`sqpmpc.io.runlog`, flushed every sample): after a ``kill -9`` of the plant,
 ``sqpmpc metrics DIR`` writes ``metrics.json`` and ``trajectory.npz`` from it.
 """
 
@@ -83,19 +83,21 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import braking_input
-from sqpmpc.metrics import RunRecord, write_run
-from sqpmpc.options import (
+from sqpmpc.cli.options import (
     Parser,
     add_controller_options,
     combination_problem,
     nonnegative_float,
     positive_float,
 )
-from sqpmpc.plant import Plant
-from sqpmpc.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
-from sqpmpc.runlog import RECORD_FILE, RecordWriter
-from sqpmpc.scenario import Scenario
+from sqpmpc.control.pipeline import braking_input
+from sqpmpc.io.files import write_run
+from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines
+from sqpmpc.io.reporting import summarize as summary_of
+from sqpmpc.io.runlog import RECORD_FILE, RecordWriter
+from sqpmpc.problem.plant import Plant
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 
 from .agreement import describe_difference
 from .messages import MAX_PLAN_AGES, CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
@@ -139,7 +141,9 @@ class PlantNode(Node):
         self.scheme = args.scheme
         self.timeout = float(args.timeout)
         self.startup_timeout = float(args.startup_timeout)
-        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots)
+        limits = (scenario.bounds.acceleration_lower(), scenario.bounds.acceleration_upper()) \
+            if scenario.bounds.dynamic_limits else None  # CONTRACT 1c: velocities change within
+        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots, limits)
         self.method = scenario.plant.model
         n, steps = scenario.n_robots, scenario.steps
         self.t = scenario.sample_time * np.arange(steps + 1)
@@ -180,7 +184,7 @@ class PlantNode(Node):
                                                                    STATUS_PERIOD)))
 
     def open_record(self, out: Path) -> None:
-        """Start the incremental record ``out/record.msgpack`` (:mod:`sqpmpc.runlog`)."""
+        """Start the incremental record ``out/record.msgpack`` (:mod:`sqpmpc.io.runlog`)."""
         settings = {"mode": self.mode, "plant_discretization": self.method,
                     "run": self.bus.prefix.rsplit("/", 1)[-1], "timeout": self.timeout}
         self.writer = RecordWriter(out / RECORD_FILE, self.scenario, self.scheme,
@@ -350,7 +354,8 @@ class PlantNode(Node):
         if self.writer is not None:
             self.writer.sample(k, self.inputs[k], self.states[k + 1], self.solve_times[k],
                                self.solver_failures - failures, sorted(missing),
-                               self.plant_inputs[k] if self.plant.spec.noisy else None)
+                               self.plant_inputs[k] if self.plant.spec.noisy
+                               or self.plant.has_velocities else None)
 
     def run(self) -> None:
         """Run the samples until ``t_end`` or a stop signal."""
@@ -466,7 +471,8 @@ class PlantNode(Node):
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
                          k == self.scenario.steps, extra,
-                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy
+                         or self.plant.has_velocities else None,
                          horizons=self.horizons[:k].copy())
 
     def never_controlled(self) -> list[int]:
@@ -479,24 +485,9 @@ class PlantNode(Node):
 
 
 def summarize(metrics: dict[str, Any]) -> str:
-    """One-paragraph summary of a distributed run's metrics."""
-    st = metrics.get("solve_time", {})
-    rms = metrics.get("rms_tracking_error", {})
-    return (
-        f"{metrics['scenario']} / {metrics['scheme']} ({metrics.get('mode')}): "
-        f"steps {metrics['steps']} (completed: {metrics.get('completed')}), "
-        f"min clearance {_num(metrics['min_clearance'])} m, collisions {metrics['collisions']}, "
-        f"missed deadlines {metrics.get('missed_deadlines')}, "
-        f"invalid messages {metrics.get('invalid_messages')}, "
-        f"solver failures {metrics['solver_failures']}, "
-        f"RMS error {', '.join(f'{k}: {_num(v)}' for k, v in rms.items())} m, "
-        f"{describe_solve_time({'solve_time': st})}, "
-        f"sample loop {_num(metrics.get('sample_loop_wall_s'))} s wall"
-    )
-
-
-def _num(value: Any) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
+    """A distributed run's summary: :func:`sqpmpc.io.reporting.summarize` (the same as
+    ``sqpmpc run``'s, plus deadlines and messages)."""
+    return summary_of(metrics)
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:

@@ -7,11 +7,11 @@
 
 At sample ``k`` the robot waits for the plant's states of sample ``k`` and
 for the plan its shared row with each neighbour is built from (of sample
-:func:`sqpmpc.controllers.pair_sample`: ``k - 1``, or older when plans have
+:func:`sqpmpc.control.plans.pair_sample`: ``k - 1``, or older when plans have
 been late, from the ``plan_ages`` the plant relays with the states) of every
 neighbour whose liveliness token is present and was present at its step
 ``k - 1`` (up to ``--timeout`` in lockstep, a fifth of the plant's budget in
-real time), then calls :class:`sqpmpc.controllers.DecentralizedController`
+real time), then calls :class:`sqpmpc.control.decentralized.DecentralizedController`
 exactly as the in-process simulation does: ``plans`` holds, per neighbour, the
 newest plan computed before sample ``k`` (and any older one kept, on request),
 ``previous_states`` the states of ``k - 1``, ``plan_ages`` the relayed
@@ -42,10 +42,11 @@ from contextlib import AbstractContextManager, nullcontext
 import numpy as np
 import zenoh
 
-from sqpmpc.controllers import DecentralizedController, pair_sample
+from sqpmpc.cli.options import Parser, combination_problem
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import pair_sample
 from sqpmpc.errors import ProblemError
-from sqpmpc.options import Parser, combination_problem
-from sqpmpc.scenario import Scenario
+from sqpmpc.problem.scenario import Scenario
 
 from .control import (
     ControllerNode,
@@ -66,6 +67,7 @@ from .node import (
     setup_logging,
 )
 from .plans import PlanStore, StepPlans, recipients, slotted
+from .ros2.robot import add_ros2_arguments, main_ros2
 
 __all__ = ["RobotNode", "build_parser", "host", "main"]
 
@@ -277,6 +279,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "listening on a free loopback port)")
     add_common_arguments(parser)
     add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
+    add_ros2_arguments(parser)
     return parser
 
 
@@ -294,6 +297,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     problem = combination_problem(options_of(args), "decentralized", scenario.n_robots)
     if problem:
         fail(prog, problem)
+    if args.ros2:  # a ROS 2 robot on its own clock, no plant (services.ros2.robot)
+        return main_ros2(args, scenario, prog)
     if len(ids) > 1 and args.listen:
         fail(prog, "--listen takes one robot: with several --id every session listens on a "
                    "free loopback port")

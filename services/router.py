@@ -29,8 +29,8 @@ import threading
 import zenoh
 
 from sqpmpc import __version__
+from sqpmpc.cli.options import Parser
 from sqpmpc.errors import ProblemError
-from sqpmpc.options import Parser
 
 from .credentials import config_for
 from .node import add_credential_arguments, install_signal_handlers, setup_logging

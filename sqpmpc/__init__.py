@@ -34,55 +34,56 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from sqpmpc.version import __version__
 
 # public name -> module that defines it
 _EXPORTS: dict[str, str] = {
     # scenarios
-    "Bounds": "scenario",
-    "RobotSpec": "scenario",
-    "Scenario": "scenario",
-    "Weights": "scenario",
-    "builtin_scenario_names": "scenario",
-    "load_scenario": "scenario",
-    "parse_scenario": "scenario",
-    "Obstacle": "obstacles",
-    "Plant": "plant",
-    "PlantSpec": "plant",
-    "antipodal_swap": "fleets",
-    "grid_to_grid": "fleets",
-    "random_crossings": "fleets",
+    "Bounds": "problem.scenario",
+    "RobotSpec": "problem.scenario",
+    "Scenario": "problem.scenario",
+    "Weights": "problem.scenario",
+    "builtin_scenario_names": "problem.scenario_file",
+    "load_scenario": "problem.scenario_file",
+    "parse_scenario": "problem.scenario_file",
+    "Obstacle": "problem.obstacles",
+    "Plant": "problem.plant",
+    "PlantSpec": "problem.plant",
+    "antipodal_swap": "problem.fleets",
+    "grid_to_grid": "problem.fleets",
+    "random_crossings": "problem.fleets",
     # references
-    "HarmonicReference": "references",
-    "PointReference": "references",
-    "Reference": "references",
-    "WaypointReference": "references",
-    "reference_from_dict": "references",
+    "HarmonicReference": "problem.references",
+    "PointReference": "problem.references",
+    "Reference": "problem.references",
+    "WaypointReference": "problem.references",
+    "reference_from_dict": "problem.references",
     # settings and rules
-    "OSQPSettings": "qp",
-    "SolverSettings": "settings",
-    "RULES": "registry",
-    "Rule": "rules",
-    "default_rules": "registry",
-    "describe_rules": "registry",
-    "rule_names": "registry",
-    "select_rules": "registry",
+    "OSQPSettings": "qp.backend",
+    "SolverSettings": "control.settings",
+    "RULES": "rules.registry",
+    "Rule": "rules.base",
+    "default_rules": "rules.registry",
+    "describe_rules": "rules.registry",
+    "rule_names": "rules.registry",
+    "select_rules": "rules.registry",
     # controllers
-    "CentralizedController": "controllers",
-    "ControlOutput": "controllers",
-    "DecentralizedController": "controllers",
-    "IterationReport": "rti",
-    "PlanMessage": "controllers",
+    "CentralizedController": "control.centralized",
+    "ControlOutput": "control.pipeline",
+    "DecentralizedController": "control.decentralized",
+    "IterationReport": "ocp.report",
+    "PlanMessage": "control.plans",
     # closed loop, records and metrics
-    "ClosedLoopSimulation": "simulation",
-    "SimulationOptions": "simulation",
-    "simulate": "simulation",
-    "RunRecord": "metrics",
-    "compute_metrics": "metrics",
-    "load_trajectory": "metrics",
-    "write_metrics": "metrics",
-    "write_run": "metrics",
-    "write_trajectory": "metrics",
+    "ClosedLoopSimulation": "sim.simulation",
+    "SimulationOptions": "sim.simulation",
+    "simulate": "sim.simulation",
+    "RunRecord": "sim.record",
+    "RunRecorder": "io.recorder",
+    "compute_metrics": "io.metrics",
+    "load_trajectory": "io.files",
+    "write_metrics": "io.files",
+    "write_run": "io.files",
+    "write_trajectory": "io.files",
     # errors
     "ProblemError": "errors",
     "ScenarioError": "errors",
@@ -127,6 +128,7 @@ __all__ = [
     "SimulationOptions",
     "simulate",
     "RunRecord",
+    "RunRecorder",
     "compute_metrics",
     "load_trajectory",
     "write_metrics",
@@ -139,46 +141,40 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # the same names, for type checkers and editors
-    from .controllers import (
-        CentralizedController,
-        ControlOutput,
-        DecentralizedController,
-        PlanMessage,
-    )
-    from .errors import ProblemError, ScenarioError, SolverError, SqpmpcError
-    from .fleets import antipodal_swap, grid_to_grid, random_crossings
-    from .metrics import (
-        RunRecord,
-        compute_metrics,
-        load_trajectory,
-        write_metrics,
-        write_run,
-        write_trajectory,
-    )
-    from .obstacles import Obstacle
-    from .plant import Plant, PlantSpec
-    from .qp import OSQPSettings
-    from .references import (
+    from sqpmpc.control.centralized import CentralizedController
+    from sqpmpc.control.decentralized import DecentralizedController
+    from sqpmpc.control.pipeline import ControlOutput
+    from sqpmpc.control.plans import PlanMessage
+    from sqpmpc.control.settings import SolverSettings
+    from sqpmpc.errors import ProblemError, ScenarioError, SolverError, SqpmpcError
+    from sqpmpc.io.files import load_trajectory, write_metrics, write_run, write_trajectory
+    from sqpmpc.io.metrics import compute_metrics
+    from sqpmpc.io.recorder import RunRecorder
+    from sqpmpc.ocp.report import IterationReport
+    from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid, random_crossings
+    from sqpmpc.problem.obstacles import Obstacle
+    from sqpmpc.problem.plant import Plant, PlantSpec
+    from sqpmpc.problem.references import (
         HarmonicReference,
         PointReference,
         Reference,
         WaypointReference,
         reference_from_dict,
     )
-    from .registry import RULES, default_rules, describe_rules, rule_names, select_rules
-    from .rti import IterationReport
-    from .rules import Rule
-    from .scenario import (
-        Bounds,
-        RobotSpec,
-        Scenario,
-        Weights,
-        builtin_scenario_names,
-        load_scenario,
-        parse_scenario,
+    from sqpmpc.problem.scenario import Bounds, RobotSpec, Scenario, Weights
+    from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario, parse_scenario
+    from sqpmpc.qp.backend import OSQPSettings
+    from sqpmpc.rules.base import Rule
+    from sqpmpc.rules.registry import (
+        RULES,
+        default_rules,
+        describe_rules,
+        rule_names,
+        select_rules,
     )
-    from .settings import SolverSettings
-    from .simulation import ClosedLoopSimulation, SimulationOptions, simulate
+    from sqpmpc.sim.record import RunRecord
+    from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions, simulate
+
 
 
 def __getattr__(name: str) -> Any:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sqpmpc.controllers import CentralizedController
-from sqpmpc.rules import SampleView
-from sqpmpc.scenario import Scenario, parse_scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import parse_scenario
+from sqpmpc.rules.base import SampleView
 
 __all__ = ["fleet", "only", "view"]
 
@@ -40,6 +41,6 @@ def view(ctrl: CentralizedController, states: np.ndarray, applied: np.ndarray | 
 
 def only(*names: str) -> SolverSettings:
     """Settings with only the named rules."""
-    from sqpmpc.registry import select_rules
+    from sqpmpc.rules.registry import select_rules
 
     return SolverSettings(rules=select_rules(list(names)))

@@ -1,4 +1,4 @@
-"""Real :class:`sqpmpc.scenario.Scenario` objects for unit tests, built in code."""
+"""Real :class:`sqpmpc.problem.scenario.Scenario` objects for unit tests, built in code."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sqpmpc.scenario import Scenario, parse_scenario
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import parse_scenario
 
 __all__ = ["circle_scenario", "goal_scenario"]
 

@@ -6,13 +6,12 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 CONTRACT_KEYS = {
     "scenario", "scheme", "steps", "sample_time", "horizon", "min_distance", "min_clearance",
@@ -87,7 +86,7 @@ def test_bad_rule_options_are_refused_by_name(tmp_path: Path, args: list[str],
 
 
 def test_rules_subcommand_lists_every_rule_and_safety_row() -> None:
-    from sqpmpc.registry import SAFETY_ROWS, rule_names
+    from sqpmpc.rules.registry import SAFETY_ROWS, rule_names
 
     proc = run_cli("rules")
     assert proc.returncode == 0
@@ -112,11 +111,15 @@ def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
     long.write_text(load_scenario("paper-s2").with_changes(t_end=100000.0).to_toml())
     proc = subprocess.Popen(
         [sys.executable, "-m", "sqpmpc", "run", str(long), "--scheme", "decentralized",
-         "--out", str(out), "--no-plots", "--quiet"],
+         "--out", str(out), "--no-plots", "--status-every", "0.2"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(5.0)  # past the imports (a SIGINT there would not reach the run loop)
+    # the first status line says the loop runs (however long the imports took)
+    line = proc.stderr.readline()
+    while line and not line.startswith("paper-s2 decentralized: sample"):
+        line = proc.stderr.readline()
+    assert line, "the run ended without a status line"
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["completed"] is False
@@ -136,7 +139,7 @@ def _bad_cases() -> list[tuple[str, str, str]]:
 def test_every_kind_of_bad_file_exits_2_with_one_message(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], description: str, text: str,
         key: str) -> None:
-    from sqpmpc.cli import main
+    from sqpmpc.cli.main import main
 
     path = tmp_path / "bad-case.toml"
     path.write_text(text, encoding="utf-8")

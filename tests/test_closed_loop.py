@@ -5,12 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController, DecentralizedController, PlanMessage
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.qp import OSQPSettings
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions, simulate
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.qp.backend import OSQPSettings
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions, simulate
 
 
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from benchmarks.decomposition import OraclePredictionSimulation
-from sqpmpc import controllers
-from sqpmpc.collision import SHARED
-from sqpmpc.controllers import DecentralizedController
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.scenario import load_scenario
+from sqpmpc.control import decentralized as controllers
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.ocp.collision_rows import SHARED
+from sqpmpc.problem.scenario_file import load_scenario
 
 
 def test_oracle_plans_reach_every_robot_unshifted() -> None:
@@ -41,7 +41,7 @@ def test_paper_mode_warns_once(caplog: pytest.LogCaptureFixture,
                                monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(controllers, "_paper_mode_warned", False)
     sc = load_scenario("head-on")
-    with caplog.at_level(logging.WARNING, logger="sqpmpc.controllers"):
+    with caplog.at_level(logging.WARNING, logger="sqpmpc.control.decentralized"):
         DecentralizedController(sc, 1, mode="paper")
         DecentralizedController(sc, 2, mode="paper")
         DecentralizedController(sc, 1)

@@ -22,10 +22,10 @@ from services.messages import InvalidMessage, MessageValidator, PlanMsg, encode,
 from services.plans import PlanStore, StepPlans, recipients
 from services.protocol import AcceptancePolicy
 from services.testing import child_pids, pid_alive
-from sqpmpc.collision_kernels import nearest_within
-from sqpmpc.fleets import antipodal_swap
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.kernels.collision import nearest_within
+from sqpmpc.problem.fleets import antipodal_swap
+from sqpmpc.sim.simulation import simulate
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.fleets import antipodal_swap, grid_to_grid, random_crossings
-from sqpmpc.scenario import Scenario, load_scenario, parse_scenario
+from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid, random_crossings
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario, parse_scenario
 
 
 def _checks(sc: Scenario) -> None:
@@ -94,8 +95,8 @@ def test_generate_command_writes_a_loadable_file_or_refuses_once(tmp_path: Path)
 def test_a_random_crossing_of_twenty_four_arrives_without_collision(seed: int) -> None:
     """Decentralized with the default (fleet) settings: 0 collisions at and between
     samples, every robot within 0.05 m of its goal at the end, counters consistent."""
-    from sqpmpc.metrics import compute_metrics
-    from sqpmpc.simulation import ClosedLoopSimulation
+    from sqpmpc.io.metrics import compute_metrics
+    from sqpmpc.sim.simulation import ClosedLoopSimulation
 
     scenario = random_crossings(24, seed)
     sim = ClosedLoopSimulation(scenario, "decentralized")

@@ -2,7 +2,7 @@
 
 - the message decoder and validator (:mod:`services.messages`): any payload
   either decodes to a message or raises :class:`InvalidMessage`, nothing else;
-- the scenario loader (:mod:`sqpmpc.scenario` from TOML text): any text either
+- the scenario loader (:mod:`sqpmpc.problem.scenario` from TOML text): any text either
   gives a :class:`Scenario` within the size limits or raises one
   :class:`ScenarioError`, nothing else.
 
@@ -35,16 +35,15 @@ from services.messages import (
 )
 from services.protocol import AcceptancePolicy, StateCursor, Verdict
 from sqpmpc.errors import ScenarioError
-from sqpmpc.scenario import (
+from sqpmpc.problem.scenario import (
     MAX_HORIZON,
     MAX_ROBOT_SAMPLES,
     MAX_ROBOTS,
     MAX_STEPS,
     MIN_SAMPLE_TIME,
     Scenario,
-    _parse_text,
-    load_scenario,
 )
+from sqpmpc.problem.scenario_file import _parse_text, load_scenario
 
 EXAMPLES = int(os.environ.get("SQPMPC_FUZZ_EXAMPLES", "1000"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True,

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from sqpmpc import collision_kernels, kernels
-from sqpmpc.collision import segment_distances
-from sqpmpc.layout import A_PATTERN, B_PATTERN, QPLayout
-from sqpmpc.model import discrete_dynamics, discrete_jacobians, rollout
+from sqpmpc.kernels import collision as collision_kernels
+from sqpmpc.kernels import ocp as kernels
+from sqpmpc.models.unicycle import discrete_dynamics, discrete_jacobians, rollout
+from sqpmpc.problem.paths import segment_distances
+from sqpmpc.qp.layout import A_PATTERN, B_PATTERN, QPLayout
 
 RNG = np.random.default_rng(7)
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from sqpmpc.controllers import CentralizedController
-from sqpmpc.model import discrete_dynamics
-from sqpmpc.qp import OSQPSettings
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.models.unicycle import discrete_dynamics
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.qp.backend import OSQPSettings
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 
 def _nlp_functions(ctrl: CentralizedController, x_meas: np.ndarray, t: float):

@@ -11,12 +11,13 @@ import pytest
 
 from services.faults import ENV
 from services.testing import free_ports, start_service, stop_processes
-from sqpmpc.collision import SHARED
-from sqpmpc.controllers import DecentralizedController, pair_sample
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.model import discrete_dynamics
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import pair_sample
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.models.unicycle import discrete_dynamics
+from sqpmpc.ocp.collision_rows import SHARED
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 
 
 def test_the_margin_grows_with_the_age_of_the_newest_plan():

@@ -11,16 +11,10 @@ import numpy as np
 import pytest
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.metrics import (
-    RunRecord,
-    compute_metrics,
-    intersample_distances,
-    load_trajectory,
-    write_metrics,
-    write_run,
-    write_trajectory,
-)
-from sqpmpc.scenario import Scenario
+from sqpmpc.io.files import load_trajectory, write_metrics, write_run, write_trajectory
+from sqpmpc.io.metrics import compute_metrics, intersample_distances
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
 from tests.scenarios import goal_scenario
 
 CONTRACT_KEYS = {
@@ -285,5 +279,6 @@ def test_write_run_without_plots(tmp_path: Path) -> None:
     pos[:, 1, 0] = 1.0
     m = write_run(tmp_path, make_record(two_robots(), pos), plots=False,
                   plotter=_raising_plotter)
-    assert sorted(os.listdir(tmp_path)) == ["metrics.json", "recording.mcap", "trajectory.npz"]
+    assert sorted(os.listdir(tmp_path)) == ["metrics.json", "record.msgpack", "recording.mcap",
+                                            "trajectory.npz"]
     assert json.loads((tmp_path / "metrics.json").read_text()) == m

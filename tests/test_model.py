@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.model import (
+from sqpmpc.models.unicycle import (
     discrete_dynamics,
     discrete_jacobians,
     estimate_input,

@@ -6,13 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.collision import OFF, SHARED
-from sqpmpc.controllers import CentralizedController, DecentralizedController, PlanMessage
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.fleets import antipodal_swap
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.ocp.collision_rows import OFF, SHARED
+from sqpmpc.problem.fleets import antipodal_swap
+from sqpmpc.sim.simulation import simulate
 from tests.rule_helpers import fleet
 
 
@@ -115,7 +117,7 @@ def test_bad_slot_budget_is_refused(value: object) -> None:
 
 
 def test_auto_settings_pick_the_fleet_path_above_the_fleet_size() -> None:
-    from sqpmpc.settings import FLEET_NEIGHBOUR_SLOTS, FLEET_QP_SOLVER, FLEET_ROBOTS
+    from sqpmpc.control.settings import FLEET_NEIGHBOUR_SLOTS, FLEET_QP_SOLVER, FLEET_ROBOTS
 
     auto = SolverSettings()
     small = auto.resolved(FLEET_ROBOTS)

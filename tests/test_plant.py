@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.model import DISCRETIZATIONS, discrete_dynamics
-from sqpmpc.plant import (
+from sqpmpc.models.unicycle import DISCRETIZATIONS, discrete_dynamics
+from sqpmpc.problem.plant import (
     NOISE_TRUNCATION,
     Plant,
     PlantSpec,
@@ -15,9 +16,8 @@ from sqpmpc.plant import (
     model_margin,
     path_deviation,
 )
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import SimulationOptions, simulate
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import SimulationOptions, simulate
 
 S = np.linspace(0.0, 1.0, 201)
 
@@ -98,7 +98,7 @@ def _check_safe(metrics: dict) -> None:
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
 @pytest.mark.parametrize("discretization", ["euler", "exact"])
 def test_head_on_on_an_exact_plant_is_safe_and_arrives(scheme: str, discretization: str) -> None:
-    from sqpmpc.metrics import compute_metrics
+    from sqpmpc.io.metrics import compute_metrics
 
     scenario = load_scenario("head-on")
     record = simulate(scenario, scheme, SolverSettings(discretization=discretization),
@@ -114,7 +114,7 @@ def test_head_on_on_an_exact_plant_is_safe_and_arrives(scheme: str, discretizati
 
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
 def test_corridor_is_crossed_both_ways_without_touching_a_pillar(scheme: str) -> None:
-    from sqpmpc.metrics import compute_metrics
+    from sqpmpc.io.metrics import compute_metrics
 
     scenario = load_scenario("corridor")
     assert len(scenario.obstacles) == 18
@@ -129,7 +129,7 @@ def test_corridor_is_crossed_both_ways_without_touching_a_pillar(scheme: str) ->
 
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
 def test_input_noise_is_recorded_and_stays_safe(scheme: str) -> None:
-    from sqpmpc.metrics import compute_metrics
+    from sqpmpc.io.metrics import compute_metrics
 
     scenario = load_scenario("head-on")
     scenario = scenario.with_changes(plant=PlantSpec("exact", (0.03, 0.04), seed=3))
@@ -146,8 +146,8 @@ def test_input_noise_is_recorded_and_stays_safe(scheme: str) -> None:
 @pytest.mark.parametrize("velocity", [(0.0, -0.3), (-0.1, 0.0)], ids=["crossing", "head-on"])
 def test_a_moving_obstacle_on_the_path_is_avoided(scheme: str,
                                                   velocity: tuple[float, float]) -> None:
-    from sqpmpc.metrics import compute_metrics
-    from sqpmpc.obstacles import Obstacle
+    from sqpmpc.io.metrics import compute_metrics
+    from sqpmpc.problem.obstacles import Obstacle
 
     scenario = load_scenario("head-on")
     robot = scenario.robots[0]

@@ -20,7 +20,7 @@ from services.messages import CmdMsg, DoneMsg, PlanMsg, StateMsg, decode, encode
 from services.node import scenario_digest
 from services.protocol import AcceptancePolicy, StateCursor, Verdict
 from services.testing import Probe, free_ports, start_service, stop_processes
-from sqpmpc.scenario import load_scenario
+from sqpmpc.problem.scenario_file import load_scenario
 
 K, TS, N = 100, 0.5, 8
 POLICY = AcceptancePolicy(K, TS, N)

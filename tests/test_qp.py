@@ -7,8 +7,9 @@ import pytest
 import qpsolvers
 import scipy.sparse as sp
 
-from sqpmpc.layout import QPLayout
-from sqpmpc.qp import HANDOVER_ITERATIONS, QP_SOLVERS, OSQPSettings, SparseQP
+from sqpmpc.qp.backend import HANDOVER_ITERATIONS, QP_SOLVERS, OSQPSettings
+from sqpmpc.qp.layout import QPLayout
+from sqpmpc.qp.sparse import SparseQP
 
 N = 4
 

@@ -32,7 +32,7 @@ def test_random_closed_loops_are_safe(seed: int, scheme: str) -> None:
 @pytest.mark.parametrize("seed", [0, 3, 5, 8, 11])
 def test_random_closed_loops_with_two_neighbour_slots_are_safe(seed: int) -> None:
     """Fewer slots than neighbours in reach: the first-input check keeps the rest safe."""
-    from sqpmpc.settings import SolverSettings
+    from sqpmpc.control.settings import SolverSettings
 
     sc = random_scenario(seed)
     m = run_random(seed, "decentralized", t_end=min(sc.t_end, 150 * sc.sample_time),

@@ -20,10 +20,11 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from sqpmpc.cli import main
-from sqpmpc.metrics import RunRecord, load_trajectory
-from sqpmpc.recording import POSE_TOPIC, write_recording
-from sqpmpc.scenario import load_scenario
+from sqpmpc.cli.main import main
+from sqpmpc.io.files import load_trajectory
+from sqpmpc.io.recording import POSE_TOPIC, write_recording
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.record import RunRecord
 from tests.scenarios import circle_scenario
 
 REPO = Path(__file__).resolve().parent.parent

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController, DecentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import Detour
+from sqpmpc.rules.liveness import Detour
 from tests.rule_helpers import fleet, only, view
 
 # robot 1 at the origin heading for (3, 0); robot 2 right in front of it

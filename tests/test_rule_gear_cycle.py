@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import GearCycle
-from sqpmpc.settings import SolverSettings
+from sqpmpc.rules.liveness import GearCycle
 from tests.rule_helpers import fleet, only, view
 
 

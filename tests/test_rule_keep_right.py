@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import KeepRight
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.liveness import KeepRight
 
 
 def _geometry(rule: KeepRight | None) -> np.ndarray:
@@ -68,7 +68,7 @@ def test_an_angle_above_the_cap_is_refused() -> None:
 
 
 def test_numpy_numbers_are_accepted_as_parameters() -> None:
-    from sqpmpc.liveness import Detour
+    from sqpmpc.rules.liveness import Detour
 
     assert KeepRight(angle=np.float64(0.2)).angle == 0.2
     assert Detour(patience=np.int64(3), speed=np.float32(0.3)).patience == 3

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import Parking
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.scenario import load_scenario, parse_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario_file import load_scenario, parse_scenario
+from sqpmpc.rules.liveness import Parking
+from sqpmpc.sim.simulation import simulate
 from tests.rule_helpers import fleet, only, view
 
 

@@ -7,13 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import DecentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.fleets import antipodal_swap
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.roundabout import Roundabout, roundabout_directions
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.kernels.rules import roundabout_directions
+from sqpmpc.problem.fleets import antipodal_swap
+from sqpmpc.rules.roundabout import Roundabout
+from sqpmpc.sim.simulation import ClosedLoopSimulation
 from tests.rule_helpers import fleet, only, view
 
 # robot 1 at the origin heading for (8, 0); a crowd of four 2 m ahead, centred on its path

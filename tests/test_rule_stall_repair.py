@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController
+from sqpmpc.control.centralized import CentralizedController
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import StallRepair
+from sqpmpc.rules.liveness import StallRepair
 from tests.rule_helpers import fleet, only, view
 
 

@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import DecentralizedController, PlanMessage
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import simulate
 
 
 def _rows(gap_in_margins: float, with_rule: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import TurnLimit, limit_turning
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.kernels.rules import limit_turning
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.liveness import TurnLimit
 
 
 def _turns(n0: np.ndarray, normals: np.ndarray) -> np.ndarray:

@@ -9,10 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sqpmpc.controllers import CentralizedController, DecentralizedController
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.errors import ProblemError
-from sqpmpc.liveness import Detour, StallRepair, _repair_speeds, limit_turning
-from sqpmpc.registry import RULES
+from sqpmpc.kernels.rules import limit_turning, repair_speeds
+from sqpmpc.rules.liveness import Detour, StallRepair
+from sqpmpc.rules.registry import RULES
 from tests.rule_helpers import fleet, only, view
 
 # robot 1 at the origin heading for (3, 0); robot 2 right in front of it, heading back
@@ -115,7 +117,7 @@ def test_stall_repair_kernel_counts_only_the_robots_it_may_change() -> None:
     goals = np.array([[2.0, 0.0], [-2.0, 0.0], [2.0, 0.0], [0.0, 2.0]])
     states = np.zeros((4, 3))
     only_mask = np.array([True, True, True, False])
-    repaired = _repair_speeds(speeds, goals, states, only_mask, 0.05, 0.1, 0.05, -0.04)
+    repaired = repair_speeds(speeds, goals, states, only_mask, 0.05, 0.1, 0.05, -0.04)
     assert repaired == 2
     np.testing.assert_array_equal(speeds[0], 0.05)  # goal ahead
     np.testing.assert_array_equal(speeds[1], -0.04)  # goal behind: the back speed
@@ -123,7 +125,7 @@ def test_stall_repair_kernel_counts_only_the_robots_it_may_change() -> None:
     np.testing.assert_array_equal(speeds[3], 0.0)  # not in the mask
     # a goal exactly abeam counts as ahead
     abeam = np.zeros((1, 5))
-    assert _repair_speeds(abeam, goals[3:], states[:1], only_mask[:1], 0.05, 0.1, 0.05,
+    assert repair_speeds(abeam, goals[3:], states[:1], only_mask[:1], 0.05, 0.1, 0.05,
                           -0.05) == 1
     np.testing.assert_array_equal(abeam, 0.05)
 
@@ -134,13 +136,14 @@ def test_stall_repair_writes_the_engine_linearization_point() -> None:
     ctrl = CentralizedController(sc, only().with_rule(StallRepair(speed=0.07)))
     ctrl.step(0.0, sc.initial_states())
     engine = ctrl.engine
-    engine.z[engine._speed_index] = 0.0
+    engine.guess_speeds()[:] = 0.0
     speeds = engine.guess_speeds()
     assert not speeds.flags.c_contiguous
     before = ctrl.counters()["stall_repairs"]
     ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
-    np.testing.assert_array_equal(engine.z[engine._speed_index[0]], -0.07)  # goal behind
-    np.testing.assert_array_equal(engine.z[engine._speed_index[1]], 0.0)  # near its goal
+    _, inputs = engine.states_inputs()
+    np.testing.assert_array_equal(inputs[0, :, 0], -0.07)  # goal behind
+    np.testing.assert_array_equal(inputs[1, :, 0], 0.0)  # near its goal
     assert ctrl.counters()["stall_repairs"] == before + 1
 
 

@@ -7,9 +7,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.metrics import compute_metrics
-from sqpmpc.registry import (
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.base import Rule
+from sqpmpc.rules.registry import (
     RULES,
     SAFETY_ROWS,
     describe_rules,
@@ -17,10 +20,7 @@ from sqpmpc.registry import (
     select_rules,
     set_rule_parameters,
 )
-from sqpmpc.rules import Rule
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import simulate
+from sqpmpc.sim.simulation import simulate
 
 
 @dataclass(frozen=True)

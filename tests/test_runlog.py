@@ -14,10 +14,10 @@ import pytest
 
 from services.messages import decode
 from services.testing import Probe, free_ports, start_service, stop_processes
-from sqpmpc.cli import main as cli_main
-from sqpmpc.runlog import RECORD_FILE, RecordError, RecordWriter, read_record
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import simulate
+from sqpmpc.cli.main import main as cli_main
+from sqpmpc.io.runlog import RECORD_FILE, RecordError, RecordWriter, read_record
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import simulate
 
 REPO = Path(__file__).resolve().parent.parent
 

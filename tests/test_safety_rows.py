@@ -1,14 +1,16 @@
-"""The three always-on safety rows (sqpmpc.collision): inner approximation, stage-one
+"""The three always-on safety rows (sqpmpc.ocp.collision_rows): inner approximation, stage-one
 override, missing-neighbour reach."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from sqpmpc.collision import MISSING, SHARED
-from sqpmpc.controllers import CentralizedController, DecentralizedController, PlanMessage
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.plans import PlanMessage
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.ocp.collision_rows import MISSING, SHARED
+from sqpmpc.problem.scenario_file import load_scenario
 
 
 def test_inner_approximation_satisfied_rows_imply_the_distance() -> None:

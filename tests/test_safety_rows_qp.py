@@ -13,13 +13,19 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from sqpmpc.collision import MISSING, SHARED, ExternalCollisionModel, PairwiseCollisionModel
-from sqpmpc.controllers import CentralizedController, DecentralizedController
-from sqpmpc.liveness import KeepRight, TurnLimit
-from sqpmpc.model import discrete_dynamics
-from sqpmpc.rules import RowGeometry
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.models.unicycle import discrete_dynamics
+from sqpmpc.ocp.collision_rows import (
+    MISSING,
+    SHARED,
+    ExternalCollisionModel,
+    PairwiseCollisionModel,
+)
+from sqpmpc.ocp.geometry import RowGeometry
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.liveness import KeepRight, TurnLimit
 
 
 def _aggressive_geometry(horizon: int) -> RowGeometry:

@@ -10,22 +10,15 @@ import numpy as np
 import pytest
 
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.references import (
+from sqpmpc.problem.references import (
     HarmonicReference,
     PointReference,
     Reference,
     WaypointReference,
     reference_from_dict,
 )
-from sqpmpc.scenario import (
-    Bounds,
-    RobotSpec,
-    Scenario,
-    Weights,
-    builtin_scenario_names,
-    load_scenario,
-    parse_scenario,
-)
+from sqpmpc.problem.scenario import Bounds, RobotSpec, Scenario, Weights
+from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario, parse_scenario
 
 BASE = """\
 name = "unit"

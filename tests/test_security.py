@@ -32,10 +32,10 @@ from services.testing import (
     start_service,
     stop_processes,
 )
-from sqpmpc.cli import main as sqpmpc_main
-from sqpmpc.scenario import load_scenario
-from sqpmpc.settings import SolverSettings
-from sqpmpc.simulation import ClosedLoopSimulation, SimulationOptions
+from sqpmpc.cli.main import main as sqpmpc_main
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 
 pytestmark = pytest.mark.timeout(150)
 

@@ -343,8 +343,8 @@ def test_another_scenario_or_other_settings_is_a_mismatch_carrying_the_message()
 
 def test_the_settings_digest_names_what_differs():
     from services.agreement import agreed_settings, describe_difference, settings_digest
-    from sqpmpc.options import add_controller_options, resolve_options, with_overrides
-    from sqpmpc.scenario import load_scenario
+    from sqpmpc.cli.options import add_controller_options, resolve_options, with_overrides
+    from sqpmpc.problem.scenario_file import load_scenario
 
     parser = argparse.ArgumentParser()
     add_controller_options(parser, all_plans=True)

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqpmpc.plant import PlantSpec
-from sqpmpc.scenario import load_scenario
-from sqpmpc.simulation import simulate
+from sqpmpc.problem.plant import PlantSpec
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.simulation import simulate
 
 pytestmark = pytest.mark.timeout(120)
 

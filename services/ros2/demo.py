@@ -1,0 +1,218 @@
+"""A ROS 2 fleet on this machine: simulated ROS 2 robots, one ``sqpmpc robot --ros2`` each.
+
+``python -m services.ros2.demo --scenario S [--out DIR] [--t-end T] [--rate HZ]
+[--odom-stop ID:T] [--twist-stamped] [--insecure] [--log-level L] [controller
+options...]`` (also ``sqpmpc launch --ros2-demo ...``)
+
+Starts, as processes on loopback (multicast scouting off):
+
+- the ROS 2 side's Zenoh router (plain TCP, as ``rmw_zenohd``);
+- the simulated robots (:mod:`services.ros2.simfleet`, written with
+  zenoh-ros2-sdk), odometry at ``--rate`` Hz (default 50) with phases of
+  their own;
+- the sqpmpc side's router with the run's credentials (mutual TLS, access
+  control; ``--insecure``: plain TCP), for the plans;
+- one controller process per robot, ``sqpmpc robot --id I --ros2`` (client of
+  both routers), all with the same epoch (t = 0 of the references, a few
+  seconds after the start: every controller is up by then) and each with a
+  random phase of its sample instants.
+
+Options it does not know are given to every controller (e.g.
+``--collision-margin 0.02``). When every controller has reached ``t_end`` the
+fleet writes the true poses and :mod:`services.ros2.check` measures them
+(``DIR/poses.json``, ``DIR/check.json``, the processes' logs in ``DIR/logs``).
+Exit status 0 when no robot collided and every one arrived, 1 otherwise, 2 for
+bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from sqpmpc.cli.options import Parser, positive_float
+from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.problem.scenario_file import load_scenario
+
+from ..credentials import write_credentials
+from ..launch import Child, free_ports, stop_children
+from ..node import install_signal_handlers
+from .check import check_fleet
+
+__all__ = ["LoggedChild", "build_parser", "main"]
+
+log = logging.getLogger("services.ros2.demo")
+PROG = "services.ros2.demo"
+
+
+class LoggedChild(Child):
+    """A :class:`services.launch.Child` whose stderr goes to a file."""
+
+    def __init__(self, name: str, argv: list[str], logfile: Path,
+                 env: dict[str, str] | None = None) -> None:
+        self.name = name
+        self.argv = argv
+        self.reported = False
+        logfile.parent.mkdir(parents=True, exist_ok=True)
+        with open(logfile, "wb") as err:
+            self.proc = subprocess.Popen(argv, process_group=0, env=env, stderr=err,
+                                         stdout=err)
+
+
+def _start_clock(port: int, ids: list[int], epoch_file: Path, timeout: float,
+                 stop: threading.Event) -> bool:
+    """Once every controller's ROS 2 node is in the graph (seen on the ROS 2 router), write
+    the epoch (2 s from then) into ``epoch_file``; ``False`` if not all came in time."""
+    import zenoh
+
+    from ..transport import make_config
+
+    wanted = {f"sqpmpc_robot{i}" for i in ids}
+    seen: set[str] = set()
+    lock = threading.Lock()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if len(parts) == 9 and parts[5] == "NN":
+            with lock:
+                seen.add(parts[8])
+
+    deadline = time.time() + timeout
+    with zenoh.open(make_config((), [f"tcp/127.0.0.1:{port}"], "client")) as session:
+        sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)
+        while not stop.is_set() and time.time() < deadline:
+            with lock:
+                if wanted <= seen:
+                    break
+            time.sleep(0.2)
+        sub.undeclare()
+    ok = wanted <= seen
+    tmp = epoch_file.with_suffix(".tmp")
+    tmp.write_text(repr(time.time() + 2.0))
+    tmp.replace(epoch_file)
+    return ok
+
+
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.ros2.demo``."""
+    p = Parser(prog=prog, description=__doc__.splitlines()[0])
+    p.add_argument("--scenario", required=True, help="TOML file or built-in name")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default runs/ros2-<scenario>-<time>)")
+    p.add_argument("--t-end", type=positive_float, default=None, help="override t_end, s")
+    p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
+    p.add_argument("--odom-stop", action="append", default=[], metavar="ID:T",
+                   help="robot ID's odometry stops at t = T s (repeatable)")
+    p.add_argument("--twist-stamped", action="store_true", help="cmd_vel as TwistStamped")
+    p.add_argument("--insecure", action="store_true",
+                   help="plans over plain TCP without credentials (debugging only)")
+    p.add_argument("--startup", type=positive_float, default=600.0, metavar="S",
+                   help="longest wait for every controller to be up, s (default 600)")
+    p.add_argument("--tolerance", type=positive_float, default=0.05,
+                   help="arrival: final distance to the reference, m")
+    p.add_argument("--log-level", default="INFO", help="log level of the processes")
+    return p
+
+
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit status."""
+    args, extra = build_parser(prog).parse_known_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s ros2-demo %(message)s",
+                        stream=sys.stderr)
+    try:
+        scenario = load_scenario(args.scenario)
+    except (ScenarioError, ProblemError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    t_end = args.t_end or scenario.t_end
+    ids = [int(i) for i in scenario.ids]
+    out = args.out or Path("runs") / f"ros2-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    out.mkdir(parents=True, exist_ok=True)
+    logs = out / "logs"
+    run = f"ros2-{os.getpid()}-{secrets.token_hex(3)}"
+    py = [sys.executable, "-m"]
+    sq_port, ros_port = free_ports(2)
+    proto = "tcp" if args.insecure else "tls"
+    sq_ep, ros_ep = f"{proto}/127.0.0.1:{sq_port}", f"tcp/127.0.0.1:{ros_port}"
+    env = dict(os.environ)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")
+    stop = threading.Event()
+    received = install_signal_handlers(stop)
+    credentials = None if args.insecure else Path(tempfile.mkdtemp(prefix="sqpmpc-cred-"))
+    children: list[Child] = []
+    status = 1
+    try:
+        secure: list[str] = []
+        if credentials is not None:
+            write_credentials(credentials, scenario, run, "decentralized", router_listen=())
+            secure = ["--credentials", str(credentials)]
+        children.append(LoggedChild("ros2-router", [*py, "services.router", "--listen", ros_ep,
+                                                    "--log-level", "WARNING"],
+                                    logs / "ros2-router.log", env))
+        children.append(LoggedChild("router", [*py, "services.router", "--listen", sq_ep,
+                                               "--log-level", "WARNING", *secure],
+                                    logs / "router.log", env))
+        epoch_file = out / "epoch"
+        epoch_file.unlink(missing_ok=True)
+        sim = [*py, "services.ros2.simfleet", "--scenario", args.scenario, "--router",
+               f"127.0.0.1:{ros_port}", "--out", str(out), "--rate", repr(args.rate),
+               "--epoch-file", str(epoch_file), "--log-level", args.log_level]
+        sim += [a for s in args.odom_stop for a in ("--odom-stop", s)]
+        if args.twist_stamped:
+            sim.append("--twist-stamped")
+        children.append(LoggedChild("simfleet", sim, logs / "simfleet.log", env))
+        robots = []
+        for rid in ids:
+            cmd = [*py, "services.robot", "--id", str(rid), "--scenario", args.scenario,
+                   "--t-end", repr(t_end), "--run", run, "--ros2", "--ros2-connect", ros_ep,
+                   "--zenoh-mode", "client", "--connect", sq_ep, "--epoch-file",
+                   str(epoch_file), "--log-level", args.log_level, *secure,
+                   *extra]
+            if args.twist_stamped:
+                cmd.append("--twist-stamped")
+            robots.append(LoggedChild(f"robot/{rid}", cmd, logs / f"robot-{rid}.log", env))
+        children.extend(robots)
+        log.info("%d robots, t_end %g s; logs in %s", len(ids), t_end, logs)
+        if not _start_clock(ros_port, ids, epoch_file, args.startup, stop):
+            log.error("the controllers were not all up within %g s (see %s)", args.startup,
+                      logs)
+        while not stop.is_set() and any(r.poll() is None for r in robots):
+            time.sleep(0.2)
+        failed = [r.name for r in robots if r.poll() not in (None, 0)]
+        if failed:
+            log.warning("controllers that failed: %s (see %s)", failed, logs)
+        status = 128 + received["signal"] if stop.is_set() else (1 if failed else 0)
+    finally:
+        stop_children([c for c in children if c.name.startswith("robot/")], {}, 10.0)
+        stop_children([c for c in children if c.name == "simfleet"],
+                      {"simfleet": signal.SIGINT}, 30.0)
+        stop_children([c for c in children if "router" in c.name], {}, 10.0)
+        if credentials is not None:
+            shutil.rmtree(credentials, ignore_errors=True)
+    poses = out / "poses.json"
+    if not poses.exists():
+        log.error("the fleet wrote no poses (see %s)", logs)
+        return status or 1
+    result = check_fleet(json.loads(poses.read_text()), scenario, args.tolerance)
+    (out / "check.json").write_text(json.dumps(asdict(result), indent=1))
+    print(f"{result.robots} robots: {result.collisions} collisions (certified clearance "
+          f"{result.certified_clearance:.4f} m), {result.arrived}/{result.robots} within "
+          f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m)"
+          + "".join(f"; robot {r}: zero {d:.3f} s after its odometry stopped"
+                    if d is not None else f"; robot {r}: no zero after its odometry stopped"
+                    for r, d in result.stop_to_zero.items()))
+    print(f"wrote {out}")
+    return status if status else (0 if result.ok else 1)

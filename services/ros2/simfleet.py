@@ -1,0 +1,251 @@
+"""Simulated ROS 2 robots, written with an independent rmw_zenoh implementation.
+
+``python -m services.ros2.simfleet --scenario S --router HOST:PORT --out DIR
+[--ids 1,2] [--rate 50] [--domain D] [--twist-stamped] [--odom-stop ID:T]
+[--duration S] [--epoch UNIX_S | --epoch-file FILE] [--seed K]``
+
+Each robot of the scenario (or of ``--ids``) is a unicycle that starts at the
+scenario's initial state, obeys ``/robot<ID>/cmd_vel`` (``Twist`` or
+``TwistStamped``) from the moment a command arrives, moves on the exact arc
+between commands, and publishes ``nav_msgs/Odometry`` on ``/robot<ID>/odom``
+at ``--rate`` Hz with a phase of its own (not aligned with any controller's
+sample), pose and twist in the scenario's frame. Its ROS 2 side is
+zenoh-ros2-sdk (keys, CDR, attachments and graph tokens of that package, CDR
+by rosbags), not the project's encoder: a controller that drives these robots
+speaks the format as another implementation reads it.
+
+``--odom-stop ID:T`` stops robot ``ID``'s odometry at ``t = T`` (s after the
+epoch) while it keeps obeying its commands (a failed sensor). On SIGINT,
+SIGTERM or after ``--duration`` the fleet writes ``DIR/poses.json``: per
+robot its diameter and every command segment ``[t, x, y, psi, v, omega]``
+(wall time, state at that time, the input from then on), which
+:mod:`services.ros2.check` reads to measure collisions at and between samples.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import random
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sqpmpc.cli.options import Parser, positive_float
+from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.io.atomic import atomic_path
+from sqpmpc.problem.scenario_file import load_scenario
+
+from ..node import install_signal_handlers, setup_logging
+from .sdk import use_local_definitions
+from .timing import arc
+
+__all__ = ["SimRobot", "build_parser", "main"]
+
+log = logging.getLogger("services.ros2.simfleet")
+PROG = "services.ros2.simfleet"
+
+
+class SimRobot:
+    """One simulated robot: exact unicycle between commands, its log of segments.
+
+    Parameters
+    ----------
+    robot_id, diameter
+        The scenario's robot.
+    state
+        Initial ``(x, y, psi)``.
+    start
+        Wall time the state holds at.
+    """
+
+    def __init__(self, robot_id: int, diameter: float, state: np.ndarray, start: float) -> None:
+        self.robot_id = robot_id
+        self.diameter = diameter
+        self._lock = threading.Lock()
+        self._t = start
+        self._state = np.asarray(state, dtype=float).copy()
+        self._u = (0.0, 0.0)
+        self.segments: list[list[float]] = [[start, *self._state.tolist(), 0.0, 0.0]]
+        self.commands = 0
+
+    def at(self, t: float) -> tuple[np.ndarray, tuple[float, float]]:
+        """State at wall time ``t`` (not before the last command) and the input in force."""
+        with self._lock:
+            return arc(self._state, *self._u, max(0.0, t - self._t)), self._u
+
+    def command(self, v: float, omega: float, t: float) -> None:
+        """Apply ``(v, omega)`` from wall time ``t`` on."""
+        with self._lock:
+            t = max(t, self._t)
+            self._state = arc(self._state, *self._u, t - self._t)
+            self._t, self._u = t, (float(v), float(omega))
+            self.segments.append([t, *self._state.tolist(), float(v), float(omega)])
+            self.commands += 1
+
+
+def _odom_message(pub, classes: dict, robot: SimRobot, t: float) -> None:
+    """Publish robot's odometry at ``t`` with the SDK's publisher ``pub``."""
+    state, (v, w) = robot.at(t)
+    c = classes
+    sec, nsec = divmod(int(round(t * 1e9)), 1_000_000_000)
+    half = 0.5 * float(state[2])
+    pose = c["Pose"](position=c["Point"](x=float(state[0]), y=float(state[1]), z=0.0),
+                     orientation=c["Quaternion"](x=0.0, y=0.0, z=float(np.sin(half)),
+                                                 w=float(np.cos(half))))
+    twist = c["Twist"](linear=c["Vector3"](x=v, y=0.0, z=0.0),
+                       angular=c["Vector3"](x=0.0, y=0.0, z=w))
+    pub.publish(header=c["Header"](stamp=c["Time"](sec=sec, nanosec=nsec), frame_id="odom"),
+                child_frame_id=f"robot{robot.robot_id}/base_link",
+                pose=c["PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                twist=c["TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
+
+
+def _read_epoch(path: Path) -> float | None:
+    """The epoch in ``path`` once it exists (``None`` before)."""
+    try:
+        return float(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """The argument parser of ``python -m services.ros2.simfleet``."""
+    p = Parser(prog=prog, description=__doc__.splitlines()[0])
+    p.add_argument("--scenario", required=True, help="TOML file or built-in name")
+    p.add_argument("--router", default="127.0.0.1:7447", metavar="HOST:PORT",
+                   help="the ROS 2 side's Zenoh router (default 127.0.0.1:7447)")
+    p.add_argument("--out", type=Path, required=True, help="folder for poses.json")
+    p.add_argument("--ids", default=None, help="comma-separated robot ids (default: all)")
+    p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
+    p.add_argument("--domain", type=int, default=0, help="ROS domain id")
+    p.add_argument("--twist-stamped", action="store_true",
+                   help="cmd_vel carries TwistStamped")
+    p.add_argument("--odom-stop", action="append", default=[], metavar="ID:T",
+                   help="robot ID's odometry stops at t = T s after the epoch (repeatable)")
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                   help="stop after S s (default: on SIGINT/SIGTERM)")
+    p.add_argument("--epoch", type=float, default=None, help="wall time of t = 0 (Unix s)")
+    p.add_argument("--epoch-file", type=Path, default=None, metavar="FILE",
+                   help="the epoch is in FILE once it exists (as for the controllers)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the odometry phases")
+    p.add_argument("--log-level", default="INFO")
+    return p
+
+
+def _stops(items: list[str], ids: list[int]) -> dict[int, float]:
+    out = {}
+    for item in items:
+        rid, sep, t = item.partition(":")
+        try:
+            out[int(rid)] = float(t)
+        except ValueError:
+            raise ProblemError(f"--odom-stop: expected ID:T, got {item!r}") from None
+        if not sep or int(rid) not in ids:
+            raise ProblemError(f"--odom-stop {item}: robot {rid} is not simulated here")
+    return out
+
+
+def main(argv: list[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit status."""
+    args = build_parser(prog).parse_args(argv)
+    setup_logging(args.log_level, "simfleet")
+    try:
+        scenario = load_scenario(args.scenario)
+        ids = ([int(i) for i in args.ids.split(",")] if args.ids
+               else [int(i) for i in scenario.ids])
+        for rid in ids:
+            scenario.index_of(rid)
+        stops = _stops(args.odom_stop, ids)
+        host, _, port = args.router.rpartition(":")
+        router = (host or "127.0.0.1", int(port))
+    except (ScenarioError, ProblemError, ValueError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    use_local_definitions(Path(tempfile.mkdtemp(prefix="sqpmpc-msgs-")))
+    import zenoh_ros2_sdk as sdk
+
+    # the SDK keeps one session per process, opened by whichever call comes first
+    sdk.ZenohSession.get_instance(*router)
+    classes = {name: sdk.get_message_class(f"{pkg}/msg/{name}") for pkg, name in (
+        ("std_msgs", "Header"), ("builtin_interfaces", "Time"), ("geometry_msgs", "Pose"),
+        ("geometry_msgs", "Point"), ("geometry_msgs", "Quaternion"),
+        ("geometry_msgs", "Twist"), ("geometry_msgs", "Vector3"),
+        ("geometry_msgs", "PoseWithCovariance"), ("geometry_msgs", "TwistWithCovariance"))}
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    start = time.time()
+    epoch = args.epoch if args.epoch is not None or args.epoch_file else start
+    looked = 0.0
+    robots = {rid: SimRobot(rid, float(scenario.robots[scenario.index_of(rid)].diameter),
+                            scenario.initial_states()[scenario.index_of(rid)], start)
+              for rid in ids}
+    cmd_type = "geometry_msgs/msg/TwistStamped" if args.twist_stamped else \
+        "geometry_msgs/msg/Twist"
+    endpoints = []
+
+    def on_cmd(robot: SimRobot):
+        def callback(msg: object) -> None:
+            t = time.time()
+            twist = msg.twist if args.twist_stamped else msg
+            robot.command(float(twist.linear.x), float(twist.angular.z), t)
+        return callback
+
+    pubs = {}
+    for rid, robot in robots.items():
+        ns = f"/robot{rid}"
+        endpoints.append(sdk.ROS2Subscriber(f"{ns}/cmd_vel", cmd_type, callback=on_cmd(robot),
+                                            node_name=f"sim_robot{rid}", namespace=ns,
+                                            domain_id=args.domain, router_ip=router[0],
+                                            router_port=router[1]))
+        pubs[rid] = sdk.ROS2Publisher(f"{ns}/odom", "nav_msgs/msg/Odometry",
+                                      node_name=f"sim_robot{rid}", namespace=ns,
+                                      domain_id=args.domain, router_ip=router[0],
+                                      router_port=router[1])
+    endpoints.extend(pubs.values())
+    rng = random.Random(args.seed)
+    period = 1.0 / args.rate
+    due = {rid: start + rng.random() * period for rid in robots}
+    sent = dict.fromkeys(robots, 0)
+    log.info("%d robots, odometry at %g Hz", len(robots), args.rate)
+    end = None if args.duration is None else start + args.duration
+    try:
+        while not stop.is_set() and (end is None or time.time() < end):
+            rid = min(due, key=due.get)
+            wait = due[rid] - time.time()
+            if wait > 0.0 and stop.wait(wait):
+                break
+            t = time.time()
+            due[rid] += period * max(1, int((t - due[rid]) // period) + 1)
+            if epoch is None and t - looked > 0.1:
+                looked = t
+                epoch = _read_epoch(args.epoch_file)
+            if rid in stops and epoch is not None and t - epoch >= stops[rid]:
+                continue  # the sensor failed
+            _odom_message(pubs[rid], classes, robots[rid], t)
+            sent[rid] += 1
+    finally:
+        now = time.time()
+        out = {"epoch": start if epoch is None else epoch, "start": start, "end": now,
+               "rate": args.rate,
+               "odom_stop": {str(k): v for k, v in stops.items()},
+               "robots": {str(rid): {"diameter": r.diameter, "segments": r.segments,
+                                     "odometry_sent": sent[rid]}
+                          for rid, r in robots.items()}}
+        args.out.mkdir(parents=True, exist_ok=True)
+        with atomic_path(args.out / "poses.json") as tmp:
+            tmp.write_text(json.dumps(out))
+        for ep in endpoints:
+            ep.close()
+        log.info("wrote %s (%d commands)", args.out / "poses.json",
+                 sum(r.commands for r in robots.values()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

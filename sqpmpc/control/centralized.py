@@ -1,0 +1,135 @@
+"""The centralized controller (paper Algorithm 3.1): one QP for every robot of the scenario.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
+from sqpmpc.problem.plant import acceleration_path_deviation
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.qp.layout import QPLayout
+
+__all__ = ["CentralizedController"]
+
+
+
+def _has_position_bounds(scenario: Scenario) -> bool:
+    b = scenario.bounds
+    return bool(np.isfinite(b.position_lower()).any() or np.isfinite(b.position_upper()).any())
+
+
+class CentralizedController(ControllerPipeline):
+    """One QP over all robots (paper Algorithm 3.1, eq. 7).
+
+    Parameters
+    ----------
+    scenario
+        The problem.
+    settings
+        Solver settings (default: :class:`SolverSettings` with every rule).
+    """
+
+    scheme = "centralized"
+
+    def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
+        settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
+        pairs = scenario.pairs().reshape(-1, 2)
+        required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
+        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
+                          _has_position_bounds(scenario), scenario.robot_model())
+        super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
+        self.pairs = pairs
+        self.required = required
+        self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
+                                                 self.geometry)
+        self._rows = {"internal": self.collisions}
+        if self.obstacle_rows is not None:
+            self._rows["external"] = self.obstacle_rows
+        self._sample = 0
+        # the neighbour slots of the decentralized scheme, per robot, for the pair rows
+        self.slots = settings.neighbour_slots
+        self.interaction_radius = (required + self.pair_margin + 2.0
+                                   * self.context.max_speed * scenario.horizon
+                                   * scenario.sample_time)
+        if self.slots is not None:
+            self.counts["stage_one_pairs"] = 0
+
+    def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                            previous_states: np.ndarray | None) -> None:
+        self.collisions.set_current_positions(states[:, :2])
+        if self.slots is not None:
+            _, first_only = self.collisions.select(self.interaction_radius, self.slots)
+            self.counts["stage_one_pairs"] += first_only
+
+    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+        """Every pair keeps its distance along the paths of the sample.
+
+        With the Euler model the robots move on straight segments at constant
+        speed, so checking the relative segments (not only the next sample)
+        keeps robots from passing through each other between samples. A plant
+        that moves otherwise (an arc, noise) strays from the predicted segment
+        by at most :meth:`path_deviation`, which the check adds.
+        """
+        alpha, beta = self.path_deviation(inputs)
+        growth = alpha + np.maximum(beta, 0.0)
+        now = np.ascontiguousarray(states[:, :2])
+        p = np.ascontiguousarray(next_states[:, :2])
+        if not self.collisions.first_input_safe(now, p, growth):
+            return False
+        return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+
+    def _brakes_safely(self, next_states: np.ndarray) -> bool:
+        """With acceleration limits: braking right after the first input, every robot as hard
+        as its limits allow, keeps every pair's distance along the braking paths.
+
+        If it does, the braking fallback of the next sample (all robots brake from where
+        the first input took them) follows a path checked here: the fallback is safe by
+        induction, as standing still is for the paper's unicycle (which stops at once).
+        The obstacles are checked along the same paths as they move on.
+        Each braking sample's true path may stray from its segment by the growth of
+        :func:`~sqpmpc.problem.plant.acceleration_path_deviation`.
+        """
+        if not self.model.velocity_states:
+            return True
+        path, inputs = self.braking_path(next_states)
+        growth = np.empty(inputs.shape[:2])
+        for j in range(inputs.shape[1]):
+            alpha, beta = acceleration_path_deviation(
+                path[:, j, 3:5], inputs[:, j], self.sample_time,
+                self.settings.discretization, self.scenario.plant.model, self._noise_bound)
+            growth[:, j] = alpha + np.maximum(beta, 0.0)
+            now = np.ascontiguousarray(path[:, j, :2])
+            nxt = np.ascontiguousarray(path[:, j + 1, :2])
+            if not self.collisions.first_input_safe(now, nxt, growth[:, j]):
+                return False
+        return self.obstacle_rows is None or self.obstacle_rows.braking_safe(path[..., :2],
+                                                                             growth)
+
+    def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
+        """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.
+
+        Parameters
+        ----------
+        t
+            Time ``t_k``, s.
+        states
+            Measured states of all robots (scenario order): ``(n, 3)`` poses, or ``(n, 5)``
+            with the measured ``(v, omega)`` appended (CONTRACT 1c; with poses alone a robot
+            with acceleration limits is taken to move at what it was last commanded).
+        sample
+            Sample index ``k`` (default: one more than the last call's, 0 at first).
+
+        Returns
+        -------
+        ControlOutput
+            ``inputs (n, 2)`` to apply (scenario order) and the plan behind them.
+        """
+        k = self._sample if sample is None else int(sample)
+        out = self.run_sample(k, t, states)
+        self._sample = k + 1
+        return out

@@ -1,0 +1,165 @@
+r"""Plans exchanged between decentralized controllers, their ages, and predictions from them.
+
+**Late and lost plans.** The hard part of the safety argument does not depend
+on plans arriving: stage 1 and the first-input check use the *measured*
+positions of sample ``k``; a neighbour without a fresh plan (late, lost,
+never sent) is kept at its distance plus its one-sample reach ``v_max Ts``
+(``missing-neighbour-reach``). What plan age changes is the soft stages
+2..N: a neighbour whose newest plan seen is ``a >= 2`` samples old has
+re-planned ``a - 1`` times unseen, so its obstacle or missing rows ask for
+``v_max Ts min(a - 1, N)`` more distance (in the spirit of RMADER's delay
+check; counted in ``late_plan_neighbours``). A neighbour never heard from (the
+first sample) gets no extra margin: a run without loss is unchanged.
+
+**Which plans a shared row is built from.** The pair ``(j, l)`` shares a row at
+sample ``k`` built from *both robots' plans of one sample* ``s``, which both
+compute alike with :func:`pair_sample` from the ``plan_ages`` every robot
+reported at its step ``k - 1`` (the age of the newest plan it held of each
+late neighbour, the services' input message carries it and the plant relays
+it with the states of ``k``, the same message to every robot): ``s = k - a``,
+``a`` the larger of the two robots' ages for each other (``k - 1`` when
+neither reported one). With plans ``D`` samples late that is ``k - D``, whose
+plans both hold; without delay it is ``k - 1``. The argument:
+
+1. *Same row or none.* Each robot builds the pair's row from the measured
+   positions of ``k`` (one state message), the two plans of ``s`` shifted
+   ``k - s`` stages by the same code (its own as it published it, the other's
+   as received: msgpack float64 is exact), the scenario's distance and the
+   rules' row geometry, which is antisymmetric in the pair; so if both build
+   it, ``j`` keeps :math:`n^\top p_j \ge c + d/2` and ``l`` keeps
+   :math:`-n^\top p_l \ge -c + d/2`, and together :math:`n^\top(p_j - p_l)
+   \ge d`. A robot that does not hold both plans of ``s`` (a plan later than
+   usual, lost, or a sample it published twice after a forged state) treats
+   the neighbour as *missing*: it keeps distance plus the neighbour's
+   one-sample reach from its measured position, which holds whatever the
+   neighbour does within its bounds, shared row or not.
+2. *The age of the plans does not enter stage 1's feasibility.* The stage-1
+   offset ``c`` is clipped so that both measured positions are on their sides
+   (and overridden by the current normal when the row's normal would not keep
+   them apart): standing still satisfies stage 1 whatever plans the line came
+   from, so the QP stays feasible and the first-input check (the whole path of
+   the sample, against the same half-plane) accepts at least stopping. Older
+   plans only move the line (stages 2..N are soft): the row constrains the
+   robots' *new* plans, which both satisfy from the opposite sides.
+3. *Forged relays* can only change which common ``s`` both use (every robot
+   reads the same state message), never make the two sides differ; a state
+   message that differs between robots is outside this argument as it is for
+   the measured positions themselves (authenticated runs, ``docs/security.md``).
+
+Ages are reported only for neighbours late at :data:`LATE_STEPS` steps in a
+row (a plan or two lost keep the pair on ``k - 1``), and the largest age of the last
+:data:`AGE_HOLD` samples is kept, so a plan one sample later than usual costs
+one sample without that shared row, not one per jitter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from sqpmpc.models.unicycle import discrete_dynamics, estimate_input, rollout
+
+__all__ = [
+    "AGE_HOLD", "LATE_STEPS", "PlanAges", "PlanMessage", "PlanSource", "pair_sample",
+    "predict_from_plan", "predict_from_states",
+]
+
+
+AGE_HOLD = 10
+
+
+LATE_STEPS = 3
+
+
+PlanAges = Mapping[int, Mapping[int, int]]
+
+
+@dataclass(frozen=True)
+class PlanMessage:
+    """A robot's predicted horizon as exchanged between controllers.
+
+    Attributes
+    ----------
+    robot_id
+        Sender.
+    sample
+        Sample index ``k`` at which the plan was computed (its stage 0 is time ``t_k``).
+    states
+        ``(N+1, 3)`` predicted states.
+    inputs
+        ``(N, 2)`` predicted inputs.
+    """
+
+    robot_id: int
+    sample: int
+    states: np.ndarray
+    inputs: np.ndarray
+
+
+@runtime_checkable
+class PlanSource(Protocol):
+    """A ``plans`` mapping that can also give a neighbour's plan of a given sample."""
+
+    def plan_at(self, robot_id: int, sample: int) -> PlanMessage | None:
+        """The plan robot ``robot_id`` computed at ``sample``, if held."""
+
+
+def pair_sample(sample: int, a: int, b: int, plan_ages: PlanAges | None) -> int:
+    """The sample of the two plans robots ``a`` and ``b`` build their shared row from.
+
+    At sample ``k`` both robots of a pair read the same relayed ``plan_ages``
+    (the plant's state message of ``k``): each reported, at its step ``k - 1``,
+    how old the newest plan of the other it held was (``1`` when not listed).
+    With ``a`` the larger of the two ages the pair uses the plans of
+    ``k - a``: with plans late by ``D`` samples this is ``k - D``, whose
+    plans both hold by now; without delay it is ``k - 1`` (as before).
+    Both robots compute the same number from the same message, which is all
+    the safety argument needs (module notes); whether they hold the plans is
+    each one's own business (a robot that does not holds the pair as missing).
+    """
+    age = 1
+    if plan_ages:
+        mine, theirs = plan_ages.get(a), plan_ages.get(b)
+        if mine:
+            age = max(age, int(mine.get(b, 1)))
+        if theirs:
+            age = max(age, int(theirs.get(a, 1)))
+    return sample - age
+
+
+def predict_from_plan(
+    plan: PlanMessage, sample: int, horizon: int, sample_time: float, method: str
+) -> np.ndarray | None:
+    """States ``(N+1, 3)`` for times ``t_k .. t_{k+N}`` from a plan computed at an earlier sample.
+
+    Stages past the plan's end are extrapolated holding its last input.
+    Returns ``None`` when the plan is from the future or older than ``N`` samples.
+    """
+    d = sample - plan.sample
+    if d < 0 or d > horizon:
+        return None
+    known = plan.states[d:]
+    missing = horizon + 1 - known.shape[0]
+    if missing == 0:
+        return known.copy()
+    if missing == 1:
+        tail = discrete_dynamics(known[-1], plan.inputs[-1], sample_time, method)[None]
+    else:
+        tail = rollout(known[-1], np.repeat(plan.inputs[-1:], missing, axis=0), sample_time,
+                       method)[1:]
+    return np.concatenate((known, tail), axis=0)
+
+
+def predict_from_states(
+    current: np.ndarray,
+    previous: np.ndarray | None,
+    horizon: int,
+    sample_time: float,
+    method: str,
+) -> np.ndarray:
+    """Paper section 3.2 fallback: hold the input estimated from two states, ``(N+1, 3)``."""
+    u = np.zeros(2) if previous is None else estimate_input(previous, current, sample_time)
+    return rollout(current, np.repeat(u[None], horizon, axis=0), sample_time, method)

@@ -1,0 +1,10 @@
+"""Layer 1, the compiled kernels (numba): the OCP's dynamics and QP helpers (:mod:`.ocp`),
+the collision geometry (:mod:`.collision`), the rules' kernels (:mod:`.rules`), the
+references' (:mod:`.references`) and the warm-up (:mod:`.warmup`).
+
+Imports nothing of sqpmpc but :mod:`sqpmpc.errors`.
+"""
+
+from __future__ import annotations
+
+__all__: list[str] = []

@@ -1,0 +1,310 @@
+"""Compiled kernels of the liveness rules (:mod:`sqpmpc.rules`): turn limits, held rows,
+stall and parking repairs, gear cycles, detours and the roundabout's directions.
+
+They live in the kernel layer so that the collision kernels and the warm-up never import
+the rules; the rules call them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = [
+    "detour_step", "hold_touching_rows", "limit_turning", "parking_mask", "repair_speeds",
+    "reversing", "roundabout_directions", "standing_still", "warm_up_roundabout", "warm_up_rules",
+]
+
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+
+@_jit
+def limit_turning(n0x: float, n0y: float, normals: np.ndarray, max_turn: float) -> None:
+    r"""Limit the turn of a pair's normal between consecutive stages (in place).
+
+    ``normals (N, 2)`` are the unit normals of stages 1..N; stage 0 is the
+    current normal ``(n0x, n0y)``. A normal turning by more than ``max_turn``
+    from the previous (already limited) one is replaced by the previous one
+    rotated by ``max_turn`` towards it (counter-clockwise when exactly
+    opposite). See :class:`sqpmpc.rules.liveness.TurnLimit`.
+    """
+    cos_max = math.cos(max_turn)
+    c, s = math.cos(max_turn), math.sin(max_turn)
+    px, py = n0x, n0y
+    for i in range(normals.shape[0]):
+        cx, cy = normals[i, 0], normals[i, 1]
+        if px * cx + py * cy < cos_max:
+            if px * cy - py * cx < 0.0:
+                cx, cy = c * px + s * py, -s * px + c * py
+            else:
+                cx, cy = c * px - s * py, s * px + c * py
+            normals[i, 0], normals[i, 1] = cx, cy
+        px, py = cx, cy
+
+
+@_jit
+def hold_touching_rows(me: np.ndarray, touching: np.ndarray, A_out: np.ndarray,
+                     lower_out: np.ndarray) -> None:
+    """Touching pairs (``touching (E,)``) repeat the stage-1 row on stage 2, in place."""
+    if A_out.shape[1] < 2:
+        return
+    for e in range(touching.shape[0]):
+        if touching[e]:
+            A_out[e, 1, 0], A_out[e, 1, 1] = A_out[e, 0, 0], A_out[e, 0, 1]
+            lower_out[e, 1] = A_out[e, 0, 0] * me[0] + A_out[e, 0, 1] * me[1]
+
+
+@_jit
+def repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
+                   only: np.ndarray, slow: float, distance: float, ahead_speed: float,
+                   back_speed: float) -> int:
+    """Set the guess speeds of stalled robots to ``ahead_speed``/``back_speed``; count them.
+
+    A robot (``only[r]``) is stalled when every ``|speeds[r]| < slow`` and its
+    goal is farther than ``distance``; it is linearized moving towards the goal
+    (forward if the goal is not behind its heading), unless the bounds make
+    that speed 0. ``slow`` is at most the repair speeds' size, so a robot
+    already at the (clipped) repair speed is not "stalled".
+    """
+    repaired = 0
+    for r in range(speeds.shape[0]):
+        if not only[r]:
+            continue
+        fastest = 0.0
+        for i in range(speeds.shape[1]):
+            fastest = max(fastest, abs(speeds[r, i]))
+        if not fastest < slow:
+            continue
+        gx, gy = goals[r, 0] - states[r, 0], goals[r, 1] - states[r, 1]
+        if not np.hypot(gx, gy) > distance:
+            continue
+        ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
+        speed = ahead_speed if ahead else back_speed
+        if speed == 0.0:  # the bounds forbid that direction: nothing to repair
+            continue
+        speeds[r, :] = speed
+        repaired += 1
+    return repaired
+
+
+@_jit
+def standing_still(references: np.ndarray, applied: np.ndarray, speed: float, patience: int,
+              still_for: np.ndarray, stuck: np.ndarray) -> bool:
+    """Count the samples each robot has applied ``|v| < speed`` with its references
+    ``(m, N, 2)`` at rest (``still_for``, in place); ``stuck`` those at ``patience``."""
+    any_stuck = False
+    for r in range(references.shape[0]):
+        rest = True
+        for i in range(references.shape[1]):
+            if (abs(references[r, i, 0] - references[r, 0, 0]) > 1e-9
+                    or abs(references[r, i, 1] - references[r, 0, 1]) > 1e-9):
+                rest = False
+                break
+        still_for[r] = still_for[r] + 1 if rest and abs(applied[r, 0]) < speed else 0
+        stuck[r] = still_for[r] >= patience
+        any_stuck = any_stuck or stuck[r]
+    return any_stuck
+
+
+@_jit
+def parking_mask(raw: np.ndarray, positions: np.ndarray, radius: float,
+                  out: np.ndarray) -> int:
+    """Robots whose reference rests over the horizon within ``radius`` into ``out``.
+
+    Returns the number of parking robots, negated minus one if the mask changed
+    (``-1 - count``), so one call tells both.
+    """
+    changed = False
+    count = 0
+    for r in range(raw.shape[0]):
+        rest = True
+        for i in range(raw.shape[1]):
+            if abs(raw[r, i, 0] - raw[r, 0, 0]) > 1e-9 or abs(raw[r, i, 1] - raw[r, 0, 1]) > 1e-9:
+                rest = False
+                break
+        near = np.hypot(raw[r, -1, 0] - positions[r, 0], raw[r, -1, 1] - positions[r, 1])
+        park = rest and near <= radius
+        count += park
+        if park != out[r]:
+            changed = True
+            out[r] = park
+    return -1 - count if changed else count
+
+
+@_jit
+def reversing(v: np.ndarray, v1: np.ndarray, v2: np.ndarray, eps: float,
+               out: np.ndarray) -> int:
+    """Robots whose plan reverses gear a second sample in a row (speeds above ``eps``)."""
+    count = 0
+    for r in range(v.shape[0]):
+        moving = abs(v[r]) > eps and abs(v1[r]) > eps and abs(v2[r]) > eps
+        out[r] = moving and np.sign(v[r]) == np.sign(v2[r]) and np.sign(v[r]) != np.sign(v1[r])
+        count += out[r]
+    return count
+
+
+def warm_up_rules() -> None:
+    """Compile or load the rules' kernels with the array layouts the pipeline passes."""
+    speeds = np.zeros((2, 6))[:, ::2]  # a strided view, as the iterate's speeds
+    states = np.zeros((2, 3))
+    repair_speeds(speeds, np.ones((2, 2)), states, np.ones(2, dtype=np.bool_), 0.05, 0.1,
+                   0.05, -0.05)
+    parking_mask(np.zeros((2, 3, 2)), np.zeros((2, 3)), 1.0, np.zeros(2, dtype=np.bool_))
+    standing_still(np.zeros((2, 3, 2)), np.zeros((2, 2)), 0.05, 10, np.zeros(2, dtype=np.int64),
+              np.zeros(2, dtype=np.bool_))
+    limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
+    hold_touching_rows(np.zeros(2), np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
+                       np.zeros((1, 2)))
+    reversing(np.zeros(2), np.zeros(2), np.zeros(2), 0.005, np.zeros(2, dtype=np.bool_))
+    i = np.zeros(2, dtype=np.int64)
+    detour_step(np.zeros((3, 2)), np.arange(2), np.zeros((2, 2)), np.ones((2, 2)),
+                 np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())
+
+
+@_jit
+def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
+                 goals: np.ndarray, required: np.ndarray, speed: float, reach: float,
+                 cos_cone: float, patience: int, hold: int, blocked_for: np.ndarray,
+                 active_for: np.ndarray, blocker: np.ndarray) -> int:
+    """Advance the detour state of the own robots by one sample; returns new activations.
+
+    ``required (m, n)`` are the own robots' required distances to everyone and
+    ``goals (m, 2)`` their stage-N references; the state arrays ``(m,)`` are
+    updated in place (see :class:`Detour`).
+    """
+    activations = 0
+    for r in range(own.shape[0]):
+        i = own[r]
+        px, py = positions[i, 0], positions[i, 1]
+        gx, gy = goals[r, 0] - px, goals[r, 1] - py
+        goal_dist = np.hypot(gx, gy)
+        blocked = False
+        closest = -1
+        best = np.inf
+        if abs(applied[r, 0]) < speed and goal_dist > reach:
+            for j in range(positions.shape[0]):
+                if j == i:
+                    continue
+                rx, ry = positions[j, 0] - px, positions[j, 1] - py
+                d = np.hypot(rx, ry)
+                cos = (rx * gx + ry * gy) / max(d * goal_dist, 1e-12)
+                if d < required[r, j] + reach and cos > cos_cone:
+                    blocked = True
+                    if d < best:
+                        best, closest = d, j
+        blocked_for[r] = blocked_for[r] + 1 if blocked else 0
+        if blocked and blocked_for[r] >= patience:
+            if active_for[r] == 0:
+                activations += 1
+            blocker[r] = closest
+            active_for[r] = hold
+        else:
+            active_for[r] = max(active_for[r] - 1, 0)
+    return activations
+
+
+@_jit
+def roundabout_directions(positions: np.ndarray, headings: np.ndarray,
+                          rest_goals: np.ndarray, own: np.ndarray, goals: np.ndarray,
+                          required: np.ndarray, sense: float, cos_cone: float,
+                          cos_along: float, min_crowd: int, goal_distance: float,
+                          directions: np.ndarray) -> int:
+    """The roundabout direction of every own robot, or zeros where the rule is idle.
+
+    Parameters
+    ----------
+    positions, headings
+        ``(n, 2)`` positions and ``(n,)`` headings of all robots.
+    rest_goals
+        ``(n, 2)`` where each robot's reference comes to rest at the end of the
+        scenario (NaN for references still moving then): a robot within
+        ``goal_distance`` of it has arrived and is not part of a crowd.
+    own
+        ``(m,)`` indices of the own robots in ``positions``.
+    goals
+        ``(m, 2)`` the own robots' goals (stage-``N`` scenario references).
+    required
+        ``(m, n)`` required distances from the own robots to everyone.
+    sense, cos_cone, cos_along, min_crowd, goal_distance
+        See :class:`Roundabout` (``cos_cone`` and ``cos_along`` are the cosines
+        of ``cone`` and ``along``).
+    directions
+        ``(m, 2)`` output: unit directions, or ``(0, 0)`` for robots that
+        track their goal.
+
+    Returns
+    -------
+    int
+        How many own robots follow a roundabout direction.
+    """
+    n = positions.shape[0]
+    member = np.zeros(n, dtype=np.bool_)
+    active = 0
+    for r in range(own.shape[0]):
+        i = own[r]
+        directions[r, 0] = 0.0
+        directions[r, 1] = 0.0
+        px, py = positions[i, 0], positions[i, 1]
+        gx, gy = goals[r, 0] - px, goals[r, 1] - py
+        goal_dist = math.hypot(gx, gy)
+        if not goal_dist > goal_distance:
+            continue
+        ux, uy = gx / goal_dist, gy / goal_dist
+        reach = min(sense, goal_dist)
+        count = 0
+        cx, cy = 0.0, 0.0
+        for j in range(n):
+            member[j] = False
+            if j == i:
+                continue
+            rx, ry = positions[j, 0] - px, positions[j, 1] - py
+            d = math.hypot(rx, ry)
+            if d > reach or rx * ux + ry * uy < d * cos_cone:
+                continue
+            if math.cos(headings[j]) * ux + math.sin(headings[j]) * uy > cos_along:
+                continue  # heading the way this robot goes: traffic, not a conflict
+            if math.hypot(positions[j, 0] - rest_goals[j, 0],
+                          positions[j, 1] - rest_goals[j, 1]) <= goal_distance:
+                continue  # arrived: an obstacle to pass, not a flow to join
+            member[j] = True
+            count += 1
+            cx += positions[j, 0]
+            cy += positions[j, 1]
+        if count < min_crowd:
+            continue
+        cx /= count
+        cy /= count
+        rho = 0.0
+        for j in range(n):
+            if member[j]:
+                rho = max(rho, math.hypot(positions[j, 0] - cx, positions[j, 1] - cy)
+                          + required[r, j])
+        wx, wy = cx - px, cy - py
+        w = math.hypot(wx, wy)
+        if w > rho:
+            wx, wy = wx / w, wy / w
+            beta = math.asin(rho / w)
+            gamma = math.atan2(wx * uy - wy * ux, wx * ux + wy * uy)
+            if gamma <= -beta or gamma >= beta:
+                continue  # the straight path clears the crowd
+            c, s = math.cos(beta), math.sin(beta)
+            directions[r, 0], directions[r, 1] = c * wx + s * wy, -s * wx + c * wy
+        else:  # inside the crowd: counter-clockwise around its centre
+            if w > 1e-9:
+                wx, wy = wx / w, wy / w
+            else:
+                wx, wy = ux, uy
+            directions[r, 0], directions[r, 1] = wy, -wx
+        active += 1
+    return active
+
+
+def warm_up_roundabout() -> None:
+    """Compile or load the rule's kernel with the array layouts the rule passes."""
+    roundabout_directions(np.zeros((3, 2)), np.zeros(3), np.full((3, 2), np.nan), np.arange(2),
+                          np.ones((2, 2)), np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0,
+                          np.zeros((2, 2)))

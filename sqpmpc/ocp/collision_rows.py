@@ -1,0 +1,338 @@
+r"""Pairwise collision avoidance (paper eq. 5) as separating hyperplanes.
+
+The distance constraint :math:`\|p_j - p_l\| \ge d_{jl}` is non-convex. Its
+linearization at :math:`(\bar p_j, \bar p_l)` is the separating hyperplane
+
+.. math::
+
+    n^\top (p_j - p_l) \ge d_{jl}, \qquad n = \frac{\bar p_j - \bar p_l}{\|\bar p_j - \bar p_l\|}.
+
+Safety rows (always on; listed by ``sqpmpc rules``)
+----------------------------------------------------
+These three are the safety argument, not heuristics; no option removes them.
+
+``inner-approximation``
+    :math:`\|p_j - p_l\| \ge n^\top(p_j - p_l)` for any unit :math:`n`, so a
+    satisfied row implies the true distance, whatever normal the liveness
+    rules chose (rotated, turn-limited, held).
+``stage-one-override``
+    Stage 1 is hard (stages 2..N carry L1 slacks). If the stage-1 normal does
+    not keep the *current* configuration feasible,
+    :math:`n^\top(p_j(k) - p_l(k)) < d_{jl}`, the normal of the current
+    positions is used instead and the right-hand side is capped at the
+    current projected gap: stopping (``v = 0``, exact for every
+    discretization) always satisfies stage 1, so the QP stays feasible and a
+    safe configuration stays safe.
+``missing-neighbour-reach``
+    Decentralized: a neighbour whose fresh plan is missing can do anything
+    within its bounds. Stage 1 keeps :math:`d + r` from its current position,
+    :math:`r = T_s v_{max}` its one-sample reach, if the current distance
+    allows, and otherwise does not approach it (and the first-input check
+    accepts only standing still).
+
+Then the first input is *verified* before it is applied
+(:meth:`PairwiseCollisionModel.first_input_safe`,
+:meth:`ExternalCollisionModel.first_stage_safe`): along the straight segment
+the Euler plant moves on, not only at the next sample.
+
+**Shared responsibility (decentralized).** Robots ``j`` and ``l`` build the
+same hyperplane from the same exchanged predictions and each keeps half the
+distance on its own side of the mid-line: :math:`n^\top p_j \ge c + d/2` and
+:math:`-n^\top p_l \ge -c + d/2` imply :math:`n^\top(p_j - p_l) \ge d`. On
+stage 1 the offset :math:`c` is clipped so that each current position stays on
+its side. The row geometry (rotation, turn limit, holding) comes from the
+rules through :class:`sqpmpc.ocp.geometry.RowGeometry`; the rows are built by the
+compiled kernels of :mod:`sqpmpc.kernels.collision`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sqpmpc.kernels.collision import (
+    halfplanes_hold_path,
+    obstacle_rows,
+    pair_rows,
+    pairs_keep_distance,
+    segment_keeps_distance,
+    select_pairs,
+    shared_rows,
+)
+from sqpmpc.kernels.rules import hold_touching_rows
+from sqpmpc.ocp.geometry import RowGeometry
+
+__all__ = [
+    "MISSING", "OBSTACLE", "OFF", "SHARED", "ExternalCollisionModel", "PairwiseCollisionModel",
+]
+
+#: Slot kinds of :class:`ExternalCollisionModel`.
+OFF, SHARED, OBSTACLE, MISSING = 0, 1, 2, 3
+
+
+class PairwiseCollisionModel:
+    r"""Internal pair rows of the centralized QP (both robots are variables).
+
+    Parameters
+    ----------
+    pairs
+        ``(P, 2)`` local robot indices.
+    required
+        ``(P,)`` true required centre distances :math:`(d_j + d_l)/2`.
+    margin
+        Added to ``required`` in the QP rows, m.
+    geometry
+        Row geometry from the rules.
+    """
+
+    def __init__(self, pairs: np.ndarray, required: np.ndarray, margin: float,
+                 geometry: RowGeometry) -> None:
+        self.pairs = np.ascontiguousarray(np.asarray(pairs, dtype=np.int64).reshape(-1, 2))
+        self.safe_distance = np.asarray(required, dtype=float)
+        self.required = self.safe_distance + float(margin)
+        self.geometry = geometry
+        self.current_positions = np.zeros((0, 2))
+        self.stage_one_overrides = 0
+        self._scratch = np.empty((geometry.rotation.shape[0], 2))
+        #: ``(P,)`` stages with a row per pair (:func:`select_pairs`); all by default
+        self.stages = np.full(self.pairs.shape[0], geometry.rotation.shape[0], dtype=np.int64)
+
+    def select(self, radius: np.ndarray, slots: int) -> tuple[int, int]:
+        """Neighbour slots for the pair rows at the current positions (see
+        :func:`sqpmpc.kernels.collision.select_pairs`); returns the full and stage-1-only
+        pair counts."""
+        return select_pairs(self.pairs, self.current_positions, radius, slots,
+                            self.geometry.rotation.shape[0], self.stages)
+
+    def set_current_positions(self, positions: np.ndarray) -> None:
+        """Measured positions ``(m, 2)`` used by the stage-1 rule."""
+        self.current_positions = np.ascontiguousarray(positions, dtype=float)
+
+    def write_rows(self, states: np.ndarray, A_out: np.ndarray, lower_out: np.ndarray) -> None:
+        """Rows at linearization ``states (m, N+1, 3)`` into ``(P, N, 4)`` and ``(P, N)``."""
+        if self.pairs.shape[0] == 0:
+            return
+        self.stage_one_overrides = pair_rows(
+            self.pairs, self.current_positions, states, self.required, self.geometry.rotation,
+            self.geometry.kernel_max_turn, A_out, lower_out, self._scratch, self.stages)
+
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray,
+                         growth: np.ndarray | None = None) -> bool:
+        """Every pair keeps its true distance along the straight segments ``now -> nxt``
+        (``growth (m,)``: how far each robot's true path may stray, per unit of ``s``)."""
+        if growth is None:
+            growth = np.zeros(now.shape[0])
+        return bool(pairs_keep_distance(self.pairs, now, nxt, self.safe_distance,
+                                        np.ascontiguousarray(growth, dtype=float)))
+
+
+class ExternalCollisionModel:
+    r"""Rows of one robot against neighbours whose predictions are data.
+
+    Each slot ``e`` is one of (:data:`SHARED`, :data:`OBSTACLE`, :data:`MISSING`,
+    :data:`OFF`):
+
+    - shared: the fixed common hyperplane of the two exchanged predictions,
+      half the distance each (a linear row);
+    - obstacle: the neighbour's prediction is a moving obstacle, the full
+      distance is kept and the row relinearized at the own iterate (the
+      paper's literal scheme);
+    - missing: a neighbour of the shared scheme whose plan did not arrive:
+      stages 2..N as an obstacle on its extrapolated prediction, stage 1 by
+      the ``missing-neighbour-reach`` safety row;
+    - off: no row.
+
+    **First-stage check** (:meth:`first_stage_safe`): for a shared slot with
+    stage-1 normal :math:`n_1`, current projected gap :math:`g` and true
+    distance :math:`D`: if :math:`g \ge D + \text{margin}` each robot keeps
+    :math:`n_1^\top p \ge c + D/2`; otherwise (inside the margin band, where
+    the row only forbids approaching) each gives up at most
+    :math:`\max(0, g - D)/2` from the common current mid-line. Either way the
+    two accepted positions keep :math:`n_1^\top(p_j - p_l) \ge \min(D, g)`, so
+    solver tolerances cannot accumulate into a collision.
+
+    Parameters
+    ----------
+    required
+        ``(E,)`` true required centre distances.
+    horizon
+        ``N``.
+    geometry
+        Row geometry from the rules.
+    reach
+        Distance a neighbour can travel in one sample (missing slots), m.
+    margin
+        Added to ``required`` in the QP rows, m.
+    stage_one_rule_for_obstacles
+        Apply ``stage-one-override`` to obstacle slots too (off for the
+        paper's literal mode, which has no guarantee).
+    """
+
+    def __init__(self, required: np.ndarray, horizon: int, geometry: RowGeometry,
+                 reach: float = 0.0, margin: float = 0.0,
+                 stage_one_rule_for_obstacles: bool = True) -> None:
+        self.safe_distance = np.asarray(required, dtype=float)
+        self.required = self.safe_distance + float(margin)
+        E = self.required.size
+        self.horizon = horizon
+        self.geometry = geometry
+        self.reach = float(reach)
+        self.stage_one_rule_for_obstacles = stage_one_rule_for_obstacles
+        self.kind = np.zeros(E, dtype=np.int8)
+        self.obstacles = np.zeros((E, horizon, 2))
+        self.fixed_normals = np.zeros((E, horizon, 2))
+        self.fixed_rhs = np.full((E, horizon), -np.inf)
+        self.check_normals = np.zeros((E, 2))
+        self.check_rhs = np.full(E, -np.inf)
+        self.current_self = np.zeros(2)
+        self.current_others = np.zeros((E, 2))
+        self.touching = np.zeros(E, dtype=np.bool_)
+        self.stage_one_overrides = 0
+        self._shared_overrides = 0
+        self._shared_mask = np.zeros(E, dtype=np.bool_)
+        self._any_shared = self._any_obstacle = self._any_missing = False
+        self._avoid = np.zeros(E, dtype=np.bool_)
+        self._kinds_key = b""
+        self._margin = float(margin)
+        self.unslotted = np.zeros((0, 2))
+        self.unslotted_distance = np.zeros(0)
+        self._unslotted_keep = np.zeros(0)
+        #: ``(E,)`` extra distance of obstacle and missing rows for plans that are late
+        #: (:meth:`set_age_margins`); the first-stage check does not use it
+        self.age_margin = np.zeros(E)
+        self._aged = False
+
+    def set_age_margins(self, margins: np.ndarray) -> None:
+        """Per slot, distance added to the obstacle and missing rows (not to the check).
+
+        A neighbour whose newest plan is ``a`` samples old has re-planned ``a - 1``
+        times unseen: :class:`sqpmpc.control.decentralized.DecentralizedController` asks
+        for ``v_max Ts (a - 1)`` more room, so that its rows give way earlier.
+        """
+        self.age_margin = np.asarray(margins, dtype=float)
+        self._aged = bool((self.age_margin > 0.0).any())
+
+    def set_required(self, required: np.ndarray) -> None:
+        """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
+        self.safe_distance = np.asarray(required, dtype=float)
+        self.required = self.safe_distance + self._margin
+
+    def set_unslotted(self, positions: np.ndarray, required: np.ndarray) -> None:
+        """Neighbours within reach that got no slot: current positions ``(U, 2)``, distances.
+
+        The first-stage check keeps ``required + reach`` from each along the
+        whole segment, or accepts standing still (as for a missing neighbour):
+        whatever such a neighbour does within its bounds, the pair keeps its
+        distance over the sample.
+        """
+        self.unslotted = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
+        self.unslotted_distance = np.asarray(required, dtype=float)
+        self._unslotted_keep = self.unslotted_distance + self.reach
+
+    def set_sample(self, current_self: np.ndarray, current_others: np.ndarray,
+                   own_prediction: np.ndarray, other_predictions: np.ndarray,
+                   kinds: np.ndarray) -> None:
+        r"""Data of one sample.
+
+        Parameters
+        ----------
+        current_self, current_others
+            Measured positions ``(2,)`` and ``(E, 2)``.
+        own_prediction
+            ``(E, N, 2+)``: per slot, this robot's positions of stages 1..N as
+            *published* (its plan of the pair's common sample, shifted),
+            identical to what that neighbour uses; ``(N, 2+)``: the same for
+            every slot.
+        other_predictions
+            ``(E, N, 2+)``: neighbours' positions for stages 1..N (shared
+            slots: from their plans of the pair's common sample).
+        kinds
+            ``(E,)`` slot kinds (:data:`SHARED`, ...).
+        """
+        key = kinds.tobytes()
+        if key != self._kinds_key:  # the slot kinds rarely change: masks only then
+            self._kinds_key = key
+            self.kind = kinds.copy()
+            np.equal(kinds, SHARED, out=self._shared_mask)
+            self._any_shared = bool(self._shared_mask.any())
+            self._any_obstacle = bool((kinds == OBSTACLE).any())
+            self._any_missing = bool((kinds == MISSING).any())
+            self._avoid = (kinds == OBSTACLE) | (kinds == MISSING)
+        self.current_self = np.ascontiguousarray(current_self, dtype=float)
+        self.current_others = np.ascontiguousarray(current_others, dtype=float)
+        self.obstacles = other_predictions
+        if own_prediction.ndim == 2:
+            own_prediction = np.repeat(own_prediction[None], kinds.shape[0], axis=0)
+        g = self.geometry
+        self._shared_overrides = shared_rows(
+            self.current_self, self.current_others, own_prediction, other_predictions,
+            self._shared_mask, self.required, self.safe_distance, g.rotation,
+            g.kernel_max_turn, self.fixed_normals, self.fixed_rhs, self.check_normals,
+            self.check_rhs, self.touching)
+        if g.hold_touching:
+            hold_touching_rows(self.current_self, self.touching, self.fixed_normals,
+                               self.fixed_rhs)
+
+    @property
+    def needs_states(self) -> bool:
+        """Whether :meth:`write_rows` reads the iterate (obstacle or missing slots)."""
+        return self._any_obstacle or self._any_missing
+
+    def write_rows(self, states: np.ndarray | None, A_out: np.ndarray,
+                   lower_out: np.ndarray) -> None:
+        """Rows at the own iterate ``states (1, N+1, 3)`` into ``(1, E, N, 2)``, ``(1, E, N)``.
+
+        ``states`` may be ``None`` when :attr:`needs_states` is false.
+        """
+        A_out[0] = self.fixed_normals
+        lower_out[0] = self.fixed_rhs
+        overrides = self._shared_overrides
+        if self._any_obstacle or self._any_missing:
+            overrides += self._avoid_rows(states[0, 1:], A_out[0], lower_out[0])
+        self.stage_one_overrides = overrides
+
+    def _avoid_rows(self, own: np.ndarray, normals: np.ndarray, rhs: np.ndarray) -> int:
+        """Obstacle and missing slots, relinearized at the own stages 1..N ``own (N, 2+)``."""
+        required = self.required + self.age_margin if self._aged else self.required
+        return obstacle_rows(self.current_self, self.current_others, own, self.obstacles,
+                             self.kind, required, self.reach, self.geometry.rotation,
+                             self.stage_one_rule_for_obstacles, normals, rhs)
+
+    def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12,
+                         alpha: float = 0.0, beta: float = 0.0) -> bool:
+        r"""Whether this robot's next position ``(2,)`` keeps every true distance.
+
+        Shared slots: the check of the class notes; the current position also
+        satisfies it and a half-plane is convex, so the whole straight segment
+        does; a true path within :math:`\alpha s + \beta s(1-s)` of the segment
+        (:func:`sqpmpc.problem.plant.path_deviation`) is checked exactly
+        (:func:`sqpmpc.kernels.collision.halfplanes_hold_path`). Obstacle slots:
+        the true distance to the neighbour's predicted stage 1. Missing slots
+        and neighbours within reach without a slot: the true distance plus the
+        neighbour's reach, along the whole path, or standing still.
+        """
+        p = position
+        x0, y0 = float(self.current_self[0]), float(self.current_self[1])
+        if self._any_shared and not halfplanes_hold_path(
+                self.check_normals, self.check_rhs, x0, y0, float(p[0]), float(p[1]),
+                alpha, beta, tolerance):
+            return False
+        if self._any_obstacle:
+            obst = self.kind == OBSTACLE
+            d = p - self.obstacles[obst, 0, :2]
+            if (np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance).any():
+                return False
+        x1, y1 = float(p[0]), float(p[1])
+        moved = math.hypot(x1 - x0, y1 - y0) > 1e-12
+        growth = alpha + max(beta, 0.0)
+        if self._any_missing and moved:
+            missing = self.kind == MISSING
+            if not segment_keeps_distance(
+                    x0, y0, x1, y1, np.ascontiguousarray(self.current_others[missing]),
+                    self.safe_distance[missing] + self.reach, tolerance, growth):
+                return False
+        if self.unslotted.shape[0] and moved and not segment_keeps_distance(
+                x0, y0, x1, y1, self.unslotted, self._unslotted_keep, tolerance, growth):
+            return False
+        return True

@@ -1,0 +1,405 @@
+r"""The plant: how the simulated robots really move, and how far that is from a prediction.
+
+A scenario's ``[plant]`` section (:class:`PlantSpec`) says which model moves the
+robots (``"euler"``, the paper's eq. 3 and the default; ``"rk4"``; ``"exact"``,
+the unicycle integrated exactly under a zero-order-hold input,
+:mod:`sqpmpc.models.unicycle`) and the standard deviation of Gaussian noise added to the
+applied :math:`(v, \omega)`. :class:`Plant` steps the robots with it.
+
+Model mismatch made safe
+------------------------
+A controller predicts with its own discretization, the plant moves with its
+model and a perturbed input. The safety checks of the first input
+(:mod:`sqpmpc.ocp.collision_rows`) hold for the plant's *true path* over the sample
+when that path stays within a known distance of the segment the controller
+predicted. For a robot at :math:`p_0` with predicted next position
+:math:`\hat p_1` and commanded input :math:`u = (v, \omega)`, the true position
+at the fraction :math:`s \in [0, 1]` of the sample satisfies
+
+.. math::
+
+    \big\lVert p(s T_s) - \big((1 - s) p_0 + s \hat p_1\big) \big\rVert
+    \le \alpha s + \beta s (1 - s),
+
+with :math:`(\alpha, \beta)` from :func:`path_deviation`. The bounds come from
+:math:`\lVert \dot p - v e^{i\psi_0} \rVert \le |v \omega| t` along an arc
+(:math:`T_s`, the bounds and the noise only; :math:`V = |v| + W_v`,
+:math:`W` the noise bound):
+
+==================  ==================================================
+prediction vs plant deviation of the path from the predicted segment
+==================  ==================================================
+same model          0: the plant moves on the predicted segment
+exact vs exact      the arc from its chord: :math:`\beta = |v\omega| T_s^2/2`
+euler vs exact      :math:`|v\omega| T_s^2 s^2/2`: :math:`\alpha = -\beta = |v\omega|T_s^2/2`
+two chords          the end points' distance, linear in :math:`s`
+input noise         :math:`\alpha \mathrel{+}= W_v T_s + V W_\omega T_s^2/2`
+==================  ==================================================
+
+(RK4 is Simpson's rule on :math:`\int e^{i\psi}`: its end point is within
+:math:`\sqrt 2 |v| \omega^4 T_s^5 / 2880` of the exact one; an RK4 plant is taken
+to move on its chord.) The noise is Gaussian truncated at
+:data:`NOISE_TRUNCATION` standard deviations (an actuator never applies an
+unbounded error; the truncated mass is :math:`6 \cdot 10^{-5}`), so
+:math:`W = 4\sigma` is a hard bound.
+
+The QP rows keep :func:`model_margin` more than the required distance: twice
+the largest linear growth :math:`\alpha + \max(\beta, 0)` over the input bounds
+(each robot of a pair may deviate by it; half as much against an obstacle).
+For a plant that moves exactly as predicted (the default: Euler both) it is 0.
+
+Robots with acceleration limits (CONTRACT 1c)
+---------------------------------------------
+With ``[bounds] acceleration`` and ``angular_acceleration`` the plant's state
+includes the velocities :math:`(v, \omega)`; a command is followed by the
+constant accelerations :math:`a = \mathrm{clip}((v_{cmd} - v)/T_s, a_{\min},
+a_{\max})` (likewise :math:`\alpha`) over the sample, so the velocity changes
+linearly and never faster than the limits, and reaches the command at the end of
+the sample when the limits allow (the controller's commands always do). The
+controller predicts with :class:`~sqpmpc.models.acceleration.AccelerationUnicycle`;
+:func:`acceleration_path_deviation` bounds how far such a robot is from the
+predicted segment :math:`p_0 \to \hat p_1` over the sample, with
+:math:`V = \max(|v_0|, |v_1|)`, :math:`\Omega = \max(|\omega_0|, |\omega_1|)`
+(the velocities at both ends) and :math:`\gamma = V\Omega T_s^2/2`:
+
+- *along the path*: the segment is checked as travelled at a uniform rate, the
+  robot covers :math:`v_0 sT_s + a s^2T_s^2/2` of it: the gap is
+  :math:`|a| T_s^2 s(1-s)/2`, so :math:`\beta \mathrel{+}= |a|T_s^2/2`;
+- *off the path* (a plant whose heading turns during the sample, ``rk4`` or
+  ``exact``): :math:`|\psi(t) - \psi_0| \le \Omega t`, so the robot is within
+  :math:`\int_0^t V\Omega\tau\,d\tau = \gamma s^2` of the straight line it would
+  follow along :math:`\psi_0`: Euler prediction, :math:`\alpha \mathrel{+}= \gamma`,
+  :math:`\beta \mathrel{-}= \gamma`; an arc predicted from its own end point
+  (``rk4``/``exact`` prediction): :math:`\gamma(s^2 + s)`, :math:`\alpha \mathrel{+}=
+  2\gamma`, :math:`\beta \mathrel{-}= \gamma`; an Euler plant under an ``rk4``/``exact``
+  prediction: the end points are :math:`\gamma` apart, :math:`\alpha \mathrel{+}= \gamma`;
+- *input noise* :math:`W` on the commanded velocities changes the accelerations by
+  at most :math:`W/T_s`: :math:`\alpha \mathrel{+}= W_v T_s/2 + V W_\omega T_s^2/6`.
+
+(RK4 integrates the heading and the velocities exactly here and the position to
+:math:`O(T_s^5)`; it is taken to move as the exact solution.) With the paper's
+``v``, ``omega`` and ``acceleration = [-1, 1]`` at :math:`T_s` = 0.5 s the
+margin is :math:`2 \cdot 1 \cdot 0.5^2/2` = 0.25 m for the Euler plant.
+
+Braking takes several samples: from :math:`v` it takes
+:math:`\lceil |v|/(|a_{\min}|T_s)\rceil` samples and about :math:`v^2/(2|a_{\min}|)`
+of travel (0.18 m from 0.6 m/s at 1 m/s^2). The controllers therefore accept a
+first input only if braking right after it keeps every distance too
+(:meth:`sqpmpc.control.pipeline.ControllerPipeline.braking_path` and the schemes'
+braking checks), so the
+braking fallback of the next sample follows a path already checked.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sqpmpc.errors import ProblemError
+from sqpmpc.models.acceleration import acceleration_dynamics
+from sqpmpc.models.unicycle import DISCRETIZATIONS, discrete_dynamics
+
+__all__ = [
+    "NOISE_TRUNCATION",
+    "acceleration_path_deviation",
+    "PLANT_MODELS",
+    "Plant",
+    "PlantSpec",
+    "linear_growth",
+    "model_margin",
+    "path_deviation",
+]
+
+#: The plant models a scenario's ``[plant] model`` accepts.
+PLANT_MODELS: tuple[str, ...] = DISCRETIZATIONS
+#: Input noise is Gaussian truncated at this many standard deviations.
+NOISE_TRUNCATION = 4.0
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """The scenario's ``[plant]`` section.
+
+    Parameters
+    ----------
+    model
+        ``"euler"`` (default), ``"rk4"`` or ``"exact"``.
+    input_noise
+        Standard deviations :math:`(\\sigma_v, \\sigma_\\omega) \\ge 0` of the noise
+        added to the applied input.
+    seed
+        Seed of the noise (an integer >= 0).
+    """
+
+    model: str = "euler"
+    input_noise: tuple[float, float] = (0.0, 0.0)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.model not in PLANT_MODELS:
+            raise ProblemError(f"model: expected one of {', '.join(map(repr, PLANT_MODELS))}, "
+                               f"found {self.model!r}")
+        noise = self.input_noise
+        if (not isinstance(noise, list | tuple | np.ndarray) or len(noise) != 2
+                or any(isinstance(x, bool) or not isinstance(x, int | float | np.floating)
+                       or not math.isfinite(x) or x < 0 for x in noise)):
+            raise ProblemError("input_noise: expected an array of 2 finite numbers >= 0 "
+                               f"[sigma_v, sigma_omega], found {noise!r}")
+        object.__setattr__(self, "input_noise", (float(noise[0]), float(noise[1])))
+        if (isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer)
+                or not 0 <= self.seed < 2**63):
+            raise ProblemError(f"seed: expected an integer in [0, 2^63), found {self.seed!r}")
+        object.__setattr__(self, "seed", int(self.seed))
+
+    @property
+    def noisy(self) -> bool:
+        """Whether any input noise is added."""
+        return self.input_noise != (0.0, 0.0)
+
+    @property
+    def noise_bound(self) -> np.ndarray:
+        """The hard bound :math:`W = 4\\sigma` of the truncated noise, ``(2,)``."""
+        return NOISE_TRUNCATION * np.asarray(self.input_noise)
+
+    def to_dict(self) -> dict[str, object]:
+        """The ``[plant]`` table."""
+        return {"model": self.model, "input_noise": list(self.input_noise), "seed": self.seed}
+
+
+class Plant:
+    """Steps the true robots: the spec's model with the (truncated Gaussian) input noise.
+
+    Parameters
+    ----------
+    spec
+        Model and noise.
+    sample_time
+        :math:`T_s`, s.
+    n_robots
+        Robots stepped together (the noise stream draws ``(n, 2)`` per step, so a
+        run with the same seed and robots is reproducible).
+    acceleration_bounds
+        ``(lower (2,), upper (2,))`` of :math:`(a, \alpha)` (the scenario's
+        ``[bounds] acceleration, angular_acceleration``), or ``None``: the paper's
+        robot, whose velocities change at once. With them the plant keeps the
+        robots' velocities (:attr:`velocities`, zero at the start) and changes them
+        within the bounds (module notes).
+    """
+
+    def __init__(self, spec: PlantSpec, sample_time: float, n_robots: int,
+                 acceleration_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        self.spec = spec
+        self.sample_time = float(sample_time)
+        self.n_robots = int(n_robots)
+        self._rng = np.random.default_rng(spec.seed)
+        self._sigma = np.asarray(spec.input_noise)
+        self.acceleration_bounds = None if acceleration_bounds is None else (
+            np.asarray(acceleration_bounds[0], dtype=float),
+            np.asarray(acceleration_bounds[1], dtype=float))
+        #: ``(n, 2)`` the robots' velocities ``(v, omega)`` (with acceleration bounds)
+        self.velocities = np.zeros((self.n_robots, 2))
+
+    @property
+    def has_velocities(self) -> bool:
+        """Whether the robots' velocities are states (acceleration bounds declared)."""
+        return self.acceleration_bounds is not None
+
+    def measure(self, states: np.ndarray) -> np.ndarray:
+        """What the robots measure: poses ``(n, 3)``, with velocities ``(n, 5)``."""
+        if not self.has_velocities:
+            return states
+        return np.concatenate((states, self.velocities), axis=1)
+
+    def applied_inputs(self, inputs: np.ndarray) -> np.ndarray:
+        """The inputs the robots really apply: ``inputs (n, 2)`` plus the noise."""
+        inputs = np.asarray(inputs, dtype=float)
+        if not self.spec.noisy:
+            return inputs.copy()
+        noise = self._rng.standard_normal(inputs.shape)
+        np.clip(noise, -NOISE_TRUNCATION, NOISE_TRUNCATION, out=noise)
+        return inputs + noise * self._sigma
+
+    def step(self, states: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Advance every robot by one sample :math:`T_s` with the commanded inputs held.
+
+        Parameters
+        ----------
+        states
+            ``(n, 3)`` states :math:`(x, y, \\psi)` at :math:`t_k`, in the scenario's
+            robot order.
+        inputs
+            ``(n, 2)`` commanded inputs :math:`(v, \\omega)`, held on
+            :math:`[t_k, t_{k+1})`.
+
+        Returns
+        -------
+        next_states : np.ndarray
+            ``(n, 3)`` states at :math:`t_{k+1}`, from the spec's model (``euler``,
+            ``rk4`` or ``exact``) with the applied inputs.
+        applied : np.ndarray
+            ``(n, 2)`` inputs the robots really applied: ``inputs`` plus the truncated
+            Gaussian input noise of the ``[plant]`` table (a copy of ``inputs``
+            without noise); with acceleration bounds (CONTRACT 1c) the velocities the
+            robots reach at the end of the sample (the commands when the bounds allow
+            them). Give it to :meth:`sqpmpc.RunRecorder.append` as
+            ``plant_inputs`` so the metrics see the true paths.
+
+        Examples
+        --------
+        >>> x, applied = plant.step(x, out.inputs)  # doctest: +SKIP
+        """
+        applied = self.applied_inputs(inputs)
+        if not self.has_velocities:
+            return discrete_dynamics(states, applied, self.sample_time, self.spec.model), applied
+        lower, upper = self.acceleration_bounds
+        h = self.sample_time
+        accel = np.clip((applied - self.velocities) / h, lower, upper)
+        full = np.concatenate((np.asarray(states, dtype=float)[:, :3], self.velocities), axis=1)
+        nxt = acceleration_dynamics(full, accel, h, self.spec.model)
+        self.velocities = nxt[:, 3:5].copy()
+        return nxt[:, :3], self.velocities.copy()
+
+
+def _simpson_error(speed: np.ndarray, rate: np.ndarray, h: float) -> np.ndarray:
+    """Bound on the distance between the RK4 and the exact end points."""
+    return math.sqrt(2.0) * speed * rate**4 * h**5 / 2880.0
+
+
+def path_deviation(inputs: np.ndarray, sample_time: float, prediction: str, plant: str,
+                   noise_bound: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    r"""Coefficients :math:`(\alpha, \beta)` of the path-deviation bound (module notes).
+
+    Parameters
+    ----------
+    inputs
+        Commanded inputs ``(..., 2)``.
+    sample_time
+        :math:`T_s`.
+    prediction, plant
+        The controller's discretization and the plant model.
+    noise_bound
+        :math:`(W_v, W_\omega)`, the hard bound of the input noise (default none).
+
+    Returns
+    -------
+    tuple of np.ndarray
+        :math:`\alpha` and :math:`\beta`, shape ``inputs.shape[:-1]``;
+        :math:`\alpha s + \beta s(1-s) \ge 0` on :math:`[0, 1]`.
+    """
+    for name, value in (("prediction", prediction), ("plant", plant)):
+        if value not in DISCRETIZATIONS:
+            raise ProblemError(f"{name} model must be one of {DISCRETIZATIONS}, got {value!r}")
+    u = np.asarray(inputs, dtype=float)
+    h = float(sample_time)
+    v, w = np.abs(u[..., 0]), np.abs(u[..., 1])
+    W = np.zeros(2) if noise_bound is None else np.asarray(noise_bound, dtype=float)
+    speed = v + W[0]
+    turn = v * w * h * h / 2.0  # |v w| Ts^2 / 2: Euler vs exact end point, or arc vs chord
+    zero = np.zeros_like(v)
+    alpha, beta = zero.copy(), zero.copy()
+    if plant == "exact":
+        if prediction == "exact":
+            beta = beta + turn
+        elif prediction == "euler":
+            alpha, beta = alpha + turn, beta - turn
+        else:  # rk4: the exact arc from its chord, the chord from the RK4 end point
+            alpha = alpha + _simpson_error(v, w, h)
+            beta = beta + turn
+    elif plant != prediction:  # the plant moves on a chord; the two end points differ
+        # each end point against the exact one: Euler's is `turn` away, RK4's Simpson's error
+        to_exact = {"euler": turn, "rk4": _simpson_error(v, w, h), "exact": zero}
+        alpha = alpha + to_exact[plant] + to_exact[prediction]
+    if W.any():
+        noise_alpha = W[0] * h + speed * W[1] * h * h / 2.0
+        if plant == "exact":  # the heading error grows along the sample: s^2
+            alpha = alpha + noise_alpha
+            beta = beta - speed * W[1] * h * h / 2.0
+        else:  # a chord: the end point moves by at most noise_alpha (+ RK4's error twice)
+            alpha = alpha + noise_alpha + 2.0 * _simpson_error(speed, w + W[1], h) * (
+                plant == "rk4")
+    return alpha, beta
+
+
+def linear_growth(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    r"""The smallest :math:`G` with :math:`\alpha s + \beta s(1-s) \le G s` on :math:`[0, 1]`."""
+    return alpha + np.maximum(beta, 0.0)
+
+
+def model_margin(input_lower: np.ndarray, input_upper: np.ndarray, sample_time: float,
+                 prediction: str, plant: PlantSpec,
+                 acceleration_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    r"""Margin the QP rows keep for a plant that differs from the prediction, m.
+
+    Twice the largest :func:`linear_growth` over the input box (its corners:
+    the bound grows with :math:`|v|` and :math:`|\omega|`); 0 when the plant
+    moves exactly as predicted. E.g. Euler controller on an exact plant, or
+    exact on exact: :math:`v_{\max}\omega_{\max}T_s^2` (0.118 m for the paper's
+    bounds at :math:`T_s` = 0.5 s). With ``acceleration_bounds`` (robots with
+    velocity states) the largest growth of :func:`acceleration_path_deviation`
+    over the velocity and acceleration boxes.
+    """
+    lo, hi = np.asarray(input_lower, dtype=float), np.asarray(input_upper, dtype=float)
+    if acceleration_bounds is not None:
+        alo, ahi = (np.asarray(b, dtype=float) for b in acceleration_bounds)
+        vel = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
+        acc = np.array([[a, b] for a in (alo[0], ahi[0]) for b in (alo[1], ahi[1])])
+        alpha, beta = acceleration_path_deviation(
+            np.repeat(vel, 4, axis=0), np.tile(acc, (4, 1)), sample_time, prediction,
+            plant.model, plant.noise_bound, (lo, hi))
+        return float(2.0 * linear_growth(alpha, beta).max())
+    corners = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
+    alpha, beta = path_deviation(corners, sample_time, prediction, plant.model,
+                                 plant.noise_bound)
+    return float(2.0 * linear_growth(alpha, beta).max())
+
+
+def acceleration_path_deviation(velocities: np.ndarray, accelerations: np.ndarray,
+                                sample_time: float, prediction: str, plant: str,
+                                noise_bound: np.ndarray | None = None,
+                                velocity_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    r"""Coefficients :math:`(\alpha, \beta)` of the path-deviation bound for a robot with
+    velocity states (module notes, "Robots with acceleration limits").
+
+    Parameters
+    ----------
+    velocities
+        Velocities ``(..., 2)`` :math:`(v_0, \omega_0)` at the start of the sample.
+    accelerations
+        The sample's accelerations ``(..., 2)`` :math:`(a, \alpha)`.
+    sample_time, prediction, plant, noise_bound
+        As for :func:`path_deviation`.
+    velocity_bounds
+        ``(lower, upper)`` of :math:`(v, \omega)`: the end velocities are clipped to
+        them (:func:`model_margin` evaluates the corners of both boxes).
+    """
+    for name, value in (("prediction", prediction), ("plant", plant)):
+        if value not in DISCRETIZATIONS:
+            raise ProblemError(f"{name} model must be one of {DISCRETIZATIONS}, got {value!r}")
+    vel = np.asarray(velocities, dtype=float)
+    acc = np.asarray(accelerations, dtype=float)
+    h = float(sample_time)
+    end = vel + h * acc
+    if velocity_bounds is not None:
+        end = np.clip(end, velocity_bounds[0], velocity_bounds[1])
+    speed = np.maximum(np.abs(vel[..., 0]), np.abs(end[..., 0]))
+    rate = np.maximum(np.abs(vel[..., 1]), np.abs(end[..., 1]))
+    W = np.zeros(2) if noise_bound is None else np.asarray(noise_bound, dtype=float)
+    speed = speed + W[0]
+    rate = rate + W[1]
+    gamma = speed * rate * h * h / 2.0
+    alpha = np.zeros_like(speed)
+    beta = np.abs(acc[..., 0]) * h * h / 2.0
+    curved_plant = plant != "euler"
+    curved_prediction = prediction != "euler"
+    if curved_plant and not curved_prediction:
+        alpha, beta = alpha + gamma, beta - gamma
+    elif curved_plant:
+        alpha, beta = alpha + 2.0 * gamma, beta - gamma
+    elif curved_prediction:
+        alpha = alpha + gamma
+    if W.any():
+        alpha = alpha + W[0] * h / 2.0 + speed * W[1] * h * h / 6.0
+    return alpha, beta

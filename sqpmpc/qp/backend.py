@@ -1,0 +1,212 @@
+"""QP data shared by every backend: the backends' names, OSQP's settings, one solve's
+result and the interior-point reference solve.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import qpsolvers
+import scipy.sparse as sp
+
+from sqpmpc.errors import ProblemError
+
+__all__ = [
+    "BackendSolution", "HANDOVER_ITERATIONS", "OSQPSettings", "PIQP_MAX_ITER", "QPResult",
+    "QP_SOLVERS", "solve_interior_point",
+]
+
+
+#: QP backends of :class:`SparseQP`.
+QP_SOLVERS = ("osqp", "piqp", "daqp", "osqp+piqp")
+
+
+#: ``"osqp+piqp"``: OSQP iterations before a QP is handed to PIQP.
+HANDOVER_ITERATIONS = 100
+
+
+#: PIQP's iteration cap (an interior-point method needs about 10 here).
+PIQP_MAX_ITER = 250
+
+
+@dataclass(frozen=True)
+class OSQPSettings:
+    """OSQP settings used by the controllers (see the OSQP documentation).
+
+    Tolerances are tighter than OSQP's defaults: the collision rows carry a
+    safety margin of 1e-3 m by default, and ``eps_abs`` must stay well below it.
+    ``time_limit`` (s, 0 for none) bounds a solve for real-time use: a QP that
+    runs out of time is a failed QP, and the controller applies its fallback.
+
+    ``time_limit``: seconds a solve may take, or ``None``.
+
+    ``rescue_solver``: ADMM can need tens of thousands of iterations on the
+    ill-conditioned QPs of robots pressed against each other (measured: up to
+    97,000 where the interior-point solver Clarabel needs about 1 ms). When
+    OSQP stops without a solution for any reason but the time limit, the same
+    QP is solved again with this ``qpsolvers`` backend (``"clarabel"``,
+    default) and its solution is used (and warm-starts OSQP next time);
+    ``None`` turns the rescue off.
+
+    ``scaling``: one Ruiz equilibration pass instead of OSQP's 10. The data of
+    these QPs are already of order one (unit collision normals, weights and
+    Jacobians of order one), and every sample's matrix update re-scales the
+    matrices before the numeric refactorization. Measured side by side on the
+    benchmark scenarios: 7-12 % less controller time per sample (paper-s2
+    centralized median 0.486 -> 0.435 ms), the same centralized closed loops
+    to 0.1 %, and no loss in the liveness and random-scenario benchmarks.
+    No scaling at all (0) was as fast but changed the head-on centralized
+    closed loop from 460 to 611.
+
+    ``adaptive_rho_interval``: 50 ADMM iterations between rho updates, fixed.
+    OSQP's default (0) derives the interval from the measured setup time, so
+    the iterates depended on the machine's load; 50 is the value it chose on
+    every built-in closed loop here (identical closed-loop costs), now
+    reproducible (``benchmarks/qp_backends.py`` compares the settings).
+    """
+
+    eps_abs: float = 1e-5
+    eps_rel: float = 1e-5
+    max_iter: int = 4000
+    polishing: bool = False
+    adaptive_rho: bool = True
+    adaptive_rho_interval: int = 50
+    rho: float = 0.1
+    sigma: float = 1e-6
+    alpha: float = 1.6
+    scaling: int = 1
+    check_termination: int = 10
+    time_limit: float | None = None
+    accept_inaccurate: bool = True
+    rescue_solver: str | None = "clarabel"
+
+    def __post_init__(self) -> None:
+        if self.rescue_solver is not None and (
+                self.rescue_solver not in qpsolvers.available_solvers):
+            raise ProblemError(
+                f"OSQPSettings.rescue_solver must be None or an installed qpsolvers backend "
+                f"({', '.join(qpsolvers.available_solvers)}), got {self.rescue_solver!r}")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("float", "int", "float | None") and value is not None and not (
+                    isinstance(value, int | float) and np.isfinite(value) and value >= 0):
+                raise ProblemError(f"OSQPSettings.{f.name} must be finite and >= 0, got {value}")
+        if self.time_limit == 0.0:
+            raise ProblemError("OSQPSettings.time_limit must be > 0 s (or None for no limit)")
+
+    def to_osqp(self) -> dict[str, object]:
+        """Keyword arguments for ``OSQP.setup``."""
+        kwargs: dict[str, object] = {
+            "eps_abs": self.eps_abs,
+            "eps_rel": self.eps_rel,
+            "max_iter": self.max_iter,
+            "polishing": self.polishing,
+            "adaptive_rho": self.adaptive_rho,
+            "adaptive_rho_interval": self.adaptive_rho_interval,
+            "rho": self.rho,
+            "sigma": self.sigma,
+            "alpha": self.alpha,
+            "scaling": self.scaling,
+            "check_termination": self.check_termination,
+            "verbose": False,
+            "warm_starting": True,
+        }
+        if self.time_limit is not None:
+            kwargs["time_limit"] = self.time_limit
+        return kwargs
+
+
+@dataclass(slots=True)
+class BackendSolution:
+    """What one solve of another backend returned (:mod:`sqpmpc.qp.piqp`,
+    :mod:`sqpmpc.qp.daqp`); duals in OSQP's convention."""
+
+    x: np.ndarray
+    y: np.ndarray
+    solved: bool
+    status: str
+    iterations: int
+    solve_time: float
+    objective: float = float("nan")
+    primal_residual: float = float("nan")
+    dual_residual: float = float("nan")
+
+
+@dataclass
+class QPResult:
+    r"""Outcome of one QP solve.
+
+    Attributes
+    ----------
+    success
+        A finite primal/dual pair came back with status *solved* (or *solved
+        inaccurate* when the settings accept it).
+    status
+        OSQP's status string.
+    x, y
+        Primal and dual solutions (copies); OSQP's sign convention
+        :math:`Pz + q + A^\top y = 0`, ``y > 0`` on active upper bounds.
+    primal_residual, dual_residual
+        :math:`\|Az - \Pi_{[l,u]}(Az)\|_\infty` and :math:`\|Pz + q + A^\top y\|_\infty`
+        as reported by OSQP.
+    iterations
+        ADMM iterations.
+    solve_time, wall_time
+        OSQP's own solve time and the wall time of ``update`` + ``solve``, s.
+    """
+
+    success: bool
+    status: str
+    x: np.ndarray
+    y: np.ndarray
+    objective: float
+    primal_residual: float
+    dual_residual: float
+    iterations: int
+    solve_time: float
+    wall_time: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+def solve_interior_point(
+    P_upper: sp.csc_matrix, q: np.ndarray, A: sp.csc_matrix, lower: np.ndarray,
+    upper: np.ndarray, solver: str = "clarabel",
+) -> tuple[np.ndarray, np.ndarray] | None:
+    r"""Solve :math:`\min \tfrac12 z^\top P z + q^\top z` s.t. :math:`l \le Az \le u`.
+
+    The interior-point backend ``solver`` is called through ``qpsolvers``.
+
+    Rows with :math:`l = u` become equalities, the finite sides of the others
+    inequalities :math:`Gz \le h`.
+
+    Returns
+    -------
+    tuple[np.ndarray, np.ndarray] | None
+        ``(z, y)`` with the multipliers in OSQP's convention
+        (:math:`Pz + q + A^\top y = 0`, ``y > 0`` on active upper sides), or
+        ``None`` if the solver found no solution.
+    """
+    P = (P_upper + sp.triu(P_upper, k=1).T).tocsc()
+    A = sp.csr_matrix(A)
+    eq = lower == upper
+    up = np.isfinite(upper) & ~eq
+    lo = np.isfinite(lower) & ~eq
+    G = sp.vstack((A[up], -A[lo])).tocsc()
+    h = np.concatenate((upper[up], -lower[lo]))
+    problem = qpsolvers.Problem(P, q, G, h, A[eq].tocsc(), upper[eq])
+    with warnings.catch_warnings():
+        # qpsolvers warns on a non-optimal exit; the caller reports it through the result
+        warnings.simplefilter("ignore", UserWarning)
+        solution = qpsolvers.solve_problem(problem, solver=solver)
+    if not solution.found or solution.x is None or not np.all(np.isfinite(solution.x)):
+        return None
+    n_up = int(up.sum())
+    y = np.zeros(lower.size)
+    if solution.y is not None:
+        y[eq] = solution.y
+    if solution.z is not None:
+        y[up] += solution.z[:n_up]
+        y[lo] -= solution.z[n_up:]
+    return np.asarray(solution.x, dtype=float), y

@@ -1,0 +1,149 @@
+r"""The ``roundabout`` rule: dense crowds are passed counter-clockwise, on the right.
+
+Pairwise rules (``keep-right``, ``detour``) resolve encounters of a few
+robots. When tens of robots head for the same region at once (an antipodal
+swap of 16 to 64, a crossing of two streams), every robot's straight path
+ends in one jam, and pairwise tilts only make it rotate slowly in place. The
+classical cure for many vehicles whose paths cross is a *roundabout*: every
+vehicle that meets a conflict zone circles it in the same sense and leaves it
+where its own goal lies (Pallottino, Scordio, Bicchi and Frazzoli,
+"Decentralized cooperative policy for conflict resolution in multivehicle
+systems", IEEE T-RO 23(6), 2007, who give conditions under which such a
+policy is safe and live for many vehicles; the traffic roundabout is its
+everyday form). Here the
+conflict zone is sensed, not given: each robot looks at the robots ahead of
+it, and the same deterministic rule in every robot makes them all turn the
+same way.
+
+For an own robot at :math:`p` with goal :math:`g` (its stage-``N`` scenario
+reference) farther than ``goal_distance``, the *crowd ahead* is the set
+:math:`C` of other robots :math:`j` with
+
+.. math::
+
+    \|p_j - p\| \le \min(\text{sense}, \|g - p\|), \qquad
+    \angle(p_j - p,\ g - p) \le \text{cone}, \qquad
+    \angle(h_j,\ g - p) > \text{along},
+
+with :math:`h_j` robot ``j``'s heading: a robot heading the way this one
+goes is traffic, not a conflict (a formation moving together does not
+circle itself). A robot within ``goal_distance`` of the point where its
+reference comes to rest has arrived: it is an obstacle to pass (the other
+rules and the rows handle it), not a flow to circle with.
+
+When :math:`|C| \ge` ``min_crowd``, the crowd is the disc of centre
+:math:`c = \operatorname{mean}_{j \in C} p_j` and radius
+:math:`\rho = \max_{j \in C} (\|p_j - c\| + d_j)`, with :math:`d_j` the
+required distance to robot ``j``. If the straight path to the goal crosses
+that disc (the goal direction lies between the two tangents from :math:`p`),
+the robot heads along the *right* tangent, which keeps the crowd on its left
+(counter-clockwise around it); inside the disc it moves along the circle
+around :math:`c`, counter-clockwise. Its references of stages 1..N become
+the points :math:`p + i\,T_s\,v_\text{ref}\,u`, :math:`u` the chosen
+direction and :math:`v_\text{ref}` = ``speed_fraction`` times the largest
+speed. Once fewer than ``min_crowd`` robots are ahead (or the path clears the
+disc), the robot tracks its goal again.
+
+The rule only changes references: every collision row, the hard stage 1 and
+the verification of the first input are untouched, so it chooses among safe
+motions like the other rules.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.rules import roundabout_directions
+from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
+
+__all__ = ["Roundabout", "roundabout_directions"]
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+class _RoundaboutInstance(RuleInstance):
+    rule: Roundabout
+    counter_names = ("roundabout_samples",)
+
+    def __init__(self, rule: Roundabout, context: RuleContext) -> None:
+        super().__init__(rule, context)
+        self.required = np.ascontiguousarray(
+            context.scenario.required_distances()[context.own])
+        self.directions = np.zeros((context.own.size, 2))
+        step = rule.speed_fraction * context.max_speed * context.sample_time
+        self.offsets = step * np.arange(1, context.horizon + 1, dtype=float)
+        self._cos_cone = math.cos(rule.cone)
+        self._cos_along = math.cos(rule.along)
+        self.references_changed()
+        self._no_headings = np.zeros(context.scenario.n_robots)
+
+    def references_changed(self) -> None:
+        sc = self.context.scenario
+        rest = np.hypot(*sc.reference_velocities(sc.t_end).T) == 0.0
+        self.rest_goals = np.where(rest[:, None], sc.reference_positions(sc.t_end), np.nan)
+
+    def shape_references(self, view: SampleView) -> None:
+        r = self.rule
+        if view.positions.shape[0] <= r.min_crowd:
+            return
+        if view.headings is None:  # every robot ahead counts (a cosine never exceeds 2)
+            headings, cos_along = self._no_headings, 2.0
+        else:
+            headings, cos_along = view.headings, self._cos_along
+        active = roundabout_directions(
+            view.positions, headings, self.rest_goals, self.context.own,
+            np.ascontiguousarray(view.scenario_references[:, -1]), self.required, r.sense,
+            self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
+        if not active:
+            return
+        self.counts["roundabout_samples"] += active
+        out = view.references.copy()
+        for k in np.flatnonzero(self.directions.any(axis=1)):
+            out[k] = view.own_states[k, :2] + self.offsets[:, None] * self.directions[k]
+        view.references = out
+
+
+@dataclass(frozen=True)
+class Roundabout(Rule):
+    """Pass a crowd of at least ``min_crowd`` robots ahead counter-clockwise, on its right.
+
+    See the module docstring for the rule; ``sense`` (m) is how far ahead a
+    robot looks, ``cone`` (rad) the half-angle of "ahead", ``goal_distance``
+    (m) the distance to the goal below which the rule is idle, ``along`` (rad)
+    the angle within which a robot heading the way this one goes is traffic
+    rather than a conflict (it does not count in the crowd), and
+    ``speed_fraction`` the share of the largest speed the roundabout
+    references move at.
+    """
+
+    name = "roundabout"
+    summary = "a crowd of 4+ robots ahead is passed counter-clockwise along its right tangent"
+    instance = _RoundaboutInstance
+    min_crowd: int = 4
+    sense: float = 3.0
+    cone: float = float(np.deg2rad(60.0))
+    along: float = float(np.deg2rad(45.0))
+    goal_distance: float = 1.0
+    speed_fraction: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_positive(self, "min_crowd", "sense", "cone", "along", "goal_distance",
+                       "speed_fraction")
+        if not isinstance(self.min_crowd, numbers.Integral):
+            raise ProblemError(f"rule 'roundabout': min_crowd must be an integer, "
+                               f"got {self.min_crowd!r}")
+        if self.cone >= np.pi / 2:
+            raise ProblemError(f"rule 'roundabout': cone must be below pi/2, got {self.cone}")
+        if self.along >= np.pi:
+            raise ProblemError(f"rule 'roundabout': along must be below pi, got {self.along}")
+        if self.speed_fraction > 1.0:
+            raise ProblemError(f"rule 'roundabout': speed_fraction must be at most 1, "
+                               f"got {self.speed_fraction}")
+
+

@@ -1,0 +1,152 @@
+"""ROS 2 robots driven by ``sqpmpc robot --ros2``, as real processes on loopback.
+
+The robots are simulated with zenoh-ros2-sdk (services.ros2.simfleet), an
+independent implementation of rmw_zenoh's format; this test process watches
+the controllers with zenoh-ros2-sdk too (a subscriber of cmd_vel and plan, a
+graph query). Invariants only: no collision of the true poses at and between
+samples, arrival, zero within one sample of a robot's odometry stopping.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+import time
+
+import pytest
+import zenoh
+
+from services.ros2.check import check_fleet
+from services.ros2.sdk import use_local_definitions
+from services.testing import free_ports, start_service, stop_processes
+from services.transport import make_config
+from sqpmpc.problem.scenario_file import load_scenario
+
+sdk = pytest.importorskip("zenoh_ros2_sdk")
+
+SCENARIO = """
+name = "ros2-three"
+t_end = 16.0
+sample_time = 0.5
+horizon = 8
+
+[weights]
+Q = [1.0, 1.0]
+R = [0.5, 0.5]
+
+[bounds]
+v = [-0.6, 0.6]
+omega = [-0.7853981633974483, 0.7853981633974483]
+
+[[robots]]
+id = 1
+initial_state = [-1.2, 0.1, 0.0]
+diameter = 0.3
+reference = { type = "point", position = [1.2, 0.1] }
+
+[[robots]]
+id = 2
+initial_state = [1.2, -0.1, 3.141592653589793]
+diameter = 0.3
+reference = { type = "point", position = [-1.2, -0.1] }
+
+[[robots]]
+id = 3
+initial_state = [0.0, 1.4, -1.5707963267948966]
+diameter = 0.3
+reference = { type = "point", position = [0.0, -1.4] }
+"""
+STOP = 0.7  # robot 3's odometry stops at t = 0.7 s (it stands clear of the crossing)
+
+
+def _wait_for_nodes(port: int, names: set[str], timeout: float) -> bool:
+    seen: set[str] = set()
+    lock = threading.Lock()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if len(parts) == 9 and parts[5] == "NN":
+            with lock:
+                seen.add(parts[8])
+
+    with zenoh.open(make_config((), [f"tcp/127.0.0.1:{port}"], "client")) as session:
+        sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            with lock:
+                if names <= seen:
+                    break
+            time.sleep(0.1)
+        sub.undeclare()
+    return names <= seen
+
+
+@pytest.mark.timeout(240)
+def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robot(tmp_path):
+    scenario_file = tmp_path / "three.toml"
+    scenario_file.write_text(SCENARIO)
+    scenario = load_scenario(str(scenario_file))
+    ros_port, sq_port = free_ports(2)
+    ros_ep, sq_ep = f"tcp/127.0.0.1:{ros_port}", f"tcp/127.0.0.1:{sq_port}"
+    epoch_file = tmp_path / "epoch"
+    logs = tmp_path / "logs"
+    procs = [start_service("router", ["--listen", ros_ep], logs, "ros2-router"),
+             start_service("router", ["--listen", sq_ep], logs, "router")]
+    procs.append(start_service("ros2.simfleet", [
+        "--scenario", str(scenario_file), "--router", f"127.0.0.1:{ros_port}",
+        "--out", str(tmp_path), "--epoch-file", str(epoch_file),
+        "--odom-stop", f"3:{STOP}"], logs, "simfleet"))
+    robots = [start_service("robot", [
+        "--id", str(i), "--scenario", str(scenario_file), "--ros2", "--ros2-connect", ros_ep,
+        "--zenoh-mode", "client", "--connect", sq_ep, "--run", "ros2test",
+        "--epoch-file", str(epoch_file)], logs, f"robot-{i}") for i in (1, 2, 3)]
+    procs += robots
+    session = None
+    try:
+        assert _wait_for_nodes(ros_port, {f"sqpmpc_robot{i}" for i in (1, 2, 3)}, 120.0), \
+            [p.output()[-500:] for p in robots]
+        use_local_definitions(tmp_path / "msgs")
+        session = sdk.ZenohSession.get_instance("127.0.0.1", ros_port)
+        cmds, paths = [], []
+        subs = [sdk.ROS2Subscriber("/robot1/cmd_vel", "geometry_msgs/msg/Twist",
+                                   callback=cmds.append, router_port=ros_port),
+                sdk.ROS2Subscriber("/robot1/plan", "nav_msgs/msg/Path",
+                                   callback=paths.append, router_port=ros_port)]
+        epoch_file.write_text(repr(time.time() + 1.0))
+        time.sleep(3.0)
+        topics = dict(sdk.get_topic_names_and_types(router_port=ros_port, timeout=1.0))
+        info = sdk.get_topic_info("/robot1/cmd_vel", router_port=ros_port, timeout=1.0,
+                                  verbose=True)
+        for rob in robots:
+            assert rob.wait(60.0) == 0, rob.output()[-2000:]
+        for sub in subs:
+            sub.close()
+    finally:
+        if session is not None:
+            session.close()
+        sim = procs[2]
+        if sim.proc.poll() is None:
+            sim.proc.send_signal(signal.SIGINT)
+            sim.wait(30.0)
+        stop_processes(procs)
+    # the independent subscriber saw the controller's commands and plans, the graph its node
+    assert topics["/robot1/cmd_vel"] == ["geometry_msgs/msg/Twist"]
+    assert topics["/robot1/plan"] == ["nav_msgs/msg/Path"]
+    assert topics["/robot1/odom"] == ["nav_msgs/msg/Odometry"]
+    assert any(p.node_name == "sqpmpc_robot1" and p.node_namespace == "/robot1"
+               for p in info.publishers)
+    assert len(cmds) >= 5 and all(abs(c.linear.x) <= 0.6 + 1e-9 for c in cmds)
+    assert cmds[-1].linear.x == 0.0 and cmds[-1].angular.z == 0.0  # zero on shutdown
+    assert paths and len(paths[-1].poses) == scenario.horizon + 1
+    assert paths[-1].header.frame_id == "odom"
+    # the true poses: no collision, robots 1 and 2 arrived, robot 3 stopped within a sample
+    data = json.loads((tmp_path / "poses.json").read_text())
+    result = check_fleet(data, scenario, tolerance=0.05)
+    assert result.collisions == 0 and result.certified_clearance > 0.0
+    assert result.final_errors["1"] <= 0.05 and result.final_errors["2"] <= 0.05
+    assert result.stop_to_zero["3"] is not None
+    assert result.stop_to_zero["3"] <= scenario.sample_time
+    assert not result.moved_after_zero["3"]
+    assert math.isfinite(result.min_clearance)

@@ -1,0 +1,48 @@
+"""The ROS 2 robot's pieces without processes: bad options, committed motion of plans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.robot import main as robot_main
+from services.ros2.timing import TimedPlan, arc, committed, plan_position
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--id", "1", "--id", "2"], "--ros2 drives one robot"),
+    (["--id", "1", "--ros2-namespace", "robot1"], "absolute ROS 2 name"),
+    (["--id", "1", "--ros2-namespace", "/9lives"], "absolute ROS 2 name"),
+    (["--id", "1", "--ros2-domain", "300"], "--ros2-domain: expected 0..232"),
+    (["--id", "1", "--epoch", "5", "--epoch-file", "x"], "--epoch or --epoch-file"),
+    (["--id", "1", "--lead", "0.6"], "--lead: must be less than Ts"),
+    (["--id", "1", "--decentralized-mode", "paper"], "--decentralized-mode"),
+])
+def test_bad_ros2_options_are_one_clear_error(capsys, args, message):
+    with pytest.raises(SystemExit) as exc:
+        robot_main([*args, "--scenario", "paper-s2", "--ros2"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
+
+
+def test_committed_motion_is_the_first_arc_then_held_or_bounded():
+    Ts, v_max = 0.5, 0.6
+    states = np.array([[0.0, 0.0, 0.0]] * 9)
+    inputs = np.array([[0.4, 0.3]] * 8)
+    plans = [TimedPlan(10.0, states, inputs), TimedPlan(10.5, states + [1.0, 0.0, 0.0], inputs)]
+    times = np.array([9.8, 10.2, 10.5, 10.7, 11.0, 11.4])
+    pos, rad = committed(plans, times, Ts, v_max, hold_after=False)
+    assert np.allclose(pos[1], arc(states[0], 0.4, 0.3, 0.2)[:2])
+    assert np.allclose(pos[3], arc(plans[1].states[0], 0.4, 0.3, 0.2)[:2])
+    assert rad[1] == rad[2] == rad[3] == rad[4] == 0.0
+    assert np.isclose(rad[5], v_max * 0.4)  # 0.4 s past the newest plan's first sample
+    assert np.isclose(rad[0], v_max * 0.2)  # before the oldest plan
+    held, rad_held = committed(plans, times, Ts, v_max, hold_after=True)
+    assert rad_held[5] == 0.0 and np.allclose(held[5], held[4])
+    # a lost plan leaves a gap: bounded by the reach from the older arc's end
+    gap, rad_gap = committed([plans[0], TimedPlan(11.5, states, inputs)], np.array([11.2]),
+                             Ts, v_max, hold_after=True)
+    assert np.isclose(rad_gap[0], v_max * 0.7)
+    assert np.allclose(gap[0], arc(states[0], 0.4, 0.3, Ts)[:2])
+    assert np.allclose(plan_position(plans[0], 10.2, Ts)[:2], pos[1])
