@@ -10,6 +10,7 @@ import numpy as np
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
 from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
+from sqpmpc.kernels.acceleration import pairs_keep_bulging_distance
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
 from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
@@ -47,7 +48,7 @@ class CentralizedController(ControllerPipeline):
         self.pairs = pairs
         self.required = required
         self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
-                                                 self.geometry)
+                                                 self.geometry, self.recovery_tolerance)
         self._rows = {"internal": self.collisions}
         if self.obstacle_rows is not None:
             self._rows["external"] = self.obstacle_rows
@@ -81,9 +82,14 @@ class CentralizedController(ControllerPipeline):
         by at most :meth:`path_deviation`, which the check adds.
         """
         alpha, beta = self.path_deviation(inputs)
-        growth = alpha + np.maximum(beta, 0.0)
         now = np.ascontiguousarray(states[:, :2])
         p = np.ascontiguousarray(next_states[:, :2])
+        if not self._unicycle:  # robots with velocity states: the bound itself
+            if not pairs_keep_bulging_distance(self.collisions.pairs, now, p,
+                                               self.collisions.safe_distance, alpha, beta):
+                return False
+            return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
+        growth = alpha + np.maximum(beta, 0.0)
         if not self.collisions.first_input_safe(now, p, growth):
             return False
         return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)
@@ -96,24 +102,25 @@ class CentralizedController(ControllerPipeline):
         the first input took them) follows a path checked here: the fallback is safe by
         induction, as standing still is for the paper's unicycle (which stops at once).
         The obstacles are checked along the same paths as they move on.
-        Each braking sample's true path may stray from its segment by the growth of
+        Each braking sample's true path may stray from its segment by the bound of
         :func:`~sqpmpc.problem.plant.acceleration_path_deviation`.
         """
         if not self.model.velocity_states:
             return True
         path, inputs = self.braking_path(next_states)
-        growth = np.empty(inputs.shape[:2])
+        alpha, beta = acceleration_path_deviation(
+            path[:, :-1, 3:5], inputs, self.sample_time, self.settings.discretization,
+            self.scenario.plant.model, self._noise_bound)                    # (m, B) each
         for j in range(inputs.shape[1]):
-            alpha, beta = acceleration_path_deviation(
-                path[:, j, 3:5], inputs[:, j], self.sample_time,
-                self.settings.discretization, self.scenario.plant.model, self._noise_bound)
-            growth[:, j] = alpha + np.maximum(beta, 0.0)
             now = np.ascontiguousarray(path[:, j, :2])
             nxt = np.ascontiguousarray(path[:, j + 1, :2])
-            if not self.collisions.first_input_safe(now, nxt, growth[:, j]):
+            if not pairs_keep_bulging_distance(self.collisions.pairs, now, nxt,
+                                               self.collisions.safe_distance,
+                                               np.ascontiguousarray(alpha[:, j]),
+                                               np.ascontiguousarray(beta[:, j])):
                 return False
         return self.obstacle_rows is None or self.obstacle_rows.braking_safe(path[..., :2],
-                                                                             growth)
+                                                                             alpha, beta)
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.

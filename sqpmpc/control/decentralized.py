@@ -51,7 +51,7 @@ from sqpmpc.ocp.collision_rows import (
     ExternalCollisionModel,
 )
 from sqpmpc.ocp.obstacle_rows import StackedRows
-from sqpmpc.problem.plant import acceleration_path_deviation
+from sqpmpc.problem.plant import acceleration_path_deviation, largest_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
@@ -131,7 +131,7 @@ class DecentralizedController(ControllerPipeline):
         self.collisions = ExternalCollisionModel(
             self.required[:slots], N, self.geometry,
             reach=scenario.sample_time * self.context.max_speed, margin=self.pair_margin,
-            stage_one_rule_for_obstacles=mode == "shared",
+            stage_one_rule_for_obstacles=mode == "shared", recovery=self.recovery_tolerance,
         )
         self._rows = {"external": self.collisions if self.obstacle_rows is None
                       else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
@@ -171,6 +171,9 @@ class DecentralizedController(ControllerPipeline):
         if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
                                                 beta=float(beta[0])):
             return False
+        if not self._unicycle:  # robots with velocity states: the bound itself
+            return (self.obstacles_safe(states, next_state, alpha, beta)
+                    and self.in_position_bounds(next_state[:, :2]))
         growth = alpha + np.maximum(beta, 0.0)
         return (self.obstacles_safe(states, next_state, growth)
                 and self.in_position_bounds(next_state[:, :2]))
@@ -197,11 +200,13 @@ class DecentralizedController(ControllerPipeline):
         alpha, beta = acceleration_path_deviation(
             path[0, :-1, 3:5], inputs[0], self.sample_time, self.settings.discretization,
             self.scenario.plant.model, self._noise_bound)
-        growth = alpha + np.maximum(beta, 0.0)                  # (B,)
         if self.obstacle_rows is not None and not self.obstacle_rows.braking_safe(
-                path[..., :2], growth[None]):
+                path[..., :2], alpha[None], beta[None]):
             return False
+        growth = largest_deviation(alpha, beta)                 # (B,)
         shared = c.kind == SHARED
+        inside = c.inside()
+        shared &= ~inside
         if shared.any():
             # each robot keeps half the true distance plus its own deviation: the rows' half
             # margin less the braking path's growth may be used
@@ -209,6 +214,12 @@ class DecentralizedController(ControllerPipeline):
             normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
             if (held < -slack - 1e-9).any():
+                return False
+        if inside.any():
+            # overlap-recovery: a pair already inside its distance cannot keep it; braking
+            # must not take this robot across the current mid-line's check line
+            held = pos @ c.check_normals[inside].T - c.check_rhs[inside]
+            if (held < -self.recovery_tolerance).any():
                 return False
         avoid = (c.kind == OBSTACLE) | (c.kind == MISSING)
         if avoid.any():

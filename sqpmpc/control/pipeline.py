@@ -71,7 +71,11 @@ from sqpmpc.rules.base import Contribution, RuleContext, RuleInstance, SampleVie
 if TYPE_CHECKING:
     from sqpmpc.control.plans import PlanAges
 
-__all__ = ["ControlOutput", "ControllerPipeline", "braking_input", "kernel_warm_up_seconds"]
+__all__ = ["RECOVERY_TOLERANCE", "ControlOutput", "ControllerPipeline", "braking_input",
+           "kernel_warm_up_seconds"]
+
+#: Smallest tolerance of the ``overlap-recovery`` rule, m (the solver's accuracy).
+RECOVERY_TOLERANCE = 1e-4
 
 @functools.cache
 def kernel_warm_up_seconds() -> float:
@@ -157,13 +161,16 @@ class ControllerPipeline:
         self._noise_bound = plant.noise_bound
         #: the margin of the rows between two robots: solver tolerance + plant deviation
         self.pair_margin = settings.collision_margin + self.model_margin
+        #: tolerance of the ``overlap-recovery`` rule (:mod:`sqpmpc.ocp.collision_rows`), m
+        self.recovery_tolerance = max(settings.collision_margin, RECOVERY_TOLERANCE)
         self.obstacle_rows: ObstacleRows | None = None
         if scenario.obstacles:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
                 self.sample_time, self.geometry,
                 settings.collision_margin + 0.5 * self.model_margin,
-                (float(self.input_lower[0]), float(self.input_upper[0])))
+                (float(self.input_lower[0]), float(self.input_upper[0])),
+                self.recovery_tolerance)
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,
@@ -289,11 +296,13 @@ class ControllerPipeline:
             self.scenario.plant.model, self._noise_bound)
 
     def obstacles_safe(self, states: np.ndarray, next_states: np.ndarray,
-                        growth: np.ndarray) -> bool:
-        """The own robots' paths keep their distances to the obstacles over the sample."""
+                       growth: np.ndarray, beta: np.ndarray | None = None) -> bool:
+        """The own robots' paths keep their distances to the obstacles over the sample (a
+        path strays ``growth s``, or with ``beta`` ``growth s + beta s (1 - s)``)."""
         if self.obstacle_rows is None:
             return True
-        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth)
+        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth,
+                                                   beta)
 
     def publish(self, sample: int, out: ControlOutput) -> None:
         """Step 8: hand the sample's result to the scheme (override if there is something

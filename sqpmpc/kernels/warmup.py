@@ -49,6 +49,8 @@ def warm_up() -> float:
     ck.segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12, 0.0)
     ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
                                    np.ones(1), 0.0)
+    ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
+                                   np.ones(1), 0.0, 1e-3)
     one = np.zeros(1, dtype=np.int64)
     split_rows(np.ones(2), np.zeros(2), np.ones(2), one, one + 1, one, one, one + 1, 1e20, 1e30,
                np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
@@ -63,6 +65,8 @@ def warm_up() -> float:
               np.empty((1, 2)), np.empty((2, 2)), stages)
     ck.select_pairs(pairs, x[:, :2].copy(), np.ones(1), 1, 2, stages)
     ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2))
+    ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2),
+                           1e-3)
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))
