@@ -190,10 +190,13 @@ class ViewerNode(Node):
     def on_message(self, kind: str, msg: Message) -> None:
         n = len(self.ids)
         if isinstance(msg, StateMsg):
-            if msg.sample == 0 and self.shown_upto >= 0:
+            if msg.sample == 0 and self.shown_upto >= 0 and self.done:
+                # a new run after the plant's 'done' (sample 0 again before it is the
+                # plant re-sending the states to a controller that is late or joined)
                 log.info("a new run started")
                 self._flush(everything=True)
                 self.shown_upto = -1
+                self.done = False
             if msg.sample <= self.shown_upto:
                 return  # re-sent to a controller that joined late
             entry = self._entry(msg.sample)

@@ -16,10 +16,18 @@ import scipy.sparse as sp
 
 import sqpmpc
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.kernels.acceleration import bulging_segment_distance
 from sqpmpc.models.acceleration import AccelerationUnicycle
 from sqpmpc.models.paper import UnicycleModel
 from sqpmpc.models.unicycle import discrete_dynamics as paper_step
-from sqpmpc.problem.plant import Plant, PlantSpec, acceleration_path_deviation, model_margin
+from sqpmpc.problem.paths import plant_paths
+from sqpmpc.problem.plant import (
+    Plant,
+    PlantSpec,
+    acceleration_path_deviation,
+    largest_deviation,
+    model_margin,
+)
 from sqpmpc.problem.scenario_file import parse_scenario
 from sqpmpc.qp.backend import OSQPSettings
 from sqpmpc.qp.layout import QPLayout
@@ -371,7 +379,22 @@ def test_path_deviation_bounds_the_true_path(prediction: str, plant: str) -> Non
         assert (gap <= alpha * s + beta * s * (1 - s) + 1e-9).all()
     lo, hi = np.array([-0.6, -0.8]), np.array([0.6, 0.8])
     limits = (np.array([-1.0, -3.0]), np.array([1.0, 3.0]))
+    # twice the linear majorant |a| Ts^2 / 2 of the Euler plant's bulge
     assert model_margin(lo, hi, h, "euler", PlantSpec("euler"), limits) == pytest.approx(0.25)
+
+
+def test_bulging_distance_is_the_smallest_over_the_segment() -> None:
+    """The checks' distance under the bound alpha s + beta s (1 - s), against a fine grid."""
+    rng = np.random.default_rng(11)
+    s = np.linspace(0.0, 1.0, 20001)
+    for _ in range(300):
+        r0, d = rng.normal(size=2), rng.normal(size=2)
+        alpha, beta = abs(rng.normal()) * 0.2, rng.normal() * 0.3
+        bound = alpha * s + max(beta, 0.0) * s * (1 - s)
+        grid = (np.hypot(r0[0] + s * d[0], r0[1] + s * d[1]) - bound).min()
+        got = bulging_segment_distance(r0[0], r0[1], d[0], d[1], alpha, beta)
+        assert grid - 1e-6 <= got <= grid + 1e-12
+        assert largest_deviation(alpha, beta) >= (alpha * s + beta * s * (1 - s)).max() - 1e-12
 
 
 # ---------------------------------------------------------------- the controllers and the loop
@@ -407,6 +430,13 @@ def test_closed_loop_on_paper_s2_with_acceleration_limits(scheme: str) -> None:
     assert (change <= sc.bounds.acceleration_upper() + 1e-9).all()
     assert (v >= sc.bounds.input_lower() - 1e-9).all() and (v <= sc.bounds.input_upper()
                                                              + 1e-9).all()
+    # the metrics measure between samples along the ramping paths (not uniform chords)
+    _, path = plant_paths(rec.states, rec.plant_inputs, sc.sample_time, "euler", True)
+    pairs = np.asarray(sc.pairs()).reshape(-1, 2)
+    need = sc.required_distances()[pairs[:, 0], pairs[:, 1]]
+    along = np.linalg.norm(path[:, pairs[:, 0]] - path[:, pairs[:, 1]], axis=-1) - need
+    measured = min(m["min_clearance"], m["intersample_min_clearance"])
+    assert along.min() - 2e-3 <= measured <= along.min() + 1e-12
     ideal = sqpmpc.ClosedLoopSimulation(sqpmpc.load_scenario("paper-s2"), scheme).run()
     err = np.linalg.norm(ideal.positions - ideal.references(), axis=-1)
     band = max(0.05, float(err[-(err.shape[0] // 10):].max()))

@@ -91,10 +91,11 @@ def test_the_image_is_built_once_in_cached_layers_and_runs_unprivileged() -> Non
              if ln and not ln.startswith((" ", "#"))]
     # dependencies from pyproject.toml before the source, the kernels compiled at build
     deps = dockerfile.index("pip install -r /tmp/requirements.txt")
-    assert dockerfile.index("COPY --chown=sqpmpc:sqpmpc pyproject.toml") < deps
-    assert deps < dockerfile.index("COPY --chown=sqpmpc:sqpmpc sqpmpc /src/sqpmpc")
-    assert dockerfile.index("pip install --no-deps") < dockerfile.index(
-        "RUN python -m sqpmpc.kernels")
+    kernels = dockerfile.index("COPY --chown=sqpmpc:sqpmpc sqpmpc/kernels /src/sqpmpc/kernels")
+    compiled = dockerfile.index("PYTHONPATH=/src python -m sqpmpc.kernels")
+    source = dockerfile.index("COPY --chown=sqpmpc:sqpmpc sqpmpc /src/sqpmpc")
+    assert dockerfile.index("COPY --chown=sqpmpc:sqpmpc pyproject.toml") < deps < kernels
+    assert kernels < compiled < source < dockerfile.index("pip install --no-deps")
     assert "USER sqpmpc" in steps and steps.index("USER sqpmpc") < steps.index("RUN pip")
     ignored = (ROOT / ".dockerignore").read_text().splitlines()
     assert ignored[ignored.index("*") + 1:] and "*" in ignored  # only what is listed goes in

@@ -66,7 +66,7 @@ def test_read_run(tmp_path: Path) -> None:
 def test_record_own_loop(tmp_path: Path) -> None:
     out = tmp_path / "mine"
     text = _run("record_own_loop.py", "--steps", "8", "--out", str(out))
-    assert text.startswith("crossing-4 / decentralized: 8/"), text
+    assert text.startswith("crossing-4 / decentralized: 8 samples of "), text
     assert "arrival: " in text and f"wrote {out}" in text
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == 8 and metrics["collisions"] == 0

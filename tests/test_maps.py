@@ -241,6 +241,12 @@ def test_a_many_sided_non_convex_polygon_is_split_quickly() -> None:
     assert union.symmetric_difference(star.shape).area < 1e-9
 
 
+def _shaped(rule, v) -> np.ndarray:
+    """The references after a rule's ``references`` hook (its contribution, if any)."""
+    c = rule.shape_references(v)
+    return v.references if c is None or c.references is None else c.references
+
+
 def test_a_robot_pressed_against_a_wall_backs_away_then_goes_on() -> None:
     from sqpmpc.control.centralized import CentralizedController
     from tests.rule_helpers import only, view
@@ -252,16 +258,14 @@ def test_a_robot_pressed_against_a_wall_backs_away_then_goes_on() -> None:
     (rule,) = ctrl.rules
     states = sc.initial_states()
     for sample in range(rule.rule.pinned_samples):
-        v = view(ctrl, states, sample=sample)
-        rule.shape_references(v)
+        refs = _shaped(rule, view(ctrl, states, sample=sample))
     # pinned: heads straight away from the wall (-x) for escape_samples samples
-    np.testing.assert_allclose(v.references[0], [[-0.36 - rule.rule.escape_distance, 0.0]]
+    np.testing.assert_allclose(refs[0], [[-0.36 - rule.rule.escape_distance, 0.0]]
                                * sc.horizon, atol=1e-9)
     assert rule.counters()["wall_escapes"] == 1
     for sample in range(rule.rule.escape_samples):
-        v = view(ctrl, states, sample=10 + sample)
-        rule.shape_references(v)
-    assert not np.allclose(v.references[0, -1], [-0.76, 0.0])  # then its route again
+        refs = _shaped(rule, view(ctrl, states, sample=10 + sample))
+    assert not np.allclose(refs[0, -1], [-0.76, 0.0])  # then its route again
     moving = view(ctrl, states, applied=np.array([[0.3, 0.0], [0.0, 0.0]]), sample=20)
     for _ in range(2 * rule.rule.pinned_samples):  # a moving robot is never pinned
         rule.shape_references(moving)
@@ -275,16 +279,14 @@ def test_an_arrived_robot_steps_aside_for_a_traveller_and_returns() -> None:
     sc = fleet([[2.0, 0.05, 0.0], [1.0, 0.0, 0.0]], [[2.0, 0.05], [4.0, 0.0]])
     ctrl = CentralizedController(sc, only("yield"))
     (rule,) = ctrl.rules
-    v = view(ctrl, sc.initial_states())
-    rule.shape_references(v)
+    refs = _shaped(rule, view(ctrl, sc.initial_states()))
     keep = 0.3 + rule.rule.clearance
     # robot 1 sits 0.05 m left of robot 2's way: it moves to keep left of it
-    np.testing.assert_allclose(v.references[0], [[2.0, keep]] * sc.horizon, atol=1e-9)
-    np.testing.assert_allclose(v.references[1], [[4.0, 0.0]] * sc.horizon)
+    np.testing.assert_allclose(refs[0], [[2.0, keep]] * sc.horizon, atol=1e-9)
+    np.testing.assert_allclose(refs[1], [[4.0, 0.0]] * sc.horizon)
     far = sc.initial_states()
     far[1, :2] = [4.0, 0.0]  # the traveller arrived too: nobody in the way any more
     for _ in range(rule.rule.hold + 1):
-        v = view(ctrl, far)
-        rule.shape_references(v)
-    np.testing.assert_allclose(v.references[0], [[2.0, 0.05]] * sc.horizon)
+        refs = _shaped(rule, view(ctrl, far))
+    np.testing.assert_allclose(refs[0], [[2.0, 0.05]] * sc.horizon)
     assert rule.counters()["yield_starts"] == 1

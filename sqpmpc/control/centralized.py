@@ -8,17 +8,19 @@ from collections.abc import Mapping
 import numpy as np
 
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
+from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
+from sqpmpc.kernels.acceleration import pairs_keep_bulging_distance
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
 from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
-__all__ = ["CentralizedController"]
+__all__ = ["CentralizedController", "has_position_bounds"]
 
 
-
-def _has_position_bounds(scenario: Scenario) -> bool:
+def has_position_bounds(scenario: Scenario) -> bool:
+    """Whether the scenario bounds the positions (the QP then has position rows)."""
     b = scenario.bounds
     return bool(np.isfinite(b.position_lower()).any() or np.isfinite(b.position_upper()).any())
 
@@ -41,12 +43,12 @@ class CentralizedController(ControllerPipeline):
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, scenario.obstacle_slots,
-                          _has_position_bounds(scenario), scenario.robot_model())
+                          has_position_bounds(scenario), scenario.robot_model())
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
         self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
-                                                 self.geometry)
+                                                 self.geometry, self.recovery_tolerance)
         self._rows = {"internal": self.collisions}
         if self.obstacle_rows is not None:
             self._rows["external"] = self.obstacle_rows
@@ -59,14 +61,18 @@ class CentralizedController(ControllerPipeline):
         if self.slots is not None:
             self.counts["stage_one_pairs"] = 0
 
-    def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
-                            previous_states: np.ndarray | None) -> None:
+    def predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                           previous_states: np.ndarray | None,
+                           plan_ages: PlanAges | None = None) -> None:
+        """The pair rows from the current positions (the neighbours' data are unused: every
+        robot is in this QP)."""
         self.collisions.set_current_positions(states[:, :2])
         if self.slots is not None:
             _, first_only = self.collisions.select(self.interaction_radius, self.slots)
             self.counts["stage_one_pairs"] += first_only
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+    def first_input_safe(self, states: np.ndarray, next_states: np.ndarray,
+                         inputs: np.ndarray) -> bool:
         """Every pair keeps its distance along the paths of the sample.
 
         With the Euler model the robots move on straight segments at constant
@@ -76,12 +82,17 @@ class CentralizedController(ControllerPipeline):
         by at most :meth:`path_deviation`, which the check adds.
         """
         alpha, beta = self.path_deviation(inputs)
-        growth = alpha + np.maximum(beta, 0.0)
         now = np.ascontiguousarray(states[:, :2])
         p = np.ascontiguousarray(next_states[:, :2])
+        if not self._unicycle:  # robots with velocity states: the bound itself
+            if not pairs_keep_bulging_distance(self.collisions.pairs, now, p,
+                                               self.collisions.safe_distance, alpha, beta):
+                return False
+            return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
+        growth = alpha + np.maximum(beta, 0.0)
         if not self.collisions.first_input_safe(now, p, growth):
             return False
-        return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+        return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)
 
     def _brakes_safely(self, next_states: np.ndarray) -> bool:
         """With acceleration limits: braking right after the first input, every robot as hard
@@ -91,24 +102,25 @@ class CentralizedController(ControllerPipeline):
         the first input took them) follows a path checked here: the fallback is safe by
         induction, as standing still is for the paper's unicycle (which stops at once).
         The obstacles are checked along the same paths as they move on.
-        Each braking sample's true path may stray from its segment by the growth of
+        Each braking sample's true path may stray from its segment by the bound of
         :func:`~sqpmpc.problem.plant.acceleration_path_deviation`.
         """
         if not self.model.velocity_states:
             return True
         path, inputs = self.braking_path(next_states)
-        growth = np.empty(inputs.shape[:2])
+        alpha, beta = acceleration_path_deviation(
+            path[:, :-1, 3:5], inputs, self.sample_time, self.settings.discretization,
+            self.scenario.plant.model, self._noise_bound)                    # (m, B) each
         for j in range(inputs.shape[1]):
-            alpha, beta = acceleration_path_deviation(
-                path[:, j, 3:5], inputs[:, j], self.sample_time,
-                self.settings.discretization, self.scenario.plant.model, self._noise_bound)
-            growth[:, j] = alpha + np.maximum(beta, 0.0)
             now = np.ascontiguousarray(path[:, j, :2])
             nxt = np.ascontiguousarray(path[:, j + 1, :2])
-            if not self.collisions.first_input_safe(now, nxt, growth[:, j]):
+            if not pairs_keep_bulging_distance(self.collisions.pairs, now, nxt,
+                                               self.collisions.safe_distance,
+                                               np.ascontiguousarray(alpha[:, j]),
+                                               np.ascontiguousarray(beta[:, j])):
                 return False
         return self.obstacle_rows is None or self.obstacle_rows.braking_safe(path[..., :2],
-                                                                             growth)
+                                                                             alpha, beta)
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.

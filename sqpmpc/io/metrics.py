@@ -230,7 +230,8 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
     # and clearances over every sample and between samples.
     path_t, path_pos = plant_paths(record.states, record.plant_inputs
                                    if record.plant_inputs is not None else record.inputs,
-                                   float(sc.sample_time), record.plant_model)
+                                   float(sc.sample_time), record.plant_model,
+                                   bool(getattr(sc.bounds, "dynamic_limits", False)))
     pairs = np.asarray(sc.pairs(), dtype=np.int64).reshape(-1, 2)
     min_distance = min_clearance = None
     min_at: dict[str, Any] | None = None

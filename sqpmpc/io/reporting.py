@@ -203,8 +203,8 @@ def summarize(metrics: dict[str, Any]) -> str:
     mode = f" ({metrics['mode']})" if metrics.get("mode") else ""
     done = "completed" if metrics.get("completed") else "NOT completed"
     lines = [f"{metrics.get('scenario')} / {metrics.get('scheme')}{mode}: "
-             f"{metrics.get('steps')}/{metrics.get('planned_steps', metrics.get('steps'))} "
-             f"samples, {done}",
+             f"{metrics.get('steps')} samples of "
+             f"{metrics.get('planned_steps', metrics.get('steps'))}, {done}",
              _safety(metrics), _arrival(metrics), _tracking(metrics)]
     st = metrics.get("solve_time") or {}
     lines.append(f"{describe_solve_time(metrics)}, total {quantity(st.get('total_s'), 's')}")

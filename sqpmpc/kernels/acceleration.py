@@ -13,6 +13,12 @@ Euler step (the model's notes) with :math:`\bar v = v + T_s a/2`:
 
 The kernels have the signatures of :class:`sqpmpc.models.base.ModelKernels`
 and the arithmetic of the model's NumPy functions (tested against them).
+
+The checks at the end take a robot's deviation from its predicted segment as the bound
+:math:`\alpha s + \beta s(1-s)` itself (:func:`sqpmpc.problem.plant.acceleration_path_deviation`:
+a robot ramping its speed lags or leads on its segment by :math:`|a|T_s^2 s(1-s)/2`),
+not its linear majorant :math:`(\alpha + \beta) s`, which is four times the largest
+bulge.
 """
 
 from __future__ import annotations
@@ -22,7 +28,12 @@ import math
 import numba
 import numpy as np
 
+from sqpmpc.kernels.collision import growing_segment_distance
+
 __all__ = [
+    "bulging_segment_distance",
+    "moving_points_keep_bulging_distance",
+    "pairs_keep_bulging_distance",
     "acceleration_defect_l1",
     "acceleration_linearize",
     "acceleration_rollout",
@@ -133,6 +144,82 @@ def acceleration_defect_l1(z: np.ndarray, initial: np.ndarray, m: int, N: int, b
     return total
 
 
+_GOLDEN = 0.6180339887498949
+
+
+@_jit
+def _bulge(r0x: float, r0y: float, dx: float, dy: float, alpha: float, beta: float,
+           s: float) -> float:
+    return math.hypot(r0x + s * dx, r0y + s * dy) - alpha * s - beta * s * (1.0 - s)
+
+
+@_jit
+def bulging_segment_distance(r0x: float, r0y: float, dx: float, dy: float, alpha: float,
+                             beta: float) -> float:
+    r"""Smallest :math:`\lVert r_0 + s\Delta\rVert - \alpha s - \beta s(1-s)` over
+    :math:`s \in [0, 1]`: the smallest distance of a relative segment whose true path may
+    stray :math:`\alpha s + \beta s(1-s)` from it.
+
+    For :math:`\beta > 0` the function is convex (a norm, a linear term and
+    :math:`\beta(s^2 - s)`): golden-section search, 60 steps (the bracket shrinks to
+    :math:`3 \cdot 10^{-13}`), and the end points. For :math:`\beta \le 0` the bound is
+    at most :math:`\alpha s`: the linear case, exactly as
+    :func:`sqpmpc.kernels.collision.growing_segment_distance`.
+    """
+    if beta <= 0.0:
+        return growing_segment_distance(r0x, r0y, dx, dy, alpha)
+    lo, hi = 0.0, 1.0
+    c = hi - _GOLDEN * (hi - lo)
+    d = lo + _GOLDEN * (hi - lo)
+    fc = _bulge(r0x, r0y, dx, dy, alpha, beta, c)
+    fd = _bulge(r0x, r0y, dx, dy, alpha, beta, d)
+    for _ in range(60):
+        if fc < fd:
+            hi, d, fd = d, c, fc
+            c = hi - _GOLDEN * (hi - lo)
+            fc = _bulge(r0x, r0y, dx, dy, alpha, beta, c)
+        else:
+            lo, c, fc = c, d, fd
+            d = lo + _GOLDEN * (hi - lo)
+            fd = _bulge(r0x, r0y, dx, dy, alpha, beta, d)
+    return min(fc, fd, _bulge(r0x, r0y, dx, dy, alpha, beta, 0.0),
+               _bulge(r0x, r0y, dx, dy, alpha, beta, 1.0))
+
+
+@_jit
+def pairs_keep_bulging_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
+                                required: np.ndarray, alpha: np.ndarray,
+                                beta: np.ndarray) -> bool:
+    """Whether every pair keeps ``required`` along the segments ``now -> nxt`` when robot
+    ``j`` may stray ``alpha[j] s + beta[j] s (1 - s)`` from its segment (the pair: the
+    sums)."""
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        r0x, r0y = now[a, 0] - now[b, 0], now[a, 1] - now[b, 1]
+        dx = (nxt[a, 0] - nxt[b, 0]) - r0x
+        dy = (nxt[a, 1] - nxt[b, 1]) - r0y
+        if bulging_segment_distance(r0x, r0y, dx, dy, alpha[a] + alpha[b],
+                                    beta[a] + beta[b]) < required[p]:
+            return False
+    return True
+
+
+@_jit
+def moving_points_keep_bulging_distance(x0: float, y0: float, x1: float, y1: float,
+                                        start: np.ndarray, end: np.ndarray, keep: np.ndarray,
+                                        alpha: float, beta: float) -> bool:
+    """Whether the path near ``p0 -> p1`` keeps ``keep[o]`` from points moving straight from
+    ``start[o]`` to ``end[o]`` over the same sample (obstacles), the path within
+    ``alpha s + beta s (1 - s)`` of its segment."""
+    for o in range(start.shape[0]):
+        rx, ry = x0 - start[o, 0], y0 - start[o, 1]
+        dx = (x1 - end[o, 0]) - rx
+        dy = (y1 - end[o, 1]) - ry
+        if bulging_segment_distance(rx, ry, dx, dy, alpha, beta) < keep[o]:
+            return False
+    return True
+
+
 def warm_up_acceleration() -> None:
     """Compile or load every kernel of this module."""
     x = np.zeros((2, 5))
@@ -144,3 +231,8 @@ def warm_up_acceleration() -> None:
     order = np.arange(38)
     acceleration_shift_iterate(z, z, order, order, 2, 2, 19, 0.1, np.empty(38), np.empty(38))
     acceleration_defect_l1(z, x, 2, 2, 19, 0.1)
+    pairs = np.array([[0, 1]], dtype=np.int64)
+    pairs_keep_bulging_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1),
+                                np.zeros(2), np.ones(2))
+    moving_points_keep_bulging_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
+                                        np.ones(1), 0.0, 0.1)

@@ -50,6 +50,8 @@ def warm_up() -> float:
     ck.segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12, 0.0)
     ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
                                    np.ones(1), 0.0)
+    ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
+                                   np.ones(1), 0.0, 1e-3)
     one = np.zeros(1, dtype=np.int64)
     split_rows(np.ones(2), np.zeros(2), np.ones(2), one, one + 1, one, one, one + 1, 1e20, 1e30,
                np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
@@ -64,6 +66,8 @@ def warm_up() -> float:
               np.empty((1, 2)), np.empty((2, 2)), stages)
     ck.select_pairs(pairs, x[:, :2].copy(), np.ones(1), 1, 2, stages)
     ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2))
+    ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2),
+                           1e-3)
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))
@@ -78,6 +82,9 @@ def warm_up() -> float:
     ck.nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],
                    idx.copy())
     write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13, 5)
+    references = np.zeros((2, 2, 2))
+    references.setflags(write=False)  # as the pipeline passes them (the rules' view)
+    write_reference(z, references, np.zeros((2, 1, 2)), 13, 5)
     order = np.arange(26)
     shift_iterate(z, z, order, order, 2, 2, 13, 0.1, np.empty(26), np.empty(26))
     idx = np.zeros(1, dtype=np.int64)

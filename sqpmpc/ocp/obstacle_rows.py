@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sqpmpc.kernels.acceleration import moving_points_keep_bulging_distance
 from sqpmpc.kernels.collision import moving_points_keep_distance, obstacle_rows
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.problem.obstacles import Obstacle, obstacle_positions
@@ -33,13 +34,20 @@ class ObstacleRows:
         Row geometry from the rules (the rotation is applied, as for neighbours).
     margin
         Added to :math:`D_{jo}` in the QP rows, m.
+    speed_bounds
+        :math:`(v_{\min}, v_{\max})`.
+    recovery
+        Tolerance of the ``overlap-recovery`` rule, m
+        (:func:`sqpmpc.kernels.collision.moving_points_keep_distance`); negative: off.
     """
 
     needs_states = True
 
     def __init__(self, obstacles: Sequence[Obstacle], diameters: np.ndarray, horizon: int,
                  sample_time: float, geometry: RowGeometry, margin: float,
-                 speed_bounds: tuple[float, float] = (0.0, 0.0)) -> None:
+                 speed_bounds: tuple[float, float] = (0.0, 0.0),
+                 recovery: float = -1.0) -> None:
+        self.recovery = float(recovery)
         self.obstacles = tuple(obstacles)
         d_o = np.array([o.diameter for o in self.obstacles])
         d = np.asarray(diameters, dtype=float)
@@ -93,11 +101,11 @@ class ObstacleRows:
             np.minimum(lower_out[r, :, 0], cap, out=lower_out[r, :, 0])
         self.stage_one_overrides = overrides
 
-    def braking_safe(self, paths: np.ndarray, growth: np.ndarray) -> bool:
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
         """Every own robot's braking path ``paths (m, B+1, 2)`` (stage 1 on, one point a
         sample) keeps its distance to every obstacle as they move on: segment ``j`` against
         the obstacles' motion from stage ``1 + j`` to ``2 + j``; the path may stray
-        ``growth[r, j] * s`` from segment ``j`` (``growth (m, B)``)."""
+        ``alpha[r, j] s + beta[r, j] s (1 - s)`` from segment ``j`` (``(m, B)`` each)."""
         B = paths.shape[1] - 1
         if B < 1 or not self.n_obstacles:
             return True
@@ -107,21 +115,32 @@ class ObstacleRows:
             start = np.ascontiguousarray(track[j])
             end = np.ascontiguousarray(track[j + 1])
             for r in range(paths.shape[0]):
-                if not moving_points_keep_distance(
+                if not moving_points_keep_bulging_distance(
                         float(paths[r, j, 0]), float(paths[r, j, 1]), float(paths[r, j + 1, 0]),
                         float(paths[r, j + 1, 1]), start, end, self.safe_distance[r],
-                        float(growth[r, j])):
+                        float(alpha[r, j]), float(beta[r, j])):
                     return False
         return True
 
-    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray) -> bool:
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
         """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its distance to every
-        obstacle over the sample (its path may stray ``growth[r] * s`` from the segment)."""
+        obstacle over the sample (its path may stray ``growth[r] * s`` from the segment; with
+        ``beta``, ``growth[r] s + beta[r] s (1 - s)``); without ``beta``, a robot already
+        inside an obstacle's distance comes no closer to it (``overlap-recovery``, if on)."""
+        if beta is not None:
+            for r in range(now.shape[0]):
+                if not moving_points_keep_bulging_distance(
+                        float(now[r, 0]), float(now[r, 1]), float(nxt[r, 0]), float(nxt[r, 1]),
+                        self.now, self._next, self.safe_distance[r], float(growth[r]),
+                        float(beta[r])):
+                    return False
+            return True
         for r in range(now.shape[0]):
             if not moving_points_keep_distance(float(now[r, 0]), float(now[r, 1]),
                                                float(nxt[r, 0]), float(nxt[r, 1]), self.now,
                                                self._next, self.safe_distance[r],
-                                               float(growth[r])):
+                                               float(growth[r]), self.recovery):
                 return False
         return True
 

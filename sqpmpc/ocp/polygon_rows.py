@@ -79,13 +79,27 @@ class PolygonRows:
                                       A_out[r], lower_out[r])
         self.stage_one_overrides = overrides
 
-    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray) -> bool:
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
         """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its radius from every
-        piece over the sample (straying at most ``growth[r] * s`` from the segment)."""
+        piece over the sample (straying at most ``growth[r] * s`` from the segment; with
+        ``beta``, ``growth[r] s + beta[r] s (1 - s)``, bounded by ``(growth[r] + beta[r]) s``)."""
+        if beta is not None:
+            growth = np.asarray(growth, dtype=float) + np.maximum(beta, 0.0)
         for r in range(now.shape[0]):
             if not path_keeps_pieces(float(now[r, 0]), float(now[r, 1]), float(nxt[r, 0]),
                                      float(nxt[r, 1]), self.vertices, self.counts,
                                      self.safe_distance[r], float(growth[r])):
+                return False
+        return True
+
+
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
+        """Every own robot's braking path ``paths (m, B+1, 2)`` keeps its radius from every
+        piece, segment ``j`` straying at most ``(alpha[r, j] + beta[r, j]) s``."""
+        for j in range(paths.shape[1] - 1):
+            growth = np.asarray(alpha[:, j], dtype=float) + np.maximum(beta[:, j], 0.0)
+            if not self.first_input_safe(paths[:, j], paths[:, j + 1], growth):
                 return False
         return True
 
@@ -139,8 +153,16 @@ class MapRows:
         lower_out[:, c:] = l2
         self.stage_one_overrides = overrides + self.polygons.stage_one_overrides
 
-    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray) -> bool:
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
         """Both models' checks of the first input."""
-        if self.circles is not None and not self.circles.first_input_safe(now, nxt, growth):
+        if self.circles is not None and not self.circles.first_input_safe(now, nxt, growth,
+                                                                          beta):
             return False
-        return self.polygons.first_input_safe(now, nxt, growth)
+        return self.polygons.first_input_safe(now, nxt, growth, beta)
+
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
+        """Both models' checks of a braking path."""
+        if self.circles is not None and not self.circles.braking_safe(paths, alpha, beta):
+            return False
+        return self.polygons.braking_safe(paths, alpha, beta)

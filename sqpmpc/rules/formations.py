@@ -24,12 +24,20 @@ import numpy as np
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.problem.references import PointReference
-from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
+from sqpmpc.rules.base import (
+    Contribution,
+    Rule,
+    RuleContext,
+    RuleInstance,
+    SampleView,
+    check_positive,
+)
 
 __all__ = ["Yield"]
 
 
 class _YieldInstance(RuleInstance):
+    hooks = ("references",)
     rule: Yield
     counter_names = ("yield_samples", "yield_starts")
 
@@ -47,9 +55,9 @@ class _YieldInstance(RuleInstance):
                                else (np.nan, np.nan) for r in sc.robots], dtype=float)
         self.active = bool(self.has_goal.sum() >= 2)
 
-    def shape_references(self, view: SampleView) -> None:
+    def shape_references(self, view: SampleView) -> Contribution | None:
         if not self.active:
-            return
+            return None
         rule = self.rule
         pos = view.positions
         to_goal = np.hypot(*(self.goals - pos).T)
@@ -73,8 +81,7 @@ class _YieldInstance(RuleInstance):
                 out = view.references.copy()
             out[k] = self.targets[k]
             self.counts["yield_samples"] += 1
-        if out is not None:
-            view.references = out
+        return None if out is None else Contribution(references=out)
 
     def _blocking(self, i: int, pos: np.ndarray, travelling: np.ndarray) -> np.ndarray | None:
         """The sideways goal of arrived robot ``i`` for the nearest traveller it blocks."""

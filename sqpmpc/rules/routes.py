@@ -30,7 +30,14 @@ import numpy as np
 
 from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.routes import RoadMap, Route
-from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
+from sqpmpc.rules.base import (
+    Contribution,
+    Rule,
+    RuleContext,
+    RuleInstance,
+    SampleView,
+    check_positive,
+)
 
 __all__ = ["RouteFollowing"]
 
@@ -51,6 +58,7 @@ class _Tracking:
 
 
 class _RouteInstance(RuleInstance):
+    hooks = ("references",)
     rule: RouteFollowing
     counter_names = ("route_plans", "route_replans", "route_samples", "routes_missing",
                      "wall_escapes")
@@ -121,7 +129,7 @@ class _RouteInstance(RuleInstance):
         self.counts["wall_escapes"] += 1
         return True
 
-    def shape_references(self, view: SampleView) -> None:
+    def shape_references(self, view: SampleView) -> Contribution | None:
         rule = self.rule
         out: np.ndarray | None = None
         N = view.references.shape[1]
@@ -174,8 +182,7 @@ class _RouteInstance(RuleInstance):
                     pts[first:] = pts[first - 1]
             out[k] = pts
             self.counts["route_samples"] += 1
-        if out is not None:
-            view.references = out
+        return None if out is None else Contribution(references=out)
 
 
 @dataclass(frozen=True)
