@@ -36,7 +36,7 @@ import numpy as np
 
 from sqpmpc.kernels.acceleration import bulging_segment_distance
 
-__all__ = ["pairs_keep_ramp_distance", "quartic_nonnegative", "ramp_vectors"]
+__all__ = ["pairs_keep_ramp_distance", "quartic_nonnegative", "ramp_vectors", "warm_up_pair_paths"]
 
 _jit = numba.njit(cache=True, nogil=True)
 _DEPTH = 40
@@ -136,3 +136,11 @@ def ramp_vectors(headings: np.ndarray, accelerations: np.ndarray,
     psi = np.asarray(headings, dtype=float)
     return np.ascontiguousarray(np.stack([k * np.cos(psi), k * np.sin(psi)], axis=-1))
 
+
+
+def warm_up_pair_paths() -> None:
+    """Compile or load every kernel of this module."""
+    now = np.array([[0.0, 0.0], [1.0, 0.0]])
+    ramp = np.zeros((2, 2))
+    pairs_keep_ramp_distance(np.array([[0, 1]], dtype=np.int64), now, now, ramp,
+                             np.array([2.0]), np.zeros(2), np.zeros(2))
