@@ -52,7 +52,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.ocp import all_finite
 from sqpmpc.kernels.warmup import warm_up
-from sqpmpc.models.base import RobotModel
+from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.ocp.iteration import MultipleShootingSQP
 from sqpmpc.ocp.obstacle_rows import ObstacleRows
@@ -190,6 +190,8 @@ class ControllerPipeline:
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
         self._applied = np.zeros((m, 2))
+        #: the own robots' headings of the last sample, unwrapped
+        self._headings: np.ndarray | None = None
         self._applied_before = np.zeros((m, 2))
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
@@ -232,6 +234,9 @@ class ControllerPipeline:
             measured, states = states[self.indices], np.ascontiguousarray(states[:, :3])
         else:
             measured = states[self.indices]
+        # odometry wraps the yaw; the plans are continuous in it (models.base)
+        measured[:, 2] = continuous_headings(measured[:, 2], self._headings)
+        self._headings = measured[:, 2].copy()
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
         self._own = own
