@@ -280,6 +280,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     ("central", ["--scenario", SCENARIO, "--t-end", "0.3"]),
     ("robot", ["--id", "1", "--scenario", SCENARIO, "--listen", "not-an-endpoint"]),
     ("router", ["--listen", "tcp/127.0.0.1:not-a-port"]),
+    ("plant", ["--scenario", SCENARIO, "--credentials-fd", "99"]),
     ("launch", ["--scenario", "no-such-scenario", "--scheme", "centralized"]),
     ("launch", ["--scenario", SCENARIO, "--scheme", "centralized", "--run", "a/b"]),
 ])

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
+from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.kernels.pair_paths import pairs_keep_ramp_distance, ramp_vectors
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
@@ -15,11 +16,11 @@ from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
-__all__ = ["CentralizedController"]
+__all__ = ["CentralizedController", "has_position_bounds"]
 
 
-
-def _has_position_bounds(scenario: Scenario) -> bool:
+def has_position_bounds(scenario: Scenario) -> bool:
+    """Whether the scenario bounds the positions (the QP then has position rows)."""
     b = scenario.bounds
     return bool(np.isfinite(b.position_lower()).any() or np.isfinite(b.position_upper()).any())
 
@@ -42,7 +43,7 @@ class CentralizedController(ControllerPipeline):
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
-                          _has_position_bounds(scenario), scenario.robot_model())
+                          has_position_bounds(scenario), scenario.robot_model())
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
@@ -61,8 +62,11 @@ class CentralizedController(ControllerPipeline):
         if self.slots is not None:
             self.counts["stage_one_pairs"] = 0
 
-    def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
-                            previous_states: np.ndarray | None) -> None:
+    def predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                           previous_states: np.ndarray | None,
+                           plan_ages: PlanAges | None = None) -> None:
+        """The pair rows from the current positions (the neighbours' data are unused: every
+        robot is in this QP)."""
         self.collisions.set_current_positions(states[:, :2])
         if self.model.velocity_states:
             self._keep = self.kept_distances(states)
@@ -85,7 +89,8 @@ class CentralizedController(ControllerPipeline):
             keep[inside] = np.maximum(gap[inside] - self.collisions.recovery, 0.0)
         return keep
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+    def first_input_safe(self, states: np.ndarray, next_states: np.ndarray,
+                         inputs: np.ndarray) -> bool:
         """Every pair keeps its distance along the paths of the sample.
 
         With the Euler model the robots move on straight segments at constant
@@ -102,11 +107,11 @@ class CentralizedController(ControllerPipeline):
             if not pairs_keep_ramp_distance(self.collisions.pairs, now, p, ramp,
                                             self._keep, alpha, beta):
                 return False
-            return self._obstacles_safe(now, p, alpha, beta) and self._in_position_bounds(p)
+            return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
         growth = alpha + np.maximum(beta, 0.0)
         if not self.collisions.first_input_safe(now, p, growth):
             return False
-        return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+        return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)
 
     def _brakes_safely(self, next_states: np.ndarray) -> bool:
         """With acceleration limits: braking right after the first input, every robot as hard

@@ -82,6 +82,9 @@ def warm_up() -> float:
     ck.nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],
                    idx.copy())
     write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13, 5)
+    references = np.zeros((2, 2, 2))
+    references.setflags(write=False)  # as the pipeline passes them (the rules' view)
+    write_reference(z, references, np.zeros((2, 1, 2)), 13, 5)
     order = np.arange(26)
     shift_iterate(z, z, order, order, 2, 2, 13, 0.1, np.empty(26), np.empty(26))
     idx = np.zeros(1, dtype=np.int64)
