@@ -23,8 +23,8 @@ of degree 4. :func:`quartic_nonnegative` proves it with Bernstein coefficients (
 non-negative: so is the polynomial) and halving by de Casteljau's algorithm; a negative value at
 an interval's end, or 40 halvings without a proof, refuse it. Exact arithmetic aside the check is
 therefore sound, and it accepts a robot at rest beside another turning away or moving along the
-gap, which the disc bound (four times the lag of a ramp, in every direction) refuses at every
-distance below :math:`|a_a| + |a_b|` times :math:`T_s^2/8`.
+gap, which the disc bound refuses near the distance: the disc (the lag taken in every direction)
+grows linearly from :math:`s = 0`, where sideways motion opens the gap only quadratically.
 """
 
 from __future__ import annotations
