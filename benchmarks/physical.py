@@ -184,6 +184,20 @@ def tolerance_of(ideal: RunRecord) -> float:
     return max(GOAL_TOLERANCE, float(err.max()))
 
 
+def last_arrival(record: RunRecord, tolerance: float) -> float | None:
+    """Time from which every robot stays within ``tolerance`` of its reference, s
+    (``None`` when some robot is not within it at the end)."""
+    err = np.linalg.norm(record.positions - record.references(), axis=-1).max(axis=1)
+    out = np.flatnonzero(err > tolerance)
+    if out.size and out[-1] == err.size - 1:
+        return None
+    return float(record.t[0 if out.size == 0 else int(out[-1]) + 1])
+
+
+def _when(value: float | None) -> str:
+    return "never" if value is None else f"{value:.1f}"
+
+
 def run_physical(scenario: Scenario, scheme: str, robot: PhysicalRobot, ideal: RunRecord
                  ) -> dict[str, Any]:
     """One physical run with its counts against the ideal-plant ``ideal``."""
@@ -205,6 +219,7 @@ def run_physical(scenario: Scenario, scheme: str, robot: PhysicalRobot, ideal: R
         "frozen": frozen_robots(record, clear, sim.controllers[0].pair_margin),
         "brakes": sim.counters()["brake_fallbacks"],
         "cost_ratio": m["closed_loop_cost"] / ref["closed_loop_cost"],
+        "arrival_s": (last_arrival(ideal, tol), last_arrival(record, tol)),
         "wall_s": time.perf_counter() - started,
     }
 
@@ -218,11 +233,13 @@ def _cells(r: dict[str, Any]) -> str:
                  else f"{r['obstacle_overlaps']} ({_mm(r['min_obstacle_clearance'])})")
     return (f"{r['overlaps']} ({_mm(r['min_clearance'])}) | {obstacles} | "
             f"{r['arrived']}/{r['robots']} | {r['max_error']:.3f} | {r['frozen']} | "
-            f"{r['brakes']} | {r['cost_ratio']:.3f} | {r['wall_s']:.0f}")
+            f"{r['brakes']} | {r['cost_ratio']:.3f} | {_when(r['arrival_s'][0])} / "
+            f"{_when(r['arrival_s'][1])} | {r['wall_s']:.0f}")
 
 
 HEADER = ("overlaps (min clearance mm) | obstacle overlaps (min mm) | arrived | largest final "
-          "error m | frozen | brake fallbacks | cost ratio | wall s")
+          "error m | frozen | brake fallbacks | cost ratio | all arrived at s (ideal / "
+          "physics) | wall s")
 
 
 def _demand(response: dict[str, float], bounds: tuple[float, float]) -> float:
@@ -286,10 +303,13 @@ def main(argv: Sequence[str] | None = None) -> int:
            "bounds (`[bounds] acceleration` is not in its scenario format): they are not "
            "declared and the controller assumes velocities change at once.**"), "",
         "## Nominal robot, built-in scenarios", "",
-        f"| scenario | scheme | {HEADER} |", "|---|---|---|---|---|---|---|---|---|---|",
+        f"| scenario | scheme | {HEADER} |", "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     print("\n".join(lines), file=sys.stderr, flush=True)
-    failures = []
+    failures: list[str] = []
+    costly: list[str] = []
+    cheaper: list[str] = []
+    ideal_never: list[str] = []
     for name in args.scenarios:
         sc = with_bounds(load_scenario(name), bounds)
         for scheme in SCHEMES:
@@ -298,17 +318,52 @@ def main(argv: Sequence[str] | None = None) -> int:
             lines.append(f"| {name} | {scheme} | {_cells(r)} |")
             print(lines[-1], file=sys.stderr, flush=True)
             why = _failed(r)
+            timing = (f"{name} {scheme}: {r['cost_ratio']:.2f}, every robot in at "
+                      f"{_when(r['arrival_s'][0])} (s) ideal, {_when(r['arrival_s'][1])} "
+                      "physics")
+            if r["arrival_s"][0] is None:
+                ideal_never.append(f"{name} {scheme}")
             if r["cost_ratio"] > 1.2:
                 why.append(f"cost ratio {r['cost_ratio']:.2f}")
+                costly.append(timing)
+            elif r["cost_ratio"] < 1.0 / 1.2:
+                cheaper.append(timing)
             if why:
                 failures.append(f"{name} {scheme} ({', '.join(why)})")
-    lines += ["", "## Sweep: one parameter at a time from the nominal robot", "",
+    lines += [
+        "", "### The cost against the ideal plant", "",
+        "The ideal-plant run is the same scenario (with the same declared acceleration "
+        "bounds), scheme, controller and settings on sqpmpc's own plant (the acceleration "
+        "model, poses and velocities measured exactly); the cost is the closed-loop cost of "
+        "`metrics.json` (the tracking error of the true positions and the commanded "
+        "velocities). It depends mostly on when the robots get past each other: every "
+        "sample a robot waits adds its whole squared distance to the goal. Runs outside "
+        "1/1.2 to 1.2:", "",
+        "- costlier on the physics plant: " + ("; ".join(costly) or "none") + ".",
+        "- cheaper on the physics plant (the ideal run was worse): "
+        + ("; ".join(cheaper) or "none") + ".", "",
+        "A ratio below 1 is an ideal run that got the robots past each other later, or "
+        "never: the ideal plant keeps a symmetric scenario exactly symmetric, and "
+        "swap-6 decentralized with these acceleration bounds stays in a symmetric stand-off "
+        "at the centre to the end of the run on the ideal plant (never, in the arrival "
+        "column: a deadlock of the decentralized controller with acceleration bounds that "
+        "this benchmark does not count as frozen, the robots being near each other); the "
+        "nominal physics robots' small differences break it. The MuJoCo fleet is symmetric "
+        "too: weaker robots (the sweep) stay in the same stand-off. paper-s2 decentralized "
+        "(moving references): the ideal run's robots leave their references for longer "
+        "where they meet, in the middle of the run. Where the physics run is costlier the "
+        "robots got past each other later: a robot covers less of its plan than predicted "
+        "in a sample ("
+        f"{response['first_sample']:.2f} of a commanded 0.25 m in the first) and is "
+        "measured outside the predicted tube, so the checks fall back more often while the "
+        "neighbours re-plan around it.",
+        "", "## Sweep: one parameter at a time from the nominal robot", "",
               "*demand*: the share of the robot's torque a corner of the declared bounds "
               "needs (linear / measured + angular / measured; <= 1: the bounds hold). "
               "Measured accelerations from the same step responses.", "",
               f"| parameter | value | speeding up / braking m/s^2 | turning rad/s^2 | demand | "
               f"scenario | scheme | {HEADER} |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     holds: list[str] = []
     fails: list[str] = []
     ideals = {}
@@ -336,6 +391,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"- Nominal robot: {nominal_runs - len(failures)} of {nominal_runs} runs with 0 "
               "overlaps beyond 1 mm, every robot arrived, none frozen and the cost within "
               "1.2x of the ideal plant" + (f"; not: {'; '.join(failures)}." if failures else "."),
+              "- The same runs on the ideal plant (sqpmpc's own, same bounds) where some robot "
+              "is not within tolerance at the end: " + (", ".join(ideal_never) or "none") + ".",
               _verdict("hold (demand <= 1)", holds), _verdict("do not hold (demand > 1)", fails),
               "", f"Total wall time {time.perf_counter() - started:.0f} s.", ""]
     publish("\n".join(lines), None if args.no_write else DOC_PATH)

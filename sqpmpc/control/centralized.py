@@ -10,7 +10,7 @@ import numpy as np
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
 from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
-from sqpmpc.kernels.acceleration import pairs_keep_bulging_distance
+from sqpmpc.kernels.pair_paths import pairs_keep_ramp_distance, ramp_vectors
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
 from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
@@ -53,6 +53,7 @@ class CentralizedController(ControllerPipeline):
         if self.obstacle_rows is not None:
             self._rows["external"] = self.obstacle_rows
         self._sample = 0
+        self._keep = np.array(self.collisions.safe_distance, dtype=float)
         # the neighbour slots of the decentralized scheme, per robot, for the pair rows
         self.slots = settings.neighbour_slots
         self.interaction_radius = (required + self.pair_margin + 2.0
@@ -67,9 +68,26 @@ class CentralizedController(ControllerPipeline):
         """The pair rows from the current positions (the neighbours' data are unused: every
         robot is in this QP)."""
         self.collisions.set_current_positions(states[:, :2])
+        if self.model.velocity_states:
+            self._keep = self.kept_distances(states)
         if self.slots is not None:
             _, first_only = self.collisions.select(self.interaction_radius, self.slots)
             self.counts["stage_one_pairs"] += first_only
+
+    def kept_distances(self, states: np.ndarray) -> np.ndarray:
+        """Per pair, the distance the checks of robots with velocity states keep this sample
+        from the measured ``states (n, nx)``: the required distance, or with the
+        ``overlap-recovery`` rule on, for a pair already inside it (a push, a slip), its
+        current distance less the rule's tolerance (it must come no closer, along the
+        first input's path and the braking after it), so that inputs which separate it
+        are applied instead of a brake that never ends."""
+        keep = np.array(self.collisions.safe_distance, dtype=float)
+        if self.collisions.recovery >= 0.0:
+            p = states[:, :2]
+            gap = np.linalg.norm(p[self.pairs[:, 0]] - p[self.pairs[:, 1]], axis=-1)
+            inside = gap < keep
+            keep[inside] = np.maximum(gap[inside] - self.collisions.recovery, 0.0)
+        return keep
 
     def first_input_safe(self, states: np.ndarray, next_states: np.ndarray,
                          inputs: np.ndarray) -> bool:
@@ -85,8 +103,9 @@ class CentralizedController(ControllerPipeline):
         now = np.ascontiguousarray(states[:, :2])
         p = np.ascontiguousarray(next_states[:, :2])
         if not self._unicycle:  # robots with velocity states: the bound itself
-            if not pairs_keep_bulging_distance(self.collisions.pairs, now, p,
-                                               self.collisions.safe_distance, alpha, beta):
+            ramp = ramp_vectors(states[:, 2], inputs[:, 0], self.sample_time)
+            if not pairs_keep_ramp_distance(self.collisions.pairs, now, p, ramp,
+                                            self._keep, alpha, beta):
                 return False
             return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
         growth = alpha + np.maximum(beta, 0.0)
@@ -114,10 +133,10 @@ class CentralizedController(ControllerPipeline):
         for j in range(inputs.shape[1]):
             now = np.ascontiguousarray(path[:, j, :2])
             nxt = np.ascontiguousarray(path[:, j + 1, :2])
-            if not pairs_keep_bulging_distance(self.collisions.pairs, now, nxt,
-                                               self.collisions.safe_distance,
-                                               np.ascontiguousarray(alpha[:, j]),
-                                               np.ascontiguousarray(beta[:, j])):
+            ramp = ramp_vectors(path[:, j, 2], inputs[:, j, 0], self.sample_time)
+            if not pairs_keep_ramp_distance(self.collisions.pairs, now, nxt, ramp, self._keep,
+                                            np.ascontiguousarray(alpha[:, j]),
+                                            np.ascontiguousarray(beta[:, j])):
                 return False
         return self.obstacle_rows is None or self.obstacle_rows.braking_safe(path[..., :2],
                                                                              alpha, beta)

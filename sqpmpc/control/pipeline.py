@@ -57,7 +57,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.ocp import all_finite
 from sqpmpc.kernels.warmup import warm_up
-from sqpmpc.models.base import RobotModel
+from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.ocp.iteration import MultipleShootingSQP, engaged_robots
 from sqpmpc.ocp.obstacle_rows import ObstacleRows
@@ -148,6 +148,8 @@ class ControllerPipeline:
         m = self.indices.size
         self._applied = read_only(np.zeros((m, 2)))  # the rules read both (read-only)
         self._applied_before = self._applied
+        #: the own robots' headings of the last sample, unwrapped
+        self._headings: np.ndarray | None = None
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
@@ -198,6 +200,9 @@ class ControllerPipeline:
             measured, states = states[self.indices], np.ascontiguousarray(states[:, :3])
         else:
             measured = states[self.indices]
+        # odometry wraps the yaw; the plans are continuous in it (models.base)
+        measured[:, 2] = continuous_headings(measured[:, 2], self._headings)
+        self._headings = measured[:, 2].copy()
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
         self._own = own

@@ -26,6 +26,7 @@ from sqpmpc.kernels.ocp import (
     split_rows,
     write_reference,
 )
+from sqpmpc.kernels.pair_paths import warm_up_pair_paths
 from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
 from sqpmpc.kernels.rules import hold_touching_rows, warm_up_roundabout, warm_up_rules
@@ -93,6 +94,7 @@ def warm_up() -> float:
                  np.zeros(3), np.zeros(26))
     warm_up_rules()
     warm_up_acceleration()
+    warm_up_pair_paths()
     warm_up_roundabout()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     square = np.array([[[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]])

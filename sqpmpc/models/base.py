@@ -40,7 +40,7 @@ import numpy as np
 
 from sqpmpc.errors import ProblemError
 
-__all__ = ["ModelKernels", "RobotModel", "check_box"]
+__all__ = ["ModelKernels", "RobotModel", "check_box", "continuous_headings"]
 
 
 @dataclass(frozen=True)
@@ -206,3 +206,21 @@ class RobotModel(ABC):
         """Clip the first inputs ``inputs[:, 0]`` of a plan from ``states (m, nx)`` to what
         the bounds allow (in place)."""
         np.clip(inputs[:, 0], self.input_lower, self.input_upper, out=inputs[:, 0])
+
+
+def continuous_headings(headings: np.ndarray, last: np.ndarray | None) -> np.ndarray:
+    r"""Measured ``headings (m,)`` on the branch of the ``last`` sample's (``None``: as is).
+
+    A robot's odometry reports its yaw wrapped (to :math:`(-\pi, \pi]`, MuJoCo's and
+    ROS's convention) while plans and warm starts are continuous in it: a robot driving
+    along :math:`\pm\pi` would be asked to turn a full circle. A heading more than
+    :math:`\pi` from the last one is moved by whole turns to within :math:`\pi` of it (no
+    robot turns half a circle in a sample); the others are returned unchanged, bit for bit.
+    """
+    psi = np.array(headings, dtype=float)
+    if last is not None:
+        jump = np.abs(psi - last) > np.pi
+        if jump.any():
+            psi[jump] = last[jump] + (np.remainder(psi[jump] - last[jump] + np.pi,
+                                                   2.0 * np.pi) - np.pi)
+    return psi
