@@ -7,21 +7,23 @@ stamp for one sample, so that arc is exact (:func:`services.ros2.timing.committe
 - the controller its view (:meth:`Neighbours.for_controller`): every
   neighbour a moving obstacle on its exact arcs, then standing where they end;
 - the check of an input (:meth:`Neighbours.path_is_safe`): along the exact arc
-  of the whole sample, every required distance plus the margin from a
-  neighbour that decides after this check (its arcs, then standing still: when
-  it decides it has this robot's new plan and avoids it, or an older one and
-  keeps out of all this robot may reach), from any other one (its arcs, then
-  the disc it may reach since) and from one that left (where it stopped, plus
-  a sample's reach).
+  of the whole sample, every required distance plus the margin from all of a
+  neighbour's arc since the start of its current sample (a robot may stop at
+  any moment: odometry lost, shut down); after that arc, from where it ends
+  for a neighbour that decides after this check (it then has this robot's new
+  plan and avoids it, or an older one and keeps out of all this robot may
+  reach), from the disc it may reach since for any other one; from where a
+  neighbour that left stopped, plus a sample's reach.
 
-A robot that stands still is therefore always safe: whoever decides later
-avoids it, whoever decided earlier kept out of where it stops or of all it
-could reach. At every instant, the robot of a pair that decided last kept the
-distance from what the other does.
+A robot that stands still, or stops at any moment, is therefore safe: whoever
+decides later avoids it, whoever decided earlier kept out of all of its arc
+and of where it stops or of all it could reach. At every instant, the robot of
+a pair that decided last kept the distance from what the other may be doing.
 """
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -143,7 +145,12 @@ class Neighbours:
 
     def path_is_safe(self, own: np.ndarray, u: np.ndarray, t: float) -> bool:
         """Whether applying ``u`` from ``own`` at wall time ``t`` for one sample keeps every
-        neighbour's distance plus the margin at every instant (module notes)."""
+        neighbour's distance plus the margin at every instant (module notes).
+
+        A neighbour may stop at any moment (its odometry lost, shut down): at each
+        instant it is anywhere on its arc from the start of the sample it is in up to
+        that instant, so the distance is measured to all of that stretch.
+        """
         dt = self.Ts / CHECK_STEPS
         times = t + dt * np.arange(CHECK_STEPS + 1)
         path = arcs(own, float(u[0]), float(u[1]), times - t)
@@ -155,16 +162,38 @@ class Neighbours:
             left = self.departed.get(rid)
             concurrent = False
             if left is not None:
-                pos, rad = left.state[None, :2], np.full(1, left.uncertainty)
+                gap = np.hypot(path[:, 0] - left.state[0], path[:, 1] - left.state[1]) \
+                    - left.uncertainty
             elif self.plans[rid]:
                 kept = self.plans[rid]
                 later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
-                pos, rad = committed(kept, times, self.Ts, self.v_max, later)
                 concurrent = not later
+                at, r = committed(kept, times[:1], self.Ts, self.v_max, later)
+                if (math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0]
+                        > self.required[j] + slack + 4.0 * self.v_max * self.Ts):
+                    continue  # out of reach of this sample (both stretches are shorter)
+                gap = self._stretch_gaps(kept, path, times, later)
             else:
                 continue
-            gap = np.hypot(path[:, 0] - pos[:, 0], path[:, 1] - pos[:, 1]) - rad
             if float(gap.min()) < self.required[j] + slack:
                 self.blocked_by_concurrent = concurrent
                 return False
         return True
+
+    def _stretch_gaps(self, kept: list[TimedPlan], path: np.ndarray, times: np.ndarray,
+                      later: bool) -> np.ndarray:
+        """Per check time, the distance from ``path`` to everywhere the neighbour may be: its
+        positions from the start of its current sample up to then (minus their radii)."""
+        dt = float(times[1] - times[0])
+        stamps = np.array([p.stamp for p in kept])
+        start = stamps[np.clip(np.searchsorted(stamps, times, side="right") - 1, 0, None)]
+        back = int(min(np.ceil(max(0.0, times[0] - float(start.min())) / dt), 2 * CHECK_STEPS))
+        grid = np.concatenate((times[0] - dt * np.arange(back, 0, -1), times))
+        pos, rad = committed(kept, grid, self.Ts, self.v_max, later)
+        dist = np.hypot(path[:, None, 0] - pos[None, :, 0],
+                        path[:, None, 1] - pos[None, :, 1]) - rad[None, :]
+        first = np.clip(np.floor((start - grid[0]) / dt + 1e-9), 0, None).astype(np.int64)
+        last = back + np.arange(times.size)
+        cols = np.arange(grid.size)
+        dist[(cols[None, :] < first[:, None]) | (cols[None, :] > last[:, None])] = np.inf
+        return dist.min(axis=1)

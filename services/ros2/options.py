@@ -66,6 +66,9 @@ def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
     except ValueError as exc:
         return str(exc)
     lead = args.lead if args.lead is not None else 0.3 * scenario.sample_time
+    if args.odom_timeout >= scenario.sample_time:
+        return (f"--odom-timeout: must be less than Ts = {scenario.sample_time:g} s (zero "
+                f"within one sample of the odometry's loss), got {args.odom_timeout:g}")
     if lead >= scenario.sample_time:
         return f"--lead: must be less than Ts = {scenario.sample_time:g} s, got {lead:g}"
     if args.epoch is not None and args.epoch_file is not None:
