@@ -140,17 +140,21 @@ the plan's stamp for one sample, so that arc is exact. Each sample, at `T_k - le
 robot plans with every neighbour as a moving obstacle (its exact arcs, then standing
 where they end) and then checks the first input along the exact arc of the whole sample
 (100 points, the distance change between points added): every required distance plus
-`--ros2-margin` from
+`--ros2-margin` from all of each neighbour's arc since the start of its current sample (a
+robot may stop at any moment: its odometry lost, shut down), and after that arc from
 
-- a neighbour that decides its next input after this check: its exact arcs, then
-  standing still (when it decides it has this robot's new plan and avoids it, or has an
+- a neighbour that decides its next input after this check: where its arc ends
+  (when it decides it has this robot's new plan and avoids it, or has an
   older one and keeps out of everywhere this robot may reach);
 - a neighbour that decided before this check but whose plan is not here yet (or was
-  lost): its exact arcs, then the disc it may reach since;
+  lost): the disc it may reach since;
 - a neighbour that left: where it stopped, plus a sample's reach.
 
 A failed check makes the robot stand still, which is always safe: whoever decides later
-avoids it, whoever decided earlier kept out of where it stops or of all it could reach.
+avoids it, whoever decided earlier kept out of all of its arc and where it ends, or of
+all it could reach. (An earlier version took a neighbour's arc as certain to be
+followed to its end; in its odometry-stop run a robot that stopped inside its sample
+was hit, clearance -0.025 m. The check now covers a stop at any moment.)
 So at every instant the robot of a pair that decided last kept the distance from what
 the other does. The assumptions: every robot follows its published arc (odometry and
 command latency within the margins), the fleet shares `--lead`, clocks agree within
