@@ -13,7 +13,7 @@ CHECKED := NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(VENV)/numba-cache-checked
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e ".[test,bench,video]"
+	$(BIN)/pip install --quiet -e ".[test,bench,video,physics]"
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -43,6 +43,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.faults
 	$(BIN)/python -m benchmarks.lifecycle
 	$(BIN)/python -m benchmarks.security
+	$(BIN)/python -m benchmarks.physical
 
 clean:
 	rm -rf $(VENV) runs site .pytest_cache .ruff_cache

@@ -170,7 +170,8 @@ def _receive(sample_time: float, samples: int, mode: str) -> dict[str, float]:
 
 def _micro(repeat: int = 2000) -> dict[str, float]:
     """Microseconds of one plan's full decode and validation, and of its header peek."""
-    from services.messages import MessageValidator, peek_plan
+    from services.messages import peek_plan
+    from services.validator import MessageValidator
 
     scenario = load_scenario("swap-64")
     validator = MessageValidator(scenario.ids, scenario.horizon)

@@ -136,18 +136,22 @@ class Flood:
     """One flood experiment: robot 2's certificate publishing on robot 2's own keys."""
 
     label: str
-    payload: int | None  # None: no flood; 0: well-formed messages; else bytes per payload
+    payload: int | None  # None: no flood; 0: well-formed messages; -1: a busy loop that
+    # sends nothing (what its CPU alone costs); else bytes per payload
     limits: bool  # services.limits in the run's processes
     niced: bool  # the flooder at the lowest CPU priority (as if on a computer of its own)
 
 
 FLOODS = [
     Flood("no flood", None, True, False),
+    Flood("none: a busy loop (CPU only)", -1, True, False),
     Flood("well-formed messages at the highest rate", 0, False, True),
     Flood("well-formed messages at the highest rate", 0, True, True),
     Flood("8 MB payloads", 8_000_000, False, True),
     Flood("8 MB payloads", 8_000_000, True, True),
+    Flood("well-formed messages at the highest rate", 0, False, False),
     Flood("well-formed messages at the highest rate", 0, True, False),
+    Flood("8 MB payloads", 8_000_000, False, False),
     Flood("8 MB payloads", 8_000_000, True, False),
 ]
 
@@ -160,8 +164,10 @@ def run_flooded(work: Path, flood: Flood, t_end: float) -> dict:
     write_credentials(creds, load_scenario(SCENARIO), run, "decentralized")
     (port,) = free_ports(1)
     endpoint = f"tls/127.0.0.1:{port}"
-    forger = None
-    if flood.payload is not None:
+    forger = burner = None
+    if flood.payload == -1:
+        burner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    elif flood.payload is not None:
         forger = start_service("forger", [
             "--scenario", SCENARIO, "--sample-time", "0.1", "--t-end", repr(t_end),
             "--run", run, "--credentials", str(creds), "--identity",
@@ -182,6 +188,9 @@ def run_flooded(work: Path, flood: Flood, t_end: float) -> dict:
     finally:
         if forger is not None:
             stop_processes([forger], grace=30.0)
+        if burner is not None:
+            burner.kill()
+            burner.wait()
     summary = {}
     if forger is not None:
         lines = [ln for ln in forger.output().splitlines() if ln.startswith('{"opened"')]

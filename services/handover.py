@@ -92,6 +92,7 @@ class Handover:
         self.meta = meta
         self.timeout = timeout
         self.threads: list[threading.Thread] = []
+        self._pending: socket.socket | None = None
 
     def child_end(self, configs: dict[str, Any]) -> int:
         """A new socket pair for a child serving ``configs`` (identity -> Zenoh config):
@@ -110,7 +111,9 @@ class Handover:
     def started(self) -> None:
         """The child of the last :meth:`child_end` was started (or failed to): close the
         parent's copy of its end."""
-        self._pending.close()
+        if self._pending is not None:
+            self._pending.close()
+            self._pending = None
 
     def _serve(self, sock: socket.socket, payload: bytes) -> None:
         with sock:

@@ -1,7 +1,7 @@
 """What every service process shares: command line, scenario loading, signals, the event pump.
 
 A :class:`Node` owns a :class:`~services.transport.Bus`, a
-:class:`~services.messages.MessageValidator` and the set of processes known to
+:class:`~services.validator.MessageValidator` and the set of processes known to
 be alive (from liveliness tokens). :meth:`Node.pump` takes one event from the
 inbox, validates it and hands it to :meth:`Node.on_message` or
 :meth:`Node.on_liveliness`; an invalid message is logged, counted and dropped.
@@ -40,9 +40,10 @@ from .credentials import config_for
 from .early import RECEIVED
 from .faults import FaultInjector
 from .limits import interceptors
-from .messages import InvalidMessage, Message, MessageValidator, Mismatch
+from .messages import InvalidMessage, Message, Mismatch
 from .protocol import AcceptancePolicy
 from .transport import Bus, Event, check_run_name, run_prefix
+from .validator import MessageValidator
 
 __all__ = [
     "POLL",

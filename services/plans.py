@@ -39,8 +39,9 @@ from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.control.plans import PlanMessage
 from sqpmpc.kernels.collision import nearest_within
 
-from .messages import InvalidMessage, MessageValidator, PlanMsg, peek_plan
+from .messages import InvalidMessage, PlanMsg, peek_plan
 from .protocol import AcceptancePolicy, Verdict
+from .validator import MessageValidator
 
 __all__ = ["PlanStore", "StepPlans", "recipients", "slotted"]
 

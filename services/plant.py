@@ -92,13 +92,13 @@ from sqpmpc.cli.options import (
 )
 from sqpmpc.control.pipeline import braking_input
 from sqpmpc.io.files import write_run
-from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
+from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines
+from sqpmpc.io.reporting import summarize as summary_of
 from sqpmpc.io.runlog import RECORD_FILE, RecordWriter
 from sqpmpc.problem.plant import Plant
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.sim.record import RunRecord
 
-from .agreement import describe_difference
 from .messages import MAX_PLAN_AGES, CmdMsg, DoneMsg, Message, PlanMsg, StateMsg, encode
 from .node import (
     Node,
@@ -110,6 +110,7 @@ from .node import (
     session_lost,
     setup_logging,
 )
+from .presence import FaultyInputs, Presence
 from .protocol import Verdict
 
 __all__ = ["REJOIN_TIMEOUT", "PlantNode", "build_parser", "main", "summarize"]
@@ -123,7 +124,7 @@ REJOIN_TIMEOUT = 30.0
 """Default ``--rejoin-timeout``, s."""
 
 
-class PlantNode(Node):
+class PlantNode(Presence, FaultyInputs, Node):
     """The plant of one distributed run.
 
     Parameters
@@ -140,7 +141,9 @@ class PlantNode(Node):
         self.scheme = args.scheme
         self.timeout = float(args.timeout)
         self.startup_timeout = float(args.startup_timeout)
-        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots)
+        limits = (scenario.bounds.acceleration_lower(), scenario.bounds.acceleration_upper()) \
+            if scenario.bounds.dynamic_limits else None  # CONTRACT 1c: velocities change within
+        self.plant = Plant(scenario.plant, scenario.sample_time, scenario.n_robots, limits)
         self.method = scenario.plant.model
         n, steps = scenario.n_robots, scenario.steps
         self.t = scenario.sample_time * np.arange(steps + 1)
@@ -160,6 +163,7 @@ class PlantNode(Node):
         self.missed = dict.fromkeys(self.ids, 0)
         self.faulty = dict.fromkeys(self.ids, 0)  # inconsistent inputs dropped, per robot
         self.faulty_now: set[int] = set()  # robots braked at this sample for such an input
+        self.refusing: set[str] = set()  # controllers that sent another settings digest
         self.late_commands = 0
         self.timeouts = 0
         self._missing: set[int] = set()
@@ -187,105 +191,6 @@ class PlantNode(Node):
         self.writer = RecordWriter(out / RECORD_FILE, self.scenario, self.scheme,
                                    self.solve_times.shape[1], self.states[0], settings,
                                    self.digest)
-
-    @property
-    def controllers(self) -> list[str]:
-        """Liveliness names of the controllers this scheme needs."""
-        if self.scheme == "centralized":
-            return ["central"]
-        return [f"robot/{i}" for i in self.ids]
-
-    def expected(self) -> list[int]:
-        """Robots whose controller is alive now."""
-        if self.scheme == "centralized":
-            return list(self.ids) if "central" in self.alive else []
-        return [i for i in self.ids if f"robot/{i}" in self.alive]
-
-    # ------------------------------------------------------------------ events
-    def on_liveliness(self, name: str, alive: bool) -> None:
-        # a controller joining mid-run missed the current sample's states: send them again
-        # (the others ignore a sample they already handled); runs on the main thread
-        if not self.running or name not in self.controllers:
-            return
-        if alive:
-            self.departed.pop(name, None)
-            self.all_gone_since = None
-            log.info("%s joined at sample %d", name, self.k)
-            self.publish_states(self.k)
-            return
-        now = time.perf_counter()
-        self.departed[name] = now
-        if not self.expected():
-            self.all_gone_since = now
-        log.warning("%s left at sample %d%s", name, self.k,
-                    f": waiting up to {self.rejoin_timeout:g} s for it to rejoin"
-                    if self.mode == "lockstep" else "")
-
-    def awaited(self) -> list[str]:
-        """Lockstep: controllers that left less than ``--rejoin-timeout`` ago (the plant
-        waits for them); one whose time is up is braked from then on (logged once)."""
-        if self.mode != "lockstep":
-            return []
-        now = time.perf_counter()
-        for name, left in list(self.departed.items()):
-            if now - left >= self.rejoin_timeout:
-                del self.departed[name]
-                log.warning("%s did not rejoin within %g s: its robots are braked", name,
-                            self.rejoin_timeout)
-        return list(self.departed)
-
-    def _rejoin_deadline(self) -> float:
-        return max((t + self.rejoin_timeout for t in self.departed.values()), default=0.0) \
-            if self.mode == "lockstep" else 0.0
-
-    def abandoned(self) -> bool:
-        """Every controller left during the run and none came back within
-        ``--rejoin-timeout``: the run stops (one error line, status 1)."""
-        if self.all_gone_since is None or self.expected():
-            return False
-        if time.perf_counter() - self.all_gone_since < self.rejoin_timeout:
-            return False
-        self.gave_up = (f"every controller left ({', '.join(self.controllers)}) and none came "
-                        f"back within {self.rejoin_timeout:g} s (--rejoin-timeout): stopping at "
-                        f"sample {self.k}")
-        log.error("%s", self.gave_up)
-        return True
-
-    def on_mismatch(self, msg: Message, reason: str) -> None:
-        if not isinstance(msg, CmdMsg):
-            super().on_mismatch(msg, reason)
-            return
-        # the sample first: an old input is stale whatever it carries (it cannot act)
-        decision = self.policy.cmd(self.k, msg.sample)
-        if decision.verdict is Verdict.STALE:
-            self.late_commands += 1
-            return
-        if decision.verdict is Verdict.REFUSE or not self.running:
-            self.faulty_message(msg.id, decision.reason or reason)
-            return
-        # an input of this sample from a controller with other settings: that robot is
-        # faulty at this sample (braked, not waited for); the run goes on
-        self.faulty_message(msg.id, reason)
-        self.faulty_now.add(msg.id)
-        if self.refused is None:
-            detail = msg.detail or {}
-            who = detail.get("process") or (
-                "central" if self.scheme == "centralized" else f"robot/{msg.id}")
-            self.refused = describe_difference(self.agreed or {}, detail or None, who)
-            log.error("%s; its robots are braked while it does", self.refused)
-
-    def on_invalid(self, kind: str, key_id: int | None, reason: str) -> None:
-        if kind == "cmd" and key_id is not None:
-            self.faulty_message(key_id, reason)
-
-    def faulty_message(self, rid: int, reason: str) -> None:
-        """Count a message on robot ``rid``'s cmd key inconsistent with the run (schema,
-        sample, settings digest); it is dropped (``faulty_messages`` in the metrics)."""
-        if rid in self.faulty:
-            self.faulty[rid] += 1
-            if self.faulty[rid] <= 3 or self.faulty[rid] % 1000 == 0:
-                log.warning("robot %d: inconsistent input dropped (%d so far): %s", rid,
-                            self.faulty[rid], reason)
 
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, PlanMsg):
@@ -351,13 +256,14 @@ class PlantNode(Node):
         if self.writer is not None:
             self.writer.sample(k, self.inputs[k], self.states[k + 1], self.solve_times[k],
                                self.solver_failures - failures, sorted(missing),
-                               self.plant_inputs[k] if self.plant.spec.noisy else None)
+                               self.plant_inputs[k] if self.plant.spec.noisy
+                               or self.plant.has_velocities else None)
 
     def run(self) -> None:
         """Run the samples until ``t_end`` or a stop signal."""
         log.info("plant (%s, %s): waiting for %s", self.mode, self.scheme,
                  ", ".join(self.controllers))
-        if not self._wait_for_controllers() and not self.stop.is_set():
+        if not self.wait_for_controllers() and not self.stop.is_set():
             log.warning("starting without %s after %.3g s",
                         sorted(set(self.controllers) - self.alive), self.startup_timeout)
         if self.stop.is_set():
@@ -393,24 +299,6 @@ class PlantNode(Node):
         self.loop_wall = time.perf_counter() - start
         self.drain()  # plans already received, for the recording
 
-    def _wait_for_controllers(self) -> bool:
-        """Wait up to ``--startup-timeout`` for every controller's token, with a status
-        line every ``--status-every`` s; ``True`` if they all came."""
-        start = time.perf_counter()
-        period = self.status.period if self.status.period > 0 else self.startup_timeout
-
-        def ready() -> bool:
-            return all(c in self.alive for c in self.controllers)
-
-        while True:
-            left = start + self.startup_timeout - time.perf_counter()
-            if self.wait_until(ready, min(period, left)):
-                return True
-            if self.stop.is_set() or left <= period:
-                return False
-            self.status.note(f"waiting for {', '.join(sorted(set(self.controllers) - self.alive))}"
-                             f" ({time.perf_counter() - start:.0f} s)")
-
     def collect(self, k: int, deadline: float, resend: float) -> bool:
         """Wait until every expected input of sample ``k`` is in (``True``), a stop is asked
         or ``deadline`` (``time.perf_counter``) passes; while inputs are missing, publish
@@ -421,11 +309,11 @@ class PlantNode(Node):
                     and not self.awaited())
 
         while True:
-            end = max(deadline, self._rejoin_deadline())  # lockstep: wait for a rejoin
+            end = max(deadline, self.rejoin_deadline())  # lockstep: wait for a rejoin
             if self.wait_until(ready, min(resend, end - time.perf_counter())):
                 return True
             if self.stop.is_set() or time.perf_counter() >= max(deadline,
-                                                                 self._rejoin_deadline()):
+                                                                 self.rejoin_deadline()):
                 return False
             self.publish_states(k)
             self.republished += 1
@@ -467,12 +355,9 @@ class PlantNode(Node):
                          self.states[: k + 1].copy(), self.inputs[:k].copy(),
                          self.solve_times[:k].copy(), int(self.solver_failures),
                          k == self.scenario.steps, extra,
-                         self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+                         self.plant_inputs[:k].copy() if self.plant.spec.noisy
+                         or self.plant.has_velocities else None,
                          horizons=self.horizons[:k].copy())
-
-    def never_controlled(self) -> list[int]:
-        """Robots no input ever came for in the samples run (braked all along)."""
-        return [int(rid) for rid in self.ids if self.k > 0 and self.missed[rid] >= self.k]
 
     def finish(self) -> None:
         """Tell the controllers the run is over."""
@@ -480,24 +365,9 @@ class PlantNode(Node):
 
 
 def summarize(metrics: dict[str, Any]) -> str:
-    """One-paragraph summary of a distributed run's metrics."""
-    st = metrics.get("solve_time", {})
-    rms = metrics.get("rms_tracking_error", {})
-    return (
-        f"{metrics['scenario']} / {metrics['scheme']} ({metrics.get('mode')}): "
-        f"steps {metrics['steps']} (completed: {metrics.get('completed')}), "
-        f"min clearance {_num(metrics['min_clearance'])} m, collisions {metrics['collisions']}, "
-        f"missed deadlines {metrics.get('missed_deadlines')}, "
-        f"invalid messages {metrics.get('invalid_messages')}, "
-        f"solver failures {metrics['solver_failures']}, "
-        f"RMS error {', '.join(f'{k}: {_num(v)}' for k, v in rms.items())} m, "
-        f"{describe_solve_time({'solve_time': st})}, "
-        f"sample loop {_num(metrics.get('sample_loop_wall_s'))} s wall"
-    )
-
-
-def _num(value: Any) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
+    """A distributed run's summary: :func:`sqpmpc.io.reporting.summarize` (the same as
+    ``sqpmpc run``'s, plus deadlines and messages)."""
+    return summary_of(metrics)
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:

@@ -28,7 +28,7 @@ kind       receiver    rule (``K`` samples, ``Ts``, ``N``; ``c`` the receiver's 
 ``done``   controller  ``c <= k <= K`` and ``completed`` only with ``k = K``; else refused
 =========  ==========  ======================================================================
 
-The ``plan_ages`` a ``cmd`` carries (checked by :class:`~services.messages.MessageValidator`:
+The ``plan_ages`` a ``cmd`` carries (checked by :class:`~services.validator.MessageValidator`:
 neighbours of the sender, ages ``1..N+2``) are relayed by the plant with the states of
 ``k + 1`` only for the inputs it applied at ``k`` (accepted by the ``cmd`` row): a stale,
 refused or forged-ahead input relays nothing, and every robot reads the same relay in the

@@ -1,19 +1,26 @@
 """Live view of a distributed run: Zenoh in, Foxglove's WebSocket out.
 
 ``python -m services.viewer --scenario S --run R [--connect EP] [--listen EP]
-[--host H] [--port P] [--exit-on-done]`` (also ``sqpmpc viewer ...``)
+[--host H] [--port P] [--token T] [--allow-origin O] [--exit-on-done]`` (also
+``sqpmpc viewer ...``)
 
 The viewer is a subscriber of the run ``R`` and nothing else: it declares no
 liveliness token and publishes nothing on Zenoh. It receives the plant's
 states (``plant/state``), the controllers' plans (``robot/<id>/plan``; the
 central service publishes one per robot too) and inputs (``robot/<id>/cmd``,
 for the solve times), and serves them with Foxglove's WebSocket server
-(``foxglove-sdk``) on ``ws://H:P`` (default ``ws://127.0.0.1:8765``), as the
-topics of :mod:`sqpmpc.io.recording` (the same as ``recording.mcap``), stamped
-with the wall clock. Open it in Foxglove (desktop or app.foxglove.dev): *Open
-connection* -> *Foxglove WebSocket* -> ``ws://127.0.0.1:8765``, add a 3D panel
-(fixed frame ``world``, topic ``/scene``) and a Plot panel
-(``/clearance.min``, ``/solve_time.total_ms`` against ``/solve_time.budget_ms``).
+(``foxglove-sdk``) behind :class:`services.wsgate.WebSocketGate` on ``ws://H:P``
+(default ``ws://127.0.0.1:8765``), as the topics of :mod:`sqpmpc.recording`
+(the same as ``recording.mcap``), stamped with the wall clock. The gate speaks
+both subprotocols, ``foxglove.sdk.v1`` and ``foxglove.websocket.v1`` (Foxglove,
+Lichtblick, ``@foxglove/ws-protocol``'s client), and admits only the run's
+clients: the token (``--token``, default ``$SQPMPC_VIEWER_TOKEN`` or a fresh
+random one) in the URL it prints, ``ws://H:P/?token=T``, and browser pages of
+the allowed origins only (Foxglove's web app by default; ``--allow-origin``).
+Open that URL in Foxglove (desktop or app.foxglove.dev): *Open connection* ->
+*Foxglove WebSocket*, add a 3D panel (fixed frame ``world``, topic ``/scene``)
+and a Plot panel (``/clearance.min``, ``/solve_time.total_ms`` against
+``/solve_time.budget_ms``).
 
 The plant publishes the states of samples ``0 .. K-1`` (those an input is
 computed for), so the live view ends one sample before ``trajectory.npz``.
@@ -32,6 +39,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import secrets
 import sys
 import time
 
@@ -53,6 +62,7 @@ from .node import (
     scenario_from_args,
     setup_logging,
 )
+from .wsgate import DEFAULT_ORIGINS, WebSocketGate
 
 __all__ = ["ViewerNode", "build_parser", "main"]
 
@@ -90,11 +100,20 @@ class ViewerNode(Node):
         self.context = foxglove.Context()
         self.fleet = FleetLog(scenario, self.context)  # channels before any client connects
         self.host = str(args.host)
-        self.server = foxglove.start_server(name=f"sqpmpc {args.run}", host=self.host,
-                                            port=args.port, context=self.context)
+        self.token = str(args.token)
+        # the SDK's server on a loopback port of its own; clients reach it through the gate
+        self.server = foxglove.start_server(name=f"sqpmpc {args.run}", host="127.0.0.1",
+                                            port=0, context=self.context)
+        try:
+            self.gate = WebSocketGate(self.host, args.port, int(self.server.port), self.token,
+                                      [*DEFAULT_ORIGINS, *args.allow_origin])
+        except BaseException:
+            self.server.stop()
+            raise
         try:
             super().__init__(scenario, args, "viewer")
         except BaseException:
+            self.gate.stop()
             self.server.stop()
             raise
         self.exit_on_done = bool(args.exit_on_done)
@@ -110,8 +129,13 @@ class ViewerNode(Node):
 
     @property
     def port(self) -> int:
-        """The WebSocket server's port."""
-        return int(self.server.port)
+        """The port clients connect to (the gate's)."""
+        return self.gate.port
+
+    @property
+    def url(self) -> str:
+        """The URL to open in Foxglove, the token included."""
+        return f"ws://{self.host}:{self.port}/?token={self.token}"
 
     def start_viewing(self) -> None:
         """Subscribe and watch liveliness (no token: the viewer only listens)."""
@@ -166,10 +190,13 @@ class ViewerNode(Node):
     def on_message(self, kind: str, msg: Message) -> None:
         n = len(self.ids)
         if isinstance(msg, StateMsg):
-            if msg.sample == 0 and self.shown_upto >= 0:
+            if msg.sample == 0 and self.shown_upto >= 0 and self.done:
+                # a new run after the plant's 'done' (sample 0 again before it is the
+                # plant re-sending the states to a controller that is late or joined)
                 log.info("a new run started")
                 self._flush(everything=True)
                 self.shown_upto = -1
+                self.done = False
             if msg.sample <= self.shown_upto:
                 return  # re-sent to a controller that joined late
             entry = self._entry(msg.sample)
@@ -208,15 +235,18 @@ class ViewerNode(Node):
             if self.exit_on_done and self.done and end is None:
                 end = time.perf_counter() + self.wait  # the last plans and inputs
         self._flush(everything=True)
-        log.info("%d samples shown (%d with every plan and input, %d plans or inputs late)",
-                 self.shown, self.complete, self.late)
+        log.info("%d samples shown (%d with every plan and input, %d plans or inputs late); "
+                 "%d client(s) admitted, refused %d without the token, %d from another "
+                 "origin", self.shown, self.complete, self.late, self.gate.admitted,
+                 self.gate.refused["token"], self.gate.refused["origin"])
         if self.done and not self.stop.is_set():  # let the server send what is queued
             self.stop.wait(self.linger)
         return 0
 
     def close(self) -> None:
-        """Stop the server, close the session."""
+        """Stop the gate and the server, close the session."""
         try:
+            self.gate.stop()
             self.server.stop()
         finally:
             super().close()
@@ -230,6 +260,14 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="address of the WebSocket server (default 127.0.0.1)")
     parser.add_argument("--port", type=port_number, default=8765,
                         help="port of the WebSocket server (default 8765; 0: any free port)")
+    parser.add_argument("--token", default=os.environ.get("SQPMPC_VIEWER_TOKEN") or None,
+                        help="the secret a client must give (ws://H:P/?token=T or a header "
+                             "'Authorization: Bearer T'; default $SQPMPC_VIEWER_TOKEN, else a "
+                             "random one, printed with the URL)")
+    parser.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                        help="also admit browser pages of ORIGIN, e.g. http://localhost:8080 "
+                             "(repeatable; '*': any; default: "
+                             f"{', '.join(DEFAULT_ORIGINS)})")
     parser.add_argument("--exit-on-done", action="store_true",
                         help="exit when the plant says the run is done (default: serve until "
                              "Ctrl-C, also the run's next start)")
@@ -246,14 +284,17 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status (0, or 2 for bad input)."""
     args = build_parser(prog).parse_args(argv)
     setup_logging(args.log_level, "viewer")
+    if args.token is not None and len(args.token) < 16:
+        fail(prog, "--token: expected at least 16 characters (a guessable token admits anyone)")
+    args.token = args.token or secrets.token_urlsafe(18)
     scenario = scenario_from_args(prog, args)
     try:
         node = open_node(prog, lambda: ViewerNode(scenario, args))
-    except RuntimeError as exc:  # the WebSocket server could not bind
+    except (RuntimeError, OSError) as exc:  # the WebSocket server could not bind
         fail(prog, f"cannot serve on {args.host}:{args.port}: {exc}")
     try:
         node.start_viewing()
-        print(f"viewer: open ws://{args.host}:{node.port} in Foxglove", flush=True)
+        print(f"viewer: open {node.url} in Foxglove", flush=True)
         return node.run()
     finally:
         node.close()

@@ -78,6 +78,7 @@ _EXPORTS: dict[str, str] = {
     "SimulationOptions": "sim.simulation",
     "simulate": "sim.simulation",
     "RunRecord": "sim.record",
+    "RunRecorder": "io.recorder",
     "compute_metrics": "io.metrics",
     "load_trajectory": "io.files",
     "write_metrics": "io.files",
@@ -127,6 +128,7 @@ __all__ = [
     "SimulationOptions",
     "simulate",
     "RunRecord",
+    "RunRecorder",
     "compute_metrics",
     "load_trajectory",
     "write_metrics",
@@ -147,6 +149,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from sqpmpc.errors import ProblemError, ScenarioError, SolverError, SqpmpcError
     from sqpmpc.io.files import load_trajectory, write_metrics, write_run, write_trajectory
     from sqpmpc.io.metrics import compute_metrics
+    from sqpmpc.io.recorder import RunRecorder
     from sqpmpc.ocp.report import IterationReport
     from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid, random_crossings
     from sqpmpc.problem.obstacles import Obstacle

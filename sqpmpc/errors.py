@@ -9,11 +9,13 @@ Every error the library raises on purpose derives from :class:`SqpmpcError`:
   problem it was built for (wrong shapes, non-finite values, unknown robot ids).
 - :class:`SolverError`: the QP solver could not be set up or returned something
   unusable where the caller asked to raise instead of falling back.
+- :class:`DependencyError`: an optional part needs an extra that is not
+  installed (the message names the extra).
 """
 
 from __future__ import annotations
 
-__all__ = ["ProblemError", "ScenarioError", "SolverError", "SqpmpcError"]
+__all__ = ["DependencyError", "ProblemError", "ScenarioError", "SolverError", "SqpmpcError"]
 
 
 class SqpmpcError(Exception):
@@ -48,3 +50,7 @@ class ProblemError(SqpmpcError):
 
 class SolverError(SqpmpcError):
     """The QP solver failed in a way the caller asked to be raised."""
+
+
+class DependencyError(SqpmpcError):
+    """An optional part of sqpmpc needs an extra that is not installed."""

@@ -10,6 +10,7 @@ import pytest
 from PIL import Image
 
 from sqpmpc.cli.main import main
+from sqpmpc.io.animate import frame_size, load_run
 from sqpmpc.io.files import write_run
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import simulate
@@ -24,12 +25,27 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def _pixels(run_dir: Path) -> tuple[int, int]:
+    """The frame's size: 640 px high, as wide as the run's extent asks, both even."""
+    width, height = (round(100 * v) for v in frame_size(load_run(run_dir)))
+    assert height == 640 and width % 2 == 0 and 400 <= width <= 1400
+    return width, height
+
+
+def test_frames_take_the_aspect_of_the_arena(run_dir: Path) -> None:
+    run = load_run(run_dir)
+    wide = load_run(run_dir)
+    wide.states = run.states * np.array([3.0, 1.0, 1.0])  # three times as wide
+    wide.references = run.references * np.array([3.0, 1.0])
+    assert frame_size(wide)[0] > 1.5 * frame_size(run)[0]
+
+
 def test_gif_has_one_frame_per_sample(run_dir: Path, capsys: pytest.CaptureFixture) -> None:
     out = run_dir / "a.gif"
     assert main(["animate", str(run_dir), "--out", str(out), "--fps", "5"]) == 0
     assert "13 frames" in capsys.readouterr().out
     with Image.open(out) as im:
-        assert im.format == "GIF" and im.n_frames == 13 and im.size == (640, 640)
+        assert im.format == "GIF" and im.n_frames == 13 and im.size == _pixels(run_dir)
         assert im.info["duration"] == 200 and im.info["loop"] == 0
         first = np.asarray(im.convert("RGB"))
         im.seek(12)
@@ -47,7 +63,7 @@ def test_single_frame_png(run_dir: Path) -> None:
     out = run_dir / "f.png"
     assert main(["animate", str(run_dir), "--frame", "6", "--out", str(out)]) == 0
     with Image.open(out) as im:
-        assert im.format == "PNG" and im.size == (640, 640)
+        assert im.format == "PNG" and im.size == _pixels(run_dir)
         rgb = np.asarray(im.convert("RGB"))
     # robots of tab10 colours are drawn (not only white, grey and black)
     assert (np.ptp(rgb.astype(int), axis=-1) > 60).sum() > 500

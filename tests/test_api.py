@@ -58,7 +58,8 @@ def test_constructor_keywords_are_the_scenario_file_keys() -> None:
     assert keywords(sqpmpc.PlantSpec) == set(_PLANT_KEYS)
     assert keywords(sqpmpc.RobotSpec) == set(_ROBOT_KEYS)
     assert keywords(sqpmpc.Weights) == {"Q", "R"}
-    assert keywords(sqpmpc.Bounds) == {"v", "omega", "x", "y"}
+    assert keywords(sqpmpc.Bounds) == {"v", "omega", "x", "y", "acceleration",
+                                       "angular_acceleration"}
     examples = [sqpmpc.HarmonicReference(omega=0.1, x=(0, 1, 2), y=(3, 4, 5)),
                 sqpmpc.PointReference(position=(1.5, -2.0)),
                 sqpmpc.WaypointReference(times=(0.0, 4.0), points=((0, 0), (2, 1)))]

@@ -6,7 +6,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -112,11 +111,15 @@ def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
     long.write_text(load_scenario("paper-s2").with_changes(t_end=100000.0).to_toml())
     proc = subprocess.Popen(
         [sys.executable, "-m", "sqpmpc", "run", str(long), "--scheme", "decentralized",
-         "--out", str(out), "--no-plots", "--quiet"],
+         "--out", str(out), "--no-plots", "--status-every", "0.2"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(5.0)  # past the imports (a SIGINT there would not reach the run loop)
+    # the first status line says the loop runs (however long the imports took)
+    line = proc.stderr.readline()
+    while line and not line.startswith("paper-s2 decentralized: sample"):
+        line = proc.stderr.readline()
+    assert line, "the run ended without a status line"
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["completed"] is False

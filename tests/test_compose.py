@@ -13,6 +13,10 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -26,6 +30,7 @@ pytestmark = pytest.mark.timeout(120)
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = ROOT / "docker" / "docker-compose.yml"
+OVERRIDE = ROOT / "docker" / "docker-compose.python-router.yml"
 ZENOHD = ROOT / "docker" / "zenohd.json5"
 T_END = "20.0"
 VOLUME = "/credentials"
@@ -67,8 +72,8 @@ def test_compose_file_describes_a_secured_router_plant_and_one_service_per_robot
             continue
         cmd = service["command"]
         assert service.get("image") == "sqpmpc:latest"
-        assert service["depends_on"]["credentials"]["condition"] == (
-            "service_completed_successfully"), name
+        # healthy: the credentials are written (the one-shot is held, not exited)
+        assert service["depends_on"]["credentials"]["condition"] == "service_healthy", name
         assert _option(cmd, "--connect") == "tls/router:7447", name
         assert _option(cmd, "--credentials") == VOLUME, name
         assert _option(cmd, "--run") == _option(creds_cmd, "--run"), name
@@ -78,8 +83,66 @@ def test_compose_file_describes_a_secured_router_plant_and_one_service_per_robot
     args = [a if a != VOLUME else str(out) for a in creds_cmd[4:]]
     assert sqpmpc_main(["credentials", *args, "--folder", VOLUME]) == 0
     assert _json5(ZENOHD.read_text()) == json.loads((out / "router.json5").read_text())
+
+
+def test_the_image_is_built_once_in_cached_layers_and_runs_unprivileged() -> None:
     dockerfile = (ROOT / "docker" / "Dockerfile").read_text()
-    assert "pip install ." in dockerfile
+    steps = [ln.split()[0] + " " + ln.split()[1] for ln in dockerfile.splitlines()
+             if ln and not ln.startswith((" ", "#"))]
+    # dependencies from pyproject.toml before the source, the kernels compiled at build
+    deps = dockerfile.index("pip install -r /tmp/requirements.txt")
+    kernels = dockerfile.index("COPY --chown=sqpmpc:sqpmpc sqpmpc/kernels /src/sqpmpc/kernels")
+    compiled = dockerfile.index("PYTHONPATH=/src python -m sqpmpc.kernels")
+    source = dockerfile.index("COPY --chown=sqpmpc:sqpmpc sqpmpc /src/sqpmpc")
+    assert dockerfile.index("COPY --chown=sqpmpc:sqpmpc pyproject.toml") < deps < kernels
+    assert kernels < compiled < source < dockerfile.index("pip install --no-deps")
+    assert "USER sqpmpc" in steps and steps.index("USER sqpmpc") < steps.index("RUN pip")
+    ignored = (ROOT / ".dockerignore").read_text().splitlines()
+    assert ignored[ignored.index("*") + 1:] and "*" in ignored  # only what is listed goes in
+    assert not (ROOT / "docker" / "Dockerfile.dockerignore").exists()
+    services = _compose()["services"]
+    built = [name for name, s in services.items() if "build" in s]
+    assert built == ["credentials"]  # one build, every other service uses its image
+    for name, service in services.items():
+        if name != "router":
+            assert service["image"] == "sqpmpc:latest", name
+            assert "healthcheck" in service, name
+    # what ends before the plant is held, so that only the plant's exit ends the stack
+    held = sorted(n for n, s in services.items() if s.get("entrypoint") == ["sqpmpc-hold"])
+    assert held == sorted(["credentials", *(n for n in services if n.startswith("robot-"))])
+    for name, service in services.items():
+        if name not in ("credentials", "router"):
+            assert service["depends_on"]["credentials"]["condition"] == "service_healthy"
+
+
+def test_hold_keeps_the_status_and_returns_it_on_sigterm(tmp_path) -> None:
+    status = tmp_path / "status"
+    env = dict(os.environ, SQPMPC_HOLD_STATUS=str(status))
+    proc = subprocess.Popen(["sh", str(ROOT / "docker" / "hold.sh"), sys.executable, "-c",
+                             "raise SystemExit(3)"], env=env, stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        line = proc.stdout.readline()
+        assert "exited with status 3; holding" in line
+        assert status.read_text().strip() == "3" and proc.poll() is None  # held
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 3
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_the_override_puts_the_python_router_in_place_of_eclipse_zenoh() -> None:
+    override = yaml.safe_load(OVERRIDE.read_text())["services"]
+    router = override["router"]
+    assert router["image"] == "sqpmpc:latest"
+    assert router["command"] == ["python", "-m", "services.router", "--zenoh-config",
+                                 "/zenohd.json5"]
+    services = _compose()["services"]
+    for name in services:
+        if name not in ("credentials", "router"):
+            assert override[name]["depends_on"]["router"]["condition"] == "service_healthy"
 
 
 def _local(cmd: list[str], port: int, creds: Path) -> tuple[str, list[str]]:
@@ -106,7 +169,10 @@ def test_compose_services_run_locally_through_a_secured_router(tmp_path):
                       .replace("tls/0.0.0.0:7447", f"tls/127.0.0.1:{port}"))
     procs = []
     try:
-        router = start_service("router", ["--zenoh-config", str(config)], logs)
+        router_cmd = yaml.safe_load(OVERRIDE.read_text())["services"]["router"]["command"]
+        assert router_cmd[:3] == ["python", "-m", "services.router"]
+        router = start_service("router", [a if a != "/zenohd.json5" else str(config)
+                                          for a in router_cmd[3:]], logs)
         procs.append(router)
         plant = None
         for name, service in services.items():
@@ -134,3 +200,21 @@ def test_compose_services_run_locally_through_a_secured_router(tmp_path):
     assert metrics["steps"] == 40 and metrics["missed_deadlines"] == 0
     assert metrics["invalid_messages"] == 0
     assert (out / "trajectory.npz").exists()
+
+
+def test_hold_passes_a_stop_on_to_its_command(tmp_path) -> None:
+    env = dict(os.environ, SQPMPC_HOLD_STATUS=str(tmp_path / "status"))
+    script = "import signal, sys, time; signal.signal(signal.SIGTERM, lambda *a: sys.exit(7))" \
+             "; print('up', flush=True); time.sleep(60)"
+    proc = subprocess.Popen(["sh", str(ROOT / "docker" / "hold.sh"), sys.executable, "-c",
+                             script], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "up"
+        proc.send_signal(signal.SIGTERM)  # the command gets it, ends with 7, then held
+        assert "exited with status 7; holding" in proc.stdout.readline()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 7
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -11,6 +12,7 @@ from pathlib import Path
 import pytest
 
 import sqpmpc
+from sqpmpc.cli.main import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -30,7 +32,7 @@ def _clearance(text: str) -> float:
 
 
 def test_every_example_is_tested() -> None:
-    tested = {"own_loop.py", "decentralized_fleet.py", "read_run.py"}
+    tested = {"own_loop.py", "decentralized_fleet.py", "read_run.py", "record_own_loop.py"}
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
 
@@ -59,3 +61,25 @@ def test_read_run(tmp_path: Path) -> None:
     assert len(re.findall(r"^  robot \d+: path [0-9.]+ m, RMS tracking error", out, re.M)) == 2
     png = tmp_path / "clearance.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_record_own_loop(tmp_path: Path) -> None:
+    out = tmp_path / "mine"
+    text = _run("record_own_loop.py", "--steps", "8", "--out", str(out))
+    assert text.startswith("crossing-4 / decentralized: 8 samples of "), text
+    assert "arrival: " in text and f"wrote {out}" in text
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == 8 and metrics["collisions"] == 0
+    assert set(metrics["arrived"]) == {"1", "2", "3", "4"}
+    assert metrics["solve_time"]["controllers"] == 4
+    for name in ("trajectory.npz", "record.msgpack", "recording.mcap", "trajectories.png"):
+        assert (out / name).is_file(), name
+    # the folder reads back like any run's, and a second write is refused
+    assert cli_main(["metrics", str(out)]) == 0
+    assert json.loads((out / "metrics.json").read_text())["steps"] == 8
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    again = subprocess.run([sys.executable, str(EXAMPLES / "record_own_loop.py"), "--steps", "2",
+                            "--out", str(out)], capture_output=True, text=True, env=env,
+                           cwd=ROOT, timeout=120)
+    assert again.returncode == 2 and "not empty" in again.stderr
+    assert "Traceback" not in again.stderr

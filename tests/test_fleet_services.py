@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.messages import InvalidMessage, MessageValidator, PlanMsg, encode, peek_plan
+from services.messages import InvalidMessage, PlanMsg, encode, peek_plan
 from services.plans import PlanStore, StepPlans, recipients
 from services.protocol import AcceptancePolicy
 from services.testing import child_pids, pid_alive
+from services.validator import MessageValidator
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.kernels.collision import nearest_within
 from sqpmpc.problem.fleets import antipodal_swap

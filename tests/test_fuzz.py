@@ -28,12 +28,12 @@ from services.messages import (
     CmdMsg,
     DoneMsg,
     InvalidMessage,
-    MessageValidator,
     PlanMsg,
     StateMsg,
     encode,
 )
 from services.protocol import AcceptancePolicy, StateCursor, Verdict
+from services.validator import MessageValidator
 from sqpmpc.errors import ScenarioError
 from sqpmpc.problem.scenario import (
     MAX_HORIZON,

@@ -279,5 +279,6 @@ def test_write_run_without_plots(tmp_path: Path) -> None:
     pos[:, 1, 0] = 1.0
     m = write_run(tmp_path, make_record(two_robots(), pos), plots=False,
                   plotter=_raising_plotter)
-    assert sorted(os.listdir(tmp_path)) == ["metrics.json", "recording.mcap", "trajectory.npz"]
+    assert sorted(os.listdir(tmp_path)) == ["metrics.json", "record.msgpack", "recording.mcap",
+                                            "trajectory.npz"]
     assert json.loads((tmp_path / "metrics.json").read_text()) == m

@@ -136,13 +136,14 @@ def test_stall_repair_writes_the_engine_linearization_point() -> None:
     ctrl = CentralizedController(sc, only().with_rule(StallRepair(speed=0.07)))
     ctrl.step(0.0, sc.initial_states())
     engine = ctrl.engine
-    engine.z[engine._speed_index] = 0.0
+    engine.guess_speeds()[:] = 0.0
     speeds = engine.guess_speeds()
     assert not speeds.flags.c_contiguous
     before = ctrl.counters()["stall_repairs"]
     ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
-    np.testing.assert_array_equal(engine.z[engine._speed_index[0]], -0.07)  # goal behind
-    np.testing.assert_array_equal(engine.z[engine._speed_index[1]], 0.0)  # near its goal
+    _, inputs = engine.states_inputs()
+    np.testing.assert_array_equal(inputs[0, :, 0], -0.07)  # goal behind
+    np.testing.assert_array_equal(inputs[1, :, 0], 0.0)  # near its goal
     assert ctrl.counters()["stall_repairs"] == before + 1
 
 

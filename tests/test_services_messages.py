@@ -16,7 +16,6 @@ from services.messages import (
     CmdMsg,
     DoneMsg,
     InvalidMessage,
-    MessageValidator,
     Mismatch,
     PlanMsg,
     StateMsg,
@@ -24,6 +23,7 @@ from services.messages import (
     encode,
 )
 from services.transport import check_run_name, make_config, run_prefix
+from services.validator import MessageValidator
 
 IDS = (1, 2, 3, 4)
 N = 8

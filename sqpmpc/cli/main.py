@@ -7,9 +7,13 @@ distributed services ``launch``, ``plant``, ``robot``, ``central``, ``router``,
 options are the same everywhere (:mod:`sqpmpc.cli.options`), also from
 ``--settings FILE.toml``.
 
-Exit status: 0 when the run completed (whatever the metrics say), 2 for bad
-input (scenario file, options), 1 when the run stopped midway (what it had is
-written), 130 on Ctrl-C (likewise).
+Exit status of ``sqpmpc run``: 0 when the run completed (with
+``--fail-on-miss``: and every robot arrived, without any collision), 1 when the
+run stopped midway (what it had is written), 2 for bad input (scenario file,
+options, an ``--out`` that is a file or a non-empty folder without
+``--overwrite``: refused before the run), 4 with ``--fail-on-miss`` when the
+run completed but a robot did not arrive (final error above 0.05 m) or a
+collision happened, 130 on Ctrl-C (what was simulated is written).
 """
 
 from __future__ import annotations
@@ -36,7 +40,8 @@ from sqpmpc.cli.options import (
 )
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.io.files import write_run
-from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, describe_solve_time
+from sqpmpc.io.recorder import prepare_output
+from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, missed_goal, summarize
 from sqpmpc.problem.fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario
 from sqpmpc.rules.registry import describe_rules
@@ -67,7 +72,15 @@ def build_parser() -> argparse.ArgumentParser:
     names = ", ".join(builtin_scenario_names())
     run.add_argument("scenario", help=f"TOML file or built-in name ({names})")
     run.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
-    run.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<new>)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="output folder (default: runs/<new>); a file or a non-empty folder "
+                          "is refused before the run unless --overwrite")
+    run.add_argument("--overwrite", action="store_true",
+                     help="use an --out folder that holds a previous run: its files are "
+                          "replaced (other files are left alone)")
+    run.add_argument("--fail-on-miss", action="store_true",
+                     help="exit with status 4 when a robot did not arrive (final error above "
+                          "0.05 m) or a collision happened (for scripts)")
     add_controller_options(run)
     run.add_argument("--message-drop", type=probability, default=None, metavar="P",
                      help="decentralized: probability that a plan message is lost "
@@ -108,19 +121,6 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_parser(name, add_help=False,
                        help=f"{text} (python -m services.{name}; 'sqpmpc {name} --help')")
     return parser
-
-
-def _summary(metrics: dict) -> str:
-    rms = metrics["rms_tracking_error"]
-    return (
-        f"{metrics['scenario']} / {metrics['scheme']}: steps {metrics['steps']}, "
-        f"min clearance {metrics['min_clearance']}, collisions {metrics['collisions']}, "
-        f"input bound violations {metrics['input_bound_violations']}, "
-        f"solver failures {metrics['solver_failures']}, closed-loop cost "
-        f"{metrics['closed_loop_cost']:.4g}, RMS error "
-        f"{', '.join(f'{k}: {v:.3f}' for k, v in rms.items())} m, "
-        f"{describe_solve_time(metrics)}, total {metrics['solve_time']['total_s']:.3f} s"
-    )
 
 
 _GENERATE_OPTIONS = {"swap": ("robots",), "crossings": ("robots", "seed", "spacing"),
@@ -219,14 +219,18 @@ def main(argv: list[str] | None = None) -> int:
                                         progress=terminal and not args.quiet)
         sim = ClosedLoopSimulation(scenario, args.scheme, options.solver_settings(),
                                    sim_options)
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
+        try:
+            prepare_output(out, args.overwrite)
+        except ProblemError as exc:
+            raise ProblemError(f"--out: {exc}") from None
     except (ScenarioError, ProblemError) as exc:
         print(f"sqpmpc run: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # before the run started: nothing to write
         print("sqpmpc: interrupted before the run started", file=sys.stderr)
         return 130
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
     status = 0
     status_lines = None if terminal or args.quiet else StatusLines(
         scenario, f"{scenario.name} {args.scheme}", args.status_every)
@@ -246,10 +250,14 @@ def main(argv: list[str] | None = None) -> int:
         status = 1
     metrics = write_run(out, sim.record(), plots=not args.no_plots)
     if not args.quiet:
-        print(_summary(metrics))
+        print(summarize(metrics))
         print(f"wrote {out}")
     else:
         print(json.dumps({"out": str(out)}))
+    miss = missed_goal(metrics)
+    if status == 0 and args.fail_on_miss and miss:
+        print(f"sqpmpc run: goal missed (--fail-on-miss): {miss}", file=sys.stderr)
+        return 4
     return status
 
 

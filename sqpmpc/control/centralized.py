@@ -9,7 +9,9 @@ import numpy as np
 
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
 from sqpmpc.control.settings import SolverSettings
+from sqpmpc.kernels.acceleration import pairs_keep_bulging_distance
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
+from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
@@ -40,12 +42,12 @@ class CentralizedController(ControllerPipeline):
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
-                          _has_position_bounds(scenario))
+                          _has_position_bounds(scenario), scenario.robot_model())
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
         self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
-                                                 self.geometry)
+                                                 self.geometry, self.recovery_tolerance)
         self._rows = {"internal": self.collisions}
         if self.obstacle_rows is not None:
             self._rows["external"] = self.obstacle_rows
@@ -75,12 +77,45 @@ class CentralizedController(ControllerPipeline):
         by at most :meth:`path_deviation`, which the check adds.
         """
         alpha, beta = self.path_deviation(inputs)
-        growth = alpha + np.maximum(beta, 0.0)
         now = np.ascontiguousarray(states[:, :2])
         p = np.ascontiguousarray(next_states[:, :2])
+        if not self._unicycle:  # robots with velocity states: the bound itself
+            if not pairs_keep_bulging_distance(self.collisions.pairs, now, p,
+                                               self.collisions.safe_distance, alpha, beta):
+                return False
+            return self._obstacles_safe(now, p, alpha, beta) and self._in_position_bounds(p)
+        growth = alpha + np.maximum(beta, 0.0)
         if not self.collisions.first_input_safe(now, p, growth):
             return False
         return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+
+    def _brakes_safely(self, next_states: np.ndarray) -> bool:
+        """With acceleration limits: braking right after the first input, every robot as hard
+        as its limits allow, keeps every pair's distance along the braking paths.
+
+        If it does, the braking fallback of the next sample (all robots brake from where
+        the first input took them) follows a path checked here: the fallback is safe by
+        induction, as standing still is for the paper's unicycle (which stops at once).
+        The obstacles are checked along the same paths as they move on.
+        Each braking sample's true path may stray from its segment by the bound of
+        :func:`~sqpmpc.problem.plant.acceleration_path_deviation`.
+        """
+        if not self.model.velocity_states:
+            return True
+        path, inputs = self.braking_path(next_states)
+        alpha, beta = acceleration_path_deviation(
+            path[:, :-1, 3:5], inputs, self.sample_time, self.settings.discretization,
+            self.scenario.plant.model, self._noise_bound)                    # (m, B) each
+        for j in range(inputs.shape[1]):
+            now = np.ascontiguousarray(path[:, j, :2])
+            nxt = np.ascontiguousarray(path[:, j + 1, :2])
+            if not pairs_keep_bulging_distance(self.collisions.pairs, now, nxt,
+                                               self.collisions.safe_distance,
+                                               np.ascontiguousarray(alpha[:, j]),
+                                               np.ascontiguousarray(beta[:, j])):
+                return False
+        return self.obstacle_rows is None or self.obstacle_rows.braking_safe(path[..., :2],
+                                                                             alpha, beta)
 
     def step(self, t: float, states: np.ndarray, sample: int | None = None) -> ControlOutput:
         """Inputs of every robot at time ``t`` from the measured ``states (n, 3)``.
@@ -90,7 +125,9 @@ class CentralizedController(ControllerPipeline):
         t
             Time ``t_k``, s.
         states
-            Measured states of all robots ``(n, 3)`` (scenario order).
+            Measured states of all robots (scenario order): ``(n, 3)`` poses, or ``(n, 5)``
+            with the measured ``(v, omega)`` appended (CONTRACT 1c; with poses alone a robot
+            with acceleration limits is taken to move at what it was last commanded).
         sample
             Sample index ``k`` (default: one more than the last call's, 0 at first).
 

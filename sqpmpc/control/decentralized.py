@@ -52,6 +52,7 @@ from sqpmpc.ocp.collision_rows import (
     ExternalCollisionModel,
 )
 from sqpmpc.ocp.obstacle_rows import StackedRows
+from sqpmpc.problem.plant import acceleration_path_deviation, largest_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
@@ -104,7 +105,8 @@ class DecentralizedController(ControllerPipeline):
         slots = others.size if settings.neighbour_slots is None else min(
             others.size, settings.neighbour_slots)
         layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64),
-                          slots + len(scenario.obstacles), _has_position_bounds(scenario))
+                          slots + len(scenario.obstacles), _has_position_bounds(scenario),
+                          scenario.robot_model())
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
         self.index = index
@@ -127,6 +129,7 @@ class DecentralizedController(ControllerPipeline):
         self.collisions = ExternalCollisionModel(
             self.required[:slots], N, self.geometry, reach=scenario.sample_time * v_max,
             margin=self.pair_margin, stage_one_rule_for_obstacles=mode == "shared",
+            recovery=self.recovery_tolerance,
         )
         self._rows = {"external": self.collisions if self.obstacle_rows is None
                       else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
@@ -161,9 +164,62 @@ class DecentralizedController(ControllerPipeline):
         if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
                                                 beta=float(beta[0])):
             return False
+        if not self._unicycle:  # robots with velocity states: the bound itself
+            return (self._obstacles_safe(states, next_state, alpha, beta)
+                    and self._in_position_bounds(next_state[:, :2]))
         growth = alpha + np.maximum(beta, 0.0)
         return (self._obstacles_safe(states, next_state, growth)
                 and self._in_position_bounds(next_state[:, :2]))
+
+    def _brakes_safely(self, next_states: np.ndarray) -> bool:
+        """With acceleration limits: braking right after the first input keeps this robot
+        clear of the obstacles as they move on and on
+        its side of every shared hyperplane of this sample (stage ``1 + j`` of the braking
+        against the row of stage ``1 + j``, the last row beyond the horizon) and its true
+        distance from the predicted stages of the neighbours held as obstacles or missing.
+
+        The neighbour of a shared pair checks the same hyperplanes from the other side, so
+        if both fall back to braking at the next sample they stay apart: each braking
+        position keeps half the true distance plus its deviation from the predicted
+        segments (:func:`~sqpmpc.problem.plant.acceleration_path_deviation`) from the
+        hyperplane (the rows themselves keep half of :attr:`pair_margin` more).
+        """
+        if not self.model.velocity_states:
+            return True
+        path, inputs = self.braking_path(next_states)
+        c = self.collisions
+        pos = path[0, 1:, :2]                                   # stages 2..B+1
+        rows = np.minimum(np.arange(1, pos.shape[0] + 1), self.horizon - 1)
+        alpha, beta = acceleration_path_deviation(
+            path[0, :-1, 3:5], inputs[0], self.sample_time, self.settings.discretization,
+            self.scenario.plant.model, self._noise_bound)
+        if self.obstacle_rows is not None and not self.obstacle_rows.braking_safe(
+                path[..., :2], alpha[None], beta[None]):
+            return False
+        growth = largest_deviation(alpha, beta)                 # (B,)
+        shared = c.kind == SHARED
+        inside = c.inside()
+        shared &= ~inside
+        if shared.any():
+            # each robot keeps half the true distance plus its own deviation: the rows' half
+            # margin less the braking path's growth may be used
+            slack = 0.5 * (c.required - c.safe_distance)[shared][:, None] - growth[None]
+            normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
+            held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
+            if (held < -slack - 1e-9).any():
+                return False
+        if inside.any():
+            # overlap-recovery: a pair already inside its distance cannot keep it; braking
+            # must not take this robot across the current mid-line's check line
+            held = pos @ c.check_normals[inside].T - c.check_rhs[inside]
+            if (held < -self.recovery_tolerance).any():
+                return False
+        avoid = (c.kind == OBSTACLE) | (c.kind == MISSING)
+        if avoid.any():
+            gap = np.linalg.norm(c.obstacles[avoid][:, rows, :2] - pos[None], axis=-1)
+            if (gap < c.safe_distance[avoid][:, None]).any():
+                return False
+        return True
 
     def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int) -> bool:
         """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan of an earlier sample.
@@ -397,7 +453,9 @@ class DecentralizedController(ControllerPipeline):
         t
             Time ``t_k``.
         states
-            Measured states of all robots ``(n, 3)`` (scenario order).
+            Measured states of all robots (scenario order): ``(n, 3)`` poses, or ``(n, 5)``
+            with the measured ``(v, omega)`` appended (CONTRACT 1c; with poses alone a robot
+            with acceleration limits is taken to move at what it was last commanded).
         plans
             Latest plan received from each neighbour id (``None`` or absent if
             none); ``None`` (default): the plans kept by

@@ -20,9 +20,15 @@ one function that reads top to bottom:
    nonlinear model over the whole sample, the plant's possible deviation from
    the predicted path included (:mod:`sqpmpc.problem.plant`); a failed QP, a non-finite plan or
    a failed check applies the shifted previous plan if it passes the same
-   check, else a braking input (always safe by the stage-one rule);
+   check, else a braking input (always safe by the stage-one rule; with
+   acceleration limits, the braking the last accepted input left room for);
 8. **publish**: the counters, the applied-input history the rules read and,
    decentralized, the plan the neighbours will receive.
+
+The pipeline is written against the robot model of the scenario
+(:meth:`sqpmpc.problem.scenario.Scenario.robot_model`): the measured poses (and
+velocities, CONTRACT 1c) become the model's states, the plan's commands and
+the poses and velocities the neighbours receive come from the model.
 
 The scheme-specific parts are three methods of the controllers in
 :mod:`sqpmpc.control.decentralized`: ``_predict_neighbours``, ``_safe`` and
@@ -33,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import numbers
 import time
 from collections.abc import Mapping
@@ -43,13 +50,14 @@ import numpy as np
 
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite, clip_and_roll_out
+from sqpmpc.kernels.ocp import all_finite
 from sqpmpc.kernels.warmup import warm_up
+from sqpmpc.models.base import RobotModel
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.ocp.iteration import MultipleShootingSQP
 from sqpmpc.ocp.obstacle_rows import ObstacleRows
 from sqpmpc.ocp.report import CollisionRows, IterationReport
-from sqpmpc.problem.plant import model_margin, path_deviation
+from sqpmpc.problem.plant import acceleration_path_deviation, model_margin, path_deviation
 from sqpmpc.problem.references import Reference, ReferenceSet
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
@@ -58,7 +66,11 @@ from sqpmpc.rules.base import RuleContext, RuleInstance, SampleView
 if TYPE_CHECKING:
     from sqpmpc.control.plans import PlanMessage
 
-__all__ = ["ControlOutput", "ControllerPipeline", "braking_input", "kernel_warm_up_seconds"]
+__all__ = ["RECOVERY_TOLERANCE", "ControlOutput", "ControllerPipeline", "braking_input",
+           "kernel_warm_up_seconds"]
+
+#: Smallest tolerance of the ``overlap-recovery`` rule, m (the solver's accuracy).
+RECOVERY_TOLERANCE = 1e-4
 
 @functools.cache
 def kernel_warm_up_seconds() -> float:
@@ -73,9 +85,12 @@ class ControlOutput:
     Attributes
     ----------
     inputs
-        ``(m, 2)`` inputs to apply (within bounds).
+        ``(m, 2)`` velocity commands ``(v, omega)`` to apply (within bounds).
     predicted_states, predicted_inputs
-        ``(m, N+1, 3)`` and ``(m, N, 2)``: the plan consistent with ``inputs``.
+        ``(m, N+1, 3)`` poses and ``(m, N, 2)`` paper-unicycle inputs of the plan
+        consistent with ``inputs`` (for the paper's unicycle the plan itself; for a
+        model with velocity states, :meth:`~sqpmpc.models.base.RobotModel.poses` and
+        :meth:`~sqpmpc.models.base.RobotModel.velocity_plan`).
     fallback
         ``None``, ``"shifted-plan"`` or ``"brake"``.
     report
@@ -100,6 +115,8 @@ class ControlOutput:
     compute_time: float
     counters: Mapping[str, int] = field(default_factory=dict)
     plan: PlanMessage | None = None
+    model_states: np.ndarray | None = None
+    model_inputs: np.ndarray | None = None
 
 
 def braking_input(lower: np.ndarray, upper: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -145,11 +162,16 @@ class ControllerPipeline:
                              or np.isfinite(self.position_upper).any())
         self.horizon = scenario.horizon
         self.sample_time = scenario.sample_time
-        self._euler = settings.discretization == "euler"
+        #: the robot model (the paper's unicycle unless the scenario declares acceleration bounds)
+        self.model = layout.model if isinstance(layout.model, RobotModel) \
+            else scenario.robot_model()
+        self._unicycle = self.model.nx == 3
+        kernels = self.model.kernels(settings.discretization)
+        self._clip_kernel = None if kernels is None else kernels.clip_and_roll_out
         self.engine = MultipleShootingSQP(
             layout, scenario.sample_time, np.asarray(scenario.weights.Q),
-            np.asarray(scenario.weights.R), self.input_lower, self.input_upper,
-            self.position_lower, self.position_upper, settings,
+            np.asarray(scenario.weights.R), self.model.input_lower, self.model.input_upper,
+            self.position_lower, self.position_upper, settings, self.model,
         )
         self.counts: dict[str, int] = {
             "samples": 0, "fallbacks": 0, "shifted_plan_fallbacks": 0, "brake_fallbacks": 0,
@@ -173,19 +195,26 @@ class ControllerPipeline:
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
         plant = scenario.plant
+        limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
         self.model_margin = model_margin(self.input_lower, self.input_upper,
-                                         self.sample_time, settings.discretization, plant)
-        self._deviates = plant.model != settings.discretization or plant.noisy
+                                         self.sample_time, settings.discretization, plant,
+                                         limits)
+        self._deviates = plant.model != settings.discretization or plant.noisy or not \
+            self._unicycle
+        self._own = np.zeros((self.indices.size, self.model.nx))
         self._noise_bound = plant.noise_bound
         #: the margin of the rows between two robots: solver tolerance + plant deviation
         self.pair_margin = settings.collision_margin + self.model_margin
+        #: tolerance of the ``overlap-recovery`` rule (:mod:`sqpmpc.ocp.collision_rows`), m
+        self.recovery_tolerance = max(settings.collision_margin, RECOVERY_TOLERANCE)
         self.obstacle_rows: ObstacleRows | None = None
         if scenario.obstacles:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
                 self.sample_time, self.geometry,
                 settings.collision_margin + 0.5 * self.model_margin,
-                (float(self.input_lower[0]), float(self.input_upper[0])))
+                (float(self.input_lower[0]), float(self.input_upper[0])),
+                self.recovery_tolerance)
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,
@@ -195,17 +224,25 @@ class ControllerPipeline:
         t0 = time.perf_counter()
         # 1. measure
         states = np.asarray(states, dtype=float)
-        if states.shape != (self._n, 3) or not all_finite(states.ravel()):
-            raise ProblemError(f"states must be finite with shape ({self._n}, 3), "
-                               f"got {states.shape}")
-        own = states[self.indices]
+        if states.shape not in ((self._n, 3), (self._n, 5)) or not all_finite(states.ravel()):
+            raise ProblemError(f"states must be finite with shape ({self._n}, 3) (poses) or "
+                               f"({self._n}, 5) (poses and measured v, omega), got "
+                               f"{states.shape}")
+        if states.shape[1] == 5:
+            measured, states = states[self.indices], np.ascontiguousarray(states[:, :3])
+        else:
+            measured = states[self.indices]
+        own = measured if self._unicycle else self.model.measured_states(measured,
+                                                                         self._applied)
+        self._own = own
         # 2. predict neighbours (and the obstacles)
         if self.obstacle_rows is not None:
             self.obstacle_rows.set_sample(t, own)
         self._predict_neighbours(sample, states, plans or {}, previous_states)
         # 3. rules shape the references
         raw = self.reference(t)
-        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]), own, raw, raw,
+        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]),
+                          own if self._unicycle else own[:, :3], raw, raw,
                           self._applied, self._applied_before,
                           np.ascontiguousarray(states[:, 2]))
         for rule in self._reference_rules:
@@ -251,20 +288,26 @@ class ControllerPipeline:
 
     def path_deviation(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r"""The plant's deviation from the predicted segments, :math:`(\alpha, \beta)` per own
-        robot, for the first inputs ``(m, 2)`` (:func:`sqpmpc.problem.plant.path_deviation`; zeros
-        when the plant moves as predicted)."""
+        robot, for the first inputs ``(m, nu)`` of the model from this sample's states
+        (:func:`sqpmpc.problem.plant.path_deviation`; zeros when the plant moves as predicted)."""
         if not self._deviates:
             zero = np.zeros(inputs.shape[0])
             return zero, zero
-        return path_deviation(inputs, self.sample_time, self.settings.discretization,
-                              self.scenario.plant.model, self._noise_bound)
+        if self._unicycle:
+            return path_deviation(inputs, self.sample_time, self.settings.discretization,
+                                  self.scenario.plant.model, self._noise_bound)
+        return acceleration_path_deviation(
+            self._own[:, 3:5], inputs, self.sample_time, self.settings.discretization,
+            self.scenario.plant.model, self._noise_bound)
 
     def _obstacles_safe(self, states: np.ndarray, next_states: np.ndarray,
-                        growth: np.ndarray) -> bool:
-        """The own robots' paths keep their distances to the obstacles over the sample."""
+                        growth: np.ndarray, beta: np.ndarray | None = None) -> bool:
+        """The own robots' paths keep their distances to the obstacles over the sample (a
+        path strays ``growth s``, or with ``beta`` ``growth s + beta s (1 - s)``)."""
         if self.obstacle_rows is None:
             return True
-        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth)
+        return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth,
+                                                   beta)
 
     def _publish(self, sample: int, out: ControlOutput) -> None:
         """Hand the sample's result to the scheme (override if there is something to send)."""
@@ -288,35 +331,71 @@ class ControllerPipeline:
     def _verify(self, own: np.ndarray, report: IterationReport, shifted: np.ndarray | None,
                 t0: float) -> ControlOutput:
         """Clip and verify the QP's first input; else the shifted plan, else brake."""
-        engine = self.engine
+        engine, model, h = self.engine, self.model, self.sample_time
         if report.success:
             plan_u = engine.inputs()
-            if self._euler:  # clip, check and roll out in one kernel
-                plan_x = np.empty((plan_u.shape[0], self.horizon + 1, 3))
-                finite = clip_and_roll_out(own, plan_u, self.input_lower, self.input_upper,
-                                           self.sample_time, plan_x)
+            if self._clip_kernel is not None:  # clip, check and roll out in one kernel
+                plan_x = np.empty((plan_u.shape[0], self.horizon + 1, model.nx))
+                finite = self._clip_kernel(own, plan_u, model.input_lower, model.input_upper, h,
+                                           plan_x)
             else:
-                np.clip(plan_u[:, 0], self.input_lower, self.input_upper, out=plan_u[:, 0])
+                model.clip_first_input(own, plan_u, h)
                 finite = all_finite(plan_u.ravel())
                 plan_x = engine.rollout(own, plan_u) if finite else None
             # stage 1 of the rollout is exactly the next state of the first input
-            if finite and self._safe(own, plan_x[:, 1], plan_u[:, 0]):
-                return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
-                                     time.perf_counter() - t0)
+            if finite and self._safe(own, plan_x[:, 1], plan_u[:, 0]) and (
+                    self._unicycle or self._brakes_safely(plan_x[:, 1])):
+                if self._unicycle:
+                    return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
+                                         time.perf_counter() - t0)
+                return self._output(plan_x, plan_u, None, report, t0)
         fallback, plan_u, plan_x = "brake", None, None
         if shifted is not None:
-            candidate = np.clip(shifted, self.input_lower, self.input_upper)
+            candidate = np.clip(shifted, model.input_lower, model.input_upper)
+            model.clip_first_input(own, candidate, h)
             if all_finite(candidate.ravel()):
                 candidate_x = engine.rollout(own, candidate)
-                if self._safe(own, candidate_x[:, 1], candidate[:, 0]):
+                if self._safe(own, candidate_x[:, 1], candidate[:, 0]) and \
+                        self._brakes_safely(candidate_x[:, 1]):
                     fallback, plan_u, plan_x = "shifted-plan", candidate, candidate_x
         if plan_u is None:
-            plan_u = braking_input(self.input_lower, self.input_upper, (own.shape[0],
-                                                                         self.horizon))
+            plan_u = model.braking_inputs(own, self.horizon, h)
             plan_x = engine.rollout(own, plan_u)
         engine.set_guess(own, plan_u, converge_first=False)
-        return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, fallback, report,
-                             time.perf_counter() - t0)
+        return self._output(plan_x, plan_u, fallback, report, t0)
+
+    def _output(self, plan_x: np.ndarray, plan_u: np.ndarray, fallback: str | None,
+                report: IterationReport, t0: float) -> ControlOutput:
+        """The sample's output: the model's commands, poses and velocity plan."""
+        if self._unicycle:
+            return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, fallback, report,
+                                 time.perf_counter() - t0)
+        model = self.model
+        return ControlOutput(model.commands(plan_x, plan_u), model.poses(plan_x),
+                             np.ascontiguousarray(model.velocity_plan(plan_x, plan_u)),
+                             fallback, report, time.perf_counter() - t0,
+                             model_states=plan_x, model_inputs=plan_u)
+
+    def _brakes_safely(self, next_states: np.ndarray) -> bool:
+        """Whether braking from the next states ``(m, nx)`` keeps the distances (override;
+        the paper's unicycle stops at once: always)."""
+        return True
+
+    def braking_path(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""The model's braking from ``states (m, nx)`` until every robot stands still:
+        states ``(m, B+1, nx)`` and inputs ``(m, B, nu)``, :math:`B \ge 1` samples
+        (:meth:`~sqpmpc.models.base.RobotModel.braking_inputs`; one sample for the paper's
+        unicycle, :math:`\lceil \max |v| / (|a| T_s) \rceil` with acceleration limits)."""
+        model, h = self.model, self.sample_time
+        samples = 1
+        if model.velocity_states:
+            vel = np.abs(states[:, list(model.velocity_states)])
+            slowest = np.minimum(-model.input_lower, model.input_upper)
+            slowest = np.where(slowest > 0.0, slowest, np.inf)
+            need = float((vel / slowest).max(initial=0.0)) / h
+            samples = int(min(max(1, math.ceil(need - 1e-9)), 10_000))
+        inputs = model.braking_inputs(states, samples, h)
+        return self.engine.rollout(states, inputs), inputs
 
     def _count(self, out: ControlOutput) -> None:
         """Counters and the applied-input history (rules read both)."""

@@ -7,7 +7,9 @@ footprint (a circle of its diameter, in the colours of the plots), its
 heading (a line from the centre to the rim), the path it has driven, its
 predicted horizon (the plan computed at that sample, dots on a line), its
 reference path (dashed) and the reference point now (x), the obstacles
-(grey), and the time and the smallest clearance so far in the title.
+(grey), and the time and the smallest clearance so far in the title; a legend
+row under the plot says what each mark is. The frame takes the aspect of the
+run's extent (:func:`frame_size`), so the arena fills it.
 
 A ``.gif`` is written with Pillow (always available); a ``.mp4`` with
 ``imageio-ffmpeg`` when it is installed (``pip install imageio-ffmpeg``, it
@@ -33,7 +35,8 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.io.files import load_trajectory
 from sqpmpc.io.recording import robot_rgba
 
-__all__ = ["MAX_FRAMES", "RunData", "animate", "load_run", "render_frames", "write_frame"]
+__all__ = ["MAX_FRAMES", "RunData", "animate", "frame_size", "load_run", "render_frames",
+           "write_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -142,15 +145,58 @@ def _min_clearance(run: RunData) -> np.ndarray:
     return (dist - 0.5 * (run.diameters[a] + run.diameters[b])).min(axis=1)
 
 
-def render_frames(run: RunData, step: int, size: tuple[float, float] = (6.4, 6.4),
+_MARGINS = (0.75, 0.2, 1.05, 0.6)  # left, right, bottom (x label, legend), top (title), in
+
+
+def frame_size(run: RunData, height: float = 6.4, dpi: int = 100) -> tuple[float, float]:
+    """Figure size (inches) whose plot area has the aspect of the run's extent, so the
+    arena fills the frame; width and height are whole, even numbers of pixels."""
+    x0, x1, y0, y1 = _limits(run)
+    aspect = (x1 - x0) / max(y1 - y0, 1e-9)
+    left, right, bottom, top = _MARGINS
+    plot = height - bottom - top
+    width = left + right + min(max(plot * aspect, 0.8 * plot), 2.0 * plot)
+
+    def even(inches: float) -> float:
+        return 2 * round(inches * dpi / 2) / dpi
+
+    return even(width), even(height)
+
+
+def _legend(fig: Figure, obstacles: bool) -> None:
+    """What the marks mean, in one row under the plot."""
+    from matplotlib.lines import Line2D
+
+    grey = "0.35"
+    handles = [
+        Line2D([], [], ls="", marker="o", ms=10, mfc=(0.6, 0.6, 0.6, 0.35), mec=grey,
+               label="robot (id, heading)"),
+        Line2D([], [], color=grey, lw=1.2, label="driven path"),
+        Line2D([], [], color=grey, marker=".", lw=1.0, ms=5, label="plan (horizon)"),
+        Line2D([], [], color=grey, ls="", marker="x", ms=6, mew=1.6,
+               label="reference now (goal)"),
+        Line2D([], [], color=grey, ls=(0, (4, 3)), lw=0.8, label="reference path"),
+    ]
+    if obstacles:
+        handles.append(Line2D([], [], ls="", marker="o", ms=10, mfc="0.6", mec="0.25",
+                              label="obstacle"))
+    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncols=3,
+               fontsize="small", frameon=False, borderaxespad=0.2)
+
+
+def render_frames(run: RunData, step: int, size: tuple[float, float] | None = None,
                   dpi: int = 100, samples: list[int] | None = None) -> Iterator[np.ndarray]:
     """RGB frames ``(H, W, 3)`` uint8 of samples ``0, step, 2 step, ...`` and the last one
-    (or of the given ``samples``)."""
+    (or of the given ``samples``); ``size`` in inches, default :func:`frame_size`."""
     n = len(run.ids)
     colors = robot_rgba(n)
-    fig = Figure(figsize=size, dpi=dpi, layout="constrained")
+    width, height = size or frame_size(run, dpi=dpi)
+    fig = Figure(figsize=(width, height), dpi=dpi)
     canvas = FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
+    left, right, bottom, top = _MARGINS  # fixed margins: the plot takes all the rest
+    ax = fig.add_axes((left / width, bottom / height, 1 - (left + right) / width,
+                       1 - (bottom + top) / height))
+    _legend(fig, bool(len(run.obstacle_diameters)))
     x0, x1, y0, y1 = _limits(run)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
@@ -176,7 +222,7 @@ def render_frames(run: RunData, step: int, size: tuple[float, float] = (6.4, 6.4
     obstacles = [ax.add_patch(Circle((0.0, 0.0), 0.5 * d, facecolor="0.6", edgecolor="0.25",
                                      zorder=3))
                  for d in run.obstacle_diameters]
-    title = ax.set_title("")
+    title = ax.set_title("", fontsize="medium")
     clearance = np.minimum.accumulate(_min_clearance(run))
     frames = list(range(0, run.k + 1, step)) if samples is None else samples
     if samples is None and frames[-1] != run.k:

@@ -95,7 +95,9 @@ def write_run(
 ) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` and return its metrics.
 
-    ``trajectory.npz`` and ``metrics.json`` are written first; then, when
+    ``trajectory.npz`` and ``metrics.json`` are written first, then ``record.msgpack``
+    (:func:`sqpmpc.io.runlog.write_record`, read by ``sqpmpc metrics``) unless the
+    folder has one (a distributed plant writes its own as it runs); then, when
     ``recording`` is true, ``recording.mcap`` (:func:`sqpmpc.io.recording.write_recording`,
     for Foxglove); then, when ``plots`` is true, the PNG figures via ``plotter``
     (default :func:`sqpmpc.io.plots.plot_run`). An exception while recording or
@@ -125,6 +127,10 @@ def write_run(
     write_trajectory(out / "trajectory.npz", record)
     metrics = compute_metrics(record)
     write_metrics(out / "metrics.json", metrics)
+    if not (out / "record.msgpack").exists() and hasattr(record.scenario, "to_toml"):
+        from sqpmpc.io.runlog import write_record  # a distributed plant writes its own
+
+        write_record(out / "record.msgpack", record)
     if recording:
         from sqpmpc.io.recording import write_recording
 

@@ -54,7 +54,7 @@ from sqpmpc.problem.paths import obstacle_clearances, plant_paths, segment_dista
 from sqpmpc.sim.record import RunRecord
 
 __all__ = [
-    "COLLISION_TOLERANCE", "BOUND_TOLERANCE", "RunRecord", "compute_metrics",
+    "ARRIVAL_TOLERANCE", "COLLISION_TOLERANCE", "BOUND_TOLERANCE", "RunRecord", "compute_metrics",
     "intersample_distances", "pair_distances",
 ]
 
@@ -62,6 +62,8 @@ log = logging.getLogger(__name__)
 
 COLLISION_TOLERANCE = 1e-6
 """A (sample, pair) is a collision when its clearance is below ``-COLLISION_TOLERANCE``."""
+ARRIVAL_TOLERANCE = 0.05
+"""A robot arrived when its final position error is at most this, m (contract section 3)."""
 BOUND_TOLERANCE = 1e-9
 """An input or position violates its bound when outside it by more than this."""
 
@@ -190,8 +192,10 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         ``closed_loop_cost``, ``input_bound_violations``, ``solver_failures``,
         ``solve_time``) plus ``completed``, ``planned_steps``, ``ids``,
         ``min_clearance_at`` (``{"t", "pair"}`` of the minimum),
-        ``final_position_error``, ``max_final_position_error``,
-        ``state_bound_violations``, ``intersample_min_clearance`` and
+        ``final_position_error`` (per robot id, m, at the last sample against the
+        reference then), ``max_final_position_error``, ``arrived`` (per robot id:
+        final error <= :data:`ARRIVAL_TOLERANCE`), ``all_arrived``,
+        ``arrival_tolerance``, ``state_bound_violations``, ``intersample_min_clearance`` and
         ``intersample_collisions`` (the same between samples, see
         :func:`intersample_distances`; ``None``/0 before the first step) and
         the record's ``extra`` entries (an
@@ -211,7 +215,8 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
     # and clearances over every sample and between samples.
     path_t, path_pos = plant_paths(record.states, record.plant_inputs
                                    if record.plant_inputs is not None else record.inputs,
-                                   float(sc.sample_time), record.plant_model)
+                                   float(sc.sample_time), record.plant_model,
+                                   bool(getattr(sc.bounds, "dynamic_limits", False)))
     pairs = np.asarray(sc.pairs(), dtype=np.int64).reshape(-1, 2)
     min_distance = min_clearance = None
     min_at: dict[str, Any] | None = None
@@ -275,6 +280,10 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         "min_clearance_at": min_at,
         "final_position_error": {str(i): _float(v) for i, v in zip(ids, final, strict=True)},
         "max_final_position_error": _float(final.max()),
+        "arrived": {str(i): bool(v <= ARRIVAL_TOLERANCE) for i, v in zip(ids, final,
+                                                                         strict=True)},
+        "all_arrived": bool(np.all(final <= ARRIVAL_TOLERANCE)),
+        "arrival_tolerance": ARRIVAL_TOLERANCE,
         "state_bound_violations": state_violations,
         "intersample_min_clearance": intersample_min_clearance,
         "intersample_collisions": intersample_collisions,

@@ -24,10 +24,25 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
+from sqpmpc.io.figure_style import (
+    CLEARANCE_LINTHRESH,
+    _colors,
+    _legend,
+    _new_figure,
+    _save,
+    _style,
+    _title,
+)
+from sqpmpc.io.fleetplots import (
+    FEW,
+    _fleet_curve,
+    heat_map,
+    plot_clearance,
+    plot_paths_by_robot,
+    time_marks,
+)
 from sqpmpc.io.metrics import pair_distances
 from sqpmpc.sim.record import RunRecord
 
@@ -42,64 +57,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-DPI = 120
-_MANY_SERIES = 12  # legends with more entries go outside the axes, in columns
-
-
-def _colors(n: int) -> list[tuple[float, float, float, float]]:
-    """One distinct colour per robot (tab10, then tab20 for larger fleets)."""
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10" if n <= 10 else "tab20"]
-    return [cmap(j % cmap.N) for j in range(n)]
-
-
-def _new_figure(width: float, height: float, rows: int = 1) -> tuple[Figure, list[Axes]]:
-    fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
-    return fig, list(axes)
-
-
-def _title(record: RunRecord, what: str) -> str:
-    partial = "" if record.completed else f" (partial: {record.k}/{record.scenario.steps} steps)"
-    return f"{record.scenario.name}, {record.scheme}: {what}{partial}"
-
-
-def _legend(ax: Axes, entries: int, outside: bool = False) -> None:
-    if outside or entries > _MANY_SERIES:
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small",
-                  ncols=max(1, int(np.ceil(entries / 24))), frameon=False)
-    else:
-        ax.legend(loc="best", fontsize="small")
-
-
-def _save(fig: Figure, path: str | os.PathLike[str]) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    fig.clear()
-    return path
-
-
-_STYLES = ("-", "--", "-.", ":")
-_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h", "p")
-
-
-def _style(j: int, n: int, samples: int) -> dict[str, object]:
-    """Line style of robot (or pair) ``j`` of ``n``: curves that coincide stay visible.
-
-    Distinct dash patterns and markers, markers placed at staggered samples,
-    and earlier curves drawn wider and lower, so a curve exactly on top of
-    another leaves a rim of the one below.
-    """
-    every = max(1, samples // 10)
-    return {"ls": _STYLES[j % len(_STYLES)], "marker": _MARKERS[j % len(_MARKERS)],
-            "markevery": (min(samples - 1, (j * every) // max(n, 1)), every) if samples > 1
-            else None, "ms": 5.0, "lw": 1.2 + 1.6 * (n - 1 - j) / max(n - 1, 1),
-            "zorder": 2.0 + j / max(n, 1), "mfc": "none" if j % 2 else None}
-
 
 def _obstacles(ax: Axes, record: RunRecord) -> None:
     """Obstacles at t = 0 (grey discs; a moving one also at the end, hatched, with its track)."""
@@ -121,11 +78,16 @@ def _obstacles(ax: Axes, record: RunRecord) -> None:
 def plot_trajectories(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Paths of every robot in the x-y plane against their references (Fig. 1/2).
 
-    Executed path: a line style and marker per robot (robots on symmetric
-    paths stay distinguishable); thin dashed, same colour: reference over the
-    same sample times; hollow circle of the robot's diameter: start; filled
-    square: last sample; star: the reference at the last sample (the goal);
-    arrows: headings at ten instants; grey discs: obstacles.
+    Executed path: a line style per robot (robots on symmetric paths stay
+    distinguishable; past :data:`~sqpmpc.io.fleetplots.FEW` robots plain lines,
+    each robot's id written at its start instead of a legend entry); dots
+    every round number of seconds (about ten, larger as time goes on): the time
+    coding; thin dashed, same colour: reference over the same sample times;
+    hollow circle of the robot's diameter: start; filled square: last sample;
+    star: the reference at the last sample (the goal); arrows: headings at ten
+    instants; grey discs: obstacles. ``paths_by_robot.png``
+    (:func:`sqpmpc.io.fleetplots.plot_paths_by_robot`) has one panel per robot
+    coloured by time.
 
     Returns
     -------
@@ -143,28 +105,47 @@ def plot_trajectories(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     diameters = np.asarray(record.scenario.diameters(), dtype=float) if hasattr(
         record.scenario, "diameters") else np.full(n, 0.0)
     every = max(1, samples // 10)
+    marks, step = time_marks(record.t)
+    many = n > FEW
     for j, rid in enumerate(ids):
         c = colors[j]
         ax.plot(ref[:, j, 0], ref[:, j, 1], ls=(0, (2, 2)), color=c, lw=0.9, alpha=0.7,
                 zorder=1)
-        ax.plot(pos[:, j, 0], pos[:, j, 1], color=c, label=f"robot {rid}",
-                **_style(j, n, samples))
+        if many:  # plain lines, the id written at the start instead of 64 legend entries
+            ax.plot(pos[:, j, 0], pos[:, j, 1], color=c, lw=1.0)
+            ax.annotate(str(rid), tuple(pos[0, j]), xytext=(0, 7), textcoords="offset points",
+                        ha="center", fontsize=6, color="0.1", zorder=7)
+        else:
+            ax.plot(pos[:, j, 0], pos[:, j, 1], color=c, label=f"robot {rid}",
+                    **{**_style(j, n, samples), "marker": None})
+        if step > 0:  # time coding: a dot every `step` seconds, larger as time goes on
+            ax.scatter(pos[marks, j, 0], pos[marks, j, 1], s=6 + 30 * marks / marks[-1],
+                       color=c, edgecolors="k", linewidths=0.4, zorder=3)
         ax.add_patch(Circle(tuple(pos[0, j]), 0.5 * diameters[j], fill=False, edgecolor=c,
                             lw=1.5, zorder=5))
         ax.plot(pos[-1, j, 0], pos[-1, j, 1], "s", color=c, ms=7, mec="k", zorder=6)
         ax.plot(ref[-1, j, 0], ref[-1, j, 1], "*", color=c, ms=12, mec="k", mew=0.6, zorder=6)
+        if many:
+            continue  # 64 heading arrows hide the paths (headings: tracking.png)
         head = record.states[::every, j]
         ax.quiver(head[:, 0], head[:, 1], np.cos(head[:, 2]), np.sin(head[:, 2]), color=c,
                   angles="xy", scale=28, width=0.004, zorder=4)
     _obstacles(ax, record)
     handles, _ = ax.get_legend_handles_labels()
+    if step > 0:
+        handles.append(Line2D([], [], ls="", marker="o", mec="k", color="0.4",
+                              label=f"every {step:g} s (larger: later)"))
     handles += [
         Line2D([], [], ls=(0, (2, 2)), color="0.4", label="reference"),
         Line2D([], [], ls="", marker="o", mfc="none", ms=9, color="0.4", label="start"),
         Line2D([], [], ls="", marker="s", mec="k", color="0.4", label="end"),
         Line2D([], [], ls="", marker="*", ms=11, mec="k", color="0.4", label="goal (ref. at end)"),
-        Line2D([], [], ls="", marker=r"$\rightarrow$", ms=10, color="0.4", label="heading"),
     ]
+    if not many:
+        handles.append(Line2D([], [], ls="", marker=r"$\rightarrow$", ms=10, color="0.4",
+                              label="heading"))
+    else:
+        handles.append(Line2D([], [], ls="", marker="$1$", color="0.1", label="robot id (start)"))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               fontsize="small", frameon=False, ncols=max(1, int(np.ceil(len(handles) / 24))))
     ax.set_xlabel("x [m]")
@@ -180,8 +161,6 @@ def _pair_label(a: int, b: int) -> str:
     return f"$D_{{{sub}}}$"
 
 
-CLEARANCE_LINTHRESH = 1e-3
-"""Clearance axis: linear within +-1 mm, logarithmic beyond (millimetres show)."""
 
 
 def plot_distances(record: RunRecord, path: str | os.PathLike[str]) -> Path:
@@ -193,7 +172,10 @@ def plot_distances(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     :math:`D_{jl} - (d_j + d_l)/2` on a symmetric-log axis (linear within
     :data:`CLEARANCE_LINTHRESH`, so a millimetre is visible next to metres),
     zero in red, the smallest clearance marked and annotated. A single robot
-    has no pair: the figure then says so.
+    has no pair: the figure then says so. Past :data:`~sqpmpc.io.fleetplots.FEW`
+    robots (28 pairs) the top panel shows the pairs' spread (closest pair, 5th to
+    50th percentile) and the bottom one the fleet's smallest clearance with the
+    closest pair's ids (:func:`sqpmpc.io.fleetplots.plot_clearance`).
 
     Returns
     -------
@@ -206,6 +188,24 @@ def plot_distances(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     fig, axes = _new_figure(9.5, 7.5, rows=2)
     ax, low = axes
     P, samples = pairs.shape[0], record.t.size
+    if len(ids) > FEW:  # every pair's curve would be a tangle: their spread, and the closest
+        dist = pair_distances(record.positions, pairs)
+        q = np.percentile(dist, [0, 5, 50], axis=1)
+        ax.fill_between(record.t, q[1], q[2], color="tab:blue", alpha=0.25,
+                        label="5th to 50th percentile of the pairs")
+        ax.plot(record.t, q[0], color="tab:blue", lw=1.2, label="closest pair")
+        required = np.asarray(sc.required_distances(), dtype=float)[pairs[:, 0], pairs[:, 1]]
+        for value in np.unique(np.round(required, 12))[:3]:
+            ax.axhline(value, color="k", ls="--", lw=1.0, label=f"required {value:.3g} m")
+        ax.set_ylim(bottom=0.0)
+        ax.legend(loc="upper right", fontsize="small")
+        ax.set_ylabel(f"centre distance [m] ({P} pairs)")
+        _fleet_curve(low, record)
+        low.set_xlabel("time [s]")
+        for a in axes:
+            a.grid(True, alpha=0.3, which="both")
+        ax.set_title(_title(record, "pairwise distances and the smallest clearance"))
+        return _save(fig, path)
     if P == 0:
         ax.text(0.5, 0.5, "single robot: no pairwise distances", ha="center", va="center",
                 transform=ax.transAxes)
@@ -258,7 +258,10 @@ def plot_inputs(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     r"""Inputs :math:`v` and :math:`\omega` of every robot over time (Fig. 5/6).
 
     Two stacked panels, step plots (input ``i`` held on :math:`[t_i, t_{i+1})`),
-    dashed lines at the input bounds.
+    a line style, width and marker per robot (robots with equal inputs stay
+    visible), dashed lines at the input bounds; past
+    :data:`~sqpmpc.io.fleetplots.FEW` robots a heat map per input (robots by id
+    against time, the colour scale spanning the bounds).
 
     Returns
     -------
@@ -272,14 +275,26 @@ def plot_inputs(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     colors = _colors(len(ids))
     fig, axes = _new_figure(9.0, 6.5, rows=2)
     names = ("v [m/s]", r"$\omega$ [rad/s]")
-    k = record.k
+    k, n = record.k, len(ids)
+    if n > FEW and k > 0:  # a heat map per input: robots by id against time
+        for c, ax in enumerate(axes):
+            limit = float(np.nanmax(np.abs(np.concatenate([lo[c:c + 1], hi[c:c + 1]]))))
+            limit = limit if np.isfinite(limit) and limit > 0 else None
+            from matplotlib.colors import Normalize
+
+            heat_map(ax, record, record.inputs[:, :, c], names[c], "coolwarm",
+                     Normalize(-limit, limit) if limit else None, times=record.t[:-1])
+        axes[-1].set_xlabel("time [s]")
+        axes[0].set_title(_title(record, "inputs (red: at the upper bound, blue: lower)"))
+        return _save(fig, path)
     for c, ax in enumerate(axes):
         if k > 0:
             # Repeat the last input so the final hold interval [t_{k-1}, t_k] is drawn.
             held = np.concatenate([record.inputs[:, :, c], record.inputs[-1:, :, c]], axis=0)
             for j, rid in enumerate(ids):
-                ax.step(record.t, held[:, j], where="post", color=colors[j], lw=1.2,
-                        label=f"robot {rid}")
+                style = _style(j, n, k + 1)  # robots with equal inputs stay visible
+                ax.step(record.t, held[:, j], where="post", color=colors[j],
+                        label=f"robot {rid}", **style)
         else:
             ax.text(0.5, 0.5, "no input applied yet", ha="center", va="center",
                     transform=ax.transAxes)
@@ -298,7 +313,8 @@ def plot_tracking(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     r"""Tracking error :math:`\lVert p_j(t_i) - r_j(t_i) \rVert` and heading :math:`\psi_j`.
 
     Two stacked panels over time, one curve per robot (line style and marker
-    each); the heading is wrapped to :math:`(-\pi, \pi]`, with breaks at the wraps.
+    each); the heading is wrapped to :math:`(-\pi, \pi]`, with breaks at the wraps. Past
+    :data:`~sqpmpc.io.fleetplots.FEW` robots, heat maps (robots by id against time).
 
     Returns
     -------
@@ -311,6 +327,15 @@ def plot_tracking(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     fig, (err_ax, psi_ax) = _new_figure(9.5, 6.5, rows=2)
     err = np.linalg.norm(record.positions - record.references(), axis=-1)
     psi = np.angle(np.exp(1j * record.states[..., 2]))
+    if n > FEW:
+        heat_map(err_ax, record, err, "tracking error [m]", "magma_r")
+        from matplotlib.colors import Normalize
+
+        heat_map(psi_ax, record, psi, r"heading $\psi$ [rad]", "twilight",
+                 Normalize(-np.pi, np.pi))
+        psi_ax.set_xlabel("time [s]")
+        err_ax.set_title(_title(record, "tracking error and heading"))
+        return _save(fig, path)
     jumps = np.abs(np.diff(psi, axis=0)) > np.pi
     for j, rid in enumerate(ids):
         style = _style(j, n, samples) if samples > 1 else {"marker": "."}
@@ -334,10 +359,14 @@ def plot_tracking(record: RunRecord, path: str | os.PathLike[str]) -> Path:
 def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Controller computation time per sample against the sample-time budget.
 
-    One curve per controller (the central one, or each robot) on a log axis
-    in ms, its median as a dotted line of the same colour, the sum over the
-    robots (the decentralized scheme's Table 3 convention) in grey, and the
-    budget :math:`T_s` as a red line; the largest time is annotated.
+    Centralized: the central controller's time. Decentralized: the sum over the
+    robots (the paper's Table 3 convention, what ``solve_time`` in
+    ``metrics.json`` reports), and per robot: one curve each up to
+    :data:`~sqpmpc.io.fleetplots.FEW` robots, else the slowest and the median
+    robot of each sample. Every label says which of these it is; medians are
+    dotted lines of the same colour; the budget :math:`T_s` is a red line; the
+    arrow points at the largest value of the curve the metrics report (the
+    sum, or the central controller's time). Log axis in ms.
 
     Returns
     -------
@@ -353,24 +382,30 @@ def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     else:
         t = record.t[:-1]
         c = st.shape[1]
-        names = ["central"] if c == 1 else [f"robot {i}" for i in record.ids]
-        colors = _colors(c)
-        for j, name in enumerate(names):
-            med = float(np.median(st[:, j]))
-            ax.plot(t, st[:, j], color=colors[j], lw=0.9, alpha=0.85,
-                    label=f"{name} (median {med:.2f} ms, max {st[:, j].max():.2f} ms)")
-            ax.axhline(med, color=colors[j], ls=":", lw=1.2)
+        if c == 1:
+            curves = [("central controller", st[:, 0], "tab:blue", 1.2)]
+        elif c <= FEW:
+            curves = [(f"robot {i}", st[:, j], color, 0.9)
+                      for j, (i, color) in enumerate(zip(record.ids, _colors(c), strict=True))]
+        else:
+            curves = [("slowest robot of each sample", st.max(axis=1), "tab:orange", 1.0),
+                      ("median robot of each sample", np.median(st, axis=1), "tab:green", 1.0)]
         if c > 1:
-            total = st.sum(axis=1)
-            ax.plot(t, total, color="0.35", lw=1.0,
-                    label=f"sum over robots (median {np.median(total):.2f} ms)")
-        ax.axhline(ts_ms, color="tab:red", lw=1.6, label=f"budget $T_s$ = {ts_ms:g} ms")
-        k, j = np.unravel_index(int(np.argmax(st)), st.shape)
-        ax.annotate(f"max {st[k, j]:.2f} ms ({100 * st[k, j] / ts_ms:.2g} % of $T_s$)",
-                    (t[k], st[k, j]), xytext=(0.02, 0.78), textcoords="axes fraction",
+            curves.insert(0, (f"sum over the {c} robots", st.sum(axis=1), "0.2", 1.4))
+        for name, values, color, lw in curves:
+            med = float(np.median(values))
+            ax.plot(t, values, color=color, lw=lw, alpha=0.9,
+                    label=f"{name}: median {med:.3g} ms, max {values.max():.3g} ms")
+            ax.axhline(med, color=color, ls=":", lw=1.0)
+        ax.axhline(ts_ms, color="tab:red", lw=1.6, label=f"budget $T_s$ = {ts_ms:.3g} ms")
+        name, values = curves[0][0], curves[0][1]
+        k = int(np.argmax(values))
+        ax.annotate(f"max of the {name.split(':')[0]}: {values[k]:.3g} ms "
+                    f"({100 * values[k] / ts_ms:.3g} % of $T_s$)",
+                    (t[k], values[k]), xytext=(0.02, 0.9), textcoords="axes fraction",
                     fontsize="small", arrowprops={"arrowstyle": "->", "color": "0.3"})
         ax.set_yscale("log")
-        _legend(ax, c + 2, outside=True)
+        _legend(ax, len(curves) + 1, outside=True)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("computation per sample [ms]")
     ax.grid(True, alpha=0.3, which="both")
@@ -382,7 +417,8 @@ def plot_run(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
     """Write the figures of a run into ``out_dir``.
 
     ``trajectories.png``, ``distances.png`` and ``inputs.png`` (the paper's
-    figures), ``tracking.png`` and ``solve_time.png``.
+    figures), ``tracking.png``, ``solve_time.png``, and for fleets
+    ``clearance.png`` and ``paths_by_robot.png`` (:mod:`sqpmpc.io.fleetplots`).
 
     Returns
     -------
@@ -397,6 +433,8 @@ def plot_run(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
         plot_inputs(record, out / "inputs.png"),
         plot_tracking(record, out / "tracking.png"),
         plot_solve_times(record, out / "solve_time.png"),
+        plot_clearance(record, out / "clearance.png"),
+        plot_paths_by_robot(record, out / "paths_by_robot.png"),
     ]
     log.debug("wrote plots %s", [str(p) for p in written])
     return written

@@ -6,6 +6,11 @@ return: ``sqpmpc run`` writes them when stderr is not a terminal (a terminal
 gets a progress bar), the plant service always (the launcher passes them on).
 :func:`describe_solve_time`: the controller time of a run's metrics, saying
 what each figure is (per robot or summed over the robots).
+:func:`summarize`: the end-of-run summary of any run (in-process or
+distributed), a few lines whatever the fleet's size: safety, arrival (how many
+arrived, which did not), tracking and controller time, every number with three
+significant digits and its unit (:func:`quantity`). :func:`missed_goal`: why a
+run did not reach its goal (``--fail-on-miss``).
 """
 
 from __future__ import annotations
@@ -16,13 +21,28 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from sqpmpc.io.metrics import pair_distances
+from sqpmpc.io.metrics import ARRIVAL_TOLERANCE, pair_distances
 from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["STATUS_PERIOD", "StatusLines", "describe_solve_time"]
+__all__ = ["ARRIVAL_TOLERANCE", "STATUS_PERIOD", "StatusLines", "describe_solve_time",
+           "id_ranges", "missed_goal", "quantity", "summarize"]
 
 STATUS_PERIOD = 10.0
 """Seconds between two status lines by default."""
+WORST = 5
+"""How many robots a summary names at most per list (the worst first)."""
+
+
+def quantity(value: Any, unit: str = "") -> str:
+    """``value`` with three significant digits and its unit (``"n/a"`` when missing).
+
+    >>> quantity(0.0009974591290105583, "m")
+    '0.000997 m'
+    """
+    if value is None:
+        return "n/a"
+    text = f"{float(value):.3g}"
+    return f"{text} {unit}" if unit else text
 
 
 class StatusLines:
@@ -67,7 +87,7 @@ class StatusLines:
     def write(self, k: int, extra: str = "") -> None:
         """Write one status line now."""
         clearance = ("" if not np.isfinite(self.min_clearance)
-                     else f", min clearance {self.min_clearance:.3g} m")
+                     else f", min clearance {quantity(self.min_clearance, 'm')}")
         self.note(f"sample {k}/{self.total} ({100.0 * k / max(self.total, 1):.0f} %), "
                   f"{time.monotonic() - self.start:.0f} s{clearance}{extra}")
 
@@ -92,7 +112,7 @@ def describe_solve_time(metrics: dict[str, Any]) -> str:
     controllers = int(st.get("controllers", 1) or 1)
 
     def ms(value: Any) -> str:
-        return "n/a" if value is None else f"{value:.3g} ms"
+        return quantity(value, "ms")
 
     if controllers <= 1:
         return (f"controller time per sample (one central controller): median "
@@ -102,3 +122,115 @@ def describe_solve_time(metrics: dict[str, Any]) -> str:
               f"{ms(max(per_robot))}" if per_robot else "")
     return (f"controller time per sample summed over the {controllers} robots: median "
             f"{ms(st.get('median_ms'))} (max {ms(st.get('max_ms'))}){robots}")
+
+
+def id_ranges(ids: list[int]) -> str:
+    """Robot ids compactly, runs of consecutive ids as ranges: ``1-3, 7, 9-12``."""
+    out: list[str] = []
+    ordered = sorted(set(int(i) for i in ids))
+    i = 0
+    while i < len(ordered):
+        j = i
+        while j + 1 < len(ordered) and ordered[j + 1] == ordered[j] + 1:
+            j += 1
+        out.append(str(ordered[i]) if i == j else f"{ordered[i]}-{ordered[j]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def _worst(values: dict[str, Any], unit: str, count: int = WORST) -> str:
+    """The ``count`` largest of a per-robot dict: ``id 3: 1.02 m, id 4: 0.871 m``."""
+    known = sorted(((float(v), k) for k, v in values.items() if v is not None), reverse=True)
+    return ", ".join(f"id {k}: {quantity(v, unit)}" for v, k in known[:count])
+
+
+def _arrival(metrics: dict[str, Any]) -> str:
+    arrived = metrics.get("arrived") or {}
+    final = metrics.get("final_position_error") or {}
+    if not arrived:
+        return "arrival: n/a (no robot)"
+    missed = [int(k) for k, ok in arrived.items() if not ok]
+    head = (f"arrival: {len(arrived) - len(missed)}/{len(arrived)} robots within "
+            f"{quantity(metrics.get('arrival_tolerance', ARRIVAL_TOLERANCE), 'm')} of their "
+            "reference at the end")
+    if not missed:
+        return f"{head}; largest final error ({_worst(final, 'm', 1)})"
+    misses = {str(i): final.get(str(i)) for i in missed}
+    if len(missed) == 1:
+        return (f"{head}; NOT arrived: robot {missed[0]} (final error "
+                f"{quantity(misses[str(missed[0])], 'm')})")
+    return (f"{head}; NOT arrived: robots {id_ranges(missed)} (largest final errors: "
+            f"{_worst(misses, 'm')})")
+
+
+def _safety(metrics: dict[str, Any]) -> str:
+    at = metrics.get("min_clearance_at") or {}
+    where = (f" (robots {at['pair'][0]} and {at['pair'][1]} at t = {quantity(at['t'], 's')})"
+             if at.get("pair") else "")
+    parts = [f"min clearance {quantity(metrics.get('min_clearance'), 'm')}{where}",
+             f"collisions {metrics.get('collisions', 0)} at samples, "
+             f"{metrics.get('intersample_collisions', 0)} between samples"]
+    if metrics.get("min_obstacle_clearance") is not None:
+        parts.append(f"obstacle collisions {metrics.get('obstacle_collisions', 0)} (min "
+                     f"clearance {quantity(metrics['min_obstacle_clearance'], 'm')})")
+    parts.append(f"input bound violations {metrics.get('input_bound_violations', 0)}")
+    parts.append(f"solver failures {metrics.get('solver_failures', 0)}")
+    return "safety: " + ", ".join(parts)
+
+
+def _tracking(metrics: dict[str, Any]) -> str:
+    rms = {k: v for k, v in (metrics.get("rms_tracking_error") or {}).items() if v is not None}
+    if not rms:
+        return "tracking: n/a"
+    if len(rms) <= WORST:
+        listed = ", ".join(f"{k}: {quantity(v)}" for k, v in rms.items())
+        text = f"tracking: RMS error by robot {listed} m"
+    else:
+        text = (f"tracking: RMS error median {quantity(float(np.median(list(rms.values()))), 'm')}"
+                f" over {len(rms)} robots, largest ({_worst(rms, 'm', 3)})")
+    cost = metrics.get("closed_loop_cost")
+    return text + (f"; closed-loop cost {quantity(cost)}" if cost is not None else "")
+
+
+def summarize(metrics: dict[str, Any]) -> str:
+    """A run's end-of-run summary from its ``metrics.json`` dict: at most 6 lines, whatever
+    the number of robots (per-robot lists name the worst few and count the rest).
+
+    The first line says what ran and whether it completed; then safety, arrival (how many
+    arrived, naming those that did not), tracking, controller time and, for a distributed
+    run, its deadlines and messages.
+    """
+    mode = f" ({metrics['mode']})" if metrics.get("mode") else ""
+    done = "completed" if metrics.get("completed") else "NOT completed"
+    lines = [f"{metrics.get('scenario')} / {metrics.get('scheme')}{mode}: "
+             f"{metrics.get('steps')} samples of "
+             f"{metrics.get('planned_steps', metrics.get('steps'))}, {done}",
+             _safety(metrics), _arrival(metrics), _tracking(metrics)]
+    st = metrics.get("solve_time") or {}
+    lines.append(f"{describe_solve_time(metrics)}, total {quantity(st.get('total_s'), 's')}")
+    if metrics.get("distributed"):
+        missed = metrics.get("missed_deadlines_by_robot") or {}
+        late = {k: v for k, v in missed.items() if v}
+        worst = f" (most: {_worst(late, '', 3)})" if late else ""
+        faulty = sum(int(v) for v in (metrics.get("faulty_messages") or {}).values())
+        lines.append(f"distributed: missed deadlines {metrics.get('missed_deadlines', 0)}"
+                     f"{worst}, invalid messages {metrics.get('invalid_messages', 0)}, "
+                     f"{f'faulty inputs braked {faulty}, ' if faulty else ''}"
+                     f"sample loop {quantity(metrics.get('sample_loop_wall_s'), 's')} wall")
+    return "\n".join(lines)
+
+
+def missed_goal(metrics: dict[str, Any]) -> str | None:
+    """Why a run missed its goal (a collision, a robot that did not arrive, an incomplete
+    run), or ``None`` when every robot arrived without any collision."""
+    collisions = (int(metrics.get("collisions") or 0)
+                  + int(metrics.get("intersample_collisions") or 0)
+                  + int(metrics.get("obstacle_collisions") or 0))
+    if collisions:
+        return f"{collisions} collision(s)"
+    if not metrics.get("completed"):
+        return "the run did not complete"
+    missed = [int(k) for k, ok in (metrics.get("arrived") or {}).items() if not ok]
+    if missed:
+        return f"robot(s) {id_ranges(missed)} did not arrive"
+    return None

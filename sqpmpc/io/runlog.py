@@ -24,6 +24,8 @@ order (a torn last frame is ignored); ``sqpmpc metrics RUN_DIR`` writes
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import time
 import tomllib
@@ -38,7 +40,8 @@ from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import parse_scenario
 from sqpmpc.sim.record import RunRecord
 
-__all__ = ["FORMAT", "RECORD_FILE", "RecordError", "RecordWriter", "read_record"]
+__all__ = ["FORMAT", "RECORD_FILE", "RecordError", "RecordWriter", "read_record",
+           "write_record"]
 
 FORMAT = "sqpmpc-record"
 """The ``format`` field of the header frame."""
@@ -215,3 +218,42 @@ def read_record(path: str | os.PathLike[str]) -> RunRecord:
                      plant_inputs=plant_inputs)
 
 
+def write_record(path: str | os.PathLike[str], record: RunRecord,
+                 settings: dict[str, Any] | None = None) -> Path:
+    """Write a whole run record as a record file (header, every sample, end), so that
+    ``sqpmpc metrics`` reads an in-process run's folder as it reads a distributed one.
+
+    Parameters
+    ----------
+    path
+        The record file to write (atomically).
+    record
+        The run; its scenario must be a :class:`~sqpmpc.problem.scenario.Scenario` (``to_toml``).
+    settings
+        The writer's settings worth keeping (JSON-like values).
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    from .atomic import atomic_path
+
+    path = Path(path)
+    scenario = record.scenario
+    text = scenario.to_toml()
+    extra = json.loads(json.dumps(record.extra or {}, default=str))
+    with atomic_path(path) as tmp:
+        writer = RecordWriter(tmp, scenario, record.scheme, record.solve_times.shape[1],
+                              record.states[0], settings or {},
+                              hashlib.sha256(text.encode()).hexdigest()[:16])
+        try:
+            for k in range(record.k):  # the run's fallbacks counted with its last sample
+                writer.sample(k, record.inputs[k], record.states[k + 1],
+                              record.solve_times[k],
+                              int(record.solver_failures) if k == record.k - 1 else 0, [],
+                              None if record.plant_inputs is None else record.plant_inputs[k])
+            writer.end(record.completed, extra)
+        finally:
+            writer.close()
+    return path

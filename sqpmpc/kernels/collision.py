@@ -20,18 +20,10 @@ import numpy as np
 from sqpmpc.kernels.rules import limit_turning
 
 __all__ = [
-    "growing_segment_distance",
-    "halfplanes_hold",
-    "halfplanes_hold_path",
-    "moving_points_keep_distance",
-    "nearest_within",
-    "obstacle_rows",
-    "pair_rows",
-    "pairs_keep_distance",
-    "segment_keeps_distance",
-    "select_pairs",
-    "shared_rows",
-    "stage_one_override",
+    "growing_segment_distance", "halfplanes_hold", "halfplanes_hold_path",
+    "moving_points_keep_distance", "nearest_within", "obstacle_rows", "pair_rows",
+    "pairs_keep_distance", "segment_keeps_distance", "select_pairs", "shared_rows",
+    "stage_one_override"
 ]
 
 _jit = numba.njit(cache=True, nogil=True)
@@ -115,16 +107,28 @@ def segment_keeps_distance(x0: float, y0: float, x1: float, y1: float, points: n
 
 
 @_jit
+def _keeps(rx: float, ry: float, dx: float, dy: float, growth: float, keep: float,
+           recovery: float) -> bool:
+    """The relative path keeps ``keep``; inside it already, with ``recovery >= 0``: no closer."""
+    d0 = math.hypot(rx, ry)
+    if recovery >= 0.0 and d0 < keep:
+        return growing_segment_distance(rx, ry, dx, dy, 0.0) >= d0 - recovery
+    return growing_segment_distance(rx, ry, dx, dy, growth) >= keep
+
+
+@_jit
 def moving_points_keep_distance(x0: float, y0: float, x1: float, y1: float,
                                 start: np.ndarray, end: np.ndarray, keep: np.ndarray,
-                                growth: float) -> bool:
+                                growth: float, recovery: float = -1.0) -> bool:
     r"""Whether the path near :math:`p_0 \to p_1` keeps ``keep[o]`` from points moving
-    straight from ``start[o]`` to ``end[o]`` over the same sample (obstacles)."""
+    straight from ``start[o]`` to ``end[o]`` over the same sample (obstacles).
+
+    ``recovery >= 0``: the ``overlap-recovery`` rule of :func:`pairs_keep_distance`."""
     for o in range(start.shape[0]):
         rx, ry = x0 - start[o, 0], y0 - start[o, 1]
         dx = (x1 - end[o, 0]) - rx
         dy = (y1 - end[o, 1]) - ry
-        if growing_segment_distance(rx, ry, dx, dy, growth) < keep[o]:
+        if not _keeps(rx, ry, dx, dy, growth, keep[o], recovery):
             return False
     return True
 
@@ -436,7 +440,8 @@ def obstacle_rows(me: np.ndarray, others_now: np.ndarray, own: np.ndarray,
 
 @_jit
 def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
-                        required: np.ndarray, growth: np.ndarray) -> bool:
+                        required: np.ndarray, growth: np.ndarray,
+                        recovery: float = -1.0) -> bool:
     r"""Whether every pair keeps ``required`` along the straight segments of one sample.
 
     With both robots moving on straight segments at constant speed, the
@@ -445,13 +450,20 @@ def pairs_keep_distance(pairs: np.ndarray, now: np.ndarray, nxt: np.ndarray,
     A robot whose true path may stray ``growth[j]`` :math:`\cdot s` from its
     segment (a plant unlike the prediction) adds it: the pair's relative path
     strays at most :math:`(G_j + G_l) s` (:func:`growing_segment_distance`).
+
+    ``recovery >= 0`` turns on the ``overlap-recovery`` rule: a pair that is
+    already inside its distance at the start (:math:`\|r_0\| <` ``required``: a
+    push, a slip) cannot keep it; it passes when its relative segment comes no
+    closer than :math:`\|r_0\|` less ``recovery`` (the solver's tolerance), so
+    that inputs which separate it are applied instead of a brake that never
+    ends. Pairs that are apart are checked as without it.
     """
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
         r0x, r0y = now[a, 0] - now[b, 0], now[a, 1] - now[b, 1]
         dx = (nxt[a, 0] - nxt[b, 0]) - r0x
         dy = (nxt[a, 1] - nxt[b, 1]) - r0y
-        if growing_segment_distance(r0x, r0y, dx, dy, growth[a] + growth[b]) < required[p]:
+        if not _keeps(r0x, r0y, dx, dy, growth[a] + growth[b], required[p], recovery):
             return False
     return True
 

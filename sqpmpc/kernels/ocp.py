@@ -164,14 +164,16 @@ def split_rows(A_values: np.ndarray, lower: np.ndarray, upper: np.ndarray,
 
 @_jit
 def write_reference(q: np.ndarray, reference: np.ndarray, scale: np.ndarray,
-                    block: int) -> None:
+                    block: int, stage: int) -> None:
     r"""Linear cost of the positions of stages 1..N: :math:`q_p = -2 Q_r r` into ``q``.
 
-    ``reference (m, N, 2)``; ``scale (m, 1, 2)`` holds :math:`-2 Q_r` per robot.
+    ``reference (m, N, 2)``; ``scale (m, 1, 2)`` holds :math:`-2 Q_r` per robot;
+    a robot's block has ``block`` variables, a stage ``stage`` (``nx + nu``),
+    the position first.
     """
     for r in range(reference.shape[0]):
         for i in range(reference.shape[1]):
-            k = r * block + 5 * (i + 1)
+            k = r * block + stage * (i + 1)
             q[k] = scale[r, 0, 0] * reference[r, i, 0]
             q[k + 1] = scale[r, 0, 1] * reference[r, i, 1]
 

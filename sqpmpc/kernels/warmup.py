@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from sqpmpc.kernels import collision as ck
+from sqpmpc.kernels.acceleration import warm_up_acceleration
 from sqpmpc.kernels.ocp import (
     all_finite,
     clip_and_roll_out,
@@ -48,6 +49,8 @@ def warm_up() -> float:
     ck.segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12, 0.0)
     ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
                                    np.ones(1), 0.0)
+    ck.moving_points_keep_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones((1, 2)),
+                                   np.ones(1), 0.0, 1e-3)
     one = np.zeros(1, dtype=np.int64)
     split_rows(np.ones(2), np.zeros(2), np.ones(2), one, one + 1, one, one, one + 1, 1e20, 1e30,
                np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
@@ -62,6 +65,8 @@ def warm_up() -> float:
               np.empty((1, 2)), np.empty((2, 2)), stages)
     ck.select_pairs(pairs, x[:, :2].copy(), np.ones(1), 1, 2, stages)
     ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2))
+    ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2),
+                           1e-3)
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))
@@ -75,7 +80,7 @@ def warm_up() -> float:
     idx = np.zeros(2, dtype=np.int64)
     ck.nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],
                    idx.copy())
-    write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13)
+    write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13, 5)
     order = np.arange(26)
     shift_iterate(z, z, order, order, 2, 2, 13, 0.1, np.empty(26), np.empty(26))
     idx = np.zeros(1, dtype=np.int64)
@@ -83,6 +88,7 @@ def warm_up() -> float:
     kkt_residual(np.ones(1), idx, idx, z, np.ones(3), np.ones(3), np.ones(3), z, z,
                  np.zeros(3), np.zeros(26))
     warm_up_rules()
+    warm_up_acceleration()
     warm_up_roundabout()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     return time.perf_counter() - t0

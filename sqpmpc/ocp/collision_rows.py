@@ -9,7 +9,7 @@ linearization at :math:`(\bar p_j, \bar p_l)` is the separating hyperplane
 
 Safety rows (always on; listed by ``sqpmpc rules``)
 ----------------------------------------------------
-These three are the safety argument, not heuristics; no option removes them.
+These are the safety argument, not heuristics; no option removes them.
 
 ``inner-approximation``
     :math:`\|p_j - p_l\| \ge n^\top(p_j - p_l)` for any unit :math:`n`, so a
@@ -23,6 +23,21 @@ These three are the safety argument, not heuristics; no option removes them.
     current projected gap: stopping (``v = 0``, exact for every
     discretization) always satisfies stage 1, so the QP stays feasible and a
     safe configuration stays safe.
+``overlap-recovery``
+    A pair already inside its true distance (a push, a slip, a robot that did
+    not move as predicted) cannot keep it over the next sample, so the check
+    of the first input below would refuse every input, and the brake that
+    follows never separates it: the controller would brake for ever. For such
+    a pair alone the check asks instead that the predicted relative segment
+    comes no closer than the current distance (less the solver tolerance,
+    ``collision_margin``). The stage-1 row of the pair is then the
+    ``stage-one-override``'s non-decreasing separation along the current
+    normal (which implies it), and its rows of stages 2..N ask for the full
+    distance (with slacks), so the plan separates the pair as fast as its
+    bounds let it and the robots go on. Pairs that are apart keep every
+    guarantee above unchanged. The same holds against obstacles
+    (:class:`sqpmpc.ocp.obstacle_rows.ObstacleRows`) and, decentralized, is
+    what the shared check already does inside the margin band.
 ``missing-neighbour-reach``
     Decentralized: a neighbour whose fresh plan is missing can do anything
     within its bounds. Stage 1 keeps :math:`d + r` from its current position,
@@ -84,10 +99,14 @@ class PairwiseCollisionModel:
         Added to ``required`` in the QP rows, m.
     geometry
         Row geometry from the rules.
+    recovery
+        The ``overlap-recovery`` rule's tolerance, m (see :meth:`first_input_safe`);
+        negative: off (a pair inside its distance fails every check).
     """
 
     def __init__(self, pairs: np.ndarray, required: np.ndarray, margin: float,
-                 geometry: RowGeometry) -> None:
+                 geometry: RowGeometry, recovery: float = -1.0) -> None:
+        self.recovery = float(recovery)
         self.pairs = np.ascontiguousarray(np.asarray(pairs, dtype=np.int64).reshape(-1, 2))
         self.safe_distance = np.asarray(required, dtype=float)
         self.required = self.safe_distance + float(margin)
@@ -120,11 +139,13 @@ class PairwiseCollisionModel:
     def first_input_safe(self, now: np.ndarray, nxt: np.ndarray,
                          growth: np.ndarray | None = None) -> bool:
         """Every pair keeps its true distance along the straight segments ``now -> nxt``
-        (``growth (m,)``: how far each robot's true path may stray, per unit of ``s``)."""
+        (``growth (m,)``: how far each robot's true path may stray, per unit of ``s``);
+        a pair already inside it comes no closer (``overlap-recovery``, if on)."""
         if growth is None:
             growth = np.zeros(now.shape[0])
         return bool(pairs_keep_distance(self.pairs, now, nxt, self.safe_distance,
-                                        np.ascontiguousarray(growth, dtype=float)))
+                                        np.ascontiguousarray(growth, dtype=float),
+                                        self.recovery))
 
 
 class ExternalCollisionModel:
@@ -171,7 +192,9 @@ class ExternalCollisionModel:
 
     def __init__(self, required: np.ndarray, horizon: int, geometry: RowGeometry,
                  reach: float = 0.0, margin: float = 0.0,
-                 stage_one_rule_for_obstacles: bool = True) -> None:
+                 stage_one_rule_for_obstacles: bool = True, recovery: float = -1.0) -> None:
+        #: tolerance of the ``overlap-recovery`` rule, m (negative: off)
+        self.recovery = float(recovery)
         self.safe_distance = np.asarray(required, dtype=float)
         self.required = self.safe_distance + float(margin)
         E = self.required.size
@@ -299,6 +322,13 @@ class ExternalCollisionModel:
                              self.kind, required, self.reach, self.geometry.rotation,
                              self.stage_one_rule_for_obstacles, normals, rhs)
 
+    def inside(self) -> np.ndarray:
+        """``(E,)`` shared slots whose pair is inside its true distance now (a push, a slip):
+        the ``overlap-recovery`` rule checks them against the current mid-line alone."""
+        gap = np.hypot(self.current_others[:, 0] - self.current_self[0],
+                       self.current_others[:, 1] - self.current_self[1])
+        return self._shared_mask & (gap < self.safe_distance)
+
     def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12,
                          alpha: float = 0.0, beta: float = 0.0) -> bool:
         r"""Whether this robot's next position ``(2,)`` keeps every true distance.
@@ -314,9 +344,18 @@ class ExternalCollisionModel:
         """
         p = position
         x0, y0 = float(self.current_self[0]), float(self.current_self[1])
+        normals, rhs = self.check_normals, self.check_rhs
+        if self._any_shared and self.recovery >= 0.0:
+            inside = self.inside()
+            if inside.any():  # overlap-recovery: no closer to the mid-line than now
+                if not halfplanes_hold_path(
+                        np.ascontiguousarray(normals[inside]), rhs[inside], x0, y0,
+                        float(p[0]), float(p[1]), 0.0, 0.0, self.recovery):
+                    return False
+                normals = np.ascontiguousarray(normals[~inside])
+                rhs = rhs[~inside]
         if self._any_shared and not halfplanes_hold_path(
-                self.check_normals, self.check_rhs, x0, y0, float(p[0]), float(p[1]),
-                alpha, beta, tolerance):
+                normals, rhs, x0, y0, float(p[0]), float(p[1]), alpha, beta, tolerance):
             return False
         if self._any_obstacle:
             obst = self.kind == OBSTACLE

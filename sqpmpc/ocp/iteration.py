@@ -34,16 +34,9 @@ from typing import Literal
 import numpy as np
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import (
-    all_finite,
-    euler_defect_l1,
-    euler_linearize,
-    euler_rollout,
-    kkt_residual,
-    rows_shortfall,
-    shift_iterate,
-)
-from sqpmpc.models.unicycle import discrete_dynamics, discrete_jacobians, weighted_dynamics_hessian
+from sqpmpc.kernels.ocp import all_finite, kkt_residual, rows_shortfall
+from sqpmpc.models.base import RobotModel
+from sqpmpc.models.paper import UnicycleModel
 from sqpmpc.ocp.report import CollisionRows, IterationReport, IterationSettings
 from sqpmpc.qp.backend import QPResult
 from sqpmpc.qp.layout import QPLayout
@@ -62,13 +55,20 @@ class MultipleShootingSQP:
     sample_time
         :math:`T_s`, s.
     Q_diag, R_diag
-        Cost weights on (x, y) and (v, omega).
+        Cost weights on (x, y) and (v, omega) (the paper's objective); a model with
+        velocity states has ``R`` on them (stages 1..N, the commands) and
+        ``R Ts^2`` on its acceleration inputs.
     input_lower, input_upper
-        ``(2,)`` input bounds.
+        ``(nu,)`` input bounds.
     position_lower, position_upper
         ``(2,)`` position bounds (``±inf`` where absent); used if the layout has rows.
     settings
         Iteration settings.
+    model
+        The robot model (default: the paper's unicycle with the input bounds);
+        the layout must be built for it. Its compiled kernels, if it has them
+        for ``settings.discretization``, run the hot path; else its NumPy
+        functions do.
     """
 
     def __init__(
@@ -82,14 +82,27 @@ class MultipleShootingSQP:
         position_lower: np.ndarray,
         position_upper: np.ndarray,
         settings: IterationSettings,
+        model: RobotModel | None = None,
     ) -> None:
+        self.model = model if model is not None else UnicycleModel(input_lower, input_upper)
+        if layout.model.nx != self.model.nx or layout.model.nu != self.model.nu:
+            raise ProblemError(f"internal error: the layout is not built for the "
+                               f"{self.model.name} model")
+        self.model.check_discretization(settings.discretization)
+        self.kernels = self.model.kernels(settings.discretization)
         self.layout = layout
         self.sample_time = float(sample_time)
         self.settings = settings
         self.input_lower = np.asarray(input_lower, float)
         self.input_upper = np.asarray(input_upper, float)
         self.qp = SparseQP(layout, settings.osqp, settings.qp_solver)
-        self.qp.update_cost_weights(Q_diag, R_diag, settings.slack_penalty)
+        if self.model.velocity_states:
+            # the paper's R on the velocities (the commands), R Ts^2 on the accelerations: the
+            # same price on a velocity change over a sample as on the velocity itself
+            self.qp.update_cost_weights(Q_diag, np.asarray(R_diag) * self.sample_time ** 2,
+                                        settings.slack_penalty, R_diag)
+        else:
+            self.qp.update_cost_weights(Q_diag, R_diag, settings.slack_penalty)
         self.qp.update_input_bounds(self.input_lower, self.input_upper)
         if layout.position_bounds:
             self.qp.update_position_bounds(position_lower, position_upper)
@@ -98,7 +111,11 @@ class MultipleShootingSQP:
         self.merit_weight = 1.0
         self.samples = 0
         self._initial_index = np.ascontiguousarray(layout.state_index[:, 0])
-        self._speed_index = np.ascontiguousarray(layout.input_index[:, :, 0])
+        self._command_speed = np.ascontiguousarray(
+            np.arange(layout.n_robots) * layout.block_size + self.model.command_speed_offset)
+        self._velocity_rows = bool(layout.velocity_rows.size)
+        if self._velocity_rows:
+            self.qp.update_velocity_bounds(self.model.state_lower, self.model.state_upper)
         self._build_views()
         self._collision_rows = np.concatenate((layout.internal_rows.ravel(),
                                                layout.external_rows.ravel()))
@@ -124,7 +141,8 @@ class MultipleShootingSQP:
             _shift_indexed(self._shift_z, idx, axis)
         self._shift_y = np.arange(layout.n_con)
         for idx, axis in ((layout.dyn_rows, 1), (layout.input_rows, 1),
-                          (layout.position_rows, 1), (layout.internal_rows, 1),
+                          (layout.position_rows, 1), (layout.velocity_rows, 1),
+                          (layout.internal_rows, 1),
                           (layout.external_rows, 2), (slack_rows_int, 1), (slack_rows_ext, 2)):
             _shift_indexed(self._shift_y, idx, axis)
 
@@ -158,20 +176,20 @@ class MultipleShootingSQP:
         return self.z is not None
 
     def states_inputs(self) -> tuple[np.ndarray, np.ndarray]:
-        """Current iterate as ``(m, N+1, 3)`` states and ``(m, N, 2)`` inputs."""
+        """Current iterate as ``(m, N+1, nx)`` states and ``(m, N, nu)`` inputs."""
         if self.z is None:
             raise ProblemError("no iterate yet: call solve() first")
         return self.layout.split_primal(self.z)
 
     def inputs(self) -> np.ndarray:
-        """Inputs ``(m, N, 2)`` of the current iterate (a copy)."""
+        """Inputs ``(m, N, nu)`` of the current iterate (a copy)."""
         if self.z is None:
             raise ProblemError("no iterate yet: call solve() first")
         return self.z[self.layout.input_index]
 
     def set_guess(self, initial_states: np.ndarray, inputs: np.ndarray,
                   converge_first: bool = True) -> None:
-        """Set the iterate to the rollout of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``.
+        """Set the iterate to the rollout of ``inputs (m, N, nu)`` from ``initial_states (m, nx)``.
 
         With ``converge_first`` the next :meth:`solve` iterates up to
         ``first_sample_iterations`` (a converged start); otherwise it proceeds as
@@ -189,15 +207,15 @@ class MultipleShootingSQP:
         if self.z is None:
             return
         L = self.layout
-        if self.settings.discretization == "euler":
+        if self.kernels is not None:
             z, y = np.empty_like(self.z), np.empty_like(self.y)
-            shift_iterate(self.z, self.y, self._shift_z, self._shift_y, L.n_robots, L.horizon,
+            self.kernels.shift(self.z, self.y, self._shift_z, self._shift_y, L.n_robots, L.horizon,
                           self._block, self.sample_time, z, y)
             self.z, self.y = z, y
             return
         last_state = L.state_index[:, -1]
         x, u = self.z[last_state], self.z[L.input_index[:, -1]]
-        last = discrete_dynamics(x, u, self.sample_time, self.settings.discretization)
+        last = self.model.discrete_dynamics(x, u, self.sample_time, self.settings.discretization)
         self.z = self.z[self._shift_z]
         self.z[last_state] = last
         self.y = self.y[self._shift_y]
@@ -206,33 +224,34 @@ class MultipleShootingSQP:
         """The guess of a sample: the shifted iterate (zero inputs at the first) from ``x0``."""
         if self.z is None:
             L = self.layout
-            self.set_guess(initial_states, np.zeros((L.n_robots, L.horizon, 2)))
+            self.set_guess(initial_states, np.zeros((L.n_robots, L.horizon, self.model.nu)))
         self.z[self._initial_index] = initial_states
+        if self._velocity_rows:
+            self.qp.update_velocity_bounds(*self.model.velocity_bounds(
+                initial_states, self.layout.horizon, self.sample_time))
 
     def guess_speeds(self) -> np.ndarray:
-        """Speeds ``(m, N)`` of the current iterate, a writable view (the linearization point)."""
+        """Speeds ``(m, N)`` of stages 0..N-1 of the current iterate, a writable view (the
+        linearization point): the model's forward speed, an input of the unicycle, a state of
+        a model with velocity states."""
         L = self.layout
+        stride, offset = L.stage_size, self.model.speed_offset
         return self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
-            :, 3:5 * L.horizon:5]
+            :, offset:stride * L.horizon:stride]
 
     def first_speeds(self) -> np.ndarray:
-        """First planned speed ``(m,)`` of each own robot in the current iterate (a copy)."""
-        return self.z[self._speed_index[:, 0]]
+        """The speed commanded at this sample ``(m,)`` of each own robot in the current iterate
+        (a copy): the unicycle's first input ``v``, a velocity model's ``v`` of stage 1."""
+        return self.z[self._command_speed]
 
     def update_position_weight_scale(self, scale: np.ndarray) -> None:
         """Per-robot factor ``(m,)`` on the position weight ``Q`` (see :class:`SparseQP`)."""
         self.qp.update_position_weight_scale(scale)
 
     def rollout(self, initial_states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """States ``(m, N+1, 3)`` of ``inputs (m, N, 2)`` from ``initial_states (m, 3)``."""
-        if self.settings.discretization == "euler":
-            out = np.empty((inputs.shape[0], inputs.shape[1] + 1, 3))
-            euler_rollout(initial_states, np.ascontiguousarray(inputs), self.sample_time, out)
-            return out
-        from sqpmpc.models.unicycle import rollout
-
-        return np.swapaxes(rollout(initial_states, np.swapaxes(inputs, 0, 1), self.sample_time,
-                                   self.settings.discretization), 0, 1)
+        """States ``(m, N+1, nx)`` of ``inputs (m, N, nu)`` from ``initial_states (m, nx)``."""
+        return self.model.rollout(initial_states, inputs, self.sample_time,
+                                  self.settings.discretization)
 
     def _linearize(
         self,
@@ -244,15 +263,15 @@ class MultipleShootingSQP:
         """Write the QP of the iterate ``z``: dynamics, initial state, collision rows, curvature."""
         L, s, qp = self.layout, self.settings, self.qp
         N = L.horizon
-        if s.discretization == "euler":
-            euler_linearize(z, L.n_robots, N, self._block, self.sample_time, self._dyn_A,
+        if self.kernels is not None:
+            self.kernels.linearize(z, L.n_robots, N, self._block, self.sample_time, self._dyn_A,
                             self._dyn_B, self._dyn_lower, self._dyn_upper)
             qp.mark_changed()
             states = None
         else:
             states, inputs = L.split_primal(z)
-            nxt, A_k, B_k = discrete_jacobians(states[:, :N], inputs, self.sample_time,
-                                               s.discretization)
+            nxt, A_k, B_k = self.model.discrete_jacobians(states[:, :N], inputs, self.sample_time,
+                                                          s.discretization)
             c_k = (nxt - np.einsum("mnij,mnj->mni", A_k, states[:, :N])
                    - np.einsum("mnij,mnj->mni", B_k, inputs))
             qp.update_dynamics(A_k, B_k, c_k)
@@ -269,8 +288,8 @@ class MultipleShootingSQP:
         if s.hessian == "exact":
             states, inputs = L.split_primal(z)
             lam = self.y[L.dyn_rows]
-            H = -weighted_dynamics_hessian(states[:, :N], inputs, lam, self.sample_time,
-                                           s.discretization)
+            H = -self.model.weighted_dynamics_hessian(states[:, :N], inputs, lam,
+                                                      self.sample_time, s.discretization)
             w, V = np.linalg.eigh(H)
             H = np.einsum("...ij,...j,...kj->...ik", V, np.maximum(w, 0.0), V)
             qp.update_curvature(H, z)
@@ -295,12 +314,12 @@ class MultipleShootingSQP:
         lets full steps be accepted.
         """
         L = self.layout
-        if self.settings.discretization == "euler":
-            total = euler_defect_l1(z, initial_states, L.n_robots, L.horizon, self._block,
+        if self.kernels is not None:
+            total = self.kernels.defect_l1(z, initial_states, L.n_robots, L.horizon, self._block,
                                     self.sample_time)
         else:
             states, inputs = L.split_primal(z)
-            defect = states[:, 1:] - discrete_dynamics(
+            defect = states[:, 1:] - self.model.discrete_dynamics(
                 states[:, :-1], inputs, self.sample_time, self.settings.discretization)
             total = float(np.abs(defect).sum() + np.abs(states[:, 0] - initial_states).sum())
         rows = self._collision_rows
@@ -339,7 +358,7 @@ class MultipleShootingSQP:
         Parameters
         ----------
         initial_states
-            Measured states ``(m, 3)``.
+            Measured states ``(m, nx)`` (the model's states).
         reference
             Reference positions of stages 1..N, ``(m, N, 2)``.
         internal, external
@@ -357,9 +376,10 @@ class MultipleShootingSQP:
         if deadline is None and s.time_budget is not None:
             deadline = t_start + s.time_budget
         initial_states = np.asarray(initial_states, float)
-        if initial_states.shape != (L.n_robots, 3) or not all_finite(initial_states.ravel()):
+        if initial_states.shape != (L.n_robots, self.model.nx) or not all_finite(
+                initial_states.ravel()):
             raise ProblemError(
-                f"initial_states must be finite with shape ({L.n_robots}, 3), "
+                f"initial_states must be finite with shape ({L.n_robots}, {self.model.nx}), "
                 f"got {initial_states.shape}"
             )
         self.start_sample(initial_states)

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sqpmpc.kernels.acceleration import moving_points_keep_bulging_distance
 from sqpmpc.kernels.collision import moving_points_keep_distance, obstacle_rows
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.problem.obstacles import Obstacle, obstacle_positions
@@ -33,13 +34,20 @@ class ObstacleRows:
         Row geometry from the rules (the rotation is applied, as for neighbours).
     margin
         Added to :math:`D_{jo}` in the QP rows, m.
+    speed_bounds
+        :math:`(v_{\min}, v_{\max})`.
+    recovery
+        Tolerance of the ``overlap-recovery`` rule, m
+        (:func:`sqpmpc.kernels.collision.moving_points_keep_distance`); negative: off.
     """
 
     needs_states = True
 
     def __init__(self, obstacles: Sequence[Obstacle], diameters: np.ndarray, horizon: int,
                  sample_time: float, geometry: RowGeometry, margin: float,
-                 speed_bounds: tuple[float, float] = (0.0, 0.0)) -> None:
+                 speed_bounds: tuple[float, float] = (0.0, 0.0),
+                 recovery: float = -1.0) -> None:
+        self.recovery = float(recovery)
         self.obstacles = tuple(obstacles)
         d_o = np.array([o.diameter for o in self.obstacles])
         d = np.asarray(diameters, dtype=float)
@@ -55,6 +63,7 @@ class ObstacleRows:
         self.n_obstacles = len(self.obstacles)
         self._kinds = np.full(self.n_obstacles, 2, dtype=np.int8)  # obstacle slots
         self._stage_offsets = self.sample_time * np.arange(0, self.horizon + 1)
+        self._t = 0.0
         self.now = np.zeros((self.n_obstacles, 2))
         self.predicted = np.zeros((self.n_obstacles, self.horizon, 2))
         self._next = np.zeros((self.n_obstacles, 2))
@@ -67,6 +76,7 @@ class ObstacleRows:
 
     def set_sample(self, t: float, current_states: np.ndarray) -> None:
         """Obstacles at ``t`` and over the horizon; the own robots' states ``(m, 3)``."""
+        self._t = float(t)
         track = obstacle_positions(self.obstacles, t + self._stage_offsets)  # (N+1, O, 2)
         self.now = np.ascontiguousarray(track[0])
         self.predicted = np.ascontiguousarray(np.swapaxes(track[1:], 0, 1))
@@ -91,14 +101,46 @@ class ObstacleRows:
             np.minimum(lower_out[r, :, 0], cap, out=lower_out[r, :, 0])
         self.stage_one_overrides = overrides
 
-    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray) -> bool:
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
+        """Every own robot's braking path ``paths (m, B+1, 2)`` (stage 1 on, one point a
+        sample) keeps its distance to every obstacle as they move on: segment ``j`` against
+        the obstacles' motion from stage ``1 + j`` to ``2 + j``; the path may stray
+        ``alpha[r, j] s + beta[r, j] s (1 - s)`` from segment ``j`` (``(m, B)`` each)."""
+        B = paths.shape[1] - 1
+        if B < 1 or not self.n_obstacles:
+            return True
+        track = obstacle_positions(self.obstacles,
+                                   self._t + self.sample_time * np.arange(1, B + 2))
+        for j in range(B):
+            start = np.ascontiguousarray(track[j])
+            end = np.ascontiguousarray(track[j + 1])
+            for r in range(paths.shape[0]):
+                if not moving_points_keep_bulging_distance(
+                        float(paths[r, j, 0]), float(paths[r, j, 1]), float(paths[r, j + 1, 0]),
+                        float(paths[r, j + 1, 1]), start, end, self.safe_distance[r],
+                        float(alpha[r, j]), float(beta[r, j])):
+                    return False
+        return True
+
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
         """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its distance to every
-        obstacle over the sample (its path may stray ``growth[r] * s`` from the segment)."""
+        obstacle over the sample (its path may stray ``growth[r] * s`` from the segment; with
+        ``beta``, ``growth[r] s + beta[r] s (1 - s)``); without ``beta``, a robot already
+        inside an obstacle's distance comes no closer to it (``overlap-recovery``, if on)."""
+        if beta is not None:
+            for r in range(now.shape[0]):
+                if not moving_points_keep_bulging_distance(
+                        float(now[r, 0]), float(now[r, 1]), float(nxt[r, 0]), float(nxt[r, 1]),
+                        self.now, self._next, self.safe_distance[r], float(growth[r]),
+                        float(beta[r])):
+                    return False
+            return True
         for r in range(now.shape[0]):
             if not moving_points_keep_distance(float(now[r, 0]), float(now[r, 1]),
                                                float(nxt[r, 0]), float(nxt[r, 1]), self.now,
                                                self._next, self.safe_distance[r],
-                                               float(growth[r])):
+                                               float(growth[r]), self.recovery):
                 return False
         return True
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from sqpmpc.models.acceleration import acceleration_dynamics
 from sqpmpc.models.unicycle import discrete_dynamics
 from sqpmpc.problem.obstacles import obstacle_positions
 
@@ -32,7 +33,8 @@ ARC_SUBSTEPS = 32
 
 
 def plant_paths(states: np.ndarray, applied_inputs: np.ndarray | None, sample_time: float,
-                plant_model: str) -> tuple[np.ndarray, np.ndarray]:
+                plant_model: str, velocity_states: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
     r"""Positions along the true paths and their times.
 
     Parameters
@@ -45,6 +47,12 @@ def plant_paths(states: np.ndarray, applied_inputs: np.ndarray | None, sample_ti
         :math:`T_s`.
     plant_model
         ``"euler"``, ``"rk4"`` (chords) or ``"exact"`` (arcs).
+    velocity_states
+        The robots had acceleration limits (:class:`sqpmpc.problem.plant.Plant` with
+        bounds): ``applied_inputs`` are the velocities reached at each sample's end
+        (zero before the first), the velocity changes linearly over a sample and
+        the path is sampled at :data:`ARC_SUBSTEPS` points per sample (the speed
+        varies along a chord too).
 
     Returns
     -------
@@ -53,6 +61,8 @@ def plant_paths(states: np.ndarray, applied_inputs: np.ndarray | None, sample_ti
         chords, :data:`ARC_SUBSTEPS` for arcs. Every sample is one of the points.
     """
     k = states.shape[0] - 1
+    if velocity_states and applied_inputs is not None and k > 0:
+        return _accelerated_paths(states, applied_inputs, sample_time, plant_model)
     if plant_model != "exact" or applied_inputs is None or k == 0:
         return sample_time * np.arange(k + 1), states[..., :2]
     M = ARC_SUBSTEPS
@@ -64,6 +74,25 @@ def plant_paths(states: np.ndarray, applied_inputs: np.ndarray | None, sample_ti
         else:
             pts[:, j] = discrete_dynamics(states[:-1], applied_inputs, f * sample_time,
                                           "exact")[..., :2]
+    positions = np.concatenate((pts.reshape((k * M,) + pts.shape[2:]), states[-1:, :, :2]))
+    t = sample_time * np.concatenate((np.repeat(np.arange(k), M) + np.tile(frac, k), [k]))
+    return t, positions
+
+
+def _accelerated_paths(states: np.ndarray, reached: np.ndarray, sample_time: float,
+                       plant_model: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`plant_paths` of robots with velocity states (linear velocity changes)."""
+    k = states.shape[0] - 1
+    M = ARC_SUBSTEPS
+    start = np.concatenate((np.zeros((1,) + reached.shape[1:]), reached[:-1]))
+    accel = (reached - start) / sample_time
+    full = np.concatenate((states[:-1, :, :3], start), axis=-1)
+    frac = np.arange(M) / M
+    pts = np.empty((k, M) + states.shape[1:2] + (2,))
+    pts[:, 0] = states[:-1, :, :2]
+    for j in range(1, M):
+        pts[:, j] = acceleration_dynamics(full, accel, frac[j] * sample_time,
+                                          plant_model)[..., :2]
     positions = np.concatenate((pts.reshape((k * M,) + pts.shape[2:]), states[-1:, :, :2]))
     t = sample_time * np.concatenate((np.repeat(np.arange(k), M) + np.tile(frac, k), [k]))
     return t, positions

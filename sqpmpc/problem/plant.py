@@ -47,6 +47,54 @@ The QP rows keep :func:`model_margin` more than the required distance: twice
 the largest linear growth :math:`\alpha + \max(\beta, 0)` over the input bounds
 (each robot of a pair may deviate by it; half as much against an obstacle).
 For a plant that moves exactly as predicted (the default: Euler both) it is 0.
+
+Robots with acceleration limits (CONTRACT 1c)
+---------------------------------------------
+With ``[bounds] acceleration`` and ``angular_acceleration`` the plant's state
+includes the velocities :math:`(v, \omega)`; a command is followed by the
+constant accelerations :math:`a = \mathrm{clip}((v_{cmd} - v)/T_s, a_{\min},
+a_{\max})` (likewise :math:`\alpha`) over the sample, so the velocity changes
+linearly and never faster than the limits, and reaches the command at the end of
+the sample when the limits allow (the controller's commands always do). The
+controller predicts with :class:`~sqpmpc.models.acceleration.AccelerationUnicycle`;
+:func:`acceleration_path_deviation` bounds how far such a robot is from the
+predicted segment :math:`p_0 \to \hat p_1` over the sample, with
+:math:`V = \max(|v_0|, |v_1|)`, :math:`\Omega = \max(|\omega_0|, |\omega_1|)`
+(the velocities at both ends) and :math:`\gamma = V\Omega T_s^2/2`:
+
+- *along the path*: the segment is checked as travelled at a uniform rate, the
+  robot covers :math:`v_0 sT_s + a s^2T_s^2/2` of it: the gap is
+  :math:`|a| T_s^2 s(1-s)/2`, so :math:`\beta \mathrel{+}= |a|T_s^2/2`;
+- *off the path* (a plant whose heading turns during the sample, ``rk4`` or
+  ``exact``): :math:`|\psi(t) - \psi_0| \le \Omega t`, so the robot is within
+  :math:`\int_0^t V\Omega\tau\,d\tau = \gamma s^2` of the straight line it would
+  follow along :math:`\psi_0`: Euler prediction, :math:`\alpha \mathrel{+}= \gamma`,
+  :math:`\beta \mathrel{-}= \gamma`; an arc predicted from its own end point
+  (``rk4``/``exact`` prediction): :math:`\gamma(s^2 + s)`, :math:`\alpha \mathrel{+}=
+  2\gamma`, :math:`\beta \mathrel{-}= \gamma`; an Euler plant under an ``rk4``/``exact``
+  prediction: the end points are :math:`\gamma` apart, :math:`\alpha \mathrel{+}= \gamma`;
+- *input noise* :math:`W` on the commanded velocities changes the accelerations by
+  at most :math:`W/T_s`: :math:`\alpha \mathrel{+}= W_v T_s/2 + V W_\omega T_s^2/6`.
+
+(RK4 integrates the heading and the velocities exactly here and the position to
+:math:`O(T_s^5)`; it is taken to move as the exact solution.) The first-input and
+braking checks of these robots take the bound :math:`\alpha s + \beta s(1-s)` itself
+(:mod:`sqpmpc.kernels.acceleration`, and the half-planes as before). The rows keep,
+as for the paper's robot, twice the largest linear growth :math:`\alpha + \max(\beta, 0)`
+over the velocity and acceleration boxes: :math:`|a|_{\max}T_s^2` for the Euler
+plant, 0.25 m on paper-s2 with ``acceleration = [-1, 1]``. Twice the largest value
+of the bound itself (:func:`largest_deviation`, a quarter of that) would also make the
+rows imply the checks; measured (``benchmarks/acceleration.py``, 24 runs, 0 collisions
+either way) it made 22 instead of 19 runs arrive, but paper-s2 decentralized ended
+0.116 m from its moving reference, outside the paper robot's band of 0.095 m.
+
+Braking takes several samples: from :math:`v` it takes
+:math:`\lceil |v|/(|a_{\min}|T_s)\rceil` samples and about :math:`v^2/(2|a_{\min}|)`
+of travel (0.18 m from 0.6 m/s at 1 m/s^2). The controllers therefore accept a
+first input only if braking right after it keeps every distance too
+(:meth:`sqpmpc.control.pipeline.ControllerPipeline.braking_path` and the schemes'
+braking checks), so the
+braking fallback of the next sample follows a path already checked.
 """
 
 from __future__ import annotations
@@ -57,10 +105,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.errors import ProblemError
+from sqpmpc.models.acceleration import acceleration_dynamics
 from sqpmpc.models.unicycle import DISCRETIZATIONS, discrete_dynamics
 
 __all__ = [
     "NOISE_TRUNCATION",
+    "acceleration_path_deviation",
+    "largest_deviation",
     "PLANT_MODELS",
     "Plant",
     "PlantSpec",
@@ -137,14 +188,37 @@ class Plant:
     n_robots
         Robots stepped together (the noise stream draws ``(n, 2)`` per step, so a
         run with the same seed and robots is reproducible).
+    acceleration_bounds
+        ``(lower (2,), upper (2,))`` of :math:`(a, \alpha)` (the scenario's
+        ``[bounds] acceleration, angular_acceleration``), or ``None``: the paper's
+        robot, whose velocities change at once. With them the plant keeps the
+        robots' velocities (:attr:`velocities`, zero at the start) and changes them
+        within the bounds (module notes).
     """
 
-    def __init__(self, spec: PlantSpec, sample_time: float, n_robots: int) -> None:
+    def __init__(self, spec: PlantSpec, sample_time: float, n_robots: int,
+                 acceleration_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.spec = spec
         self.sample_time = float(sample_time)
         self.n_robots = int(n_robots)
         self._rng = np.random.default_rng(spec.seed)
         self._sigma = np.asarray(spec.input_noise)
+        self.acceleration_bounds = None if acceleration_bounds is None else (
+            np.asarray(acceleration_bounds[0], dtype=float),
+            np.asarray(acceleration_bounds[1], dtype=float))
+        #: ``(n, 2)`` the robots' velocities ``(v, omega)`` (with acceleration bounds)
+        self.velocities = np.zeros((self.n_robots, 2))
+
+    @property
+    def has_velocities(self) -> bool:
+        """Whether the robots' velocities are states (acceleration bounds declared)."""
+        return self.acceleration_bounds is not None
+
+    def measure(self, states: np.ndarray) -> np.ndarray:
+        """What the robots measure: poses ``(n, 3)``, with velocities ``(n, 5)``."""
+        if not self.has_velocities:
+            return states
+        return np.concatenate((states, self.velocities), axis=1)
 
     def applied_inputs(self, inputs: np.ndarray) -> np.ndarray:
         """The inputs the robots really apply: ``inputs (n, 2)`` plus the noise."""
@@ -156,9 +230,44 @@ class Plant:
         return inputs + noise * self._sigma
 
     def step(self, states: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Next states and the inputs really applied, from ``states (n, 3)``, ``inputs (n, 2)``."""
+        """Advance every robot by one sample :math:`T_s` with the commanded inputs held.
+
+        Parameters
+        ----------
+        states
+            ``(n, 3)`` states :math:`(x, y, \\psi)` at :math:`t_k`, in the scenario's
+            robot order.
+        inputs
+            ``(n, 2)`` commanded inputs :math:`(v, \\omega)`, held on
+            :math:`[t_k, t_{k+1})`.
+
+        Returns
+        -------
+        next_states : np.ndarray
+            ``(n, 3)`` states at :math:`t_{k+1}`, from the spec's model (``euler``,
+            ``rk4`` or ``exact``) with the applied inputs.
+        applied : np.ndarray
+            ``(n, 2)`` inputs the robots really applied: ``inputs`` plus the truncated
+            Gaussian input noise of the ``[plant]`` table (a copy of ``inputs``
+            without noise); with acceleration bounds (CONTRACT 1c) the velocities the
+            robots reach at the end of the sample (the commands when the bounds allow
+            them). Give it to :meth:`sqpmpc.RunRecorder.append` as
+            ``plant_inputs`` so the metrics see the true paths.
+
+        Examples
+        --------
+        >>> x, applied = plant.step(x, out.inputs)  # doctest: +SKIP
+        """
         applied = self.applied_inputs(inputs)
-        return discrete_dynamics(states, applied, self.sample_time, self.spec.model), applied
+        if not self.has_velocities:
+            return discrete_dynamics(states, applied, self.sample_time, self.spec.model), applied
+        lower, upper = self.acceleration_bounds
+        h = self.sample_time
+        accel = np.clip((applied - self.velocities) / h, lower, upper)
+        full = np.concatenate((np.asarray(states, dtype=float)[:, :3], self.velocities), axis=1)
+        nxt = acceleration_dynamics(full, accel, h, self.spec.model)
+        self.velocities = nxt[:, 3:5].copy()
+        return nxt[:, :3], self.velocities.copy()
 
 
 def _simpson_error(speed: np.ndarray, rate: np.ndarray, h: float) -> np.ndarray:
@@ -226,18 +335,91 @@ def linear_growth(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
     return alpha + np.maximum(beta, 0.0)
 
 
+def largest_deviation(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    r"""The largest :math:`\alpha s + \beta s(1-s)` on :math:`[0, 1]` (:math:`\alpha \ge 0`):
+    at :math:`s^* = \min(1, (\alpha + \beta)/(2\beta))` for :math:`\beta > 0`, else
+    :math:`\alpha` (at :math:`s = 1`)."""
+    alpha = np.asarray(alpha, dtype=float)
+    beta = np.asarray(beta, dtype=float)
+    safe = np.where(beta > 0.0, beta, 1.0)
+    s = np.clip((alpha + beta) / (2.0 * safe), 0.0, 1.0)
+    return np.where(beta > 0.0, alpha * s + beta * s * (1.0 - s), alpha)
+
+
 def model_margin(input_lower: np.ndarray, input_upper: np.ndarray, sample_time: float,
-                 prediction: str, plant: PlantSpec) -> float:
+                 prediction: str, plant: PlantSpec,
+                 acceleration_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     r"""Margin the QP rows keep for a plant that differs from the prediction, m.
 
     Twice the largest :func:`linear_growth` over the input box (its corners:
     the bound grows with :math:`|v|` and :math:`|\omega|`); 0 when the plant
     moves exactly as predicted. E.g. Euler controller on an exact plant, or
     exact on exact: :math:`v_{\max}\omega_{\max}T_s^2` (0.118 m for the paper's
-    bounds at :math:`T_s` = 0.5 s).
+    bounds at :math:`T_s` = 0.5 s). With ``acceleration_bounds`` (robots with
+    velocity states) the largest growth of :func:`acceleration_path_deviation`
+    over the velocity and acceleration boxes (the checks of these robots take the bound
+    itself, :func:`largest_deviation`; the rows keep the linear majorant, module notes).
     """
     lo, hi = np.asarray(input_lower, dtype=float), np.asarray(input_upper, dtype=float)
+    if acceleration_bounds is not None:
+        alo, ahi = (np.asarray(b, dtype=float) for b in acceleration_bounds)
+        vel = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
+        acc = np.array([[a, b] for a in (alo[0], ahi[0]) for b in (alo[1], ahi[1])])
+        alpha, beta = acceleration_path_deviation(
+            np.repeat(vel, 4, axis=0), np.tile(acc, (4, 1)), sample_time, prediction,
+            plant.model, plant.noise_bound, (lo, hi))
+        return float(2.0 * linear_growth(alpha, beta).max())
     corners = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
     alpha, beta = path_deviation(corners, sample_time, prediction, plant.model,
                                  plant.noise_bound)
     return float(2.0 * linear_growth(alpha, beta).max())
+
+
+def acceleration_path_deviation(velocities: np.ndarray, accelerations: np.ndarray,
+                                sample_time: float, prediction: str, plant: str,
+                                noise_bound: np.ndarray | None = None,
+                                velocity_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    r"""Coefficients :math:`(\alpha, \beta)` of the path-deviation bound for a robot with
+    velocity states (module notes, "Robots with acceleration limits").
+
+    Parameters
+    ----------
+    velocities
+        Velocities ``(..., 2)`` :math:`(v_0, \omega_0)` at the start of the sample.
+    accelerations
+        The sample's accelerations ``(..., 2)`` :math:`(a, \alpha)`.
+    sample_time, prediction, plant, noise_bound
+        As for :func:`path_deviation`.
+    velocity_bounds
+        ``(lower, upper)`` of :math:`(v, \omega)`: the end velocities are clipped to
+        them (:func:`model_margin` evaluates the corners of both boxes).
+    """
+    for name, value in (("prediction", prediction), ("plant", plant)):
+        if value not in DISCRETIZATIONS:
+            raise ProblemError(f"{name} model must be one of {DISCRETIZATIONS}, got {value!r}")
+    vel = np.asarray(velocities, dtype=float)
+    acc = np.asarray(accelerations, dtype=float)
+    h = float(sample_time)
+    end = vel + h * acc
+    if velocity_bounds is not None:
+        end = np.clip(end, velocity_bounds[0], velocity_bounds[1])
+    speed = np.maximum(np.abs(vel[..., 0]), np.abs(end[..., 0]))
+    rate = np.maximum(np.abs(vel[..., 1]), np.abs(end[..., 1]))
+    W = np.zeros(2) if noise_bound is None else np.asarray(noise_bound, dtype=float)
+    speed = speed + W[0]
+    rate = rate + W[1]
+    gamma = speed * rate * h * h / 2.0
+    alpha = np.zeros_like(speed)
+    beta = np.abs(acc[..., 0]) * h * h / 2.0
+    curved_plant = plant != "euler"
+    curved_prediction = prediction != "euler"
+    if curved_plant and not curved_prediction:
+        alpha, beta = alpha + gamma, beta - gamma
+    elif curved_plant:
+        alpha, beta = alpha + 2.0 * gamma, beta - gamma
+    elif curved_prediction:
+        alpha = alpha + gamma
+    if W.any():
+        alpha = alpha + W[0] * h / 2.0 + speed * W[1] * h * h / 6.0
+    return alpha, beta

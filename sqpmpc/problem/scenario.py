@@ -4,7 +4,8 @@ A scenario is read from a TOML file or a built-in name (the ``*.toml`` files of
 package :mod:`sqpmpc.scenarios`, by stem: ``paper-s1``, ``paper-s2``) and fully
 validated before anything runs; every problem is one
 :class:`~sqpmpc.errors.ScenarioError` naming the file, the key (e.g.
-``robots[2].diameter``, with robots indexed from 0 in file order) and what was
+``robots[2].diameter``, with robots indexed from 0 in file order), the robot's
+id when it has one (``robot id 3 (the 3rd [[robots]] table)``) and what was
 expected.
 
 The problem it describes: robots :math:`j = 1..n` with unicycle states
@@ -31,6 +32,8 @@ from typing import Any
 import numpy as np
 
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.models.base import RobotModel
+from sqpmpc.problem.bounds import Bounds
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.references import (
@@ -47,7 +50,6 @@ __all__ = [
     "RobotSpec", "Scenario", "Weights",
 ]
 
-_PAIR = "an array of 2 finite numbers [lower, upper] with lower <= upper"
 _STEPS_RTOL = 1e-9
 
 # Limits on the numbers that size arrays and loops: checked before anything is allocated,
@@ -62,14 +64,6 @@ MIN_SAMPLE_TIME = 1e-4
 """Smallest ``sample_time`` accepted, s."""
 MAX_ROBOT_SAMPLES = 10_000_000
 """Largest number of robots times samples K accepted (a run's trajectory: 240 MB)."""
-
-
-def _pair(value: Any, key: str, unit: str) -> tuple[float, float]:
-    lower, upper = _real_vector(value, 2, key, f"{_PAIR} ({unit})")
-    if lower > upper:
-        raise _FieldError(key, f"expected lower <= upper, found lower {lower!r} above upper "
-                          f"{upper!r}")
-    return lower, upper
 
 
 @dataclass(frozen=True)
@@ -94,49 +88,6 @@ class Weights:
         object.__setattr__(self, "R", _real_vector(
             self.R, 2, "R", "an array of 2 finite numbers > 0 [r_v, r_omega]",
             minimum=0.0, strict=True))
-
-
-@dataclass(frozen=True)
-class Bounds:
-    """Inclusive box bounds on inputs and (optionally) positions.
-
-    Parameters
-    ----------
-    v, omega
-        ``(lower, upper)`` of the speed (m/s) and turn rate (rad/s).
-    x, y
-        Optional ``(lower, upper)`` of the position coordinates, m; ``None``
-        means unbounded.
-    """
-
-    v: tuple[float, float]
-    omega: tuple[float, float]
-    x: tuple[float, float] | None = None
-    y: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "v", _pair(self.v, "v", "m/s"))
-        object.__setattr__(self, "omega", _pair(self.omega, "omega", "rad/s"))
-        for name in ("x", "y"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, _pair(value, name, "m"))
-
-    def input_lower(self) -> np.ndarray:
-        """:math:`u_{\\min} = (v_{\\min}, \\omega_{\\min})`, shape ``(2,)``."""
-        return np.array([self.v[0], self.omega[0]])
-
-    def input_upper(self) -> np.ndarray:
-        """:math:`u_{\\max} = (v_{\\max}, \\omega_{\\max})`, shape ``(2,)``."""
-        return np.array([self.v[1], self.omega[1]])
-
-    def position_lower(self) -> np.ndarray:
-        """Lower position bound ``(x, y)``, ``-inf`` where absent, shape ``(2,)``."""
-        return np.array([b[0] if b is not None else -np.inf for b in (self.x, self.y)])
-
-    def position_upper(self) -> np.ndarray:
-        """Upper position bound ``(x, y)``, ``+inf`` where absent, shape ``(2,)``."""
-        return np.array([b[1] if b is not None else np.inf for b in (self.x, self.y)])
 
 
 @dataclass(frozen=True)
@@ -315,7 +266,8 @@ class Scenario:
             if robot.id in first:
                 raise ScenarioError(self.source, f"robots[{i}].id",
                                     f"expected a unique id, found {robot.id} already used by "
-                                    f"robots[{first[robot.id]}]")
+                                    f"robots[{first[robot.id]}] (robots[i] is the (i+1)-th "
+                                    "[[robots]] table)")
             first[robot.id] = i
         lower, upper = self.bounds.position_lower(), self.bounds.position_upper()
         for i, robot in enumerate(self.robots):
@@ -359,6 +311,11 @@ class Scenario:
     def initial_states(self) -> np.ndarray:
         """States at :math:`t = 0`, shape ``(n, 3)``."""
         return np.array([r.initial_state for r in self.robots], dtype=np.float64)
+
+    def robot_model(self) -> RobotModel:
+        """The robots' model (:meth:`Bounds.robot_model`); the footprint is a disc of each
+        robot's ``diameter``."""
+        return self.bounds.robot_model()
 
     def diameters(self) -> np.ndarray:
         """Diameters :math:`d_j`, shape ``(n,)``."""
@@ -410,7 +367,7 @@ class Scenario:
                  f"horizon = {self.horizon}", "", "[weights]",
                  f"Q = {_toml_value(self.weights.Q)}",
                  f"R = {_toml_value(self.weights.R)}", "", "[bounds]"]
-        for key in ("v", "omega", "x", "y"):
+        for key in ("v", "omega", "x", "y", "acceleration", "angular_acceleration"):
             value = getattr(self.bounds, key)
             if value is not None:
                 lines.append(f"{key} = {_toml_value(value)}")

@@ -47,7 +47,7 @@ _PLANT_KEYS = ("model", "input_noise", "seed")
 _WEIGHT_KEYS = ("Q", "R")
 
 
-_BOUND_KEYS = ("v", "omega", "x", "y")
+_BOUND_KEYS = ("v", "omega", "x", "y", "acceleration", "angular_acceleration")
 
 
 _BOUND_REQUIRED = ("v", "omega")
@@ -134,11 +134,14 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     robots = []
     for i, raw in enumerate(raw_robots):
         key = f"robots[{i}]"
-        r = _table(raw, source, key, _ROBOT_KEYS, _ROBOT_KEYS)
-        reference = reference_from_dict(r["reference"], source, f"{key}.reference")
-        robots.append(_build(RobotSpec, source, key, id=r["id"],
-                             initial_state=r["initial_state"], diameter=r["diameter"],
-                             reference=reference))
+        try:
+            r = _table(raw, source, key, _ROBOT_KEYS, _ROBOT_KEYS)
+            reference = reference_from_dict(r["reference"], source, f"{key}.reference")
+            robots.append(_build(RobotSpec, source, key, id=r["id"],
+                                 initial_state=r["initial_state"], diameter=r["diameter"],
+                                 reference=reference))
+        except ScenarioError as exc:  # name the robot by its id, not only its table's index
+            raise ScenarioError(source, exc.key, f"{_robot_label(raw, i)}: {exc.detail}") from None
     obstacles = []
     raw_obstacles = data.get("obstacles", [])
     if not isinstance(raw_obstacles, list | tuple):
@@ -156,6 +159,17 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
                     horizon=data["horizon"], weights=weights, bounds=bounds,
                     robots=tuple(robots), obstacles=tuple(obstacles), plant=plant,
                     source=source)
+
+
+def _robot_label(raw: Any, index: int) -> str:
+    """``robot id 2 (the 2nd [[robots]] table)``, or the table alone without a valid id."""
+    n = index + 1
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    table = f"the {n}{suffix} [[robots]] table"
+    rid = raw.get("id") if isinstance(raw, dict) else None
+    if isinstance(rid, int) and not isinstance(rid, bool) and rid > 0:
+        return f"robot id {rid} ({table})"
+    return table
 
 
 def _build_checked(cls: type, source: str, prefix: str, **kwargs: Any) -> Any:

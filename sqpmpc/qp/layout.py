@@ -29,16 +29,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.models.unicycle import NU, NX
+from sqpmpc.models.base import RobotModel
+from sqpmpc.models.paper import UNICYCLE_A_PATTERN, UnicycleModel
 
-__all__ = ["QPLayout"]
+__all__ = ["A_PATTERN", "B_PATTERN", "CURV_PATTERN", "QPLayout"]
 
-# Structural entries of A_k (rows, cols) and B_k for the unicycle under both
-# discretizations: x and y depend on psi, v and omega; psi on psi and omega.
-A_PATTERN = (np.array([0, 1, 2, 0, 1]), np.array([0, 1, 2, 2, 2]))
-B_PATTERN = (np.array([0, 0, 1, 1, 2]), np.array([0, 1, 0, 1, 1]))
-# Upper-triangular curvature entries among (psi, v, omega) = block offsets (2, 3, 4).
-CURV_PATTERN = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
+#: The paper unicycle's structural entries of A_k and B_k (the default model's).
+A_PATTERN = UNICYCLE_A_PATTERN
+B_PATTERN = UnicycleModel.b_pattern
+#: Upper-triangular curvature entries among the unicycle's (psi, v, omega).
+CURV_PATTERN = tuple(np.triu_indices(len(UnicycleModel.curvature_offsets)))
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,11 @@ class QPLayout:
         External collision slots per own robot ``E`` (neighbours treated as data).
     position_bounds
         Whether rows bounding (x, y) on stages 1..N exist.
+    model
+        The robot model (a :class:`~sqpmpc.models.base.RobotModel` or its class):
+        its dimensions ``nx``, ``nu``, the Jacobians' patterns, the curvature
+        variables and the velocity states, bounded on stages 1..N by their own
+        rows (after the position rows). Default: the paper's unicycle.
     """
 
     n_robots: int
@@ -64,6 +69,7 @@ class QPLayout:
     internal_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     n_external: int = 0
     position_bounds: bool = False
+    model: RobotModel | type[RobotModel] = UnicycleModel
 
     def __post_init__(self) -> None:
         pairs = np.asarray(self.internal_pairs, dtype=np.int64).reshape(-1, 2)
@@ -80,8 +86,13 @@ class QPLayout:
     # ------------------------------------------------------------------ sizes
     @property
     def block_size(self) -> int:
-        """Variables per robot, ``5N + 3``."""
-        return (NX + NU) * self.horizon + NX
+        """Variables per robot, ``(nx + nu) N + nx`` (``5N + 3`` for the unicycle)."""
+        return (self.model.nx + self.model.nu) * self.horizon + self.model.nx
+
+    @property
+    def stage_size(self) -> int:
+        """Variables per stage, ``nx + nu``."""
+        return self.model.nx + self.model.nu
 
     @property
     def n_pairs(self) -> int:
@@ -91,6 +102,8 @@ class QPLayout:
     def _build(self) -> None:  # noqa: PLR0915 - one linear construction
         m, N, E, P = self.n_robots, self.horizon, self.n_external, self.n_pairs
         nb = self.block_size
+        NX, NU = self.model.nx, self.model.nu
+        a_pattern, b_pattern = self.model.a_pattern, self.model.b_pattern
         base = np.arange(m)[:, None] * nb
         stage = np.arange(N + 1)[None, :] * (NX + NU)
         state_index = base[:, :, None] + stage[:, :, None] + np.arange(NX)[None, None, :]
@@ -122,9 +135,9 @@ class QPLayout:
         dyn_rows = row + np.arange(m * N * NX).reshape(m, N, NX)
         s_dyn_I = add(dyn_rows, state_index[:, 1:, :])
         s_dyn_A = add(
-            dyn_rows[:, :, A_PATTERN[0]], state_index[:, :N, :][:, :, A_PATTERN[1]]
+            dyn_rows[:, :, a_pattern[0]], state_index[:, :N, :][:, :, a_pattern[1]]
         )
-        s_dyn_B = add(dyn_rows[:, :, B_PATTERN[0]], input_index[:, :, B_PATTERN[1]])
+        s_dyn_B = add(dyn_rows[:, :, b_pattern[0]], input_index[:, :, b_pattern[1]])
         row += m * N * NX
         # input bounds
         input_rows = row + np.arange(m * N * NU).reshape(m, N, NU)
@@ -138,6 +151,11 @@ class QPLayout:
         else:
             pos_rows = np.zeros((m, N, 2), dtype=np.int64)[:, :0]
             s_pos = slice(0, 0)
+        # velocity-state bounds on stages 1..N (models with velocity states)
+        vel = np.asarray(self.model.velocity_states, dtype=np.int64)
+        vel_rows = row + np.arange(m * N * vel.size).reshape(m, N, vel.size)
+        s_vel = add(vel_rows, state_index[:, 1:, :][:, :, vel]) if vel.size else slice(0, 0)
+        row += m * N * vel.size
         # internal collision rows: n'(p_a - p_b) + s >= b on stages 1..N
         int_rows = row + np.arange(P * N).reshape(P, N)
         a, b = self.internal_pairs[:, 0], self.internal_pairs[:, 1]
@@ -165,15 +183,17 @@ class QPLayout:
         A_cols = np.concatenate(cols)
         A_order, A_pattern = _csc_order(A_rows, A_cols, (n_con, n_var))
 
-        # P: full diagonal plus the (psi, v, omega) curvature blocks of stages 0..N-1.
-        psi = state_index[:, :N, 2]
-        trio = np.stack((psi, input_index[:, :, 0], input_index[:, :, 1]), axis=-1)
-        off = CURV_PATTERN[0] != CURV_PATTERN[1]
+        # P: full diagonal plus the curvature blocks of stages 0..N-1 on the variables that
+        # enter the dynamics nonlinearly (the unicycle's psi, v, omega)
+        offsets = np.asarray(self.model.curvature_offsets, dtype=np.int64)
+        trio = (base[:, :, None] + stage[:, :N, None] + offsets[None, None, :])
+        curv = tuple(np.triu_indices(offsets.size))
+        off = curv[0] != curv[1]
         P_rows = np.concatenate(
-            (np.arange(n_var), trio[:, :, CURV_PATTERN[0][off]].ravel())
+            (np.arange(n_var), trio[:, :, curv[0][off]].ravel())
         )
         P_cols = np.concatenate(
-            (np.arange(n_var), trio[:, :, CURV_PATTERN[1][off]].ravel())
+            (np.arange(n_var), trio[:, :, curv[1][off]].ravel())
         )
         P_order, P_pattern = _csc_order(P_rows, P_cols, (n_var, n_var))
 
@@ -189,12 +209,13 @@ class QPLayout:
             "dyn_rows": dyn_rows,
             "input_rows": input_rows,
             "position_rows": pos_rows,
+            "velocity_rows": vel_rows,
             "internal_rows": int_rows,
             "external_rows": ext_rows,
             "slack_rows": slack_rows,
             "A_slices": {
                 "init": s_init, "dyn_I": s_dyn_I, "dyn_A": s_dyn_A, "dyn_B": s_dyn_B,
-                "input": s_inp, "position": s_pos, "internal": s_int,
+                "input": s_inp, "position": s_pos, "velocity": s_vel, "internal": s_int,
                 "internal_slack": s_int_slack, "external": s_ext,
                 "external_slack": s_ext_slack, "slack": s_slack,
             },
@@ -211,18 +232,21 @@ class QPLayout:
             "P_diag_slice": slice(0, n_var),
             "P_curv_slice": slice(n_var, P_rows.size),
             "curvature_index": trio,
+            "a_pattern": a_pattern,
+            "b_pattern": b_pattern,
+            "curvature_pattern": curv,
         }.items():
             object.__setattr__(self, name, value)
 
     # --------------------------------------------------------------- helpers
     def split_primal(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """States ``(m, N+1, 3)`` and inputs ``(m, N, 2)`` of a primal vector."""
+        """States ``(m, N+1, nx)`` and inputs ``(m, N, nu)`` of a primal vector."""
         return z[self.state_index], z[self.input_index]
 
     def join_primal(
         self, states: np.ndarray, inputs: np.ndarray, slacks: np.ndarray | None = None
     ) -> np.ndarray:
-        """Primal vector from states ``(m, N+1, 3)``, inputs ``(m, N, 2)`` and slacks."""
+        """Primal vector from states ``(m, N+1, nx)``, inputs ``(m, N, nu)`` and slacks."""
         z = np.zeros(self.n_var)
         z[self.state_index] = states
         z[self.input_index] = inputs

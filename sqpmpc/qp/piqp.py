@@ -9,7 +9,7 @@ PIQP (a proximal interior-point method) takes
 
 so the layout's rows are split once: the initial-state and dynamics rows
 (equalities by construction) form :math:`A_e`, the rows that bound one
-variable (inputs, positions, slacks) become PIQP's variable bounds
+variable (inputs, positions, velocities, slacks) become PIQP's variable bounds
 :math:`x_l \le z \le x_u` (fewer rows to factorize: on a robot's QP with
 8 neighbour slots, 136 inequality rows become 64 rows and 72 bounds), every
 other row :math:`G`.
@@ -68,9 +68,10 @@ class PIQPBackend:
         self.layout = L = layout
         kind = np.full(L.n_con, _ROW)
         kind[L.init_rows.ravel()] = kind[L.dyn_rows.ravel()] = _EQUALITY
-        # rows that bound one variable with coefficient 1 (inputs, positions, slacks)
-        self.bound_rows = np.concatenate([L.input_rows.ravel(), L.position_rows.ravel(),
-                                          L.slack_rows.ravel()]).astype(np.int64)
+        # rows that bound one variable with coefficient 1 (inputs, positions, velocities, slacks)
+        self.bound_rows = np.concatenate(
+            [L.input_rows.ravel(), L.position_rows.ravel(), L.velocity_rows.ravel(),
+             L.slack_rows.ravel()]).astype(np.int64)
         kind[self.bound_rows] = _BOUND
         self.eq_rows = np.flatnonzero(kind == _EQUALITY)
         self.ineq_rows = np.flatnonzero(kind == _ROW)

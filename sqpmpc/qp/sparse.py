@@ -34,7 +34,7 @@ from sqpmpc.qp.backend import (
     QPResult,
     solve_interior_point,
 )
-from sqpmpc.qp.layout import A_PATTERN, B_PATTERN, CURV_PATTERN, QPLayout
+from sqpmpc.qp.layout import QPLayout
 
 if TYPE_CHECKING:
     from sqpmpc.qp.daqp import DAQPBackend
@@ -111,7 +111,7 @@ class SparseQP:
         L = layout
         self.A_values = np.zeros(L.A_nnz)
         sl = L.A_slices
-        for name in ("init", "dyn_I", "input", "position", "internal_slack",
+        for name in ("init", "dyn_I", "input", "position", "velocity", "internal_slack",
                      "external_slack", "slack"):
             self.A_values[sl[name]] = 1.0
         self.P_values = np.zeros(L.P_nnz)
@@ -144,16 +144,23 @@ class SparseQP:
         return self._q_cost + self._q_curvature
 
     def update_cost_weights(
-        self, Q_diag: np.ndarray, R_diag: np.ndarray, slack_penalty: float
+        self, Q_diag: np.ndarray, R_diag: np.ndarray, slack_penalty: float,
+        velocity_weights: np.ndarray | None = None,
     ) -> None:
         r"""Set :math:`P` of :math:`\sum_i \|p_i - r_i\|_Q^2 + \|u_{i-1}\|_R^2`; the slack price.
 
         ``Q`` weighs positions of stages 1..N, ``R`` inputs of stages 0..N-1;
         OSQP's :math:`\tfrac12 z^\top P z` convention gives :math:`P = 2Q`, :math:`2R`.
+        ``velocity_weights`` weigh the model's velocity states of stages 1..N
+        (models with velocity states; default none).
         """
         L = self.layout
         self._P_diag_cost[:] = 0.0
         self._P_diag_cost[L.input_index] = 2.0 * np.asarray(R_diag, float)
+        if velocity_weights is not None:
+            vel = np.asarray(L.model.velocity_states, dtype=np.int64)
+            self._P_diag_cost[L.state_index[:, 1:][:, :, vel]] = 2.0 * np.asarray(
+                velocity_weights, float)
         self._Q_diag = np.asarray(Q_diag, float)
         self._write_position_weights(np.ones(L.n_robots))
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
@@ -183,18 +190,19 @@ class SparseQP:
 
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
-        write_reference(self._q_cost, reference, self._reference_scale, self.layout.block_size)
+        write_reference(self._q_cost, reference, self._reference_scale, self.layout.block_size,
+                        self.layout.stage_size)
         self._dirty_vec = True
 
     def update_initial_state(self, initial_states: np.ndarray) -> None:
-        """Measured states ``(m, 3)``: :math:`\\chi_0 = \\chi(k)`."""
+        """Measured states ``(m, nx)``: :math:`\\chi_0 = \\chi(k)`."""
         rows = self.layout.init_rows
         self.lower[rows] = initial_states
         self.upper[rows] = initial_states
         self._dirty_vec = True
 
     def update_input_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
-        """Input bounds ``(2,)`` applied on every stage."""
+        """Input bounds ``(nu,)`` applied on every stage."""
         rows = self.layout.input_rows
         self.lower[rows] = lower
         self.upper[rows] = upper
@@ -207,17 +215,26 @@ class SparseQP:
         self.upper[rows] = upper
         self._dirty_vec = True
 
+    def update_velocity_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Bounds of the model's velocity states on stages 1..N: ``(nv,)`` for every stage, or
+        ``(m, N, nv)`` per robot and stage (models with velocity states only)."""
+        rows = self.layout.velocity_rows
+        self.lower[rows] = lower
+        self.upper[rows] = upper
+        self._dirty_vec = True
+
     def update_dynamics(self, A_k: np.ndarray, B_k: np.ndarray, c_k: np.ndarray) -> None:
         r"""Linearized dynamics :math:`\chi_{i+1} - A_i\chi_i - B_i u_i = c_i`.
 
         Parameters
         ----------
         A_k, B_k, c_k
-            ``(m, N, 3, 3)``, ``(m, N, 3, 2)`` and ``(m, N, 3)``.
+            ``(m, N, nx, nx)``, ``(m, N, nx, nu)`` and ``(m, N, nx)``.
         """
-        sl = self.layout.A_slices
-        self.A_values[sl["dyn_A"]] = -A_k[:, :, A_PATTERN[0], A_PATTERN[1]].ravel()
-        self.A_values[sl["dyn_B"]] = -B_k[:, :, B_PATTERN[0], B_PATTERN[1]].ravel()
+        L = self.layout
+        sl = L.A_slices
+        self.A_values[sl["dyn_A"]] = -A_k[:, :, L.a_pattern[0], L.a_pattern[1]].ravel()
+        self.A_values[sl["dyn_B"]] = -B_k[:, :, L.b_pattern[0], L.b_pattern[1]].ravel()
         rows = self.layout.dyn_rows
         self.lower[rows] = c_k
         self.upper[rows] = c_k
@@ -242,7 +259,8 @@ class SparseQP:
         self._dirty_A = self._dirty_vec = True
 
     def update_curvature(self, blocks: np.ndarray | None, z_bar: np.ndarray) -> None:
-        r"""Add PSD curvature blocks ``(m, N, 3, 3)`` on :math:`(\psi_i, v_i, \omega_i)`.
+        r"""Add PSD curvature blocks ``(m, N, c, c)`` on the model's curvature variables
+        (the unicycle's :math:`(\psi_i, v_i, \omega_i)`).
 
         In absolute variables the SQP model :math:`\tfrac12\Delta^\top H\Delta +
         \nabla f^\top\Delta` with :math:`z = \bar z + \Delta` needs the offset
@@ -250,7 +268,8 @@ class SparseQP:
         """
         L = self.layout
         self._P_diag_curvature[:] = 0.0
-        off = CURV_PATTERN[0] != CURV_PATTERN[1]
+        curv = L.curvature_pattern
+        off = curv[0] != curv[1]
         self._q_curvature[:] = 0.0
         self._no_curvature = blocks is None
         if blocks is None:
@@ -260,7 +279,7 @@ class SparseQP:
             diag_add = np.einsum("...ii->...i", blocks)
             np.add.at(self._P_diag_curvature, idx, diag_add)
             self.P_values[L.P_curv_slice] = blocks[
-                :, :, CURV_PATTERN[0][off], CURV_PATTERN[1][off]
+                :, :, curv[0][off], curv[1][off]
             ].ravel()
             zt = z_bar[idx]
             self._q_curvature[:] = 0.0

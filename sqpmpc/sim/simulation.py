@@ -112,7 +112,9 @@ class ClosedLoopSimulation:
             scenario = scenario.with_changes(plant=spec)
             self.scenario = scenario
         self.plant_method = spec.model
-        self.plant = Plant(spec, scenario.sample_time, n)
+        limits = (scenario.bounds.acceleration_lower(), scenario.bounds.acceleration_upper()) \
+            if scenario.bounds.dynamic_limits else None
+        self.plant = Plant(spec, scenario.sample_time, n, limits)
         if scheme == "centralized":
             self.controllers = [CentralizedController(scenario, self.settings)]
         else:
@@ -147,16 +149,17 @@ class ClosedLoopSimulation:
         if k >= sc.steps:
             raise ProblemError("the simulation has already reached t_end")
         x = self.states[k]
+        measured = self.plant.measure(x)  # with acceleration bounds: poses and velocities
         prev = self.states[k - 1] if k > 0 else None
         if self.scheme == "centralized":
-            out = self.controllers[0].step(self.t[k], x)
+            out = self.controllers[0].step(self.t[k], measured)
             u = out.inputs
             outs = [out]
         else:
             while self._in_transit and self._in_transit[0][0] <= k:
                 # a lost message leaves the receivers with the older plan, as over a network
                 self._plans.update(self._in_transit.popleft()[1])
-            outs = [c.step(k, self.t[k], x, self._plans, prev, self._plan_ages)
+            outs = [c.step(k, self.t[k], measured, self._plans, prev, self._plan_ages)
                     for c in self.controllers]
             u = np.concatenate([o.inputs for o in outs], axis=0)
             self._plan_ages = {c.robot_id: c.plan_ages for c in self.controllers
@@ -232,7 +235,8 @@ class ClosedLoopSimulation:
             solver_failures=int(self.fallbacks),
             completed=k == self.scenario.steps,
             extra=extra,
-            plant_inputs=self.plant_inputs[:k].copy() if self.plant.spec.noisy else None,
+            plant_inputs=self.plant_inputs[:k].copy() if self.plant.spec.noisy
+            or self.plant.has_velocities else None,
             horizons=self.horizons[:k].copy(),
         )
 

@@ -1,0 +1,346 @@
+"""Physical robots: the controllers closed around MuJoCo robots with mass, motors and friction.
+
+The plant is :mod:`sqpmpc.sim.physics` (the ``physics`` extra): every robot a 3 kg
+differential-drive robot with torque-limited, filtered wheel velocity servos and
+wheel friction, a 2 ms physics step, the controller's :math:`(v, \\omega)` turned
+into wheel speeds as a robot's driver does, the true pose (and measured
+velocities) read back every sample, the footprint clearances checked after every
+physics step. It runs
+
+1. the **nominal robot's step responses**: the acceleration it really reaches
+   (speed 10 % to 90 % of a full step, forward, braking and turning), how far it
+   coasts when braking from full speed, how far it gets in the first sample of a
+   0.5 m/s command; the scenarios then declare half of each (both at once stay
+   reachable: the two wheels share their torque) as ``[bounds] acceleration`` and
+   ``angular_acceleration`` when this build's controller has them;
+2. the **nominal robot** on paper-s2, swap-6, swap-16, corridor and head-on, both
+   schemes, against the same run on the ideal plant (the scenario's own model);
+3. a **sweep** of wheel torque, chassis mass, wheel friction and actuator time
+   constant, one at a time from the nominal, on swap-6 and head-on, both schemes,
+   the scenarios still declaring the nominal robot's acceleration.
+
+Counted: *overlaps*, physics steps at which two footprints (or a robot and an
+obstacle) overlap by more than 1 mm (the QP's margin); *arrived*, robots within
+0.05 m of their goals at the end (paper-s2's moving references: within the largest
+tracking error of the last tenth of the ideal-plant run); *frozen*, robots that
+command no speed for more than 2 s while their goal is more than 0.05 m away and
+every other robot and obstacle is more than 0.3 m beyond the distance the controller
+keeps (its rows' margin: with acceleration bounds it grows with them); the closed-loop cost
+against the ideal plant.
+
+Reproduce (writes ``docs/physical-robots.md``)::
+
+    python -m benchmarks.physical
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.sim.physics import PhysicalRobot, PhysicalSimulation, PhysicsFleet
+from sqpmpc.sim.record import RunRecord
+from sqpmpc.sim.simulation import simulate
+
+from .compare_ipopt import machine_line
+from .report import publish
+from .rows import GOAL_TOLERANCE
+
+__all__ = ["declared_bounds", "frozen_robots", "run_physical", "step_response"]
+
+DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "physical-robots.md"
+SCENARIOS = ("paper-s2", "swap-6", "swap-16", "corridor", "head-on")
+SWEEP_SCENARIOS = ("swap-6", "head-on")
+SWEEP: dict[str, tuple[float, ...]] = {
+    "wheel_torque": (0.05, 0.1, 0.2, 0.5, 1.0),
+    "mass": (1.5, 3.0, 6.0, 12.0),
+    "friction": (0.05, 0.1, 0.3, 1.0),
+    "actuator_time_constant": (0.005, 0.02, 0.05, 0.1),
+}
+UNITS = {"wheel_torque": " N m", "mass": " kg", "friction": "", "actuator_time_constant": " s"}
+FROZEN_SECONDS = 2.0
+CLEAR_M = 0.3
+STILL_SPEED = 1e-3
+SCHEMES = ("centralized", "decentralized")
+HAS_ACCELERATION = "acceleration" in {
+    f.name for f in dataclasses.fields(load_scenario("head-on").bounds)}
+
+
+def step_response(robot: PhysicalRobot, v_max: float = 0.6, w_max: float = np.pi / 4,
+                  sample_time: float = 0.5) -> dict[str, float]:
+    """The robot's measured response to full steps (one robot alone, MuJoCo).
+
+    Returns ``accel`` and ``decel`` (m/s^2, speed 10 % to 90 % of ``v_max`` and back),
+    ``angular`` (rad/s^2, the same for ``w_max``), ``coast`` (m travelled after a
+    zero command at ``v_max``) and ``first_sample`` (m covered in the first sample of a
+    0.5 m/s command, from rest).
+    """
+    sc = load_scenario("head-on")
+    sc = sc.with_changes(robots=sc.robots[:1], sample_time=sample_time)
+    out: dict[str, float] = {}
+    fleet = PhysicsFleet(sc, robot)
+    fleet.substeps = 1
+    h = robot.physics_step
+
+    def run(command: tuple[float, float], seconds: float) -> np.ndarray:
+        vel = []
+        for _ in range(round(seconds / h)):
+            fleet.step(np.zeros((1, 3)), np.array([command]))
+            vel.append(fleet.velocities()[0].copy())
+        return np.array(vel)
+
+    def rise(values: np.ndarray, top: float) -> float:
+        values = np.abs(values)
+        lo, hi = np.argmax(values >= 0.1 * top), np.argmax(values >= 0.9 * top)
+        if values.max() < 0.9 * top or hi <= lo:
+            return float("nan")
+        return 0.8 * top / ((hi - lo) * h)
+
+    start = fleet.poses()[0, :2].copy()
+    first = run((0.5, 0.0), sample_time)
+    out["first_sample"] = float(np.linalg.norm(fleet.poses()[0, :2] - start))
+    run((0.0, 0.0), 2.0)
+    out["accel"] = rise(run((v_max, 0.0), 3.0)[:, 0], v_max)
+    here = fleet.poses()[0, :2].copy()
+    braking = run((0.0, 0.0), 3.0)[:, 0]
+    out["coast"] = float(np.linalg.norm(fleet.poses()[0, :2] - here))
+    out["decel"] = rise(v_max - braking, v_max) if braking[0] > 0.9 * v_max else float("nan")
+    out["angular"] = rise(run((0.0, w_max), 3.0)[:, 1], w_max)
+    del first
+    return out
+
+
+def declared_bounds(response: dict[str, float]) -> tuple[float, float]:
+    """Half of the measured linear (the smaller of speeding up and braking) and angular
+    accelerations, one decimal down: both at once stay within the wheels' torque."""
+    linear = min(response["accel"], response["decel"])
+    return (float(np.floor(5.0 * linear) / 10.0),
+            float(np.floor(5.0 * response["angular"]) / 10.0))
+
+
+def with_bounds(scenario: Scenario, bounds: tuple[float, float]) -> Scenario:
+    """The scenario declaring ``bounds`` (when this build's :class:`Bounds` has them)."""
+    if not HAS_ACCELERATION:
+        return scenario
+    a, b = bounds
+    return scenario.with_changes(bounds=dataclasses.replace(
+        scenario.bounds, acceleration=(-a, a), angular_acceleration=(-b, b)))
+
+
+def frozen_robots(record: RunRecord, clearances: np.ndarray, margin: float = 0.0) -> int:
+    """Robots commanding no speed for more than 2 s while their goal is more than 0.05 m
+    away and the way is clear (``clearances (K+1, n)``: each robot's smallest clearance
+    to the others and the obstacles, clear beyond ``margin`` + 0.3 m: the controller's
+    own margin is not free room)."""
+    window = int(np.ceil(FROZEN_SECONDS / record.scenario.sample_time)) + 1
+    err = np.linalg.norm(record.positions - record.references(), axis=-1)[:-1]
+    still = np.abs(record.inputs[..., 0]) <= STILL_SPEED
+    bad = still & (err > GOAL_TOLERANCE) & (clearances[:-1] > margin + CLEAR_M)
+    count = 0
+    for j in range(bad.shape[1]):
+        run = 0
+        for flag in bad[:, j]:
+            run = run + 1 if flag else 0
+            if run >= window:
+                count += 1
+                break
+    return count
+
+
+def robot_clearances(scenario: Scenario, states: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Each robot's smallest footprint clearance to the others and the obstacles,
+    ``(K+1, n)`` (``inf`` alone)."""
+    d = scenario.diameters()
+    p = states[..., :2]
+    gap = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1) - 0.5 * (d[:, None] + d)
+    n = d.size
+    gap[:, np.arange(n), np.arange(n)] = np.inf
+    out = gap.min(axis=2) if n > 1 else np.full(p.shape[:2], np.inf)
+    for o in scenario.obstacles:
+        c = o.position_at(t)[:, None, :]
+        out = np.minimum(out, np.linalg.norm(p - c, axis=-1) - 0.5 * (d + o.diameter))
+    return out
+
+
+def tolerance_of(ideal: RunRecord) -> float:
+    """Arrival tolerance: 0.05 m, or for references still moving at the end the largest
+    tracking error over the last tenth of the ideal-plant run."""
+    sc = ideal.scenario
+    t_end = ideal.t[-1]
+    if np.allclose(sc.reference_positions(t_end), sc.reference_positions(t_end - 1.0)):
+        return GOAL_TOLERANCE
+    tail = max(1, ideal.states.shape[0] // 10)
+    err = np.linalg.norm(ideal.positions - ideal.references(), axis=-1)[-tail:]
+    return max(GOAL_TOLERANCE, float(err.max()))
+
+
+def run_physical(scenario: Scenario, scheme: str, robot: PhysicalRobot, ideal: RunRecord
+                 ) -> dict[str, Any]:
+    """One physical run with its counts against the ideal-plant ``ideal``."""
+    started = time.perf_counter()
+    sim = PhysicalSimulation(scenario, scheme, robot=robot)
+    record = sim.run()
+    m = compute_metrics(record)
+    ref = compute_metrics(ideal)
+    tol = tolerance_of(ideal)
+    errors = [e for e in m["final_position_error"].values() if e is not None]
+    clear = robot_clearances(scenario, record.states, record.t)
+    return {
+        "overlaps": record.extra["overlap_steps"],
+        "obstacle_overlaps": record.extra["obstacle_overlap_steps"],
+        "min_clearance": record.extra["physics_min_clearance"],
+        "min_obstacle_clearance": record.extra["physics_min_obstacle_clearance"],
+        "arrived": sum(e <= tol for e in errors), "robots": scenario.n_robots,
+        "tolerance": tol, "max_error": max(errors),
+        "frozen": frozen_robots(record, clear, sim.controllers[0].pair_margin),
+        "brakes": sim.counters()["brake_fallbacks"],
+        "cost_ratio": m["closed_loop_cost"] / ref["closed_loop_cost"],
+        "wall_s": time.perf_counter() - started,
+    }
+
+
+def _mm(value: float | None) -> str:
+    return "-" if value is None else f"{1000 * value:.1f}"
+
+
+def _cells(r: dict[str, Any]) -> str:
+    obstacles = ("-" if r["min_obstacle_clearance"] is None
+                 else f"{r['obstacle_overlaps']} ({_mm(r['min_obstacle_clearance'])})")
+    return (f"{r['overlaps']} ({_mm(r['min_clearance'])}) | {obstacles} | "
+            f"{r['arrived']}/{r['robots']} | {r['max_error']:.3f} | {r['frozen']} | "
+            f"{r['brakes']} | {r['cost_ratio']:.3f} | {r['wall_s']:.0f}")
+
+
+HEADER = ("overlaps (min clearance mm) | obstacle overlaps (min mm) | arrived | largest final "
+          "error m | frozen | brake fallbacks | cost ratio | wall s")
+
+
+def _demand(response: dict[str, float], bounds: tuple[float, float]) -> float:
+    """Share of the robot's torque the declared box's corners need (<= 1: reachable)."""
+    linear = min(response["accel"], response["decel"])
+    if not np.isfinite(linear) or not np.isfinite(response["angular"]):
+        return float("inf")
+    return bounds[0] / linear + bounds[1] / response["angular"]
+
+
+def _failed(r: dict[str, Any]) -> list[str]:
+    """What a run missed: overlaps, frozen robots, arrivals."""
+    why = []
+    if r["overlaps"] or r["obstacle_overlaps"]:
+        worst = min(v for v in (r["min_clearance"], r["min_obstacle_clearance"])
+                    if v is not None)
+        why.append(f"{r['overlaps'] + r['obstacle_overlaps']} overlapping steps, down to "
+                   f"{_mm(worst)} mm")
+    if r["frozen"]:
+        why.append(f"{r['frozen']} frozen")
+    if r["arrived"] < r["robots"]:
+        why.append(f"{r['arrived']}/{r['robots']} arrived")
+    return why
+
+
+def _verdict(where: str, labels: list[str]) -> str:
+    bad = [x for x in labels if x]
+    head = (f"- Sweep, where the declared bounds {where}: {len(labels) - len(bad)} of "
+            f"{len(labels)} runs with 0 overlaps, none frozen, every robot arrived")
+    return head + (f"; not: {'; '.join(bad)}." if bad else ".")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark and write the report (``--no-write``: print only)."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.physical")
+    parser.add_argument("--scenarios", nargs="*", default=list(SCENARIOS))
+    parser.add_argument("--sweep-scenarios", nargs="*", default=list(SWEEP_SCENARIOS))
+    parser.add_argument("--no-write", action="store_true")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    nominal = PhysicalRobot()
+    response = step_response(nominal)
+    bounds = declared_bounds(response)
+    lines = [
+        "# Physical robots: MuJoCo robots with mass, motors and friction", "",
+        "Generated by `python -m benchmarks.physical` (the module docstring says what runs "
+        "and what is counted). " + machine_line(started), "",
+        "## The nominal robot", "",
+        f"{nominal.mass:g} kg chassis, wheels of {nominal.wheel_radius:g} m on a track of "
+        f"{nominal.track_fraction:g} x the diameter, {nominal.wheel_torque:g} N m per wheel, "
+        f"velocity servos with a {nominal.actuator_time_constant:g} s filter, friction "
+        f"{nominal.friction:g}, {1000 * nominal.physics_step:g} ms physics step. Its step "
+        f"responses: {response['accel']:.2f} m/s^2 speeding up, {response['decel']:.2f} "
+        f"m/s^2 braking, {response['angular']:.1f} rad/s^2 turning; it coasts "
+        f"{100 * response['coast']:.1f} cm when braking from 0.6 m/s and covers "
+        f"{response['first_sample']:.3f} m of a commanded 0.25 m in its first sample.", "",
+        f"Declared by every scenario below: `acceleration = [-{bounds[0]:g}, {bounds[0]:g}]`, "
+        f"`angular_acceleration = [-{bounds[1]:g}, {bounds[1]:g}]` (half of each measured "
+        "value: any combination of the two is then within the wheels' torque). "
+        + ("" if HAS_ACCELERATION else "**This build's controller has no acceleration "
+           "bounds (`[bounds] acceleration` is not in its scenario format): they are not "
+           "declared and the controller assumes velocities change at once.**"), "",
+        "## Nominal robot, built-in scenarios", "",
+        f"| scenario | scheme | {HEADER} |", "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    print("\n".join(lines), file=sys.stderr, flush=True)
+    failures = []
+    for name in args.scenarios:
+        sc = with_bounds(load_scenario(name), bounds)
+        for scheme in SCHEMES:
+            ideal = simulate(sc, scheme)
+            r = run_physical(sc, scheme, nominal, ideal)
+            lines.append(f"| {name} | {scheme} | {_cells(r)} |")
+            print(lines[-1], file=sys.stderr, flush=True)
+            why = _failed(r)
+            if r["cost_ratio"] > 1.2:
+                why.append(f"cost ratio {r['cost_ratio']:.2f}")
+            if why:
+                failures.append(f"{name} {scheme} ({', '.join(why)})")
+    lines += ["", "## Sweep: one parameter at a time from the nominal robot", "",
+              "*demand*: the share of the robot's torque a corner of the declared bounds "
+              "needs (linear / measured + angular / measured; <= 1: the bounds hold). "
+              "Measured accelerations from the same step responses.", "",
+              f"| parameter | value | speeding up / braking m/s^2 | turning rad/s^2 | demand | "
+              f"scenario | scheme | {HEADER} |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    holds: list[str] = []
+    fails: list[str] = []
+    ideals = {}
+    for name in args.sweep_scenarios:
+        sc = with_bounds(load_scenario(name), bounds)
+        ideals[name] = (sc, {s: simulate(sc, s) for s in SCHEMES})
+    for key, values in SWEEP.items():
+        for value in values:
+            robot = dataclasses.replace(nominal, **{key: value})
+            resp = step_response(robot)
+            demand = _demand(resp, bounds)
+            for name, (sc, ideal) in ideals.items():
+                for scheme in SCHEMES:
+                    r = run_physical(sc, scheme, robot, ideal[scheme])
+                    lines.append(
+                        f"| {key} | {value:g}{UNITS[key]} | {resp['accel']:.2f} / "
+                        f"{resp['decel']:.2f} | {resp['angular']:.1f} | {demand:.2f} | "
+                        f"{name} | {scheme} | {_cells(r)} |")
+                    print(lines[-1], file=sys.stderr, flush=True)
+                    why = _failed(r)
+                    label = f"{key} {value:g}{UNITS[key]} {name} {scheme} ({', '.join(why)})"
+                    (holds if demand <= 1.0 else fails).append(label if why else "")
+    nominal_runs = 2 * len(args.scenarios)
+    lines += ["", "## Verdict", "",
+              f"- Nominal robot: {nominal_runs - len(failures)} of {nominal_runs} runs with 0 "
+              "overlaps beyond 1 mm, every robot arrived, none frozen and the cost within "
+              "1.2x of the ideal plant" + (f"; not: {'; '.join(failures)}." if failures else "."),
+              _verdict("hold (demand <= 1)", holds), _verdict("do not hold (demand > 1)", fails),
+              "", f"Total wall time {time.perf_counter() - started:.0f} s.", ""]
+    publish("\n".join(lines), None if args.no_write else DOC_PATH)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

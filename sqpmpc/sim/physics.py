@@ -1,0 +1,372 @@
+r"""A physics plant: the scenario's robots as rigid bodies in MuJoCo (optional extra).
+
+``pip install 'sqpmpc[physics]'`` installs MuJoCo (one wheel, ``mujoco>=3,<4``);
+this module imports it only when a fleet is built and otherwise raises one
+:class:`~sqpmpc.errors.DependencyError` naming the extra.
+
+Every robot of the scenario becomes a differential-drive robot
+(:class:`PhysicalRobot`): a cylindrical chassis of the robot's diameter and
+``mass`` (its inertia from the shape), two wheels on a track of
+``track_fraction`` of the diameter, each driven by a velocity servo
+(torque :math:`\tau = k_v(\bar w - \dot\theta)` clipped to
+``wheel_torque``, the set point :math:`\bar w` a first-order filter of the
+command with time constant ``actuator_time_constant``), a frictionless front
+caster and a rear anti-tip caster 1 mm above the floor. The wheels grip the
+floor with Coulomb friction ``friction``; the physics step is
+``physics_step`` (2 ms). Robots and obstacles do not touch physically: their
+footprints (the scenario's circles) are checked after every physics step and
+the clearances recorded, so an overlap is measured, not hidden by a contact.
+
+The driver is a robot's: at every sample the controller's :math:`(v, \omega)`
+become wheel speeds :math:`w_{R,L} = (v \pm \omega b/2)/r` held over the
+sample; the true pose :math:`(x, y, \psi)` of the axle's midpoint and the
+measured velocities :math:`(v, \omega)` (the chassis' forward and yaw rates)
+are read back at the next sample (:class:`PhysicalSimulation`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.errors import DependencyError, ProblemError
+from sqpmpc.problem.obstacles import obstacle_positions
+from sqpmpc.problem.scenario import Scenario
+from sqpmpc.sim.record import RunRecord
+from sqpmpc.sim.simulation import ClosedLoopSimulation, Scheme, SimulationOptions
+
+__all__ = ["OVERLAP_TOLERANCE", "PhysicalRobot", "PhysicalSimulation", "PhysicsFleet",
+           "fleet_xml", "load_mujoco", "simulate_physical"]
+
+#: Clearance below which a physics step counts as an overlap, m (the QP's 1 mm margin).
+OVERLAP_TOLERANCE = 1e-3
+
+
+def load_mujoco() -> Any:
+    """The ``mujoco`` module, or a :class:`DependencyError` naming the extra."""
+    try:
+        import mujoco
+    except ImportError as exc:
+        raise DependencyError("the physics plant needs MuJoCo: install the 'physics' extra "
+                              "(pip install 'sqpmpc[physics]', i.e. mujoco>=3,<4)") from exc
+    return mujoco
+
+
+def _positive(name: str, value: object, unit: str) -> float:
+    if (isinstance(value, bool) or not isinstance(value, int | float | np.floating)
+            or not math.isfinite(value) or value <= 0):
+        raise ProblemError(f"PhysicalRobot.{name}: expected a finite number > 0 ({unit}), "
+                           f"got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class PhysicalRobot:
+    """The physical robot every robot of a scenario becomes.
+
+    Parameters
+    ----------
+    mass
+        Chassis mass, kg (each wheel adds ``wheel_mass``).
+    wheel_torque
+        Largest torque of each wheel's motor, N m.
+    friction
+        Coulomb friction coefficient of the wheels on the floor.
+    actuator_time_constant
+        Time constant of the first-order filter on each wheel's speed set point, s.
+    wheel_radius
+        m.
+    track_fraction
+        Distance between the wheels as a fraction of the robot's diameter.
+    servo_gain
+        :math:`k_v` of the wheel velocity servos, N m s/rad.
+    wheel_mass
+        kg, each.
+    wheel_armature
+        Reflected rotor inertia of each wheel's motor and gear, kg m^2.
+    physics_step
+        MuJoCo's time step, s (the sample time must be a multiple of it).
+    """
+
+    mass: float = 3.0
+    wheel_torque: float = 0.5
+    friction: float = 1.0
+    actuator_time_constant: float = 0.02
+    wheel_radius: float = 0.05
+    track_fraction: float = 0.8
+    servo_gain: float = 1.0
+    wheel_mass: float = 0.1
+    wheel_armature: float = 0.002
+    physics_step: float = 0.002
+
+    def __post_init__(self) -> None:
+        for name, unit in (("mass", "kg"), ("wheel_torque", "N m"), ("friction", "-"),
+                           ("actuator_time_constant", "s"), ("wheel_radius", "m"),
+                           ("track_fraction", "-"), ("servo_gain", "N m s/rad"),
+                           ("wheel_mass", "kg"), ("wheel_armature", "kg m^2"),
+                           ("physics_step", "s")):
+            object.__setattr__(self, name, _positive(name, getattr(self, name), unit))
+        if self.track_fraction >= 1.0:
+            raise ProblemError(f"PhysicalRobot.track_fraction: expected a number in (0, 1) (the "
+                               f"wheels inside the footprint), got {self.track_fraction!r}")
+
+    def substeps(self, sample_time: float) -> int:
+        """Physics steps per controller sample (``sample_time`` must be a multiple)."""
+        n = round(sample_time / self.physics_step)
+        if n < 1 or abs(n * self.physics_step - sample_time) > 1e-9 * max(sample_time, 1.0):
+            raise ProblemError(f"the sample time {sample_time} s is not a multiple of the "
+                               f"physics step {self.physics_step} s")
+        return n
+
+
+def fleet_xml(scenario: Scenario, robot: PhysicalRobot) -> str:
+    """The MJCF model of the scenario's robots at their initial poses (see module notes)."""
+    r, tau, kv = robot.wheel_radius, robot.actuator_time_constant, robot.servo_gain
+    mu = robot.friction
+    parts = [
+        '<mujoco model="sqpmpc-fleet">',
+        f'<option timestep="{robot.physics_step!r}" integrator="implicitfast"/>',
+        '<default><geom contype="2" conaffinity="1" solref="0.005 1"/></default>',
+        '<worldbody>',
+        '<geom name="floor" type="plane" size="0 0 1" contype="1" conaffinity="2" solref="0.005 1" '
+        f'friction="{mu!r} 0.0001 0.00001"/>',
+    ]
+    actuators = []
+    for spec in scenario.robots:
+        x, y, psi = spec.initial_state
+        radius = 0.5 * spec.diameter
+        half_track = 0.5 * robot.track_fraction * spec.diameter
+        caster = max(0.4 * r, 0.01)
+        reach = min(radius - caster, 0.8 * radius)
+        name = f"r{spec.id}"
+        quat = f"{math.cos(psi / 2)!r} 0 0 {math.sin(psi / 2)!r}"
+        parts += [
+            f'<body name="{name}" pos="{x!r} {y!r} {r!r}" quat="{quat}">',
+            '<freejoint/>',
+            # the chassis: no contact (footprints are checked, not collided)
+            f'<geom name="{name}_chassis" type="cylinder" size="{radius!r} 0.03" '
+            f'pos="0.02 0 0.01" mass="{robot.mass!r}" contype="0" conaffinity="0"/>',
+            f'<geom name="{name}_caster" type="sphere" size="{caster!r}" '
+            f'pos="{reach!r} 0 {caster - r!r}" mass="0.01" condim="1" priority="1"/>',
+            f'<geom name="{name}_skid" type="sphere" size="{caster!r}" '
+            f'pos="{-reach!r} 0 {caster - r + 0.001!r}" mass="0.01" condim="1" priority="1"/>',
+        ]
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            parts += [
+                f'<body name="{name}_{side}" pos="0 {sign * half_track!r} 0">',
+                f'<joint name="{name}_{side}" type="hinge" axis="0 1 0" '
+                f'armature="{robot.wheel_armature!r}"/>',
+                f'<geom type="cylinder" size="{r!r} 0.003" zaxis="0 1 0" '
+                f'mass="{robot.wheel_mass!r}" condim="3" friction="{mu!r} 0.0001 0.00001"/>',
+                '</body>',
+            ]
+            actuators.append(
+                f'<general joint="{name}_{side}" dyntype="filter" dynprm="{tau!r}" '
+                f'gaintype="fixed" gainprm="{kv!r}" biastype="affine" biasprm="0 0 {-kv!r}" '
+                f'forcelimited="true" forcerange="{-robot.wheel_torque!r} '
+                f'{robot.wheel_torque!r}"/>')
+        parts.append('</body>')
+    parts += ['</worldbody>', '<actuator>', *actuators, '</actuator>', '</mujoco>']
+    return "\n".join(parts)
+
+
+class PhysicsFleet:
+    """The scenario's robots in MuJoCo, stepped one controller sample at a time.
+
+    Parameters
+    ----------
+    scenario
+        The robots (diameters, initial states), obstacles and sample time.
+    robot
+        The physical robot (default :class:`PhysicalRobot`).
+
+    Attributes
+    ----------
+    pair_clearance, obstacle_clearance
+        Per physics step so far: the smallest footprint clearance between two
+        robots, and between a robot and an obstacle, m (``inf`` when there is
+        none); lists of floats.
+    """
+
+    def __init__(self, scenario: Scenario, robot: PhysicalRobot | None = None) -> None:
+        mj = load_mujoco()
+        self._mj = mj
+        self.robot = robot or PhysicalRobot()
+        self.scenario = scenario
+        self.spec = scenario.plant
+        self.substeps = self.robot.substeps(scenario.sample_time)
+        self.model = mj.MjModel.from_xml_string(fleet_xml(scenario, self.robot))
+        self.data = mj.MjData(self.model)
+        n = scenario.n_robots
+        body = [mj.mj_name2id(self.model, mj.mjtObj.mjOBJ_BODY, f"r{s.id}")
+                for s in scenario.robots]
+        self._qpos = np.array([self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in body])
+        self._qvel = np.array([self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in body])
+        d = scenario.diameters()
+        self._half_track = 0.5 * self.robot.track_fraction * d
+        iu = np.triu_indices(n, 1)
+        self._pairs = iu
+        self._required = 0.5 * (d[:, None] + d[None, :])[iu]
+        self._obstacles = scenario.obstacles
+        self._obstacle_required = 0.5 * (d[:, None] + np.array(
+            [o.diameter for o in scenario.obstacles]).reshape(1, -1))
+        self.pair_clearance: list[float] = []
+        self.obstacle_clearance: list[float] = []
+        mj.mj_forward(self.model, self.data)
+        self._settle()
+
+    def _settle(self) -> None:
+        """Let the robots come to rest on the floor (0.2 s, wheels held; time reset)."""
+        mj = self._mj
+        start = self.data.qpos.copy()
+        for _ in range(int(0.2 / self.robot.physics_step)):
+            mj.mj_step(self.model, self.data)
+        # keep the settled height and tilt, put x, y, yaw back exactly
+        q = self.data.qpos
+        for i, a in enumerate(self._qpos):
+            q[a:a + 2] = start[a:a + 2]
+            psi = self.scenario.robots[i].initial_state[2]
+            q[a + 3:a + 7] = (math.cos(psi / 2), 0.0, 0.0, math.sin(psi / 2))
+        self.data.qvel[:] = 0.0
+        self.data.act[:] = 0.0
+        self.data.time = 0.0
+        mj.mj_forward(self.model, self.data)
+
+    def poses(self) -> np.ndarray:
+        """True poses ``(n, 3)``: the axle midpoints and the headings."""
+        q = self.data.qpos
+        out = np.empty((self._qpos.size, 3))
+        for i, a in enumerate(self._qpos):
+            w, x, y, z = q[a + 3:a + 7]
+            out[i] = q[a], q[a + 1], math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        return out
+
+    def velocities(self) -> np.ndarray:
+        """Measured ``(v, omega)`` ``(n, 2)``: forward speed and yaw rate of each chassis."""
+        qv = self.data.qvel
+        psi = self.poses()[:, 2]
+        out = np.empty((self._qvel.size, 2))
+        for i, a in enumerate(self._qvel):
+            # free joint: linear velocity in the world frame, angular in the body frame
+            xmat = self.data.xmat[self.model.dof_bodyid[a]].reshape(3, 3)
+            out[i, 0] = qv[a] * math.cos(psi[i]) + qv[a + 1] * math.sin(psi[i])
+            out[i, 1] = float(xmat[2] @ qv[a + 3:a + 6])
+        return out
+
+    @property
+    def has_velocities(self) -> bool:
+        """Whether the controllers take the measured velocities: the scenario declares
+        acceleration bounds (CONTRACT 1c), so its robots have velocity states."""
+        return bool(getattr(self.scenario.bounds, "dynamic_limits", False))
+
+    def measure(self, states: np.ndarray) -> np.ndarray:
+        """What the robots' odometry gives the controllers: the poses ``states (n, 3)``,
+        with the measured velocities appended ``(n, 5)`` when :attr:`has_velocities`."""
+        if not self.has_velocities:
+            return states
+        return np.concatenate((states, self.velocities()), axis=1)
+
+    def wheel_speeds(self, inputs: np.ndarray) -> np.ndarray:
+        """The driver's wheel speed commands ``(n, 2)`` (left, right), rad/s, of ``(v, omega)``."""
+        v, w = inputs[:, 0], inputs[:, 1]
+        r = self.robot.wheel_radius
+        return np.stack(((v - w * self._half_track) / r, (v + w * self._half_track) / r), axis=1)
+
+    def _clearances(self) -> None:
+        p = self.data.qpos[self._qpos[:, None] + np.arange(2)]
+        if self._required.size:
+            i, j = self._pairs
+            gap = np.hypot(p[i, 0] - p[j, 0], p[i, 1] - p[j, 1]) - self._required
+            self.pair_clearance.append(float(gap.min()))
+        else:
+            self.pair_clearance.append(math.inf)
+        if self._obstacles:
+            o = obstacle_positions(self._obstacles, self.data.time)
+            gap = np.hypot(p[:, None, 0] - o[None, :, 0], p[:, None, 1] - o[None, :, 1])
+            self.obstacle_clearance.append(float((gap - self._obstacle_required).min()))
+        else:
+            self.obstacle_clearance.append(math.inf)
+
+    def step(self, states: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hold ``inputs (n, 2)`` for one sample; the true poses after it and the commands.
+
+        ``states`` (what the controllers measured) is not used: the bodies hold the
+        true state. The footprint clearances are recorded after every physics step.
+        """
+        u = np.asarray(inputs, dtype=float)
+        self.data.ctrl[:] = self.wheel_speeds(u).ravel()
+        for _ in range(self.substeps):
+            self._mj.mj_step(self.model, self.data)
+            self._clearances()
+        return self.poses(), u.copy()
+
+
+class PhysicalSimulation(ClosedLoopSimulation):
+    """:class:`~sqpmpc.sim.simulation.ClosedLoopSimulation` on a :class:`PhysicsFleet`.
+
+    The controllers, plan exchange and record are the in-process loop's; only the
+    plant differs. The scenario's ``[plant]`` section is the controller's model
+    of the robot (its margins); the robots move by the physics.
+
+    Parameters
+    ----------
+    scenario, scheme, settings, options
+        As for :class:`~sqpmpc.sim.simulation.ClosedLoopSimulation`.
+    robot
+        The physical robot (default :class:`PhysicalRobot`).
+
+    Attributes
+    ----------
+    velocities
+        ``(K+1, n, 2)`` measured :math:`(v, \\omega)` at every sample.
+    fleet
+        The :class:`PhysicsFleet` (its per-physics-step clearances).
+    """
+
+    def __init__(self, scenario: Scenario, scheme: Scheme,
+                 settings: SolverSettings | None = None,
+                 options: SimulationOptions | None = None,
+                 robot: PhysicalRobot | None = None) -> None:
+        super().__init__(scenario, scheme, settings, options)
+        self.fleet = PhysicsFleet(self.scenario, robot)
+        self.plant = self.fleet
+        self.states[0] = self.fleet.poses()
+        self.velocities = np.zeros((self.scenario.steps + 1, self.scenario.n_robots, 2))
+
+    def step(self) -> None:
+        """Advance one sample; then read the measured velocities."""
+        super().step()
+        self.velocities[self.k] = self.fleet.velocities()
+
+    def physics_metrics(self) -> dict[str, Any]:
+        """Clearances at every physics step so far: the smallest robot-robot and
+        robot-obstacle clearances (m, ``None`` when there is no pair / obstacle) and the
+        physics steps below :data:`OVERLAP_TOLERANCE` (``overlap_steps``,
+        ``obstacle_overlap_steps``)."""
+        out: dict[str, Any] = {"physics_steps": len(self.fleet.pair_clearance)}
+        for key, values in (("", self.fleet.pair_clearance),
+                            ("obstacle_", self.fleet.obstacle_clearance)):
+            arr = np.asarray(values)
+            finite = arr[np.isfinite(arr)]
+            out[f"physics_min_{key}clearance"] = float(finite.min()) if finite.size else None
+            out[f"{key}overlap_steps"] = int(np.count_nonzero(finite < -OVERLAP_TOLERANCE))
+        return out
+
+    def record(self) -> RunRecord:
+        """The loop's record with :meth:`physics_metrics` in ``extra``."""
+        rec = super().record()
+        rec.extra.update(self.physics_metrics())
+        rec.extra["plant_discretization"] = "mujoco"
+        return rec
+
+
+def simulate_physical(scenario: Scenario, scheme: Scheme,
+                      settings: SolverSettings | None = None,
+                      options: SimulationOptions | None = None,
+                      robot: PhysicalRobot | None = None) -> RunRecord:
+    """Run a whole closed loop on the physics plant; see :class:`PhysicalSimulation`."""
+    return PhysicalSimulation(scenario, scheme, settings, options, robot).run()
