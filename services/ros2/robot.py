@@ -80,6 +80,8 @@ log = logging.getLogger(__name__)
 
 ROW_MARGIN_FACTOR = 3.0
 """The QP's collision margin is at least this many times ``--ros2-margin``."""
+WATCH_PERIOD = 0.01
+"""How often the watchdog thread looks at the odometry's age, s."""
 STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
 PUBLISH_SLACK = 0.005
@@ -144,6 +146,7 @@ class Ros2Robot(Node):
         self._frame = ("odom", "base_link")
         self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
         self._braked = False
+        self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
         connect = args.ros2_connect if args.ros2_connect is not None else [
@@ -224,7 +227,10 @@ class Ros2Robot(Node):
             else:
                 self.cmd_pub.publish(twist)
             self._sent.append((at, float(v), float(omega)))
-            del self._sent[:-16]
+            with self._lock:  # the commands since the newest odometry (own_state needs all)
+                t0 = -math.inf if self._odom is None else self._odom[0]
+            if len(self._sent) > 16 and self._sent[0][0] < t0:
+                self._sent = [c for c in self._sent if c[0] >= t0] or self._sent[-1:]
             if v == 0.0 and omega == 0.0:
                 self.counts["zero_commands"] += 1
 
@@ -251,16 +257,32 @@ class Ros2Robot(Node):
             self.publish_plan(sample, now, np.repeat(state[None], N + 1, axis=0),
                               np.zeros((N, 2)))
 
+    def _stop_if_stale(self) -> bool:
+        """Command zero at once if the odometry is stale and the robot is not braked yet
+        (the watchdog thread and the main loop); ``True`` if it did."""
+        with self._cmd_lock:
+            now = time.time()
+            if self._braked or self.odometry_age(now) <= self.odom_timeout:
+                return False
+            self._braked = True
+            self.counts["stale_odometry"] += 1
+            self.command(0.0, 0.0, now)
+        log.warning("%s: odometry %.3f s old: commanding zero", self.name,
+                    self.odometry_age(now))
+        return True
+
+    def _watchdog(self) -> None:
+        """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale,
+        whatever the main loop is doing (a long step, a stalled process)."""
+        while not self.stop.wait(WATCH_PERIOD) and not self._done:
+            self._stop_if_stale()
+
     def _watch(self, until: float, sample: int) -> None:
-        """Handle events until wall time ``until``; brake at once if the odometry goes
-        stale."""
+        """Handle events until wall time ``until``; when the odometry has gone stale,
+        publish a plan standing where the robot stopped."""
         while not self.stop.is_set():
             now = time.time()
-            if not self._braked and self.odometry_age(now) > self.odom_timeout:
-                self._braked = True
-                self.counts["stale_odometry"] += 1
-                log.warning("%s: odometry %.3f s old: commanding zero", self.name,
-                            self.odometry_age(now))
+            if self._stop_if_stale():
                 self.brake(now, sample)
             if now >= until:
                 return
@@ -287,6 +309,9 @@ class Ros2Robot(Node):
         # its own phase: no two robots' instants line up
         T0 = max(time.time() + self.lead, epoch) + random.random() * self.Ts
         k, end = 0, epoch + self.scenario.t_end
+        watchdog = threading.Thread(target=self._watchdog, name="odometry-watchdog",
+                                    daemon=True)
+        watchdog.start()
         try:
             while not self.stop.is_set():
                 Tk = T0 + k * self.Ts
@@ -307,6 +332,7 @@ class Ros2Robot(Node):
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
         finally:
+            self._done = True
             self.command(0.0, 0.0, time.time())
         counts = {**self.counts, "plans_received": self.neighbours.received,
                   "plans_refused": self.neighbours.refused}
@@ -385,11 +411,11 @@ class Ros2Robot(Node):
                 self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0),
                                   np.zeros((N, 2)))
             self._watch(Tk, k)
-            if self._braked:  # the odometry went stale meanwhile: the zero stands
-                return
-            with self._cmd_lock:
+            with self._cmd_lock:  # the watchdog cannot stop it in between
+                if self._braked:  # the odometry went stale meanwhile: the zero stands
+                    return
                 sent.set()
-            self.command(float(u[0]), float(u[1]), time.time())
+                self.command(float(u[0]), float(u[1]), time.time())
             self.counts["samples"] += 1
         finally:
             timer.cancel()
