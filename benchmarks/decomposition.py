@@ -87,7 +87,7 @@ class OraclePredictionSimulation(ClosedLoopSimulation):
             xs, us = plan.predicted_states[j], plan.predicted_inputs[j]
             message = PlanMessage(controller.robot_id, k - 1, np.vstack((xs[:1], xs[:N])),
                                   us.copy())
-            self._plans[controller.robot_id] = message
+            self.neighbour_plans[controller.robot_id] = message
             controller.published = message
 
 

@@ -153,8 +153,8 @@ def _receive(sample_time: float, samples: int, mode: str) -> dict[str, float]:
                 node.wait_until(lambda k=k, needed=needed: all(
                     node.plans.has(i, k - 1) for i in needed), 1.0)
             plans = node.plans_for(k, states)
-            c._select_neighbours(states)  # the controller's slots, as its step fills them
-            reads += sum(plans.get(jid) is not None for _, jid in c._neighbours)
+            c.select_neighbours(states)  # the controller's slots, as its step fills them
+            reads += sum(plans.get(jid) is not None for _, jid in c.slot_data.neighbours)
             node.plans.prune(k - 2)
         node.wait_until(lambda: False, 2 * PERIOD)  # the last sample's plans
         cpu, thread = time.process_time() - p0, time.thread_time() - t0

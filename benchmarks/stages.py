@@ -32,8 +32,11 @@ from .compare_ipopt import machine_info
 
 __all__ = ["main", "stage_times"]
 
-STAGES = ("_predict_neighbours", "shape_references", "shift", "shape_guess", "solve",
-          "after_solve", "_verify", "_count", "_publish")
+STAGES = ("predict_neighbours", "shape_references", "shift", "shape_guess", "solve",
+          "after_solve", "verify", "count", "publish")
+#: the rule hooks (:data:`sqpmpc.rules.base.HOOKS`) timed, by the method that implements them
+HOOK_METHODS = {"references": "shape_references", "guess": "shape_guess",
+                "after_solve": "after_solve"}
 
 
 def _timed(fn: Callable[..., object], log: list[float]) -> Callable[..., object]:
@@ -52,10 +55,8 @@ def stage_times(scenario: str, scheme: str) -> dict[str, np.ndarray]:
     sim = ClosedLoopSimulation(load_scenario(scenario), scheme)
     ctrl: ControllerPipeline = sim.controllers[0]
     logs: dict[str, list[float]] = {name: [] for name in STAGES}
-    ctrl._predict_neighbours = _timed(ctrl._predict_neighbours, logs["_predict_neighbours"])
-    ctrl._verify = _timed(ctrl._verify, logs["_verify"])
-    ctrl._count = _timed(ctrl._count, logs["_count"])
-    ctrl._publish = _timed(ctrl._publish, logs["_publish"])
+    for step in ("predict_neighbours", "verify", "count", "publish"):  # the pipeline's steps
+        setattr(ctrl, step, _timed(getattr(ctrl, step), logs[step]))
     ctrl.engine.shift = _timed(ctrl.engine.shift, logs["shift"])
     qp_log: list[float] = []
     solve = ctrl.engine.solve
@@ -67,9 +68,9 @@ def stage_times(scenario: str, scheme: str) -> dict[str, np.ndarray]:
 
     ctrl.engine.solve = _timed(solve_and_log_qp, logs["solve"])
     for rule in ctrl.rules:
-        for hook in ("shape_references", "shape_guess", "after_solve"):
-            if hook in type(rule).__dict__:
-                setattr(rule, hook, _timed(getattr(rule, hook), logs[hook]))
+        for hook, method in HOOK_METHODS.items():
+            if hook in rule.hooks:
+                setattr(rule, method, _timed(getattr(rule, method), logs[method]))
     samples: dict[str, list[float]] = {name: [] for name in STAGES}
     samples.update({"QP update + solve": [], "whole sample": []})
     while sim.k < sim.scenario.steps:

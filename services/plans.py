@@ -4,10 +4,11 @@ A decentralized robot with neighbour slots
 (:attr:`sqpmpc.control.settings.SolverSettings.neighbour_slots`) reads, at sample
 ``k``, the plans (of ``k - 1``) of the neighbours it gives a slot: the
 ``slots`` nearest within the interaction radius ``d + margin + 2 v_max N Ts``
-(:meth:`sqpmpc.control.decentralized.DecentralizedController._select_neighbours`). Every
+(:class:`sqpmpc.control.neighbours.NeighbourSelector`). Every
 other plan of the fleet is traffic it pays for and never uses.
 
-- The sender filters (:func:`recipients`): after its step at ``k`` a robot
+- The sender filters (:func:`recipients`, the sender's
+  :meth:`~sqpmpc.control.neighbours.NeighbourSelector.recipients`): after its step at ``k`` a robot
   sends its plan to each robot that may give it a slot at ``k + 1``, on
   ``robot/<id>/plan/<to>``; between two samples a distance changes by at most
   ``2 v_max Ts``, so the states of ``k`` bound the selection of ``k + 1``. A
@@ -36,8 +37,8 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 import numpy as np
 
 from sqpmpc.control.decentralized import DecentralizedController
+from sqpmpc.control.neighbours import recipients
 from sqpmpc.control.plans import PlanMessage
-from sqpmpc.kernels.collision import nearest_within
 
 from .messages import InvalidMessage, PlanMsg, peek_plan
 from .protocol import AcceptancePolicy, Verdict
@@ -48,65 +49,14 @@ __all__ = ["PlanStore", "StepPlans", "recipients", "slotted"]
 log = logging.getLogger(__name__)
 
 
-def slotted(states: np.ndarray, controller: DecentralizedController, chosen: np.ndarray,
-            rest: np.ndarray) -> list[int]:
+def slotted(states: np.ndarray, controller: DecentralizedController) -> list[int]:
     """Ids of the neighbours ``controller`` gives a slot at ``states`` (nearest first).
 
-    The same kernel call as the controller's selection
-    (:meth:`~sqpmpc.control.decentralized.DecentralizedController._select_neighbours`), on
-    the caller's scratch arrays ``chosen (slots,)`` and ``rest (n - 1,)``, so
-    the set is exactly the one the controller's step will read plans of.
+    The controller's own selection
+    (:meth:`sqpmpc.control.neighbours.NeighbourSelector.slotted_ids`), so the set
+    is exactly the one the controller's step will read plans of.
     """
-    c = controller
-    positions = np.ascontiguousarray(states[:, :2])
-    used, _ = nearest_within(positions[c.index], positions, c.others, c.interaction_radius,
-                             chosen, rest)
-    return [int(i) for i in c.other_ids[chosen[:used]]]
-
-
-def recipients(states: np.ndarray, index: int, radius: np.ndarray, slots: int,
-               step: float) -> np.ndarray:
-    """Indices of the robots that may give robot ``index`` a slot at the next sample.
-
-    Robot ``i`` selects at sample ``k + 1`` the ``slots`` nearest neighbours
-    within ``radius[i, l]``. Between two samples a distance changes by at most
-    ``step`` (both robots move at most ``v_max Ts``). So from the states
-    ``(n, 3)`` of sample ``k`` alone, robot ``index`` (the sender ``j``) is
-    certainly *not* in ``i``'s slots at ``k + 1`` when it cannot be within
-    reach (``d_ij - step > radius[i, j]``), or when at least ``slots`` others
-    ``l`` are certainly within reach (``d_il + step <= radius[i, l]``) and
-    certainly nearer (``d_il + step < d_ij - step``). Every other robot is a
-    recipient. The bounds are widened by a relative ``1e-9`` against rounding.
-
-    Parameters
-    ----------
-    states
-        Everyone's states at sample ``k`` (scenario order).
-    index
-        The sender's index.
-    radius
-        ``(n, n)`` interaction radii ``d_il + margin + 2 v_max N Ts``.
-    slots
-        Slots per robot (at least the number of others: no limit).
-    step
-        ``2 v_max Ts``, m.
-    """
-    n = states.shape[0]
-    p = states[:, :2]
-    dist = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
-    tol = 1e-9
-    lo, hi = step * (1.0 + tol) + 1e-12, radius[index] * (1.0 + tol) + 1e-12
-    d = dist[index]
-    may = d - lo <= hi
-    may[index] = False
-    cand = np.flatnonzero(may)
-    if slots >= n - 1 or cand.size == 0:
-        return cand
-    rows = dist[cand]  # (m, n): candidate receiver i to every l
-    sure = (rows + lo <= radius[cand] * (1.0 - tol)) & (rows + lo < (d[cand] - lo)[:, None])
-    sure[np.arange(cand.size), cand] = False
-    sure[:, index] = False
-    return cand[sure.sum(axis=1) < slots]
+    return controller.selector.slotted_ids(states)
 
 
 def _as_plan(msg: PlanMsg) -> PlanMessage:

@@ -66,7 +66,7 @@ from .node import (
     session_lost,
     setup_logging,
 )
-from .plans import PlanStore, StepPlans, recipients, slotted
+from .plans import PlanStore, StepPlans, slotted
 from .ros2.options import add_ros2_arguments
 from .ros2.robot import main_ros2
 
@@ -106,13 +106,6 @@ class RobotNode(ControllerNode):
                           and not options.all_plans)  # the settings as resolved for this scenario
         self.plans = PlanStore(self.validator, self.neighbours, self.policy,
                                lambda: self.cursor.sample, lazy=self.filtering)
-        c = self.controller
-        self._chosen = np.zeros(c.slots, dtype=np.int64)
-        self._rest = np.zeros(c.others.size, dtype=np.int64)
-        v_max = c.context.max_speed
-        self._radius = (scenario.required_distances() + settings.collision_margin
-                        + 2.0 * v_max * scenario.horizon * scenario.sample_time)
-        self._step = 2.0 * v_max * scenario.sample_time
         self.addressed = 0  # plans sent on robot/<id>/plan/<to>
         self.step_lock: AbstractContextManager[object] = nullcontext()
         self.fallback_samples = 0
@@ -158,7 +151,7 @@ class RobotNode(ControllerNode):
         """
         if not self.filtering:
             return self.neighbours
-        return slotted(states, self.controller, self._chosen, self._rest)
+        return slotted(states, self.controller)
 
     def plans_for(self, sample: int, states: np.ndarray | None = None) -> StepPlans:
         """Per alive neighbour (those given a slot at ``states`` when filtering), the
@@ -171,12 +164,12 @@ class RobotNode(ControllerNode):
 
     def publish_plan(self, msg: PlanMsg, states: np.ndarray) -> None:
         """Publish this robot's plan on its key and, when filtering, to every robot that
-        may give it a slot at the next sample (:func:`~services.plans.recipients`)."""
+        may give it a slot at the next sample (the controller's
+        :meth:`~sqpmpc.control.neighbours.NeighbourSelector.recipients`)."""
         payload = encode(msg)
         self.sent(payload, "robot", self.robot_id, "plan")
         if self.filtering:
-            c = self.controller
-            for j in recipients(states, c.index, self._radius, c.slots, self._step):
+            for j in self.controller.selector.recipients(states):
                 self.sent(payload, "robot", self.robot_id, "plan", int(self.ids[j]))
                 self.addressed += 1
 

@@ -47,6 +47,7 @@ _EXPORTS: dict[str, str] = {
     "load_scenario": "problem.scenario_file",
     "parse_scenario": "problem.scenario_file",
     "Obstacle": "problem.obstacles",
+    "PolygonObstacle": "problem.polygons",
     "Plant": "problem.plant",
     "PlantSpec": "problem.plant",
     "antipodal_swap": "problem.fleets",
@@ -101,6 +102,7 @@ __all__ = [
     "load_scenario",
     "parse_scenario",
     "Obstacle",
+    "PolygonObstacle",
     "Plant",
     "PlantSpec",
     "antipodal_swap",
@@ -154,6 +156,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid, random_crossings
     from sqpmpc.problem.obstacles import Obstacle
     from sqpmpc.problem.plant import Plant, PlantSpec
+    from sqpmpc.problem.polygons import PolygonObstacle
     from sqpmpc.problem.references import (
         HarmonicReference,
         PointReference,

@@ -8,9 +8,9 @@ from sqpmpc.control.centralized import CentralizedController
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import parse_scenario
-from sqpmpc.rules.base import SampleView
+from sqpmpc.rules.base import Contribution, RuleInstance, SampleView
 
-__all__ = ["fleet", "only", "view"]
+__all__ = ["fleet", "guess", "only", "shape", "view"]
 
 
 def fleet(starts: list[list[float]], goals: list[list[float]], horizon: int = 8,
@@ -37,6 +37,19 @@ def view(ctrl: CentralizedController, states: np.ndarray, applied: np.ndarray | 
                       refs, refs, zeros if applied is None else applied,
                       zeros if applied_before is None else applied_before,
                       np.ascontiguousarray(states[:, 2]))
+
+
+def shape(ctrl: CentralizedController, inst: RuleInstance, v: SampleView) -> SampleView:
+    """The view after ``inst``'s ``"references"`` hook, its contribution applied by ``ctrl``."""
+    return ctrl.apply(inst.shape_references(v), v)
+
+
+def guess(inst: RuleInstance, v: SampleView, speeds: np.ndarray) -> Contribution | None:
+    """``inst``'s ``"guess"`` hook on ``speeds (m, N)``, which get its new speeds."""
+    out = inst.shape_guess(v.but(guess_speeds=speeds.copy()))
+    if out is not None and out.guess_speeds is not None:
+        speeds[...] = out.guess_speeds
+    return out
 
 
 def only(*names: str) -> SolverSettings:

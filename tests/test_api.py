@@ -15,11 +15,12 @@ import pytest
 import sqpmpc
 from sqpmpc.models.unicycle import discrete_dynamics
 from sqpmpc.problem.scenario_file import (
-    _OBSTACLE_KEYS,
-    _OPTIONAL_TOP_KEYS,
-    _PLANT_KEYS,
-    _ROBOT_KEYS,
-    _TOP_KEYS,
+    OBSTACLE_KEYS,
+    OPTIONAL_TOP_KEYS,
+    PLANT_KEYS,
+    POLYGON_KEYS,
+    ROBOT_KEYS,
+    TOP_KEYS,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,13 +31,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_every_public_name_resolves_to_the_defining_module() -> None:
     exported = [n for n in sqpmpc.__all__ if n != "__version__"]
-    assert sorted(exported) == sorted(sqpmpc._EXPORTS)
     assert len(set(sqpmpc.__all__)) == len(sqpmpc.__all__)
     for name in exported:
         value = getattr(sqpmpc, name)
-        module = sys.modules[f"sqpmpc.{sqpmpc._EXPORTS[name]}"]
-        assert getattr(module, name) is value
-        assert name in module.__all__, f"{name} is public but not in {module.__name__}.__all__"
+        defining = [m for key, m in list(sys.modules.items()) if key.startswith("sqpmpc.")
+                    and name in getattr(m, "__all__", ()) and getattr(m, name, None) is value]
+        assert defining, f"{name} is public but in no sqpmpc module's __all__"
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         _ = sqpmpc.nope
 
@@ -53,10 +53,13 @@ def test_constructor_keywords_are_the_scenario_file_keys() -> None:
     def keywords(cls: type) -> set[str]:
         return set(inspect.signature(cls).parameters)
 
-    assert keywords(sqpmpc.Scenario) - {"source"} == set(_TOP_KEYS + _OPTIONAL_TOP_KEYS)
-    assert keywords(sqpmpc.Obstacle) == set(_OBSTACLE_KEYS)
-    assert keywords(sqpmpc.PlantSpec) == set(_PLANT_KEYS)
-    assert keywords(sqpmpc.RobotSpec) == set(_ROBOT_KEYS)
+    # polygons are the file's [[obstacles]] tables with points (CONTRACT 1d)
+    assert keywords(sqpmpc.Scenario) - {"source", "polygons"} == set(
+        TOP_KEYS + OPTIONAL_TOP_KEYS)
+    assert keywords(sqpmpc.Obstacle) == set(OBSTACLE_KEYS)
+    assert keywords(sqpmpc.PolygonObstacle) == set(POLYGON_KEYS)
+    assert keywords(sqpmpc.PlantSpec) == set(PLANT_KEYS)
+    assert keywords(sqpmpc.RobotSpec) == set(ROBOT_KEYS)
     assert keywords(sqpmpc.Weights) == {"Q", "R"}
     assert keywords(sqpmpc.Bounds) == {"v", "omega", "x", "y", "acceleration",
                                        "angular_acceleration"}

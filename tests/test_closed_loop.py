@@ -215,9 +215,9 @@ def test_centralized_check_refuses_passing_through_between_samples() -> None:
     swapped = np.array([[0.2, 0.0, 0.0], [-0.2, 0.0, np.pi]])  # both ends 0.4 m > D apart
     assert np.linalg.norm(swapped[0, :2] - swapped[1, :2]) > D
     inputs = np.array([[0.4, 0.0], [0.4, 0.0]])  # the Euler plant: no path deviation
-    assert not ctrl._safe(now, swapped, inputs)
+    assert not ctrl.first_input_safe(now, swapped, inputs)
     sidestep = np.array([[-0.2, 0.0, 0.0], [0.2, 0.5, np.pi]])
-    assert ctrl._safe(now, sidestep, inputs)
+    assert ctrl.first_input_safe(now, sidestep, inputs)
 
 
 def test_centralized_controller_refuses_bad_state_shapes() -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks.decomposition import OraclePredictionSimulation
-from sqpmpc.control import decentralized as controllers
+from sqpmpc.control import decentralized
 from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.ocp.collision_rows import SHARED
@@ -25,13 +25,13 @@ def test_oracle_plans_reach_every_robot_unshifted() -> None:
     plan = sim.oracle.step(sim.t[k], x)
     sim.hand_out(k, plan)
     for j, c in enumerate(sim.controllers):
-        c._predict_neighbours(k, x, sim._plans, sim.states[k - 1])
+        c.predict_neighbours(k, x, sim.neighbour_plans, sim.states[k - 1])
         assert c.collisions.kind.tolist() == [SHARED] * (sim.scenario.n_robots - 1)
         # predictions of stages 1..N
-        np.testing.assert_allclose(c._own_prediction, plan.predicted_states[j][1:], rtol=0,
+        np.testing.assert_allclose(c.own_prediction, plan.predicted_states[j][1:], rtol=0,
                                    atol=1e-12)
         for e, other in enumerate(c.others):
-            np.testing.assert_allclose(c._other_predictions[e],
+            np.testing.assert_allclose(c.slot_data.predictions[e],
                                        plan.predicted_states[other][1:], rtol=0, atol=1e-12)
     sim.step()
     assert compute_metrics(sim.record())["collisions"] == 0
@@ -39,7 +39,7 @@ def test_oracle_plans_reach_every_robot_unshifted() -> None:
 
 def test_paper_mode_warns_once(caplog: pytest.LogCaptureFixture,
                                monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(controllers, "_paper_mode_warned", False)
+    monkeypatch.setattr(decentralized, "paper_mode_warned", False)
     sc = load_scenario("head-on")
     with caplog.at_level(logging.WARNING, logger="sqpmpc.control.decentralized"):
         DecentralizedController(sc, 1, mode="paper")

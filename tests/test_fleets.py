@@ -15,7 +15,7 @@ from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario, parse_scenario
 
 
-def _checks(sc: Scenario) -> None:
+def _checks(sc: Scenario, trips: float = 3.0) -> None:
     """Generated scenarios are valid files: round trip, no overlap, arrival time."""
     assert parse_scenario(__import__("tomllib").loads(sc.to_toml())) == sc
     x0 = sc.initial_states()[:, :2]
@@ -26,8 +26,8 @@ def _checks(sc: Scenario) -> None:
     assert np.all(np.hypot(*(x0[:, None] - x0[None]).transpose(2, 0, 1))[off] > D[off])
     assert np.all(np.hypot(*(goals[:, None] - goals[None]).transpose(2, 0, 1))[off] > D[off])
     trip = np.hypot(*(goals - x0).T).max()
-    assert sc.t_end >= 3.0 * trip / 0.6 - 1e-9
-    assert sc.t_end < 3.0 * trip / 0.6 + sc.sample_time + 1e-9
+    assert sc.t_end >= trips * trip / 0.6 - 1e-9
+    assert sc.t_end < trips * trip / 0.6 + sc.sample_time + 1e-9
 
 
 @pytest.mark.parametrize("n", [2, 6, 16, 64])
@@ -53,12 +53,12 @@ def test_random_crossings_are_seeded_and_spaced() -> None:
     a, b = random_crossings(32, seed=3), random_crossings(32, seed=3)
     assert a == b and a.name == "crossings-32-3"
     assert random_crossings(32, seed=4) != a
-    _checks(a)
+    _checks(a, trips=6.0)
 
 
 def test_grid_flows_cross() -> None:
     sc = grid_to_grid(3, 4)
-    _checks(sc)
+    _checks(sc, trips=6.0)
     x0, goals = sc.initial_states()[:, :2], sc.reference_positions(0.0)
     assert np.all(x0[:, 0] < 0) and np.all(goals[:, 0] > 0)
     np.testing.assert_allclose(goals[:, 1], -x0[:, 1], atol=1e-12)  # mirrored

@@ -43,7 +43,7 @@ from sqpmpc.problem.scenario import (
     MIN_SAMPLE_TIME,
     Scenario,
 )
-from sqpmpc.problem.scenario_file import _parse_text, load_scenario
+from sqpmpc.problem.scenario_file import load_scenario, parse_scenario_text
 
 EXAMPLES = int(os.environ.get("SQPMPC_FUZZ_EXAMPLES", "1000"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
@@ -203,7 +203,7 @@ def _dump(data: dict) -> str:
 def _check_scenario_text(text: str | bytes) -> None:
     raw = text.encode() if isinstance(text, str) else text
     try:
-        scenario = _parse_text(raw, "fuzz.toml")
+        scenario = parse_scenario_text(raw, "fuzz.toml")
     except ScenarioError as exc:
         assert str(exc).startswith("fuzz.toml")
         return
@@ -266,7 +266,7 @@ def test_too_many_robots_are_refused_by_count(count):
         r = {**robot, "id": i + 1, "initial_state": [float(i), 0.0, 0.0]}
         lines.append("[[robots]]\n" + "\n".join(f"{k} = {_toml(v)}" for k, v in r.items()))
     try:
-        _parse_text("\n".join(lines).encode(), "fuzz.toml")
+        parse_scenario_text("\n".join(lines).encode(), "fuzz.toml")
     except ScenarioError as exc:
         assert exc.key == "robots" and str(MAX_ROBOTS) in str(exc)
     else:

@@ -31,7 +31,7 @@ def test_the_margin_grows_with_the_age_of_the_newest_plan():
         for c in ctrl.values():
             c.step(k, k * ts, x, plans)
         # robot 1's margins at step k: robot 2's newest plan is of sample min(k - 1, 1)
-        margins = dict(zip([jid for _, jid in ctrl[1]._neighbours],
+        margins = dict(zip([jid for _, jid in ctrl[1].slot_data.neighbours],
                            ctrl[1].collisions.age_margin, strict=True))
         assert margins[2] == pytest.approx(v_max * ts * min(max(k - 2, 0), horizon))
         assert margins[3] == margins[4] == 0.0
@@ -94,8 +94,8 @@ def test_both_robots_of_a_pair_build_the_same_row_whatever_the_delays():
         ages = {c.robot_id: dict(c.plan_ages) for c in ctrl if c.plan_ages}
         for a in range(n):
             for b in range(a + 1, n):
-                ea = dict((j, e) for e, j in ctrl[a]._neighbours)[ids[b]]
-                eb = dict((j, e) for e, j in ctrl[b]._neighbours)[ids[a]]
+                ea = dict((j, e) for e, j in ctrl[a].slot_data.neighbours)[ids[b]]
+                eb = dict((j, e) for e, j in ctrl[b].slot_data.neighbours)[ids[a]]
                 ca, cb = ctrl[a].collisions, ctrl[b].collisions
                 if not (ca.kind[ea] == SHARED and cb.kind[eb] == SHARED):
                     continue

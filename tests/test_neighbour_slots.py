@@ -31,9 +31,9 @@ def test_slots_hold_the_nearest_neighbours_within_the_interaction_radius() -> No
     radius = ctrl.interaction_radius
     # 0.3 m + margin + 2 x 0.6 m/s x 8 x 0.5 s = 5.101 m: robots at 20 m and 40 m are out
     np.testing.assert_allclose(radius, 0.3 + 0.001 + 4.8)
-    ctrl._predict_neighbours(0, states, {}, None)
+    ctrl.predict_neighbours(0, states, {}, None)
     assert ctrl.slots == 2 and ctrl.engine.layout.n_external == 2
-    np.testing.assert_array_equal(ctrl._slot_index, [1, 2])  # the two nearest
+    np.testing.assert_array_equal(ctrl.slot_data.index, [1, 2])  # the two nearest
     # the third robot within reach is left to the first-input check
     np.testing.assert_allclose(ctrl.collisions.unslotted, [[1.5, 0.0]])
     assert ctrl.counters()["unslotted_neighbours"] == 1
@@ -46,7 +46,7 @@ def test_free_slots_are_off_and_plans_fill_the_used_ones() -> None:
     states = sc.initial_states()
     plan = PlanMessage(2, 0, np.tile(states[1], (N + 1, 1)), np.zeros((N, 2)))
     ctrl.step(0, 0.0, states)  # a shared row needs both plans of sample 0: its own too
-    ctrl._predict_neighbours(1, states, {2: plan}, states)
+    ctrl.predict_neighbours(1, states, {2: plan}, states)
     assert ctrl.collisions.kind.tolist() == [SHARED, OFF]
     assert np.all(np.isneginf(ctrl.collisions.fixed_rhs[1]))  # no row for the free slot
 
@@ -57,7 +57,7 @@ def test_the_unslotted_check_keeps_distance_plus_reach_or_stands_still() -> None
     sc = fleet(starts, [[s[0], s[1] + 5] for s in starts])
     ctrl = DecentralizedController(sc, 1, SolverSettings(neighbour_slots=2))
     states = sc.initial_states()
-    ctrl._predict_neighbours(0, states, {}, None)
+    ctrl.predict_neighbours(0, states, {}, None)
     c = ctrl.collisions
     np.testing.assert_allclose(c.unslotted, [[1.2, 0.0]])
     keep = 0.3 + c.reach  # its distance plus what it can travel in one sample: 0.6 m
@@ -70,8 +70,8 @@ def test_the_unslotted_check_keeps_distance_plus_reach_or_stands_still() -> None
 def test_without_slots_every_other_robot_has_its_slot() -> None:
     sc = antipodal_swap(6)
     ctrl = DecentralizedController(sc, 1)
-    assert ctrl.slots == 5 and not ctrl._selecting
-    np.testing.assert_array_equal(ctrl._slot_index, ctrl.others)
+    assert ctrl.slots == 5 and not ctrl.selecting
+    np.testing.assert_array_equal(ctrl.slot_data.index, ctrl.others)
 
 
 @pytest.mark.parametrize("slots", [2, 4])
@@ -88,7 +88,7 @@ def test_centralized_pair_rows_use_the_same_selection() -> None:
     sc = fleet([[x, 0.0, 0.0] for x in xs], [[x, 5.0] for x in xs])
     ctrl = CentralizedController(sc, SolverSettings(neighbour_slots=1))
     layout_rows = ctrl.engine.layout.n_con
-    ctrl._predict_neighbours(0, sc.initial_states(), {}, None)
+    ctrl.predict_neighbours(0, sc.initial_states(), {}, None)
     stages = dict(zip(map(tuple, ctrl.pairs.tolist()), ctrl.collisions.stages.tolist(),
                       strict=True))
     N = sc.horizon

@@ -158,7 +158,7 @@ def test_update_in_place_equals_rebuild(m, pairs, E, pos, solver) -> None:
     second = random_data(rng, m, pairs, E, layout.n_var)
     apply(qp, second)
     res = qp.solve()
-    backend = qp._backend or qp
+    backend = qp.backend
     assert backend.setup_count == 1  # values updated in place, never a second setup
     P_ref, q_ref, A_ref, l_ref, u_ref = dense_qp(m, pairs, E, pos, second)
     P, q, A, lo, up = qp.matrices()
@@ -223,7 +223,7 @@ def test_vector_only_update_keeps_matrices() -> None:
     qp.solve()
     P_before, _, A_before, _, _ = qp.matrices()
     qp.update_reference(d["ref"] + 1.0)
-    assert not qp._dirty_A and not qp._dirty_P
+    assert not qp.pending.A and not qp.pending.P
     res = qp.solve()
     assert res.success
     P_after, _, A_after, _, _ = qp.matrices()
@@ -318,7 +318,7 @@ def test_osqp_stopped_at_the_handover_cap_is_finished_by_piqp_in_place() -> None
         assert np.abs(P_ref @ res.x + q_ref + A_ref.T @ res.y).max() < 1e-6
         Az = A_ref @ res.x
         assert np.all(Az >= l_ref - 1e-6) and np.all(Az <= u_ref + 1e-6)
-    assert qp.handover_count == 3 and qp._handover.setup_count == 1
+    assert qp.handover_count == 3 and qp.handover.backend.setup_count == 1
     assert qp.rescue_count == 0
 
 

@@ -9,7 +9,7 @@ from sqpmpc.control.centralized import CentralizedController
 from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.errors import ProblemError
 from sqpmpc.rules.liveness import Detour
-from tests.rule_helpers import fleet, only, view
+from tests.rule_helpers import fleet, only, shape, view
 
 # robot 1 at the origin heading for (3, 0); robot 2 right in front of it
 STARTS = [[0.0, 0.0, 0.0], [0.35, 0.0, np.pi]]
@@ -29,7 +29,7 @@ def test_blocked_robot_detours_to_the_right_after_its_patience() -> None:
     for _ in range(3):
         v = view(ctrl, states)
         raw = v.references.copy()
-        inst.shape_references(v)
+        v = shape(ctrl, inst, v)
         targets.append(v.references)
     np.testing.assert_array_equal(targets[0], raw)  # blocked once: patience not spent
     detour = targets[1][0]
@@ -55,7 +55,7 @@ def test_a_moving_robot_or_a_clear_path_is_left_alone() -> None:
         for _ in range(5):
             v = view(ctrl, s, applied=applied)
             raw = v.references.copy()
-            inst.shape_references(v)
+            v = shape(ctrl, inst, v)
             np.testing.assert_array_equal(v.references, raw)
     assert ctrl.counters()["detour_activations"] == 0
 
@@ -75,7 +75,7 @@ def test_a_robot_still_blocked_widens_its_detour_each_hold() -> None:
     radii = []
     for _ in range(14):  # never moves: blocked every sample
         v = view(ctrl, states)
-        inst.shape_references(v)
+        v = shape(ctrl, inst, v)
         if inst.active_for[0]:
             radii.append(np.hypot(*(v.references[0, 0] - blocker)) / D)
     # blocked samples 2-4: factor 2; 5-7: 2.5; 8-10: 3; then capped at max_factor 3

@@ -19,17 +19,14 @@ def _asks(plan_speed: float, last: float, before: float, iteration: str = "rti",
     if iteration == "sqp":
         settings = SolverSettings(iteration_scheme="sqp", rules=settings.rules)
     ctrl = CentralizedController(sc, settings)
-    ctrl.step(0.0, sc.initial_states())  # an iterate to inspect
-    engine = ctrl.engine
-    engine.z[engine._speed_index[0, 0]] = plan_speed
-    engine.z[engine._speed_index[1, 0]] = 0.0
-    engine.y[:] = 0.0
-    if engaged:
-        engine.y[engine.layout.internal_rows[0, 2]] = -0.5
     applied = np.array([[last, 0.0], [0.0, 0.0]])
     before = np.array([[before, 0.0], [0.0, 0.0]])
-    asks = ctrl.rule("gear-cycle").after_solve(view(ctrl, sc.initial_states(), applied, before))
-    return asks, ctrl.counters()["gear_cycle_samples"]
+    # the solution: robot 1 plans plan_speed first, robot 2 stands; a row holds both or none
+    v = view(ctrl, sc.initial_states(), applied, before).but(
+        first_speeds=np.array([plan_speed, 0.0]),
+        holding=lambda: np.array([engaged, engaged]))
+    out = ctrl.rule("gear-cycle").after_solve(v)
+    return out is not None and out.iterate, ctrl.counters()["gear_cycle_samples"]
 
 
 @pytest.mark.parametrize(("plan", "last", "before"), [(0.3, -0.3, 0.3), (-0.2, 0.2, -0.1)])

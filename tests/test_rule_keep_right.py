@@ -45,7 +45,7 @@ def test_centralized_rows_use_the_rotated_normal() -> None:
     sc = load_scenario("head-on")
     ctrl = CentralizedController(sc, SolverSettings().without("turn-limit"))
     ctrl.step(0.0, sc.initial_states())
-    A = ctrl.engine._internal_A  # (P, N, 4): n, -n
+    A = ctrl.engine.collision_blocks()["internal"][0]  # (P, N, 4): n, -n
     gap = sc.initial_states()[0, :2] - sc.initial_states()[1, :2]
     # stages 2..N: the plan's Taylor normal rotated by 0.3 rad
     turn = np.angle(np.exp(1j * (np.arctan2(A[0, 1:, 1], A[0, 1:, 0])

@@ -12,7 +12,7 @@ from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.scenario_file import load_scenario, parse_scenario
 from sqpmpc.rules.liveness import Parking
 from sqpmpc.sim.simulation import simulate
-from tests.rule_helpers import fleet, only, view
+from tests.rule_helpers import fleet, guess, only, shape, view
 
 
 def test_only_robots_near_a_resting_reference_park() -> None:
@@ -23,13 +23,13 @@ def test_only_robots_near_a_resting_reference_park() -> None:
     states = np.zeros((4, 3))
     states[:, :2] = ctrl.reference(t_late)[:, -1] + 1.0  # robots 1, 2, 4 far from their goals
     states[2, :2] = ctrl.reference(t_late)[2, -1] + 0.1  # robot 3 near
-    inst.shape_references(view(ctrl, states, t=t_late))
-    np.testing.assert_array_equal(ctrl.engine.qp._position_scale, [1.0, 1.0, 20.0, 1.0])
+    shape(ctrl, inst, view(ctrl, states, t=t_late))
+    np.testing.assert_array_equal(ctrl.engine.qp.position_weight_scale, [1.0, 1.0, 20.0, 1.0])
     assert ctrl.counters()["parked_samples"] == 1
     # at t = 0 the references move over the horizon: nobody parks, even on its reference
     states[:, :2] = ctrl.reference(0.0)[:, -1]
-    inst.shape_references(view(ctrl, states, t=0.0))
-    np.testing.assert_array_equal(ctrl.engine.qp._position_scale, np.ones(4))
+    shape(ctrl, inst, view(ctrl, states, t=0.0))
+    np.testing.assert_array_equal(ctrl.engine.qp.position_weight_scale, np.ones(4))
 
 
 def test_gain_grows_for_short_horizons_and_radius_with_reach() -> None:
@@ -44,17 +44,17 @@ def test_parking_robot_at_rest_short_of_its_goal_is_linearized_moving() -> None:
     ctrl = CentralizedController(sc, only("parking"))
     inst = ctrl.rule("parking")
     v = view(ctrl, sc.initial_states(), t=10.0)
-    inst.shape_references(v)
+    v = shape(ctrl, inst, v)
     speeds = np.zeros((1, sc.horizon))
-    inst.shape_guess(v, speeds)
+    guess(inst, v, speeds)
     assert np.all(np.abs(speeds) == 0.05)
     # already there (within the tolerance): left alone
     at_goal = sc.initial_states()
     at_goal[0, :2] = [0.0, 0.495]
     v = view(ctrl, at_goal, t=10.0)
-    inst.shape_references(v)
+    v = shape(ctrl, inst, v)
     speeds = np.zeros((1, sc.horizon))
-    inst.shape_guess(v, speeds)
+    guess(inst, v, speeds)
     np.testing.assert_array_equal(speeds, 0.0)
 
 

@@ -15,7 +15,7 @@ from sqpmpc.kernels.rules import roundabout_directions
 from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.rules.roundabout import Roundabout
 from sqpmpc.sim.simulation import ClosedLoopSimulation
-from tests.rule_helpers import fleet, only, view
+from tests.rule_helpers import fleet, only, shape, view
 
 # robot 1 at the origin heading for (8, 0); a crowd of four 2 m ahead, centred on its path
 CROWD = [[2.0, 0.0], [2.3, 0.3], [2.3, -0.3], [2.6, 0.0]]
@@ -104,7 +104,7 @@ def test_the_references_move_along_the_direction_at_the_reference_speed() -> Non
     inst = ctrl.rule("roundabout")
     states = np.array(STARTS)
     v = view(ctrl, states)
-    inst.shape_references(v)
+    v = shape(ctrl, inst, v)
     refs = v.references[0]
     steps = np.diff(np.vstack([states[0, :2], refs]), axis=0)
     np.testing.assert_allclose(np.hypot(*steps.T), 0.5 * 0.6 * 0.5)

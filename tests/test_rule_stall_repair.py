@@ -10,7 +10,7 @@ import pytest
 from sqpmpc.control.centralized import CentralizedController
 from sqpmpc.errors import ProblemError
 from sqpmpc.rules.liveness import StallRepair
-from tests.rule_helpers import fleet, only, view
+from tests.rule_helpers import fleet, guess, only, view
 
 
 def _repair(start: list[float], goal: list[float], speeds: np.ndarray,
@@ -20,7 +20,7 @@ def _repair(start: list[float], goal: list[float], speeds: np.ndarray,
     ctrl = CentralizedController(sc, settings)
     inst = ctrl.rule("stall-repair")
     out = np.array(speeds, dtype=float)
-    inst.shape_guess(view(ctrl, sc.initial_states()), out)
+    guess(inst, view(ctrl, sc.initial_states()), out)
     return out, ctrl.counters()["stall_repairs"]
 
 
@@ -62,7 +62,7 @@ def test_a_robot_standing_for_its_patience_is_repaired_whatever_its_guess_plans(
     outs = []
     for _ in range(3):
         out = waiting.copy()
-        inst.shape_guess(view(ctrl, sc.initial_states()), out)  # applied v = 0
+        guess(inst, view(ctrl, sc.initial_states()), out)  # applied v = 0
         outs.append(out)
     np.testing.assert_array_equal(outs[0], waiting)
     np.testing.assert_array_equal(outs[1], waiting)
@@ -70,7 +70,7 @@ def test_a_robot_standing_for_its_patience_is_repaired_whatever_its_guess_plans(
     assert ctrl.counters()["stall_repairs"] == 1
     # moving (applied v above the speed) resets the count
     out = waiting.copy()
-    inst.shape_guess(view(ctrl, sc.initial_states(), applied=np.array([[0.3, 0.0]])), out)
+    guess(inst, view(ctrl, sc.initial_states(), applied=np.array([[0.3, 0.0]])), out)
     np.testing.assert_array_equal(out, waiting)
 
 
@@ -79,9 +79,9 @@ def test_patience_needs_a_reference_at_rest() -> None:
     ctrl = CentralizedController(sc, only().with_rule(StallRepair(patience=1)))
     inst = ctrl.rule("stall-repair")
     v = view(ctrl, sc.initial_states())
-    v.references = v.references + np.linspace(0.0, 1.0, sc.horizon)[None, :, None]
+    v = v.but(references=v.references + np.linspace(0.0, 1.0, sc.horizon)[None, :, None])
     out = np.r_[0.0, np.full(7, 0.6)][None]
-    inst.shape_guess(v, out)
+    guess(inst, v, out)
     assert ctrl.counters()["stall_repairs"] == 0
 
 
@@ -98,7 +98,7 @@ def test_forward_only_bounds_never_repair_backwards_nor_count_it() -> None:
     sc = sc.with_changes(bounds=dataclasses.replace(sc.bounds, v=(0.0, 0.6)))
     ctrl = CentralizedController(sc, only("stall-repair"))
     speeds = np.zeros((1, sc.horizon))
-    ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
+    guess(ctrl.rule("stall-repair"), view(ctrl, sc.initial_states()), speeds)
     np.testing.assert_array_equal(speeds, 0.0)
     assert ctrl.counters()["stall_repairs"] == 0
 
@@ -108,5 +108,5 @@ def test_a_robot_at_the_clipped_repair_speed_is_not_stalled() -> None:
     sc = sc.with_changes(bounds=dataclasses.replace(sc.bounds, v=(-0.03, 0.03)))
     ctrl = CentralizedController(sc, only("stall-repair"))
     speeds = np.full((1, sc.horizon), 0.03)  # full speed under these bounds
-    ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
+    guess(ctrl.rule("stall-repair"), view(ctrl, sc.initial_states()), speeds)
     assert ctrl.counters()["stall_repairs"] == 0

@@ -28,7 +28,7 @@ def _rows(gap_in_margins: float, with_rule: bool) -> tuple[np.ndarray, np.ndarra
         x[:, 1] += sign * 0.05 * np.arange(N + 1)
         plans[rid] = PlanMessage(rid, 0, x, np.zeros((N, 2)))
     ctrl.published = plans[1]
-    ctrl._predict_neighbours(1, states, plans, states)
+    ctrl.predict_neighbours(1, states, plans, states)
     c = ctrl.collisions
     return c.fixed_normals[0].copy(), c.fixed_rhs[0].copy(), states
 

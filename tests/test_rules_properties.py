@@ -5,6 +5,7 @@ every rule parameter refused by rule and field name."""
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -13,9 +14,10 @@ from sqpmpc.control.centralized import CentralizedController
 from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.rules import limit_turning, repair_speeds
+from sqpmpc.rules.base import Contribution, Rule, RuleInstance, SampleView
 from sqpmpc.rules.liveness import Detour, StallRepair
 from sqpmpc.rules.registry import RULES
-from tests.rule_helpers import fleet, only, view
+from tests.rule_helpers import fleet, only, shape, view
 
 # robot 1 at the origin heading for (3, 0); robot 2 right in front of it, heading back
 STARTS = [[0.0, 0.0, 0.0], [0.35, 0.0, np.pi]]
@@ -27,7 +29,7 @@ def _detoured(ctrl: DecentralizedController | CentralizedController,
     """Per own robot, whether the detour rule replaced its references this sample."""
     v = view(ctrl, states, sample=sample)
     raw = v.references.copy()
-    ctrl.rule("detour").shape_references(v)
+    v = shape(ctrl, ctrl.rule("detour"), v)
     return np.array([not np.array_equal(v.references[i], raw[i]) for i in range(raw.shape[0])])
 
 
@@ -53,7 +55,7 @@ def test_detour_target_stays_put_while_the_robots_stand_still() -> None:
     targets = []
     for k in range(4):
         v = view(ctrl, states, sample=k)
-        ctrl.rule("detour").shape_references(v)
+        v = shape(ctrl, ctrl.rule("detour"), v)
         targets.append(v.references[0, 0].copy())
     np.testing.assert_array_equal(np.diff(targets, axis=0), 0.0)
     assert ctrl.counters()["detour_activations"] == 1
@@ -70,7 +72,7 @@ def test_centralized_head_on_pair_detours_on_opposite_sides_after_longer_patienc
     assert np.all(flags[patience - 1:])
     assert ctrl.counters()["detour_activations"] == 2
     v = view(ctrl, states, sample=patience)
-    ctrl.rule("detour").shape_references(v)
+    v = shape(ctrl, ctrl.rule("detour"), v)
     first, second = v.references[0, 0], v.references[1, 0]
     assert first[1] < 0.0 < second[1]  # robot 1 heads +x: its right is -y; robot 2's is +y
     D = ctrl.scenario.required_distances()[0, 1]
@@ -130,20 +132,24 @@ def test_stall_repair_kernel_counts_only_the_robots_it_may_change() -> None:
     np.testing.assert_array_equal(abeam, 0.05)
 
 
-def test_stall_repair_writes_the_engine_linearization_point() -> None:
-    """The hook receives a strided view of the iterate: the repair lands in the engine."""
+def test_stall_repair_lands_in_the_engine_linearization_point() -> None:
+    """The hook sees the iterate's speeds read-only and returns new ones; the pipeline
+    writes them into the engine."""
     sc = fleet([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0]], [[-2.0, 0.5], [0.0, 3.05]])
     ctrl = CentralizedController(sc, only().with_rule(StallRepair(speed=0.07)))
     ctrl.step(0.0, sc.initial_states())
     engine = ctrl.engine
-    engine.guess_speeds()[:] = 0.0
-    speeds = engine.guess_speeds()
-    assert not speeds.flags.c_contiguous
+    engine.update_guess_speeds(np.zeros((2, sc.horizon)))
+    v = view(ctrl, sc.initial_states()).but(guess_speeds=engine.guess_speeds())
+    assert not v.guess_speeds.flags.writeable and not v.references.flags.writeable
+    with pytest.raises(ValueError):
+        v.guess_speeds[0, 0] = 1.0
     before = ctrl.counters()["stall_repairs"]
-    ctrl.rule("stall-repair").shape_guess(view(ctrl, sc.initial_states()), speeds)
+    v = ctrl.apply(ctrl.rule("stall-repair").shape_guess(v), v)
     _, inputs = engine.states_inputs()
     np.testing.assert_array_equal(inputs[0, :, 0], -0.07)  # goal behind
     np.testing.assert_array_equal(inputs[1, :, 0], 0.0)  # near its goal
+    np.testing.assert_array_equal(v.guess_speeds, engine.guess_speeds())
     assert ctrl.counters()["stall_repairs"] == before + 1
 
 
@@ -162,3 +168,36 @@ def test_every_rule_has_parameters_or_none_to_check() -> None:
     """The parametrization above covers each rule with fields; touching-pairs has none."""
     assert {name for name, _ in _FIELDS} == set(RULES) - {"touching-pairs"}
     assert RULES["touching-pairs"]().parameters() == {}
+
+
+class _Undeclared(RuleInstance):
+    hooks = ("references",)
+    calls = 0
+
+    def shape_guess(self, view: SampleView) -> Contribution | None:  # not declared
+        type(self).calls += 1
+        return None
+
+
+@dataclass(frozen=True)
+class _Probe(Rule):
+    name = "probe"
+    instance = _Undeclared
+
+
+def test_hooks_are_declared_explicitly() -> None:
+    """The pipeline calls the hooks a rule declares (a method alone is not a hook), and an
+    unknown hook name is refused at binding."""
+    sc = fleet([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0]], [[2.0, 0.0], [2.0, 3.0]])
+    ctrl = CentralizedController(sc, only().with_rule(_Probe()))
+    inst = ctrl.rule("probe")
+    assert ctrl.rules_with("guess") == [] and ctrl.rules_with("references") == [inst]
+    for k in range(3):
+        ctrl.step(k * sc.sample_time, sc.initial_states())
+    assert _Undeclared.calls == 0
+
+    class Unknown(RuleInstance):
+        hooks = ("reference",)
+
+    with pytest.raises(ProblemError, match="unknown hooks"):
+        Unknown(_Probe(), ctrl.context)

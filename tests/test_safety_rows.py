@@ -18,7 +18,7 @@ def test_inner_approximation_satisfied_rows_imply_the_distance() -> None:
     sc = load_scenario("paper-s2")
     ctrl = CentralizedController(sc)
     ctrl.step(0.0, sc.initial_states())
-    A, lo = ctrl.engine._internal_A, ctrl.engine._internal_lower  # (P, N, 4), (P, N)
+    A, lo = ctrl.engine.collision_blocks()["internal"]  # (P, N, 4), (P, N)
     pairs = ctrl.pairs
     rng = np.random.default_rng(4)
     p = rng.uniform(-3, 3, size=(20000, sc.n_robots, 2))
@@ -59,7 +59,7 @@ def test_missing_neighbour_keeps_its_reach_or_stands_still() -> None:
     assert reach == sc.sample_time * 0.6  # what the neighbour can travel in one sample
     for gap in (D + reach + 0.5, D + 0.5 * reach):  # room to move, and not
         states = np.array([[-gap / 2, 0.0, 0.0], [gap / 2, 0.0, np.pi]])
-        ctrl._predict_neighbours(3, states, {}, states)  # no plan from robot 2
+        ctrl.predict_neighbours(3, states, {}, states)  # no plan from robot 2
         c = ctrl.collisions
         assert c.kind.tolist() == [MISSING]
         me, other = states[0, :2], states[1, :2]
@@ -87,9 +87,9 @@ def test_shared_slot_with_a_fresh_plan_is_shared() -> None:
     N = sc.horizon
     plan = PlanMessage(2, 2, np.tile(states[1], (N + 1, 1)), np.zeros((N, 2)))
     ctrl.step(2, 2 * sc.sample_time, states)  # its own plan of sample 2
-    ctrl._predict_neighbours(3, states, {2: plan}, states)
+    ctrl.predict_neighbours(3, states, {2: plan}, states)
     assert ctrl.collisions.kind.tolist() == [SHARED]
-    ctrl._predict_neighbours(4, states, {2: plan}, states)  # one sample too old: missing
+    ctrl.predict_neighbours(4, states, {2: plan}, states)  # one sample too old: missing
     assert ctrl.collisions.kind.tolist() == [MISSING]
     # unless robot 2 reported (relayed by the plant) that its newest plan of robot 1 was
     # 2 samples old: then both build the pair's row from their plans of sample 2

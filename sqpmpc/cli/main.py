@@ -251,6 +251,10 @@ def main(argv: list[str] | None = None) -> int:
     metrics = write_run(out, sim.record(), plots=not args.no_plots)
     if not args.quiet:
         print(summarize(metrics))
+        if metrics.get("no_route"):
+            print("no route through the map for robot(s) "
+                  f"{', '.join(map(str, metrics['no_route']))}: their goals are walled off "
+                  "or nearer an obstacle than their radius")
         print(f"wrote {out}")
     else:
         print(json.dumps({"out": str(out)}))

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput
+from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.kernels.acceleration import pairs_keep_bulging_distance
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
@@ -15,11 +16,11 @@ from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
-__all__ = ["CentralizedController"]
+__all__ = ["CentralizedController", "has_position_bounds"]
 
 
-
-def _has_position_bounds(scenario: Scenario) -> bool:
+def has_position_bounds(scenario: Scenario) -> bool:
+    """Whether the scenario bounds the positions (the QP then has position rows)."""
     b = scenario.bounds
     return bool(np.isfinite(b.position_lower()).any() or np.isfinite(b.position_upper()).any())
 
@@ -41,8 +42,8 @@ class CentralizedController(ControllerPipeline):
         settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
-        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, len(scenario.obstacles),
-                          _has_position_bounds(scenario), scenario.robot_model())
+        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, scenario.obstacle_slots,
+                          has_position_bounds(scenario), scenario.robot_model())
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
@@ -60,14 +61,18 @@ class CentralizedController(ControllerPipeline):
         if self.slots is not None:
             self.counts["stage_one_pairs"] = 0
 
-    def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
-                            previous_states: np.ndarray | None) -> None:
+    def predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                           previous_states: np.ndarray | None,
+                           plan_ages: PlanAges | None = None) -> None:
+        """The pair rows from the current positions (the neighbours' data are unused: every
+        robot is in this QP)."""
         self.collisions.set_current_positions(states[:, :2])
         if self.slots is not None:
             _, first_only = self.collisions.select(self.interaction_radius, self.slots)
             self.counts["stage_one_pairs"] += first_only
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
+    def first_input_safe(self, states: np.ndarray, next_states: np.ndarray,
+                         inputs: np.ndarray) -> bool:
         """Every pair keeps its distance along the paths of the sample.
 
         With the Euler model the robots move on straight segments at constant
@@ -83,11 +88,11 @@ class CentralizedController(ControllerPipeline):
             if not pairs_keep_bulging_distance(self.collisions.pairs, now, p,
                                                self.collisions.safe_distance, alpha, beta):
                 return False
-            return self._obstacles_safe(now, p, alpha, beta) and self._in_position_bounds(p)
+            return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
         growth = alpha + np.maximum(beta, 0.0)
         if not self.collisions.first_input_safe(now, p, growth):
             return False
-        return self._obstacles_safe(now, p, growth) and self._in_position_bounds(p)
+        return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)
 
     def _brakes_safely(self, next_states: np.ndarray) -> bool:
         """With acceleration limits: braking right after the first input, every robot as hard

@@ -28,22 +28,21 @@ from typing import Literal
 
 import numpy as np
 
-from sqpmpc.control.centralized import _has_position_bounds
+from sqpmpc.control.centralized import has_position_bounds
+from sqpmpc.control.neighbours import NeighbourSelector, NeighbourSlots
 from sqpmpc.control.pipeline import ControllerPipeline, ControlOutput, braking_input
 from sqpmpc.control.plans import (
-    AGE_HOLD,
-    LATE_STEPS,
     PlanAges,
+    PlanBook,
     PlanMessage,
     PlanSource,
+    fill_from_plan,
     pair_sample,
     predict_from_plan,
     predict_from_states,
 )
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.collision import nearest_within
-from sqpmpc.kernels.ocp import shift_plan
 from sqpmpc.ocp.collision_rows import (
     MISSING,
     OBSTACLE,
@@ -57,24 +56,16 @@ from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
 
 __all__ = [
-    "ControlOutput", "DecentralizedController", "PlanAges", "PlanMessage", "PlanSource",
-    "braking_input", "pair_sample", "predict_from_plan", "predict_from_states",
+    "ControlOutput", "DecentralizedController", "NeighbourSlots", "PlanAges", "PlanMessage",
+    "PlanSource", "braking_input", "pair_sample", "predict_from_plan", "predict_from_states",
 ]
 
 DecentralizedMode = Literal["shared", "paper"]
-"""Samples a robot keeps reporting the largest plan age it saw of a neighbour whose plans
-come late (at :data:`LATE_STEPS` steps in a row; lost plans are rarely reported): a plan
-that comes one sample later than usual then costs one sample without a shared row with
-that neighbour, not one every time."""
-"""Steps in a row a neighbour's newest plan must be late before its age is reported.
-Under random loss of plans older shared rows help little and cost fallbacks: in process,
-paper-s2, 4 seeds at 20 and 50 % loss, 2 steps gave 11-25 % more fallbacks than no relay,
-3 steps 2-10 %; plans late by 2-3 samples are reported either way."""
-"""Per robot id, per neighbour id: the age (samples) of the newest plan of that neighbour
-the robot held at its previous step, as relayed by the plant; a pair not listed: 1."""
+"""``"shared"`` (shared-responsibility rows, default) or ``"paper"`` (the seed paper's scheme)."""
 
 log = logging.getLogger(__name__)
-_paper_mode_warned = False
+paper_mode_warned = False
+"""Whether this process logged the warning of ``"paper"`` mode (logged once)."""
 
 
 class DecentralizedController(ControllerPipeline):
@@ -90,6 +81,26 @@ class DecentralizedController(ControllerPipeline):
         Solver settings (default: :class:`SolverSettings` with every rule).
     mode
         ``"shared"`` (default, shared-responsibility hyperplanes) or ``"paper"``.
+
+    Attributes
+    ----------
+    selector
+        The neighbour selection (:class:`~sqpmpc.control.neighbours.NeighbourSelector`),
+        which the services use for the plans they wait for and send.
+    selecting
+        Whether the slots are chosen per sample (``neighbour_slots`` set).
+    slot_data
+        What the slots hold at the current sample
+        (:class:`~sqpmpc.control.neighbours.NeighbourSlots`).
+    own_prediction
+        ``(N, 3)`` this robot's stages 1..N from its published plan (or the fallback).
+    plan_ages
+        The report of the last step (also :attr:`ControlOutput.plan_ages`): per
+        neighbour (slotted then) whose newest plan held then was ``age >= 2``
+        samples old, ``age`` (at most ``N + 2``); the services send it with
+        the input and the plant relays it to every robot with the next states.
+    published
+        The plan of the last step (``None`` before the first).
     """
 
     scheme = "decentralized"
@@ -101,75 +112,71 @@ class DecentralizedController(ControllerPipeline):
         if mode not in ("shared", "paper"):
             raise ProblemError(f"decentralized mode must be 'shared' or 'paper', got {mode!r}")
         index = scenario.index_of(robot_id)
-        others = np.array([i for i in range(scenario.n_robots) if i != index], dtype=np.int64)
-        slots = others.size if settings.neighbour_slots is None else min(
-            others.size, settings.neighbour_slots)
+        others = scenario.n_robots - 1
+        slots = others if settings.neighbour_slots is None else min(
+            others, settings.neighbour_slots)
         layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64),
-                          slots + len(scenario.obstacles), _has_position_bounds(scenario),
+                          slots + scenario.obstacle_slots, has_position_bounds(scenario),
                           scenario.robot_model())
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
         self.index = index
-        self.others = others
-        self.other_ids = scenario.ids[others]
-        self.slots = slots
-        self._selecting = settings.neighbour_slots is not None
-        self._chosen = np.zeros(slots, dtype=np.int64)  # selection scratch (indices into others)
-        self._rest = np.zeros(others.size, dtype=np.int64)
-        # slot e holds neighbour self._slot_index[e] (scenario index; fixed without selection)
-        self._slot_index = others[:slots].copy()
-        self._neighbours = list(enumerate(self.other_ids[:slots].tolist()))
         self.mode = mode
-        self.required = scenario.required_distances()[index, others]
+        self.slots = slots
+        self.selector = NeighbourSelector(scenario, index, slots, self.pair_margin,
+                                          self.context.max_speed)
+        self.selecting = settings.neighbour_slots is not None
+        self.required = scenario.required_distances()[index, self.selector.others]
         N = scenario.horizon
-        v_max = self.context.max_speed
-        # beyond this, a neighbour cannot come within its distance over the horizon
-        self.interaction_radius = (self.required + self.pair_margin
-                                   + 2.0 * v_max * N * scenario.sample_time)
         self.collisions = ExternalCollisionModel(
-            self.required[:slots], N, self.geometry, reach=scenario.sample_time * v_max,
-            margin=self.pair_margin, stage_one_rule_for_obstacles=mode == "shared",
-            recovery=self.recovery_tolerance,
+            self.required[:slots], N, self.geometry,
+            reach=scenario.sample_time * self.context.max_speed, margin=self.pair_margin,
+            stage_one_rule_for_obstacles=mode == "shared", recovery=self.recovery_tolerance,
         )
         self._rows = {"external": self.collisions if self.obstacle_rows is None
                       else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
-        self.counts["fallback_neighbours"] = 0
-        self.counts["unslotted_neighbours"] = 0
-        self.counts["late_plan_neighbours"] = 0
-        self.counts["older_shared_neighbours"] = 0
-        self._plan_seen: dict[int, int] = {}  # per neighbour id: newest plan sample seen
-        self._age_margins = np.zeros(slots)
-        self._own_prediction = np.zeros((N, 3))
-        self._own_pair_predictions = np.zeros((slots, N, 3))
-        # own plans by sample (None: two different plans of that sample were published)
-        # and the neighbours' plans seen, by id and sample: a shared row may use older ones
-        self._own_plans: dict[int, PlanMessage | None] = {}
-        self._history: dict[int, dict[int, PlanMessage]] = {}
-        self._plan_ages_in: PlanAges | None = None
-        # per neighbour: (steps late in a row, largest age of the last samples, held until)
-        self._age_hold: dict[int, tuple[int, int, int]] = {}
-        #: per neighbour (slotted at the last step) whose newest plan held then was
-        #: ``age >= 2`` samples old: ``age`` (at most ``N + 2``); the services send it with
-        #: the input and the plant relays it to every robot with the next states
+        for name in ("fallback_neighbours", "unslotted_neighbours", "late_plan_neighbours",
+                     "older_shared_neighbours"):
+            self.counts[name] = 0
+        self.slot_data = NeighbourSlots.empty(self.selector.others, self.selector.other_ids,
+                                              slots, N)
+        self.own_prediction = np.zeros((N, 3))
+        self._timing = (N, scenario.sample_time, settings.discretization)  # of the plans
+        self.book = PlanBook(N)
         self.plan_ages: dict[int, int] = {}
-        self._other_predictions = np.zeros((slots, N, 3))
-        self._kinds = np.zeros(slots, dtype=np.int8)
-        if mode == "paper":
-            _warn_paper_mode()
         self.published: PlanMessage | None = None
         self._received: dict[int, PlanMessage] = {}
+        if mode == "paper":
+            _warn_paper_mode()
 
-    def _safe(self, states: np.ndarray, next_state: np.ndarray, inputs: np.ndarray) -> bool:
+    @property
+    def others(self) -> np.ndarray:
+        """Scenario indices of the other robots (scenario order)."""
+        return self.selector.others
+
+    @property
+    def other_ids(self) -> np.ndarray:
+        """Ids of the other robots (scenario order)."""
+        return self.selector.other_ids
+
+    @property
+    def interaction_radius(self) -> np.ndarray:
+        """``(n - 1,)`` distance beyond which a neighbour gets no row (``required +
+        pair_margin + 2 v_max N Ts``)."""
+        return self.selector.interaction_radius
+
+    def first_input_safe(self, states: np.ndarray, next_state: np.ndarray,
+                         inputs: np.ndarray) -> bool:
         alpha, beta = self.path_deviation(inputs)
         if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
                                                 beta=float(beta[0])):
             return False
         if not self._unicycle:  # robots with velocity states: the bound itself
-            return (self._obstacles_safe(states, next_state, alpha, beta)
-                    and self._in_position_bounds(next_state[:, :2]))
+            return (self.obstacles_safe(states, next_state, alpha, beta)
+                    and self.in_position_bounds(next_state[:, :2]))
         growth = alpha + np.maximum(beta, 0.0)
-        return (self._obstacles_safe(states, next_state, growth)
-                and self._in_position_bounds(next_state[:, :2]))
+        return (self.obstacles_safe(states, next_state, growth)
+                and self.in_position_bounds(next_state[:, :2]))
 
     def _brakes_safely(self, next_states: np.ndarray) -> bool:
         """With acceleration limits: braking right after the first input keeps this robot
@@ -221,134 +228,51 @@ class DecentralizedController(ControllerPipeline):
                 return False
         return True
 
-    def _fill_from_plan(self, out: np.ndarray, plan: PlanMessage, sample: int) -> bool:
-        """Stages 1..N ``out (N, 3)`` at sample ``k`` from a plan of an earlier sample.
-
-        A plan of ``k - 1`` (the usual case) is shifted by one stage, holding its
-        last input (one kernel call); older ones by :func:`predict_from_plan`.
-        Returns ``False`` for a plan that cannot be used (from the future, too old).
-        """
-        N, h, method = self.horizon, self.sample_time, self.settings.discretization
-        if (sample - plan.sample == 1 and method == "euler" and plan.states.shape[0] == N + 1
-                and plan.states.flags.c_contiguous and plan.inputs.flags.c_contiguous):
-            shift_plan(plan.states, plan.inputs, h, out)
-            return True
-        pred = predict_from_plan(plan, sample, N, h, method)
-        if pred is None:
-            return False
-        out[:] = pred[1:]
-        return True
-
     def _own_at(self, pair: int, sample: int, cache: dict[int, np.ndarray | None]
                 ) -> np.ndarray | None:
         """Own stages 1..N at ``sample`` from the own plan of sample ``pair`` (``None``: not
         held, or published twice)."""
         if pair not in cache:
-            published = self.published
-            plan = self._own_plans.get(pair, published if published is not None
-                                       and published.sample == pair else None)
+            plan = self.book.own_plan(pair, self.published)
             if plan is None:
                 cache[pair] = None
             elif plan is self.published and sample - pair <= self.horizon:
-                cache[pair] = self._own_prediction  # filled from it above
+                cache[pair] = self.own_prediction  # filled from it by the own prediction
             else:
                 out = np.empty((self.horizon, 3))
-                cache[pair] = out if self._fill_from_plan(out, plan, sample) else None
+                cache[pair] = out if fill_from_plan(out, plan, sample, *self._timing) else None
         return cache[pair]
 
-    def _neighbour_at(self, plans: Mapping[int, object], jid: int, pair: int,
-                      newest: PlanMessage | None) -> PlanMessage | None:
-        """The plan neighbour ``jid`` computed at sample ``pair``, if held."""
-        if newest is not None and newest.sample == pair:
-            return newest
-        if isinstance(plans, PlanSource):
-            return plans.plan_at(jid, pair)
-        return self._history.get(jid, {}).get(pair)
-
-    def _remember(self, jid: int, plan: PlanMessage, sample: int) -> None:
-        """Keep a neighbour's plan for shared rows of later samples (the first of a sample
-        wins, as in the services' plan store)."""
-        held = self._history.setdefault(jid, {})
-        if plan.sample in held:
-            return
-        held[plan.sample] = plan
-        if len(held) > self.horizon + 2:
-            for old in [s for s in held if s < sample - self.horizon - 1]:
-                del held[old]
-
-    def _predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
-                            previous_states: np.ndarray | None) -> None:
+    # ------------------------------------------------------- predict neighbours
+    def predict_neighbours(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                           previous_states: np.ndarray | None,
+                           plan_ages: PlanAges | None = None) -> None:
         """Own published prediction and the neighbours', stages 1..N, with the slot kinds.
+
+        Five named steps: :meth:`select_neighbours` (with neighbour slots),
+        :meth:`predict_own`, :meth:`track_plan_ages`, :meth:`classify` (shared,
+        obstacle or missing, the fallback prediction for a missing one), then
+        the collision rows are given the sample.
 
         A shared hyperplane of the pair with neighbour ``l`` is built from both
         robots' plans of the sample :func:`pair_sample` gives (``k - 1``
         unless plans have been late), which both compute from the same relayed
-        ``plan_ages``; a robot that does not hold both plans of that sample
-        predicts the neighbour by the paper's fallback (input estimated from
-        two states, or its newest late plan) and its slot is *missing*.
+        ``plan_ages`` (the reports of every robot's step ``k - 1``); a robot
+        that does not hold both plans of that sample predicts the neighbour by
+        the paper's fallback (input estimated from two states, or its newest
+        late plan) and its slot is *missing*.
         """
-        N, h, method = self.horizon, self.sample_time, self.settings.discretization
-        if self._selecting:
-            self._select_neighbours(states)
-        if self.published is None or not self._fill_from_plan(self._own_prediction,
-                                                                self.published, sample):
-            self._own_prediction[:] = predict_from_states(states[self.index], None, N, h,
-                                                          method)[1:]
-        shared = self.mode == "shared"
-        kinds = self._kinds
-        preds = self._other_predictions
-        own_preds = self._own_pair_predictions
-        own_cache: dict[int, np.ndarray | None] = {}
-        ages_in = self._plan_ages_in
-        report: dict[int, int] = {}
-        missing = 0
-        margins = self._age_margins
-        margins[:] = 0.0
-        for e, jid in self._neighbours:
-            plan = plans.get(jid)
-            if plan is not None:
-                self._remember(jid, plan, sample)
-                if self._plan_seen.get(jid, -1) < plan.sample < sample:
-                    self._plan_seen[jid] = plan.sample
-            age = sample - self._plan_seen.get(jid, sample - 1)
-            if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
-                margins[e] = self.context.max_speed * h * min(age - 1, N)
-                self.counts["late_plan_neighbours"] += 1
-            late, held_age, until = self._age_hold.get(jid, (0, 1, -1))
-            late = late + 1 if age > 1 else 0
-            if age >= held_age or sample > until:  # the largest age of the last few samples
-                held_age, until = age, sample + AGE_HOLD - 1
-            self._age_hold[jid] = (late, held_age, until)
-            if late >= LATE_STEPS:  # delayed, not a plan or two lost
-                report[jid] = min(held_age, N + 2)
-            if shared:
-                pair = pair_sample(sample, self.robot_id, jid, ages_in)
-                mine = self._own_at(pair, sample, own_cache)
-                theirs = None if mine is None else self._neighbour_at(plans, jid, pair, plan)
-                if theirs is not None and self._fill_from_plan(preds[e], theirs, sample):
-                    own_preds[e] = mine
-                    kinds[e] = SHARED
-                    if pair != sample - 1:
-                        self.counts["older_shared_neighbours"] += 1
-                    continue
-            elif plan is not None and self._fill_from_plan(preds[e], plan, sample):
-                kinds[e] = OBSTACLE
-                continue
-            if margins[e] == 0.0 or plan is None or not self._fill_from_plan(
-                    preds[e], plan, sample):  # a late plan still says where it was going
-                j = self._slot_index[e]
-                prev = None if previous_states is None else previous_states[j]
-                preds[e] = predict_from_states(states[j], prev, N, h, method)[1:]
-            kinds[e] = MISSING if shared else OBSTACLE
-            missing += 1
-        if missing:
-            self.counts["fallback_neighbours"] += missing
-        self.plan_ages = report
-        self.collisions.set_age_margins(margins)
-        self.collisions.set_sample(states[self.index, :2], states[self._slot_index, :2],
-                                   own_preds, self._other_predictions, kinds)
+        if self.selecting:
+            self.select_neighbours(states)
+        self.predict_own(sample, states)
+        self.plan_ages = self.track_plan_ages(sample, plans)
+        self.classify(sample, states, plans, previous_states, plan_ages)
+        d = self.slot_data
+        self.collisions.set_age_margins(d.age_margins)
+        self.collisions.set_sample(states[self.index, :2], states[d.index, :2],
+                                   d.own_predictions, d.predictions, d.kinds)
 
-    def _select_neighbours(self, states: np.ndarray) -> None:
+    def select_neighbours(self, states: np.ndarray) -> None:
         """Fill the slots with the nearest neighbours within the interaction radius.
 
         A neighbour farther than its required distance plus margin plus
@@ -358,30 +282,101 @@ class DecentralizedController(ControllerPipeline):
         the radius left without a slot are handed to the first-input check,
         which keeps their distance plus their one-sample reach, or stands still.
         """
-        positions = np.ascontiguousarray(states[:, :2])
-        used, extra = nearest_within(positions[self.index], positions, self.others,
-                                     self.interaction_radius, self._chosen, self._rest)
-        chosen, rest = self._chosen[:used], self._rest[:extra]
-        self._slot_index[:used] = self.others[chosen]
-        self._slot_index[used:] = self.index  # free slots: off (their position is unused)
-        self._neighbours = list(zip(range(used), self.other_ids[chosen].tolist(), strict=True))
-        self._kinds[used:] = OFF
+        selection = self.selector.select(states)
+        chosen, rest = selection.slotted, selection.unslotted
+        used, others, d = chosen.size, self.selector.others, self.slot_data
+        d.index[:used] = others[chosen]
+        d.index[used:] = self.index  # free slots: off (their position is unused)
+        d.neighbours = list(zip(range(used), self.selector.other_ids[chosen].tolist(),
+                                strict=True))
+        d.kinds[used:] = OFF
         required = np.zeros(self.slots)
         required[:used] = self.required[chosen]
         self.collisions.set_required(required)
-        self.collisions.set_unslotted(states[self.others[rest], :2], self.required[rest])
+        self.collisions.set_unslotted(states[others[rest], :2], self.required[rest])
         self.counts["unslotted_neighbours"] += int(rest.size)
 
-    def _publish(self, sample: int, out: ControlOutput) -> None:
+    def predict_own(self, sample: int, states: np.ndarray) -> None:
+        """:attr:`own_prediction` from the published plan, or the paper's fallback."""
+        if self.published is None or not fill_from_plan(self.own_prediction, self.published,
+                                                        sample, *self._timing):
+            self.own_prediction[:] = predict_from_states(
+                states[self.index], None, self.horizon, self.sample_time,
+                self.settings.discretization)[1:]
+
+    def track_plan_ages(self, sample: int, plans: Mapping[int, object]) -> dict[int, int]:
+        """Keep the slotted neighbours' plans, their ages' margins; returns the ages to report.
+
+        A neighbour whose newest plan seen is ``a >= 2`` samples old has
+        re-planned ``a - 1`` times unseen: its rows keep ``v_max Ts min(a - 1, N)``
+        more (:attr:`NeighbourSlots.age_margins`). Its age is reported once it
+        has been late :data:`LATE_STEPS` steps in a row (:class:`PlanBook.age`).
+        """
+        N, h = self.horizon, self.sample_time
+        margins = self.slot_data.age_margins
+        margins[:] = 0.0
+        report: dict[int, int] = {}
+        for e, jid in self.slot_data.neighbours:
+            age, held = self.book.age(jid, plans.get(jid), sample)
+            if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
+                margins[e] = self.context.max_speed * h * min(age - 1, N)
+                self.counts["late_plan_neighbours"] += 1
+            if held is not None:  # delayed, not a plan or two lost
+                report[jid] = min(held, N + 2)
+        return report
+
+    def classify(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
+                 previous_states: np.ndarray | None, plan_ages: PlanAges | None) -> None:
+        """Each slot's kind and prediction: shared (both plans of the pair's sample held),
+        obstacle (``"paper"`` mode) or missing (the fallback prediction)."""
+        shared = self.mode == "shared"
+        d = self.slot_data
+        own_cache: dict[int, np.ndarray | None] = {}
+        missing = 0
+        for e, jid in d.neighbours:
+            plan = plans.get(jid)
+            if shared:
+                pair = pair_sample(sample, self.robot_id, jid, plan_ages)
+                mine = self._own_at(pair, sample, own_cache)
+                theirs = None if mine is None else self.book.neighbour_plan(plans, jid, pair,
+                                                                            plan)
+                if theirs is not None and fill_from_plan(d.predictions[e], theirs, sample,
+                                                         *self._timing):
+                    d.own_predictions[e] = mine
+                    d.kinds[e] = SHARED
+                    if pair != sample - 1:
+                        self.counts["older_shared_neighbours"] += 1
+                    continue
+            elif plan is not None and fill_from_plan(d.predictions[e], plan, sample, *self._timing):
+                d.kinds[e] = OBSTACLE
+                continue
+            self.predict_fallback(e, sample, states, plan, previous_states)
+            d.kinds[e] = MISSING if shared else OBSTACLE
+            missing += 1
+        if missing:
+            self.counts["fallback_neighbours"] += missing
+
+    def predict_fallback(self, slot: int, sample: int, states: np.ndarray,
+                         plan: PlanMessage | None, previous_states: np.ndarray | None) -> None:
+        """The paper's fallback for the neighbour in ``slot``: its newest late plan (it
+        still says where it was going), else the input estimated from two states, held."""
+        d = self.slot_data
+        if d.age_margins[slot] == 0.0 or plan is None or not fill_from_plan(
+                d.predictions[slot], plan, sample, *self._timing):
+            j = d.index[slot]
+            prev = None if previous_states is None else previous_states[j]
+            d.predictions[slot] = predict_from_states(states[j], prev, self.horizon,
+                                                      self.sample_time,
+                                                      self.settings.discretization)[1:]
+
+    def publish(self, sample: int, out: ControlOutput) -> None:
+        """Keep the sample's plan as :attr:`published` (and in ``out.plan``), the step's
+        plan-age report in ``out.plan_ages``."""
         self.published = PlanMessage(self.robot_id, sample, out.predicted_states[0],
                                      out.predicted_inputs[0])
         out.plan = self.published
-        # a sample computed twice (a forged future state) published two plans: a
-        # neighbour may hold either, so that sample's pair rows are never shared
-        self._own_plans[sample] = None if sample in self._own_plans else self.published
-        if len(self._own_plans) > self.horizon + 2:
-            for old in [s for s in self._own_plans if s < sample - self.horizon - 1]:
-                del self._own_plans[old]
+        out.plan_ages = self.plan_ages
+        self.book.publish(self.published, sample)
 
     def update_neighbour_plan(self, plan: PlanMessage) -> None:
         """Keep a neighbour's plan for the next steps called without ``plans``.
@@ -425,7 +420,7 @@ class DecentralizedController(ControllerPipeline):
             arrays[name] = value
         kept = PlanMessage(int(sender), int(plan.sample), arrays["states"], arrays["inputs"])
         newest = self._received.get(sender)
-        self._remember(int(sender), kept, kept.sample if newest is None else newest.sample)
+        self.book.remember(int(sender), kept, kept.sample if newest is None else newest.sample)
         if newest is not None and newest.sample > plan.sample:
             return
         self._received[sender] = kept
@@ -475,20 +470,19 @@ class DecentralizedController(ControllerPipeline):
         -------
         ControlOutput
             The input to apply (``inputs[0]``) and, in ``plan``, the plan to
-            send to the neighbours for their step ``k + 1``; :attr:`plan_ages`
-            then holds this step's report.
+            send to the neighbours for their step ``k + 1``, in ``plan_ages``
+            this step's report (also :attr:`plan_ages`).
         """
         if plans is None:
             plans = self._received
-        self._plan_ages_in = plan_ages
-        return self.run_sample(sample, t, states, plans, previous_states)
+        return self.run_sample(sample, t, states, plans, previous_states, plan_ages)
 
 
 def _warn_paper_mode() -> None:
     """Log once per process that ``"paper"`` mode has no collision guarantee."""
-    global _paper_mode_warned
-    if not _paper_mode_warned:
-        _paper_mode_warned = True
+    global paper_mode_warned
+    if not paper_mode_warned:
+        paper_mode_warned = True
         log.warning("decentralized mode 'paper' (the seed paper's literal scheme, for "
                     "comparison) has no collision guarantee: robots avoid each other's "
                     "previous plans, and every built-in scenario collides with it "

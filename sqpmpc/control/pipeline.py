@@ -7,11 +7,11 @@ one function that reads top to bottom:
 2. **predict neighbours**: the scheme's collision data (centralized: the
    current positions; decentralized: the neighbours' exchanged plans, or the
    paper's fallback prediction when a plan is missing);
-3. **rules shape**: the scenario's references of stages 1..N, then every
-   rule's ``shape_references`` hook (detour targets, parking weights);
-4. **shift**: the previous solution moved one stage (kept as the fallback
-   plan), the measured state put in stage 0, then every rule's
-   ``shape_guess`` hook on the linearization point (stall repair, parking);
+3. **shift**: the previous solution moved one stage (kept as the fallback
+   plan), the measured state put in stage 0;
+4. **rules shape**: the scenario's references of stages 1..N, then every
+   rule's ``"references"`` hook (detour targets, parking weights), then every
+   rule's ``"guess"`` hook on the linearization point (stall repair, parking);
 5. **linearize and solve**: :meth:`sqpmpc.ocp.iteration.MultipleShootingSQP.solve`
    (one QP in RTI, iterations in SQP);
 6. **rules after solve**: a rule may ask for the sample to be iterated to
@@ -30,9 +30,13 @@ The pipeline is written against the robot model of the scenario
 velocities, CONTRACT 1c) become the model's states, the plan's commands and
 the poses and velocities the neighbours receive come from the model.
 
-The scheme-specific parts are three methods of the controllers in
-:mod:`sqpmpc.control.decentralized`: ``_predict_neighbours``, ``_safe`` and
-``_publish``.
+Rules see the sample through a read-only :class:`~sqpmpc.rules.base.SampleView`
+and return a :class:`~sqpmpc.rules.base.Contribution`, which the pipeline
+applies through the engine's update methods (:meth:`ControllerPipeline.apply`).
+The scheme-specific parts are three public methods of the controllers in
+:mod:`sqpmpc.control.centralized` and :mod:`sqpmpc.control.decentralized`:
+:meth:`ControllerPipeline.predict_neighbours`,
+:meth:`ControllerPipeline.first_input_safe` and :meth:`ControllerPipeline.publish`.
 """
 
 from __future__ import annotations
@@ -43,28 +47,30 @@ import math
 import numbers
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sqpmpc.control.output import ControlOutput, braking_input
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.ocp import all_finite
 from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel
 from sqpmpc.ocp.geometry import RowGeometry
-from sqpmpc.ocp.iteration import MultipleShootingSQP
+from sqpmpc.ocp.iteration import MultipleShootingSQP, engaged_robots
 from sqpmpc.ocp.obstacle_rows import ObstacleRows
+from sqpmpc.ocp.polygon_rows import MapRows, PolygonRows
 from sqpmpc.ocp.report import CollisionRows, IterationReport
 from sqpmpc.problem.plant import acceleration_path_deviation, model_margin, path_deviation
 from sqpmpc.problem.references import Reference, ReferenceSet
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
-from sqpmpc.rules.base import RuleContext, RuleInstance, SampleView
+from sqpmpc.rules.base import Contribution, RuleContext, RuleInstance, SampleView, read_only
 
 if TYPE_CHECKING:
-    from sqpmpc.control.plans import PlanMessage
+    from sqpmpc.control.plans import PlanAges
 
 __all__ = ["RECOVERY_TOLERANCE", "ControlOutput", "ControllerPipeline", "braking_input",
            "kernel_warm_up_seconds"]
@@ -76,56 +82,6 @@ RECOVERY_TOLERANCE = 1e-4
 def kernel_warm_up_seconds() -> float:
     """Seconds this process spent compiling or loading the kernels (once per process)."""
     return warm_up()
-
-
-@dataclass
-class ControlOutput:
-    """Result of one controller sample.
-
-    Attributes
-    ----------
-    inputs
-        ``(m, 2)`` velocity commands ``(v, omega)`` to apply (within bounds).
-    predicted_states, predicted_inputs
-        ``(m, N+1, 3)`` poses and ``(m, N, 2)`` paper-unicycle inputs of the plan
-        consistent with ``inputs`` (for the paper's unicycle the plan itself; for a
-        model with velocity states, :meth:`~sqpmpc.models.base.RobotModel.poses` and
-        :meth:`~sqpmpc.models.base.RobotModel.velocity_plan`).
-    fallback
-        ``None``, ``"shifted-plan"`` or ``"brake"``.
-    report
-        What the iteration did.
-    compute_time
-        Wall time of the whole sample, s.
-    counters
-        Cumulative counts of the controller after this sample: the engine's
-        (``samples``, ``fallbacks``, ``qp_rescues``, ``stage_one_overrides``,
-        ...) and every rule's (``sqpmpc rules``).
-    plan
-        Decentralized: the plan to send to the neighbours
-        (:class:`~sqpmpc.control.plans.PlanMessage`, the same object as the
-        controller's ``published``); ``None`` for the centralized controller.
-    """
-
-    inputs: np.ndarray
-    predicted_states: np.ndarray
-    predicted_inputs: np.ndarray
-    fallback: str | None
-    report: IterationReport
-    compute_time: float
-    counters: Mapping[str, int] = field(default_factory=dict)
-    plan: PlanMessage | None = None
-    model_states: np.ndarray | None = None
-    model_inputs: np.ndarray | None = None
-
-
-def braking_input(lower: np.ndarray, upper: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """The input closest to zero within ``[lower, upper]``, broadcast to ``shape + (2,)``."""
-    return np.broadcast_to(np.clip(0.0, lower, upper), shape + (2,)).copy()
-
-
-def _overrides(instance: RuleInstance, hook: str) -> bool:
-    return getattr(type(instance), hook) is not getattr(RuleInstance, hook)
 
 
 class ControllerPipeline:
@@ -176,21 +132,22 @@ class ControllerPipeline:
         self.counts: dict[str, int] = {
             "samples": 0, "fallbacks": 0, "shifted_plan_fallbacks": 0, "brake_fallbacks": 0,
             "qp_rescues": 0, "stage_one_overrides": 0, "converged_samples": 0}
-        self.geometry = RowGeometry.plain(self.horizon)
         self.context = RuleContext(scenario, self.indices, self.scheme,
-                                   settings.iteration_scheme, self.engine, self.geometry,
-                                   self.counts)
+                                   settings.iteration_scheme, self.counts)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
-        for rule in self.rules:
-            rule.configure_rows(self.geometry)
-        self._reference_rules = [r for r in self.rules if _overrides(r, "shape_references")]
-        self._guess_rules = [r for r in self.rules if _overrides(r, "shape_guess")]
-        self._after_rules = [r for r in self.rules if _overrides(r, "after_solve")]
+        geometry = RowGeometry.plain(self.horizon)
+        for rule in self.rules_with("rows"):
+            geometry = rule.configure_rows(geometry)
+        #: the collision-row geometry the rules configured (read by the scheme's rows)
+        self.geometry = geometry
+        self._reference_rules = self.rules_with("references")
+        self._guess_rules = self.rules_with("guess")
+        self._after_rules = self.rules_with("after_solve")
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
-        self._applied = np.zeros((m, 2))
-        self._applied_before = np.zeros((m, 2))
+        self._applied = read_only(np.zeros((m, 2)))  # the rules read both (read-only)
+        self._applied_before = self._applied
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
@@ -207,7 +164,7 @@ class ControllerPipeline:
         self.pair_margin = settings.collision_margin + self.model_margin
         #: tolerance of the ``overlap-recovery`` rule (:mod:`sqpmpc.ocp.collision_rows`), m
         self.recovery_tolerance = max(settings.collision_margin, RECOVERY_TOLERANCE)
-        self.obstacle_rows: ObstacleRows | None = None
+        self.obstacle_rows: ObstacleRows | MapRows | None = None
         if scenario.obstacles:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
@@ -215,12 +172,21 @@ class ControllerPipeline:
                 settings.collision_margin + 0.5 * self.model_margin,
                 (float(self.input_lower[0]), float(self.input_upper[0])),
                 self.recovery_tolerance)
+        if scenario.polygons:  # circles first, then every polygon's convex pieces
+            self.obstacle_rows = MapRows(self.obstacle_rows, PolygonRows(
+                scenario.polygons, scenario.diameters()[self.indices], self.horizon,
+                self.geometry, settings.collision_margin + 0.5 * self.model_margin))
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,
                    plans: Mapping[int, object] | None = None,
-                   previous_states: np.ndarray | None = None) -> ControlOutput:
-        """One sample, steps 1-8 of the module docstring."""
+                   previous_states: np.ndarray | None = None,
+                   plan_ages: PlanAges | None = None) -> ControlOutput:
+        """One sample, steps 1-8 of the module docstring.
+
+        ``plans``, ``previous_states`` and ``plan_ages`` are the neighbours'
+        data of the sample (:meth:`predict_neighbours`).
+        """
         t0 = time.perf_counter()
         # 1. measure
         states = np.asarray(states, dtype=float)
@@ -238,52 +204,86 @@ class ControllerPipeline:
         # 2. predict neighbours (and the obstacles)
         if self.obstacle_rows is not None:
             self.obstacle_rows.set_sample(t, own)
-        self._predict_neighbours(sample, states, plans or {}, previous_states)
-        # 3. rules shape the references
-        raw = self.reference(t)
-        view = SampleView(sample, t, np.ascontiguousarray(states[:, :2]),
-                          own if self._unicycle else own[:, :3], raw, raw,
-                          self._applied, self._applied_before,
-                          np.ascontiguousarray(states[:, 2]))
-        for rule in self._reference_rules:
-            rule.shape_references(view)
-        # 4. shift, then rules shape the linearization point
+        self.predict_neighbours(sample, states, plans or {}, previous_states, plan_ages)
+        # 3. shift the previous solution (kept as the fallback plan), x0 in stage 0
         engine = self.engine
         shifted = None
         if engine.has_solution:
             engine.shift()
             shifted = engine.inputs()
         engine.start_sample(own)
-        if self._guess_rules:
-            speeds = engine.guess_speeds()
-            for rule in self._guess_rules:
-                rule.shape_guess(view, speeds)
+        # 4. rules shape the references, then the linearization point; their view's arrays:
+        # this sample's new ones made read-only, the pipeline's and the engine's as views
+        raw = self.reference(t)
+        positions = np.ascontiguousarray(states[:, :2])
+        headings = np.ascontiguousarray(states[:, 2])
+        for fresh in (raw, positions, headings):
+            fresh.setflags(write=False)
+        view = SampleView.of_sample(
+            sample, t, positions, read_only(own if self._unicycle else own[:, :3]), raw,
+            self._applied, self._applied_before, headings,
+            engine.guess_speeds() if self._guess_rules else None)
+        for rule in self._reference_rules:
+            contribution = rule.shape_references(view)
+            if contribution is not None:
+                view = self.apply(contribution, view)
+        for rule in self._guess_rules:
+            contribution = rule.shape_guess(view)
+            if contribution is not None:
+                view = self.apply(contribution, view)
         # 5. linearize and solve
         budget = self.settings.time_budget
         deadline = None if budget is None else t0 + budget
         report = engine.solve(own, view.references, deadline=deadline, **self._rows)
         # 6. rules after the solve
         if report.success and self._after_rules:
-            wants = [rule.after_solve(view) for rule in self._after_rules]
-            if any(wants) and (deadline is None or time.perf_counter() <= deadline):
-                report = self._converge(own, view.references, report, deadline)
+            view = view.solved(engine.first_speeds(),
+                               functools.partial(engaged_robots, engine.layout, engine.y))
+            iterate = False
+            for rule in self._after_rules:  # every rule sees the solution
+                contribution = rule.after_solve(view)
+                iterate = iterate or (contribution is not None and contribution.iterate)
+            if iterate and (deadline is None or time.perf_counter() <= deadline):
+                report = self.converge(own, view.references, report, deadline)
         # 7. verify the first input, fall back if needed
-        out = self._verify(own, report, shifted, t0)
+        out = self.verify(own, report, shifted, t0)
         # 8. publish
-        self._count(out)
-        self._publish(sample, out)
+        self.count(out)
+        self.publish(sample, out)
         return out
 
+    def apply(self, contribution: Contribution | None, view: SampleView) -> SampleView:
+        """Apply a rule's contribution through the engine's update methods; returns the
+        view the next rule sees."""
+        if contribution is None:
+            return view
+        c = contribution
+        if c.position_weight_scale is not None:
+            self.engine.update_position_weight_scale(c.position_weight_scale)
+        if c.guess_speeds is not None:  # view.guess_speeds views the iterate: it shows them
+            self.engine.update_guess_speeds(c.guess_speeds)
+        if c.references is not None:
+            view = view.but(references=c.references)
+        return view
+
+    def rules_with(self, hook: str) -> list[RuleInstance]:
+        """The bound rules that declare ``hook`` (:data:`sqpmpc.rules.base.HOOKS`), in order."""
+        return [r for r in self.rules if hook in r.hooks]
+
     # ------------------------------------------------------------------- steps
-    def _predict_neighbours(self, sample: int, states: np.ndarray,
-                            plans: Mapping[int, object],
-                            previous_states: np.ndarray | None) -> None:
-        """Scheme-specific collision data of the sample (override)."""
+    def predict_neighbours(self, sample: int, states: np.ndarray,
+                           plans: Mapping[int, object],
+                           previous_states: np.ndarray | None,
+                           plan_ages: PlanAges | None = None) -> None:
+        """Step 2, scheme-specific: the collision data of the sample from the measured
+        ``states (n, 3)``, the neighbours' ``plans`` by id, the states of ``k - 1`` and
+        the relayed ``plan_ages`` (decentralized)."""
         raise NotImplementedError
 
-    def _safe(self, states: np.ndarray, next_states: np.ndarray, inputs: np.ndarray) -> bool:
-        """Whether moving the own robots ``states -> next_states`` with the first
-        ``inputs (m, 2)`` is safe (override)."""
+    def first_input_safe(self, states: np.ndarray, next_states: np.ndarray,
+                         inputs: np.ndarray) -> bool:
+        """Step 7, scheme-specific: whether moving the own robots ``states ->
+        next_states`` with the first ``inputs (m, 2)`` is safe over the whole sample."""
         raise NotImplementedError
 
     def path_deviation(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -300,8 +300,8 @@ class ControllerPipeline:
             self._own[:, 3:5], inputs, self.sample_time, self.settings.discretization,
             self.scenario.plant.model, self._noise_bound)
 
-    def _obstacles_safe(self, states: np.ndarray, next_states: np.ndarray,
-                        growth: np.ndarray, beta: np.ndarray | None = None) -> bool:
+    def obstacles_safe(self, states: np.ndarray, next_states: np.ndarray,
+                       growth: np.ndarray, beta: np.ndarray | None = None) -> bool:
         """The own robots' paths keep their distances to the obstacles over the sample (a
         path strays ``growth s``, or with ``beta`` ``growth s + beta s (1 - s)``)."""
         if self.obstacle_rows is None:
@@ -309,10 +309,11 @@ class ControllerPipeline:
         return self.obstacle_rows.first_input_safe(states[:, :2], next_states[:, :2], growth,
                                                    beta)
 
-    def _publish(self, sample: int, out: ControlOutput) -> None:
-        """Hand the sample's result to the scheme (override if there is something to send)."""
+    def publish(self, sample: int, out: ControlOutput) -> None:
+        """Step 8: hand the sample's result to the scheme (override if there is something
+        to send)."""
 
-    def _converge(self, own: np.ndarray, references: np.ndarray, report: IterationReport,
+    def converge(self, own: np.ndarray, references: np.ndarray, report: IterationReport,
                   deadline: float | None) -> IterationReport:
         """Iterate the sample to convergence (SQP) after the RTI step; reports merged."""
         self.counts["converged_samples"] += 1
@@ -328,9 +329,9 @@ class ControllerPipeline:
             qp_iterations=report.qp_iterations + more.qp_iterations,
         )
 
-    def _verify(self, own: np.ndarray, report: IterationReport, shifted: np.ndarray | None,
+    def verify(self, own: np.ndarray, report: IterationReport, shifted: np.ndarray | None,
                 t0: float) -> ControlOutput:
-        """Clip and verify the QP's first input; else the shifted plan, else brake."""
+        """Step 7: clip and verify the QP's first input; else the shifted plan, else brake."""
         engine, model, h = self.engine, self.model, self.sample_time
         if report.success:
             plan_u = engine.inputs()
@@ -343,7 +344,7 @@ class ControllerPipeline:
                 finite = all_finite(plan_u.ravel())
                 plan_x = engine.rollout(own, plan_u) if finite else None
             # stage 1 of the rollout is exactly the next state of the first input
-            if finite and self._safe(own, plan_x[:, 1], plan_u[:, 0]) and (
+            if finite and self.first_input_safe(own, plan_x[:, 1], plan_u[:, 0]) and (
                     self._unicycle or self._brakes_safely(plan_x[:, 1])):
                 if self._unicycle:
                     return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
@@ -355,7 +356,7 @@ class ControllerPipeline:
             model.clip_first_input(own, candidate, h)
             if all_finite(candidate.ravel()):
                 candidate_x = engine.rollout(own, candidate)
-                if self._safe(own, candidate_x[:, 1], candidate[:, 0]) and \
+                if self.first_input_safe(own, candidate_x[:, 1], candidate[:, 0]) and \
                         self._brakes_safely(candidate_x[:, 1]):
                     fallback, plan_u, plan_x = "shifted-plan", candidate, candidate_x
         if plan_u is None:
@@ -397,8 +398,8 @@ class ControllerPipeline:
         inputs = model.braking_inputs(states, samples, h)
         return self.engine.rollout(states, inputs), inputs
 
-    def _count(self, out: ControlOutput) -> None:
-        """Counters and the applied-input history (rules read both)."""
+    def count(self, out: ControlOutput) -> None:
+        """Step 8: counters and the applied-input history (rules read both)."""
         c = self.counts
         c["samples"] += 1
         if out.fallback is not None:
@@ -411,10 +412,10 @@ class ControllerPipeline:
         for rows in self._rows.values():
             c["stage_one_overrides"] += rows.stage_one_overrides
         self._applied_before = self._applied
-        self._applied = out.inputs
+        self._applied = read_only(out.inputs)  # the rules' view of it
         out.counters = dict(c)
 
-    def _in_position_bounds(self, positions: np.ndarray) -> bool:
+    def in_position_bounds(self, positions: np.ndarray) -> bool:
         if not self._bounded:
             return True
         inside = (positions >= self._position_low) & (positions <= self._position_high)

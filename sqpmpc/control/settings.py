@@ -82,7 +82,7 @@ class SolverSettings:
         (``None``: one slot per other robot, always filled). Decentralized: the
         rows of a robot's QP; neighbours within reach left without a slot are
         kept safe by the first-input check
-        (:meth:`sqpmpc.control.decentralized.DecentralizedController._select_neighbours`).
+        (:meth:`sqpmpc.control.decentralized.DecentralizedController.select_neighbours`).
         Centralized: each robot's nearest pairs get rows on every stage, the
         other pairs within reach on stage 1 only
         (:func:`sqpmpc.kernels.collision.select_pairs`). ``"auto"`` (default):

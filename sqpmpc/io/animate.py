@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.patches import Circle
+from matplotlib.patches import Circle, Polygon
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.io.files import load_trajectory
@@ -57,6 +57,8 @@ class RunData:
         ``(k, n, N+1, 3)`` plans or ``None``.
     obstacle_positions, obstacle_diameters
         ``(k+1, O, 2)`` and ``(O,)`` (``O`` may be 0).
+    polygons
+        Vertices ``(V, 2)`` of every static polygon obstacle.
     """
 
     def __init__(self, name: str, data: dict[str, np.ndarray], scenario: object | None) -> None:
@@ -74,6 +76,8 @@ class RunData:
                                        if obstacles else np.zeros((self.t.size, 0, 2)))
             if self.references is None:
                 self.references = np.asarray(scenario.reference_positions(self.t))  # type: ignore[attr-defined]
+            self.polygons = [np.asarray(p.points, dtype=float)
+                             for p in tuple(getattr(scenario, "polygons", ()) or ())]
         else:
             if "diameters" not in data:
                 raise ProblemError("trajectory.npz has no 'diameters' (written by an older "
@@ -82,6 +86,9 @@ class RunData:
             self.obstacle_diameters = data.get("obstacle_diameters", np.zeros(0))
             self.obstacle_positions = data.get("obstacle_positions",
                                                np.zeros((self.t.size, 0, 2)))
+            sizes = data.get("polygon_sizes", np.zeros(0, dtype=np.int64))
+            points = data.get("polygon_points", np.zeros((0, 2)))
+            self.polygons = np.split(points, np.cumsum(sizes)[:-1]) if sizes.size else []
         if self.diameters.shape != (len(self.ids),):
             raise ProblemError(f"the scenario has {self.diameters.size} robots, the run "
                                f"{len(self.ids)}")
@@ -127,6 +134,7 @@ def _limits(run: RunData) -> tuple[float, float, float, float]:
         pts.append(run.references.reshape(-1, 2))
     if run.obstacle_positions.size:
         pts.append(run.obstacle_positions.reshape(-1, 2))
+    pts += [np.asarray(p).reshape(-1, 2) for p in run.polygons]
     p = np.concatenate(pts)
     p = p[np.isfinite(p).all(axis=1)]
     pad = float(run.diameters.max()) + 0.2
@@ -222,6 +230,8 @@ def render_frames(run: RunData, step: int, size: tuple[float, float] | None = No
     obstacles = [ax.add_patch(Circle((0.0, 0.0), 0.5 * d, facecolor="0.6", edgecolor="0.25",
                                      zorder=3))
                  for d in run.obstacle_diameters]
+    for points in run.polygons:
+        ax.add_patch(Polygon(points, closed=True, facecolor="0.6", edgecolor="0.25", zorder=3))
     title = ax.set_title("", fontsize="medium")
     clearance = np.minimum.accumulate(_min_clearance(run))
     frames = list(range(0, run.k + 1, step)) if samples is None else samples

@@ -33,6 +33,7 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
     seconds and ``references`` ``(k+1, n, 2)``; when recorded, also
     ``plant_inputs`` ``(k, n, 2)`` and ``horizons`` ``(k, n, N+1, 3)``
     (float32, the plans of :attr:`RunRecord.horizons`); ``diameters`` ``(n,)``;
+    with polygon obstacles ``polygon_points`` ``(V, 2)`` and ``polygon_sizes`` ``(P,)``,
     with obstacles ``obstacle_diameters`` ``(O,)`` and ``obstacle_positions``
     ``(k+1, O, 2)``. The file is written atomically.
 
@@ -62,6 +63,10 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
         arrays["obstacle_diameters"] = np.array([o.diameter for o in obstacles])
         arrays["obstacle_positions"] = np.stack([o.position_at(record.t) for o in obstacles],
                                                 axis=1)
+    polygons = tuple(getattr(record.scenario, "polygons", ()) or ())
+    if polygons:  # every polygon's vertices, concatenated, and how many each has
+        arrays["polygon_points"] = np.concatenate([np.asarray(p.points) for p in polygons])
+        arrays["polygon_sizes"] = np.array([len(p.points) for p in polygons], dtype=np.int64)
     _atomic_write(path, lambda fh: np.savez(fh, **arrays), "wb")
     return path
 

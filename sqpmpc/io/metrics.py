@@ -51,6 +51,8 @@ from typing import Any
 import numpy as np
 
 from sqpmpc.problem.paths import obstacle_clearances, plant_paths, segment_distances
+from sqpmpc.problem.references import PointReference
+from sqpmpc.problem.routes import route_lengths
 from sqpmpc.sim.record import RunRecord
 
 __all__ = [
@@ -121,6 +123,19 @@ def _between_samples(piece_distances: np.ndarray, k: int) -> np.ndarray:
     """Per-interval minimum ``(k, P)`` of the distances of the path pieces ``(k M, P)``."""
     M = piece_distances.shape[0] // k
     return piece_distances.reshape((k, M) + piece_distances.shape[1:]).min(axis=1)
+
+
+def _no_route(sc: Any, ids: np.ndarray) -> list[int]:
+    """Ids of the robots with a goal at rest that no route through the static map reaches
+    from their initial positions (:func:`sqpmpc.problem.routes.route_lengths`)."""
+    static = bool(getattr(sc, "polygons", ())) or any(
+        not o.moving for o in getattr(sc, "obstacles", ()))
+    if not static:
+        return []
+    goals = np.asarray(sc.reference_positions(sc.t_end), dtype=float)
+    lengths = route_lengths(sc, goals)
+    return [int(i) for i, r, length in zip(ids, sc.robots, lengths, strict=True)
+            if isinstance(r.reference, PointReference) and length is None]
 
 
 def _float(x: Any) -> float | None:
@@ -288,6 +303,7 @@ def compute_metrics(record: RunRecord) -> dict[str, Any]:
         "intersample_min_clearance": intersample_min_clearance,
         "intersample_collisions": intersample_collisions,
         **obstacle_clearances(sc, record.t, pos, path_t, path_pos, COLLISION_TOLERANCE),
+        "no_route": _no_route(sc, ids),
     }
     plant = getattr(sc, "plant", None)
     if plant is not None:

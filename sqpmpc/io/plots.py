@@ -59,9 +59,14 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 def _obstacles(ax: Axes, record: RunRecord) -> None:
-    """Obstacles at t = 0 (grey discs; a moving one also at the end, hatched, with its track)."""
-    from matplotlib.patches import Circle
+    """Obstacles at t = 0 (grey discs and polygons; a moving one also at the end, hatched,
+    with its track)."""
+    from matplotlib.patches import Circle, Polygon
 
+    for o, poly in enumerate(getattr(record.scenario, "polygons", ()) or ()):
+        ax.add_patch(Polygon(np.asarray(poly.points), closed=True, facecolor="0.6",
+                             edgecolor="0.3", zorder=1.5,
+                             label="wall / shelf" if o == 0 else None))
     t_end = float(record.t[-1])
     for o, ob in enumerate(getattr(record.scenario, "obstacles", ()) or ()):
         start = ob.position_at(0.0)

@@ -137,6 +137,7 @@ class FleetLog:
         self.diameters = np.asarray(scenario.diameters(), dtype=float)
         self.colors = robot_rgba(len(self.ids))
         self.obstacles = tuple(getattr(scenario, "obstacles", ()) or ())
+        self.polygons = tuple(getattr(scenario, "polygons", ()) or ())
         pairs = np.asarray(scenario.pairs(), dtype=np.int64).reshape(-1, 2)
         self.pairs = pairs
         self.required = np.asarray(scenario.required_distances(), dtype=float)[
@@ -200,6 +201,21 @@ class FleetLog:
                     pose=_pose(cx, cy, 0.0, HEIGHT), size=fm.Vector3(x=d, y=d, z=2 * HEIGHT),
                     bottom_scale=1.0, top_scale=1.0,
                     color=fm.Color(r=0.35, g=0.35, b=0.35, a=0.8))]))
+        grey = fm.Color(r=0.35, g=0.35, b=0.35, a=0.8)
+        for o, polygon in enumerate(self.polygons):
+            # a triangle fan per convex piece (the floor plan) and the outline on top
+            tris = [fm.Point3(x=float(v[0]), y=float(v[1]), z=0.0)
+                    for piece in polygon.pieces for i in range(1, len(piece) - 1)
+                    for v in (piece[0], piece[i], piece[i + 1])]
+            ring = [*polygon.points, polygon.points[0]]
+            out.append(fm.SceneEntity(
+                timestamp=stamp, frame_id=FRAME, id=f"polygon_{o}",
+                triangles=[fm.TriangleListPrimitive(pose=_pose(0.0, 0.0, 0.0, 0.0),
+                                                    points=tris, color=grey)],
+                lines=[fm.LinePrimitive(
+                    type=fm.LinePrimitiveLineType.LineStrip, thickness=0.03,
+                    points=[fm.Point3(x=float(x), y=float(y), z=HEIGHT) for x, y in ring],
+                    color=grey)]))
         return out
 
     def _clearance(self, t: float, pos: np.ndarray) -> dict[str, Any]:
@@ -227,6 +243,17 @@ class FleetLog:
             if out["min"] is None or gap.min() < out["min"]:
                 o = int(np.argmin(gap.min(axis=0)))
                 out["min"], out["min_pair"] = _finite(gap.min()), f"obstacle {o}"
+        if self.polygons:
+            radius = 0.5 * self.diameters
+            gap = np.stack([p.signed_distance(pos) - radius for p in self.polygons], axis=1)
+            near = gap.min(axis=1)
+            if "obstacles" in out:
+                near = np.minimum(near, [out["obstacles"][str(i)] for i in self.ids])
+            out["obstacles"] = {str(i): _finite(v) for i, v in zip(self.ids, near,
+                                                                   strict=True)}
+            if out["min"] is None or gap.min() < out["min"]:
+                o = int(np.argmin(gap.min(axis=0)))
+                out["min"], out["min_pair"] = _finite(gap.min()), f"polygon {o}"
         return out
 
     # ------------------------------------------------------------------- log

@@ -147,22 +147,31 @@ def reversing(v: np.ndarray, v1: np.ndarray, v2: np.ndarray, eps: float,
     return count
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
 def warm_up_rules() -> None:
-    """Compile or load the rules' kernels with the array layouts the pipeline passes."""
-    speeds = np.zeros((2, 6))[:, ::2]  # a strided view, as the iterate's speeds
-    states = np.zeros((2, 3))
+    """Compile or load the rules' kernels with the array layouts the pipeline passes (the
+    rules' sample view is read-only; their own state and outputs are not)."""
+    speeds = np.zeros((2, 3))
+    states = _read_only(np.zeros((2, 3)))
+    references = _read_only(np.zeros((2, 3, 2)))
+    applied = _read_only(np.zeros((2, 2)))
     repair_speeds(speeds, np.ones((2, 2)), states, np.ones(2, dtype=np.bool_), 0.05, 0.1,
-                   0.05, -0.05)
-    parking_mask(np.zeros((2, 3, 2)), np.zeros((2, 3)), 1.0, np.zeros(2, dtype=np.bool_))
-    standing_still(np.zeros((2, 3, 2)), np.zeros((2, 2)), 0.05, 10, np.zeros(2, dtype=np.int64),
-              np.zeros(2, dtype=np.bool_))
+                  0.05, -0.05)
+    parking_mask(references, states, 1.0, np.zeros(2, dtype=np.bool_))
+    standing_still(references, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
+                   np.zeros(2, dtype=np.bool_))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
     hold_touching_rows(np.zeros(2), np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
                        np.zeros((1, 2)))
-    reversing(np.zeros(2), np.zeros(2), np.zeros(2), 0.005, np.zeros(2, dtype=np.bool_))
+    reversing(_read_only(np.zeros(2)), np.zeros(2), np.zeros(2), 0.005,
+              np.zeros(2, dtype=np.bool_))
     i = np.zeros(2, dtype=np.int64)
-    detour_step(np.zeros((3, 2)), np.arange(2), np.zeros((2, 2)), np.ones((2, 2)),
-                 np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())
+    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, np.ones((2, 2)),
+                np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())
 
 
 @_jit
@@ -305,6 +314,6 @@ def roundabout_directions(positions: np.ndarray, headings: np.ndarray,
 
 def warm_up_roundabout() -> None:
     """Compile or load the rule's kernel with the array layouts the rule passes."""
-    roundabout_directions(np.zeros((3, 2)), np.zeros(3), np.full((3, 2), np.nan), np.arange(2),
-                          np.ones((2, 2)), np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0,
-                          np.zeros((2, 2)))
+    roundabout_directions(_read_only(np.zeros((3, 2))), _read_only(np.zeros(3)),
+                          np.full((3, 2), np.nan), np.arange(2), np.ones((2, 2)),
+                          np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0, np.zeros((2, 2)))

@@ -26,6 +26,7 @@ from sqpmpc.kernels.ocp import (
     split_rows,
     write_reference,
 )
+from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
 from sqpmpc.kernels.rules import hold_touching_rows, warm_up_roundabout, warm_up_rules
 
@@ -81,6 +82,9 @@ def warm_up() -> float:
     ck.nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],
                    idx.copy())
     write_reference(z, np.zeros((2, 2, 2)), np.zeros((2, 1, 2)), 13, 5)
+    references = np.zeros((2, 2, 2))
+    references.setflags(write=False)  # as the pipeline passes them (the rules' view)
+    write_reference(z, references, np.zeros((2, 1, 2)), 13, 5)
     order = np.arange(26)
     shift_iterate(z, z, order, order, 2, 2, 13, 0.1, np.empty(26), np.empty(26))
     idx = np.zeros(1, dtype=np.int64)
@@ -91,4 +95,9 @@ def warm_up() -> float:
     warm_up_acceleration()
     warm_up_roundabout()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
+    square = np.array([[[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]])
+    four = np.full(1, 4, dtype=np.int64)
+    polygon_rows(np.zeros(2), np.zeros((2, 3)), square, four, np.ones(1), rot,
+                 np.empty((1, 2, 2)), np.empty((1, 2)))
+    path_keeps_pieces(0.0, 0.0, 0.1, 0.0, square, four, np.ones(1), 0.0)
     return time.perf_counter() - t0

@@ -34,7 +34,7 @@ from typing import Literal
 import numpy as np
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite, kkt_residual, rows_shortfall
+from sqpmpc.kernels.ocp import all_finite, rows_shortfall
 from sqpmpc.models.base import RobotModel
 from sqpmpc.models.paper import UnicycleModel
 from sqpmpc.ocp.report import CollisionRows, IterationReport, IterationSettings
@@ -42,7 +42,7 @@ from sqpmpc.qp.backend import QPResult
 from sqpmpc.qp.layout import QPLayout
 from sqpmpc.qp.sparse import SparseQP
 
-__all__ = ["MultipleShootingSQP"]
+__all__ = ["MultipleShootingSQP", "engaged_robots"]
 
 
 class MultipleShootingSQP:
@@ -147,27 +147,26 @@ class MultipleShootingSQP:
             _shift_indexed(self._shift_y, idx, axis)
 
     def _build_views(self) -> None:
-        """Views into the QP's value arrays that the compiled kernels write."""
+        """The QP's blocks the compiled kernels write (:meth:`SparseQP.matrix_entries`,
+        :meth:`SparseQP.row_bounds`)."""
         L, qp = self.layout, self.qp
-        sl = L.A_slices
         m, N, E, P = L.n_robots, L.horizon, L.n_external, L.n_pairs
-
-        def rows(index: np.ndarray) -> slice:
-            flat = index.ravel()
-            if flat.size and not np.array_equal(flat, np.arange(flat[0], flat[0] + flat.size)):
-                raise ProblemError("internal error: QP row block is not contiguous")
-            return slice(int(flat[0]), int(flat[0]) + flat.size) if flat.size else slice(0, 0)
-
-        self._init_rows = rows(L.init_rows)
-        dyn = rows(L.dyn_rows)
-        self._dyn_A = qp.A_values[sl["dyn_A"]]
-        self._dyn_B = qp.A_values[sl["dyn_B"]]
-        self._dyn_lower, self._dyn_upper = qp.lower[dyn], qp.upper[dyn]
-        self._internal_A = qp.A_values[sl["internal"]].reshape(P, N, 4)
-        self._internal_lower = qp.lower[rows(L.internal_rows)].reshape(P, N)
-        self._external_A = qp.A_values[sl["external"]].reshape(m, E, N, 2)
-        self._external_lower = qp.lower[rows(L.external_rows)].reshape(m, E, N)
+        self._init_lower, self._init_upper = qp.row_bounds("init")
+        self._dyn_A = qp.matrix_entries("dyn_A")
+        self._dyn_B = qp.matrix_entries("dyn_B")
+        self._dyn_lower, self._dyn_upper = qp.row_bounds("dyn")
+        self._internal_A = qp.matrix_entries("internal").reshape(P, N, 4)
+        self._internal_lower = qp.row_bounds("internal")[0].reshape(P, N)
+        self._external_A = qp.matrix_entries("external").reshape(m, E, N, 2)
+        self._external_lower = qp.row_bounds("external")[0].reshape(m, E, N)
         self._block = L.block_size
+
+    def collision_blocks(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The collision rows as the QP holds them: ``"internal"``: ``(P, N, 4)`` entries
+        (``n, -n``) and ``(P, N)`` lower bounds; ``"external"``: ``(m, E, N, 2)`` and
+        ``(m, E, N)`` (read-only copies)."""
+        return {"internal": (self._internal_A.copy(), self._internal_lower.copy()),
+                "external": (self._external_A.copy(), self._external_lower.copy())}
 
     # ------------------------------------------------------------ iterate
     @property
@@ -231,13 +230,22 @@ class MultipleShootingSQP:
                 initial_states, self.layout.horizon, self.sample_time))
 
     def guess_speeds(self) -> np.ndarray:
-        """Speeds ``(m, N)`` of stages 0..N-1 of the current iterate, a writable view (the
-        linearization point): the model's forward speed, an input of the unicycle, a state of
-        a model with velocity states."""
+        """Speeds ``(m, N)`` of stages 0..N-1 of the current iterate, a read-only view (the
+        linearization point; :meth:`update_guess_speeds` changes them): the model's forward
+        speed, an input of the unicycle, a state of a model with velocity states."""
         L = self.layout
         stride, offset = L.stage_size, self.model.speed_offset
-        return self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
+        out = self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
             :, offset:stride * L.horizon:stride]
+        out.setflags(write=False)
+        return out
+
+    def update_guess_speeds(self, speeds: np.ndarray) -> None:
+        """Set the speeds ``(m, N)`` of the current iterate (the linearization point)."""
+        L = self.layout
+        stride, offset = L.stage_size, self.model.speed_offset
+        self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
+            :, offset:stride * L.horizon:stride] = speeds
 
     def first_speeds(self) -> np.ndarray:
         """The speed commanded at this sample ``(m,)`` of each own robot in the current iterate
@@ -266,7 +274,6 @@ class MultipleShootingSQP:
         if self.kernels is not None:
             self.kernels.linearize(z, L.n_robots, N, self._block, self.sample_time, self._dyn_A,
                             self._dyn_B, self._dyn_lower, self._dyn_upper)
-            qp.mark_changed()
             states = None
         else:
             states, inputs = L.split_primal(z)
@@ -276,8 +283,9 @@ class MultipleShootingSQP:
                    - np.einsum("mnij,mnj->mni", B_k, inputs))
             qp.update_dynamics(A_k, B_k, c_k)
         flat = initial_states.ravel()
-        qp.lower[self._init_rows] = flat
-        qp.upper[self._init_rows] = flat
+        self._init_lower[:] = flat
+        self._init_upper[:] = flat
+        qp.mark_changed()  # the views written: the dynamics (Euler) and the initial state
         if internal is not None or external is not None:
             if states is None and (internal is not None or external.needs_states):
                 states = z[L.state_index]
@@ -297,11 +305,7 @@ class MultipleShootingSQP:
     # ------------------------------------------------------------ NLP values
     def _cost(self, z: np.ndarray) -> tuple[float, np.ndarray]:
         """Value and gradient of the quadratic cost (curvature terms excluded)."""
-        return self._cost_value(z), self.qp._P_diag_cost * z + self.qp._q_cost
-
-    def _cost_value(self, z: np.ndarray) -> float:
-        """Value of the quadratic cost alone (the line search needs no gradient)."""
-        return float(0.5 * z @ (self.qp._P_diag_cost * z) + self.qp._q_cost @ z)
+        return self.qp.cost_value(z), self.qp.cost_gradient(z)
 
     def _infeasibility(self, z: np.ndarray, initial_states: np.ndarray) -> float:
         r"""L1 norm of the constraint violations at ``z`` for the merit function.
@@ -338,9 +342,7 @@ class MultipleShootingSQP:
         :math:`\|\nabla f + J^\top y\|_\infty`, the primal violation and the
         complementarity :math:`|y_i|\,\mathrm{dist}_i`.
         """
-        L, qp = self.layout, self.qp
-        return float(kkt_residual(qp.A_values, L.A_rows, L.A_cols, z, y, qp.lower, qp.upper,
-                                  qp._P_diag_cost, qp._q_cost, self._Az, self._ATy))
+        return self.qp.kkt_residual(z, y, self._Az, self._ATy)
 
     # ------------------------------------------------------------ solve
     def solve(
@@ -446,14 +448,7 @@ class MultipleShootingSQP:
 
     def engaged_robots(self, y: np.ndarray, tolerance: float = 1e-4) -> np.ndarray:
         """Own robots with an active collision row (``|y_i| > tolerance``), ``(m,)`` bool."""
-        L = self.layout
-        engaged = np.zeros(L.n_robots, dtype=bool)
-        if L.n_pairs:
-            active = np.abs(y[L.internal_rows]).max(axis=1) > tolerance
-            engaged[np.asarray(L.internal_pairs).reshape(-1, 2)[active].ravel()] = True
-        if L.n_external:
-            engaged |= np.abs(y[L.external_rows]).max(axis=(1, 2)) > tolerance
-        return engaged
+        return engaged_robots(self.layout, y, tolerance)
 
     def _line_search(self, z: np.ndarray, res: QPResult, initial_states: np.ndarray) -> float:
         """Armijo backtracking on the L1 merit function; returns the step length."""
@@ -474,7 +469,7 @@ class MultipleShootingSQP:
         while alpha > 1e-6:
             zt = z + alpha * dz
             h = self._infeasibility(zt, initial_states)
-            phi = self._cost_value(zt) + mu * h
+            phi = self.qp.cost_value(zt) + mu * h
             if phi <= phi0 + 1e-4 * alpha * slope:
                 return alpha
             alpha *= 0.5
@@ -489,3 +484,16 @@ def _shift_indexed(vec: np.ndarray, idx: np.ndarray, axis: int) -> None:
     head = np.take(vals, np.arange(1, vals.shape[axis]), axis=axis)
     tail = np.take(vals, [vals.shape[axis] - 1], axis=axis)
     vec[idx] = np.concatenate((head, tail), axis=axis)
+
+
+def engaged_robots(layout: QPLayout, y: np.ndarray, tolerance: float = 1e-4) -> np.ndarray:
+    """Own robots of ``layout`` with an active collision row (``|y_i| > tolerance`` in the
+    multipliers ``y``), ``(m,)`` bool."""
+    L = layout
+    engaged = np.zeros(L.n_robots, dtype=bool)
+    if L.n_pairs:
+        active = np.abs(y[L.internal_rows]).max(axis=1) > tolerance
+        engaged[np.asarray(L.internal_pairs).reshape(-1, 2)[active].ravel()] = True
+    if L.n_external:
+        engaged |= np.abs(y[L.external_rows]).max(axis=(1, 2)) > tolerance
+    return engaged

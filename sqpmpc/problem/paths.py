@@ -13,7 +13,7 @@ for an arc that chord of a sub-arc is within :math:`|v\omega|(T_s/M)^2/8` of it
 
 :func:`obstacle_clearances` measures every robot against every obstacle at
 the samples and along the paths (the obstacles move straight at constant
-velocity).
+velocity), and every static polygon (:func:`sqpmpc.problem.polygons.polygon_clearances`).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import numpy as np
 from sqpmpc.models.acceleration import acceleration_dynamics
 from sqpmpc.models.unicycle import discrete_dynamics
 from sqpmpc.problem.obstacles import obstacle_positions
+from sqpmpc.problem.polygons import polygon_clearances
 
 __all__ = ["ARC_SUBSTEPS", "obstacle_clearances", "plant_paths", "segment_distances"]
 
@@ -122,9 +123,12 @@ def obstacle_clearances(scenario: Any, t: np.ndarray, positions: np.ndarray,
         over both (``None`` without obstacles); ``intersample_min_obstacle_clearance``.
     """
     obstacles = tuple(getattr(scenario, "obstacles", ()))
-    if not obstacles:
+    polygons = tuple(getattr(scenario, "polygons", ()))
+    if not obstacles and not polygons:
         return {"obstacle_collisions": 0, "min_obstacle_clearance": None,
                 "intersample_min_obstacle_clearance": None}
+    if not obstacles:
+        return _polygons_only(scenario, polygons, positions, path_positions, tolerance)
     d = np.asarray(scenario.diameters(), dtype=float)
     d_o = np.array([o.diameter for o in obstacles])
     need = 0.5 * (d[:, None] + d_o[None, :])  # (n, O)
@@ -144,6 +148,24 @@ def obstacle_clearances(scenario: Any, t: np.ndarray, positions: np.ndarray,
         between = float(per_interval.min())
         collisions += int(np.count_nonzero(per_interval < -tolerance))
         best = min(best, between)
+    if polygons:
+        more = _polygons_only(scenario, polygons, positions, path_positions, tolerance)
+        collisions += more["obstacle_collisions"]
+        best = min(best, more["min_obstacle_clearance"])
+        if between is not None:
+            between = min(between, more["intersample_min_obstacle_clearance"])
+    return {"obstacle_collisions": collisions, "min_obstacle_clearance": best,
+            "intersample_min_obstacle_clearance": between}
+
+
+def _polygons_only(scenario: Any, polygons: tuple[Any, ...], positions: np.ndarray,
+                   path_positions: np.ndarray, tolerance: float) -> dict[str, Any]:
+    """:func:`obstacle_clearances` of the polygon obstacles alone."""
+    radii = 0.5 * np.asarray(scenario.diameters(), dtype=float)
+    collisions, at, between = polygon_clearances(
+        polygons, radii, positions, path_positions if positions.shape[0] > 1 else None,
+        tolerance)
+    best = at if between is None else min(at, between)  # type: ignore[type-var]
     return {"obstacle_collisions": collisions, "min_obstacle_clearance": best,
             "intersample_min_obstacle_clearance": between}
 

@@ -36,6 +36,7 @@ from sqpmpc.models.base import RobotModel
 from sqpmpc.problem.bounds import Bounds
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
+from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.references import (
     Reference,
     _describe,
@@ -188,6 +189,9 @@ class Scenario:
         the Euler step, no noise).
     source
         File path or built-in name it came from (not part of equality).
+    polygons
+        Static polygon obstacles (walls, shelves: the file's ``[[obstacles]]``
+        with ``points``), none overlapping a robot at :math:`t = 0`.
 
     Raises
     ------
@@ -205,6 +209,7 @@ class Scenario:
     obstacles: tuple[Obstacle, ...] = ()
     plant: PlantSpec = field(default_factory=PlantSpec)
     source: str = field(default="<memory>", compare=False)
+    polygons: tuple[PolygonObstacle, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.source, str):
@@ -244,10 +249,30 @@ class Scenario:
         if not isinstance(self.plant, PlantSpec):
             raise ScenarioError(self.source, "plant", f"expected a PlantSpec ([plant] table), "
                                 f"found {_describe(self.plant)}")
+        if not isinstance(self.polygons, list | tuple):
+            raise ScenarioError(self.source, "polygons", "expected polygon obstacles, found "
+                                f"{_describe(self.polygons)}")
+        object.__setattr__(self, "polygons", tuple(self.polygons))
+        for i, polygon in enumerate(self.polygons):
+            if not isinstance(polygon, PolygonObstacle):
+                raise ScenarioError(self.source, f"polygons[{i}]",
+                                    f"expected a PolygonObstacle, found {_describe(polygon)}")
         self._check_obstacles()
 
     def _check_obstacles(self) -> None:
         xy = self.initial_states()[:, :2]
+        radius = 0.5 * self.diameters()
+        for p, polygon in enumerate(self.polygons):
+            gap = polygon.signed_distance(xy)
+            bad = np.flatnonzero(gap < radius)
+            if bad.size:
+                j = int(bad[0])
+                where = "inside it" if gap[j] < 0 else f"{gap[j]:.6g} m from its boundary"
+                raise ScenarioError(
+                    self.source, f"polygons[{p}].points",
+                    f"polygon obstacle overlaps robot id {self.robots[j].id} (robots[{j}]) at "
+                    f"t = 0: its centre is {where}, expected at least its radius "
+                    f"{radius[j]:.6g} m outside")
         for o, obstacle in enumerate(self.obstacles):
             gap = np.hypot(*(xy - np.asarray(obstacle.position)).T)
             need = 0.5 * (self.diameters() + obstacle.diameter)
@@ -333,6 +358,11 @@ class Scenario:
         j, k = np.triu_indices(self.n_robots, 1)
         return np.stack((j, k), axis=-1).astype(np.int64)
 
+    @property
+    def obstacle_slots(self) -> int:
+        """Obstacle rows per robot and stage: one per circle and per convex polygon piece."""
+        return len(self.obstacles) + sum(len(p.pieces) for p in self.polygons)
+
     def reference_positions(self, t: float | np.ndarray) -> np.ndarray:
         """:math:`r_j(t)` of every robot, shape ``np.shape(t) + (n, 2)``."""
         return np.stack([r.reference.position(t) for r in self.robots], axis=-2)
@@ -376,7 +406,7 @@ class Scenario:
                       f"initial_state = {_toml_value(robot.initial_state)}",
                       f"diameter = {_toml_value(robot.diameter)}",
                       f"reference = {_toml_value(robot.reference.to_dict())}"]
-        for obstacle in self.obstacles:
+        for obstacle in (*self.obstacles, *self.polygons):
             lines += ["", "[[obstacles]]"]
             lines += [f"{k} = {_toml_value(v)}" for k, v in obstacle.to_dict().items()]
         if self.plant != PlantSpec():

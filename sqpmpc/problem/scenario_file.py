@@ -15,6 +15,7 @@ from typing import Any
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
+from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.references import _describe, _FieldError, reference_from_dict
 from sqpmpc.problem.scenario import (
     Bounds,
@@ -26,22 +27,33 @@ from sqpmpc.problem.scenario import (
     _check_timing,
 )
 
-__all__ = ["builtin_scenario_names", "load_scenario", "parse_scenario"]
+__all__ = [
+    "OBSTACLE_KEYS", "OPTIONAL_TOP_KEYS", "PLANT_KEYS", "ROBOT_KEYS", "TOP_KEYS",
+    "builtin_scenario_names", "load_scenario", "parse_scenario", "parse_scenario_text",
+]
 
 
-_TOP_KEYS = ("name", "t_end", "sample_time", "horizon", "weights", "bounds", "robots")
+TOP_KEYS = ("name", "t_end", "sample_time", "horizon", "weights", "bounds", "robots")
+"""The keys every scenario file has at its top level."""
 
 
-_OPTIONAL_TOP_KEYS = ("obstacles", "plant")
+OPTIONAL_TOP_KEYS = ("obstacles", "plant")
+"""The top-level keys a scenario file may have."""
 
 
-_OBSTACLE_KEYS = ("position", "diameter", "velocity")
+OBSTACLE_KEYS = ("position", "diameter", "velocity")
+"""The keys of an ``[[obstacles]]`` entry."""
 
 
 _OBSTACLE_REQUIRED = ("position", "diameter")
 
 
-_PLANT_KEYS = ("model", "input_noise", "seed")
+POLYGON_KEYS = ("points",)
+"""The keys of an ``[[obstacles]]`` table of a polygon (CONTRACT 1d)."""
+
+
+PLANT_KEYS = ("model", "input_noise", "seed")
+"""The keys of the ``[plant]`` table."""
 
 
 _WEIGHT_KEYS = ("Q", "R")
@@ -53,7 +65,8 @@ _BOUND_KEYS = ("v", "omega", "x", "y", "acceleration", "angular_acceleration")
 _BOUND_REQUIRED = ("v", "omega")
 
 
-_ROBOT_KEYS = ("id", "initial_state", "diameter", "reference")
+ROBOT_KEYS = ("id", "initial_state", "diameter", "reference")
+"""The keys of a ``[[robots]]`` entry."""
 
 
 _EXPECTED = {  # what a missing key should hold
@@ -116,7 +129,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     ScenarioError
         The first problem found, naming ``source`` and the key.
     """
-    _table(data, source, "", _TOP_KEYS + _OPTIONAL_TOP_KEYS, _TOP_KEYS)
+    _table(data, source, "", TOP_KEYS + OPTIONAL_TOP_KEYS, TOP_KEYS)
     try:  # top-level scalars first, so errors come roughly in file order
         _check_name(data["name"])
         t_end, ts, _ = _check_timing(data["t_end"], data["sample_time"], data["horizon"])
@@ -135,7 +148,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     for i, raw in enumerate(raw_robots):
         key = f"robots[{i}]"
         try:
-            r = _table(raw, source, key, _ROBOT_KEYS, _ROBOT_KEYS)
+            r = _table(raw, source, key, ROBOT_KEYS, ROBOT_KEYS)
             reference = reference_from_dict(r["reference"], source, f"{key}.reference")
             robots.append(_build(RobotSpec, source, key, id=r["id"],
                                  initial_state=r["initial_state"], diameter=r["diameter"],
@@ -147,18 +160,32 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     if not isinstance(raw_obstacles, list | tuple):
         raise ScenarioError(source, "obstacles", "expected [[obstacles]] tables, found "
                             f"{_describe(raw_obstacles)}")
+    polygons = []
+    polygon_keys = []  # the file's key of each polygon, for the scenario's own checks
     for i, raw in enumerate(raw_obstacles):
         key = f"obstacles[{i}]"
-        o = _table(raw, source, key, _OBSTACLE_KEYS, _OBSTACLE_REQUIRED)
+        if isinstance(raw, Mapping) and "points" in raw:  # a polygon (CONTRACT 1d)
+            o = _table(raw, source, key, POLYGON_KEYS, POLYGON_KEYS)
+            polygons.append(_build_checked(PolygonObstacle, source, key, **o))
+            polygon_keys.append(key)
+            continue
+        o = _table(raw, source, key, OBSTACLE_KEYS, _OBSTACLE_REQUIRED)
         obstacles.append(_build_checked(Obstacle, source, key, **o))
     plant = PlantSpec()
     if "plant" in data:
         plant = _build_checked(PlantSpec, source, "plant",
-                               **_table(data["plant"], source, "plant", _PLANT_KEYS, ()))
-    return Scenario(name=data["name"], t_end=data["t_end"], sample_time=data["sample_time"],
-                    horizon=data["horizon"], weights=weights, bounds=bounds,
-                    robots=tuple(robots), obstacles=tuple(obstacles), plant=plant,
-                    source=source)
+                               **_table(data["plant"], source, "plant", PLANT_KEYS, ()))
+    try:
+        return Scenario(name=data["name"], t_end=data["t_end"],
+                        sample_time=data["sample_time"], horizon=data["horizon"],
+                        weights=weights, bounds=bounds, robots=tuple(robots),
+                        obstacles=tuple(obstacles), plant=plant, source=source,
+                        polygons=tuple(polygons))
+    except ScenarioError as exc:
+        if not exc.key.startswith("polygons["):
+            raise
+        index, _, rest = exc.key[len("polygons["):].partition("]")
+        raise ScenarioError(source, polygon_keys[int(index)] + rest, exc.detail) from None
 
 
 def _robot_label(raw: Any, index: int) -> str:
@@ -190,7 +217,14 @@ def builtin_scenario_names() -> list[str]:
                   if p.name.endswith(".toml") and p.is_file())
 
 
-def _parse_text(raw: bytes, source: str) -> Scenario:
+def parse_scenario_text(raw: bytes, source: str) -> Scenario:
+    """The scenario of a TOML file's bytes ``raw`` (``source`` names it in errors).
+
+    Raises
+    ------
+    ScenarioError
+        Not UTF-8, not TOML, or not a valid scenario; the message names the place.
+    """
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -222,7 +256,7 @@ def load_scenario(spec: str | os.PathLike[str]) -> Scenario:
     builtins = builtin_scenario_names()
     if isinstance(spec, str) and spec in builtins:
         raw = resources.files("sqpmpc.scenarios").joinpath(f"{spec}.toml").read_bytes()
-        return _parse_text(raw, spec)
+        return parse_scenario_text(raw, spec)
     path = Path(spec)
     source = str(spec) if isinstance(spec, str) else os.fspath(path)
     if not path.exists():
@@ -234,4 +268,4 @@ def load_scenario(spec: str | os.PathLike[str]) -> Scenario:
         raw = path.read_bytes()
     except OSError as exc:
         raise ScenarioError(source, "", f"cannot read: {exc.strerror or exc}") from None
-    return _parse_text(raw, source)
+    return parse_scenario_text(raw, source)

@@ -1,11 +1,20 @@
-"""QP data shared by every backend: the backends' names, OSQP's settings, one solve's
-result and the interior-point reference solve.
+"""QP data shared by every backend: the backend protocol and its registry by name, OSQP's
+settings, one solve's result and the interior-point reference solve.
+
+Every backend (:mod:`sqpmpc.qp.osqp_backend`, :mod:`sqpmpc.qp.piqp`,
+:mod:`sqpmpc.qp.daqp`) implements :class:`QPBackend`: one ``solve`` on the
+values of the fixed pattern, told what changed since its last solve.
+:func:`make_backend` builds one by name, importing its module only then.
+The two policies around a backend (the OSQP-to-PIQP hand-over and the
+interior-point rescue) are in :mod:`sqpmpc.qp.policies`.
 """
 
 from __future__ import annotations
 
+import importlib
 import warnings
 from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import qpsolvers
@@ -13,9 +22,13 @@ import scipy.sparse as sp
 
 from sqpmpc.errors import ProblemError
 
+if TYPE_CHECKING:
+    from sqpmpc.qp.layout import QPLayout
+
 __all__ = [
-    "BackendSolution", "HANDOVER_ITERATIONS", "OSQPSettings", "PIQP_MAX_ITER", "QPResult",
-    "QP_SOLVERS", "solve_interior_point",
+    "ALL_CHANGED", "BACKENDS", "HANDOVER_ITERATIONS", "OSQPSettings", "PIQP_MAX_ITER",
+    "QPBackend", "QPResult", "QP_SOLVERS", "BackendSolution", "Changes", "make_backend",
+    "solve_interior_point",
 ]
 
 
@@ -120,8 +133,13 @@ class OSQPSettings:
 
 @dataclass(slots=True)
 class BackendSolution:
-    """What one solve of another backend returned (:mod:`sqpmpc.qp.piqp`,
-    :mod:`sqpmpc.qp.daqp`); duals in OSQP's convention."""
+    """What one solve of a backend returned; duals in OSQP's convention.
+
+    ``solved``: the backend's status says solved (OSQP: *solved*, or *solved
+    inaccurate* when the settings accept it); ``time_limit_reached``: the
+    solve ran out of its time limit (neither hand-over nor rescue then);
+    ``extra``: backend-specific numbers for :attr:`QPResult.extra`.
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -132,6 +150,62 @@ class BackendSolution:
     objective: float = float("nan")
     primal_residual: float = float("nan")
     dual_residual: float = float("nan")
+    time_limit_reached: bool = False
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Changes:
+    """What changed since a backend's last solve: ``P`` values, ``A`` values, the vectors
+    (``q``, ``l``, ``u``)."""
+
+    P: bool = True
+    A: bool = True
+    vectors: bool = True
+
+
+#: every part changed (a first solve, a hand-over)
+ALL_CHANGED = Changes()
+
+
+class QPBackend(Protocol):
+    """A QP solver on the fixed pattern of a :class:`~sqpmpc.qp.layout.QPLayout`.
+
+    ``P_values`` (upper triangle) and ``A_values`` are in the layout's entry
+    order; ``changed`` says what differs from the last call (a backend may
+    push only that); ``warm_x``/``warm_y`` a warm start it may use.
+    """
+
+    name: str
+    setup_count: int
+
+    def solve(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
+              lower: np.ndarray, upper: np.ndarray, changed: Changes,
+              warm_x: np.ndarray | None = None, warm_y: np.ndarray | None = None
+              ) -> BackendSolution:
+        r"""Solve :math:`\min \tfrac12 z^\top P z + q^\top z` s.t. :math:`l \le Az \le u`."""
+
+
+#: Backend name -> ``(module, class)``, imported when first built.
+BACKENDS: dict[str, tuple[str, str]] = {
+    "osqp": ("sqpmpc.qp.osqp_backend", "OSQPBackend"),
+    "piqp": ("sqpmpc.qp.piqp", "PIQPBackend"),
+    "daqp": ("sqpmpc.qp.daqp", "DAQPBackend"),
+}
+
+
+def make_backend(name: str, layout: QPLayout, settings: OSQPSettings) -> QPBackend:
+    """The backend ``name`` (:data:`BACKENDS`) for ``layout``: OSQP with ``settings``,
+    PIQP with its tolerances and :data:`PIQP_MAX_ITER`, DAQP as is."""
+    if name not in BACKENDS:
+        raise ProblemError(f"QP backend must be one of {tuple(BACKENDS)}, got {name!r}")
+    module, cls = BACKENDS[name]
+    backend = getattr(importlib.import_module(module), cls)
+    if name == "osqp":
+        return backend(layout, settings)
+    if name == "piqp":
+        return backend(layout, settings.eps_abs, settings.eps_rel, PIQP_MAX_ITER)
+    return backend(layout)
 
 
 @dataclass

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from sqpmpc.qp.backend import BackendSolution
+from sqpmpc.qp.backend import BackendSolution, Changes
 from sqpmpc.qp.layout import QPLayout
 
 __all__ = ["DAQPBackend"]
@@ -43,6 +43,8 @@ class DAQPBackend:
     layout
         Index maps and sparsity.
     """
+
+    name = "daqp"
 
     def __init__(self, layout: QPLayout) -> None:
         import daqp
@@ -63,9 +65,13 @@ class DAQPBackend:
         self.setup_count = 0
 
     def solve(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
-              lower: np.ndarray, upper: np.ndarray, P_changed: bool) -> BackendSolution:
-        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them);
-        ``H`` is rewritten only when ``P_changed``."""
+              lower: np.ndarray, upper: np.ndarray, changed: Changes,
+              warm_x: np.ndarray | None = None, warm_y: np.ndarray | None = None
+              ) -> BackendSolution:
+        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them;
+        the :class:`~sqpmpc.qp.backend.QPBackend` protocol, no warm start); ``H`` is
+        handed over again only when ``changed.P``."""
+        P_changed = changed.P
         L = self.layout
         if P_changed or self.model is None:
             self.H[self._P_rows, self._P_cols] = P_values

@@ -36,7 +36,7 @@ import scipy.sparse as sp
 
 from sqpmpc.errors import SolverError
 from sqpmpc.kernels.ocp import split_rows
-from sqpmpc.qp.backend import BackendSolution
+from sqpmpc.qp.backend import BackendSolution, Changes
 from sqpmpc.qp.layout import QPLayout
 
 __all__ = ["PIQPBackend"]
@@ -60,6 +60,8 @@ class PIQPBackend:
     max_iter
         PIQP's iteration cap.
     """
+
+    name = "piqp"
 
     def __init__(self, layout: QPLayout, eps_abs: float, eps_rel: float, max_iter: int) -> None:
         import piqp
@@ -97,9 +99,13 @@ class PIQPBackend:
         self.setup_count = 0
 
     def solve(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
-              lower: np.ndarray, upper: np.ndarray, P_changed: bool) -> BackendSolution:
-        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them);
-        ``P`` is handed over again only when ``P_changed``."""
+              lower: np.ndarray, upper: np.ndarray, changed: Changes,
+              warm_x: np.ndarray | None = None, warm_y: np.ndarray | None = None
+              ) -> BackendSolution:
+        """Solve the QP with these values (entry order, as :class:`SparseQP` keeps them;
+        the :class:`~sqpmpc.qp.backend.QPBackend` protocol, no warm start); ``P`` is
+        handed over again only when ``changed.P``."""
+        P_changed = changed.P
         if P_changed or self.solver is None:
             self.P.data[:] = P_values[self._P_entries]
         b, h_l, h_u, x_l, x_u = self._b, self._h_l, self._h_u, self._x_l, self._x_u

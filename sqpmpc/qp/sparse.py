@@ -1,4 +1,4 @@
-r"""The sparse QP of one SQP/RTI iteration, held by OSQP and updated in place.
+r"""The sparse QP of one SQP/RTI iteration, held by a backend and updated in place.
 
 The QP is
 
@@ -6,73 +6,65 @@ The QP is
 
     \min_z \tfrac12 z^\top P z + q^\top z \quad \text{s.t.} \quad l \le A z \le u,
 
-with the layout of :class:`sqpmpc.qp.layout.QPLayout`. OSQP is set up once, on the
-first solve; afterwards every ``update_*`` method writes values into arrays
-kept in the layout's entry order, and :meth:`SparseQP.solve` pushes only what
-changed (vectors, ``A`` values, ``P`` values) with ``OSQP.update`` and warm
-starts primal and dual variables. A change of vectors alone never triggers a
-re-factorization.
+with the layout of :class:`sqpmpc.qp.layout.QPLayout`. Every ``update_*``
+method writes values into arrays kept in the layout's entry order; the
+compiled kernels of the OCP write whole blocks through the views
+:meth:`SparseQP.matrix_entries` and :meth:`SparseQP.row_bounds` hand out by
+name, then say so with :meth:`SparseQP.mark_changed`. :meth:`SparseQP.solve`
+hands the backend (:class:`~sqpmpc.qp.backend.QPBackend`, chosen by name:
+OSQP, PIQP or DAQP) only what changed, then applies the policies of
+:mod:`sqpmpc.qp.policies` (hand-over, rescue) to a QP it left unsolved. A
+change of vectors alone never triggers a re-factorization.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
-import osqp
 import scipy.sparse as sp
 
-from sqpmpc.errors import ProblemError, SolverError
-from sqpmpc.kernels.ocp import all_finite, clip_bounds, write_reference
+from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.ocp import all_finite, kkt_residual, write_reference
 from sqpmpc.qp.backend import (
     HANDOVER_ITERATIONS,
     PIQP_MAX_ITER,
     QP_SOLVERS,
+    Changes,
     OSQPSettings,
+    QPBackend,
     QPResult,
+    make_backend,
     solve_interior_point,
 )
 from sqpmpc.qp.layout import QPLayout
-
-if TYPE_CHECKING:
-    from sqpmpc.qp.daqp import DAQPBackend
-    from sqpmpc.qp.piqp import PIQPBackend
+from sqpmpc.qp.policies import HandOver, Rescue
 
 __all__ = [
     "HANDOVER_ITERATIONS", "PIQP_MAX_ITER", "QP_SOLVERS", "OSQPSettings", "QPResult", "SparseQP",
     "solve_interior_point",
 ]
 
+# every combination, built once (a solve looks its own up)
+_CHANGES = {(P, A, v): Changes(P, A, v) for P in (False, True) for A in (False, True)
+            for v in (False, True)}
 
-_SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
-_SOLVED_EXACTLY = osqp.SolverStatus.OSQP_SOLVED
-_SIGINT = osqp.SolverStatus.OSQP_SIGINT
-_TIME_LIMIT = osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED
-_OSQP_INFINITY = float(osqp.constant("OSQP_INFTY"))
-# what SparseQP calls on OSQP's compiled solver object (the calls osqp.OSQP makes itself)
-_CORE_METHODS = ("update_data_vec", "update_data_mat", "warm_start", "solve", "info", "solution")
+#: The row blocks :meth:`SparseQP.row_bounds` hands out (the layout's ``<name>_rows``).
+ROW_BLOCKS = ("init", "dyn", "input", "position", "internal", "external")
 
 
 class SparseQP:
-    """OSQP-backed QP with a fixed pattern and in-place value updates.
+    """A QP with a fixed pattern, in-place value updates and a backend chosen by name.
 
-    After the one ``setup``, updates, warm starts and solves go straight to
-    the compiled solver object that ``osqp.OSQP`` wraps, making the same
-    calls the wrapper makes (infinite bounds clipped to ``OSQP_INFTY`` as it
-    does) but without its per-call bookkeeping for derivatives and its
-    result namespaces: about 30 us less per QP (measured: paper-s2
-    decentralized, 0.30 -> 0.275 ms per robot and sample). The results are
-    bitwise the same (tested). Setting
-    ``use_osqp_wrapper = True``, or an OSQP build whose wrapper lacks that
-    object, uses the public ``osqp.OSQP`` methods instead.
-
-    With ``solver="piqp"`` the same interface solves with PIQP
-    (:mod:`sqpmpc.qp.piqp`, in-place updates, no warm start), with
-    ``solver="daqp"`` with DAQP (:mod:`sqpmpc.qp.daqp`, dense, hot-started
-    from the previous active set); the rescue of ``settings`` applies to both,
-    the tolerances to PIQP.
+    With ``solver="osqp"`` (default) the QP is solved by OSQP
+    (:mod:`sqpmpc.qp.osqp_backend`, warm-started), with ``"piqp"`` by PIQP
+    (:mod:`sqpmpc.qp.piqp`, in-place updates, no warm start), with ``"daqp"``
+    by DAQP (:mod:`sqpmpc.qp.daqp`, dense, hot-started from the previous
+    active set), with ``"osqp+piqp"`` by OSQP capped at
+    :data:`HANDOVER_ITERATIONS` iterations and PIQP for what it leaves
+    (:class:`~sqpmpc.qp.policies.HandOver`). The rescue of ``settings``
+    (:class:`~sqpmpc.qp.policies.Rescue`) applies to all, the tolerances to PIQP.
 
     Parameters
     ----------
@@ -81,7 +73,18 @@ class SparseQP:
     settings
         OSQP settings (tolerances and rescue also for PIQP).
     solver
-        ``"osqp"`` (default), ``"piqp"`` or ``"daqp"``.
+        ``"osqp"`` (default), ``"piqp"``, ``"daqp"`` or ``"osqp+piqp"``.
+
+    Attributes
+    ----------
+    backend
+        The backend that solves first (:class:`~sqpmpc.qp.backend.QPBackend`).
+    handover, rescue
+        The policies for a QP it leaves unsolved (``None``: off).
+    A_values, P_values, lower, upper
+        The QP's values in the layout's entry order (read them; write through
+        the ``update_*`` methods or the views of :meth:`matrix_entries` and
+        :meth:`row_bounds`).
     """
 
     def __init__(self, layout: QPLayout, settings: OSQPSettings | None = None,
@@ -91,23 +94,15 @@ class SparseQP:
         self.layout = layout
         self.settings = settings or OSQPSettings()
         self.solver_name = solver
-        self._backend: PIQPBackend | DAQPBackend | None = None
-        self._handover: PIQPBackend | None = None
-        if solver in ("piqp", "osqp+piqp"):
-            from sqpmpc.qp.piqp import PIQPBackend
-
-            piqp_backend = PIQPBackend(layout, self.settings.eps_abs, self.settings.eps_rel,
-                                       PIQP_MAX_ITER)
-            if solver == "piqp":
-                self._backend = piqp_backend
-            else:  # OSQP first, capped; PIQP takes the QPs it leaves
-                self._handover = piqp_backend
-                self.settings = replace(self.settings, max_iter=min(
-                    self.settings.max_iter, HANDOVER_ITERATIONS))
-        elif solver == "daqp":
-            from sqpmpc.qp.daqp import DAQPBackend
-
-            self._backend = DAQPBackend(layout)
+        self.handover: HandOver | None = None
+        if solver == "osqp+piqp":  # OSQP first, capped; PIQP takes the QPs it leaves
+            self.handover = HandOver(make_backend("piqp", layout, self.settings))
+            self.settings = replace(self.settings, max_iter=min(
+                self.settings.max_iter, HANDOVER_ITERATIONS))
+            solver = "osqp"
+        self.backend: QPBackend = make_backend(solver, layout, self.settings)
+        self.rescue = None if self.settings.rescue_solver is None else Rescue(
+            self.settings.rescue_solver)
         L = layout
         self.A_values = np.zeros(L.A_nnz)
         sl = L.A_slices
@@ -126,16 +121,40 @@ class SparseQP:
         self.upper = np.full(L.n_con, np.inf)
         self.lower[L.slack_rows] = 0.0
         self.lower[L.internal_rows] = -np.inf
-        self._lower_osqp = np.zeros(L.n_con)  # the bounds clipped to OSQP's infinity
-        self._upper_osqp = np.zeros(L.n_con)
         self._no_curvature = True
-        self._solver: osqp.OSQP | None = None
-        self._core: object | None = None
-        self.use_osqp_wrapper = False
         self._dirty_P = self._dirty_A = self._dirty_vec = True
-        self.setup_count = 0
-        self.rescue_count = 0
-        self.handover_count = 0
+
+    @property
+    def setup_count(self) -> int:
+        """Setups of the first backend so far (1 after the first solve)."""
+        return self.backend.setup_count
+
+    @property
+    def rescue_count(self) -> int:
+        """QPs rescued by the interior-point solver so far."""
+        return 0 if self.rescue is None else self.rescue.count
+
+    @property
+    def handover_count(self) -> int:
+        """QPs handed over from OSQP to PIQP so far (``"osqp+piqp"``)."""
+        return 0 if self.handover is None else self.handover.count
+
+    @property
+    def use_osqp_wrapper(self) -> bool:
+        """OSQP: solve through the public ``osqp.OSQP`` methods (default: its compiled
+        object, bitwise the same and faster)."""
+        return bool(getattr(self.backend, "use_osqp_wrapper", False))
+
+    @use_osqp_wrapper.setter
+    def use_osqp_wrapper(self, value: bool) -> None:
+        if not hasattr(self.backend, "use_osqp_wrapper"):
+            raise ProblemError(f"use_osqp_wrapper: the {self.backend.name} backend is not OSQP")
+        self.backend.use_osqp_wrapper = bool(value)
+
+    @property
+    def pending(self) -> Changes:
+        """What changed since the last solve (the backend gets only that)."""
+        return _CHANGES[self._dirty_P, self._dirty_A, self._dirty_vec]
 
     # ---------------------------------------------------------------- values
     @property
@@ -166,6 +185,11 @@ class SparseQP:
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._q_cost[L.n_var - L.n_slack:] = float(slack_penalty)
         self._dirty_P = self._dirty_vec = True
+
+    @property
+    def position_weight_scale(self) -> np.ndarray:
+        """``(m,)`` the current factor on each own robot's position weight (a copy)."""
+        return self._position_scale.copy()
 
     def update_position_weight_scale(self, scale: np.ndarray) -> None:
         r"""Scale the position weight of each own robot: :math:`Q_r = s_r Q`, ``scale (m,)``.
@@ -288,13 +312,54 @@ class SparseQP:
         self._dirty_P = self._dirty_vec = True
 
     def mark_changed(self, matrix: bool = True, vectors: bool = True) -> None:
-        """Tell the QP that ``A_values`` (``matrix``) or ``lower``/``upper`` were written directly.
+        """Tell the QP that ``A`` values (``matrix``) or bounds (``vectors``) were written
+        through the views of :meth:`matrix_entries` / :meth:`row_bounds`.
 
-        The engine's compiled kernels write into views of these arrays; the
-        next :meth:`solve` pushes what was marked.
+        The next :meth:`solve` pushes what was marked.
         """
         self._dirty_A = self._dirty_A or matrix
         self._dirty_vec = self._dirty_vec or vectors
+
+    def matrix_entries(self, name: str) -> np.ndarray:
+        """A writable view of the ``A`` values of block ``name`` (a key of the layout's
+        ``A_slices``: ``"dyn_A"``, ``"dyn_B"``, ``"internal"``, ``"external"``, ...), in
+        entry order; call :meth:`mark_changed` after writing."""
+        if name not in self.layout.A_slices:
+            raise ProblemError(f"matrix_entries: no block {name!r}; blocks: "
+                               f"{', '.join(self.layout.A_slices)}")
+        return self.A_values[self.layout.A_slices[name]]
+
+    def row_bounds(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Writable views ``(lower, upper)`` of the bounds of the row block ``name``
+        (:data:`ROW_BLOCKS`, the layout's ``<name>_rows``, contiguous), flat; call
+        :meth:`mark_changed` after writing."""
+        if name not in ROW_BLOCKS:
+            raise ProblemError(f"row_bounds: no row block {name!r}; blocks: "
+                               f"{', '.join(ROW_BLOCKS)}")
+        flat = np.asarray(getattr(self.layout, f"{name}_rows")).ravel()
+        if flat.size and not np.array_equal(flat, np.arange(flat[0], flat[0] + flat.size)):
+            raise ProblemError(f"internal error: QP row block {name!r} is not contiguous")
+        rows = slice(int(flat[0]), int(flat[0]) + flat.size) if flat.size else slice(0, 0)
+        return self.lower[rows], self.upper[rows]
+
+    # ------------------------------------------------------------------ cost
+    def cost_value(self, z: np.ndarray) -> float:
+        r"""The quadratic cost :math:`\tfrac12 z^\top P_c z + q_c^\top z` at ``z`` (weights,
+        reference and slack price; curvature terms excluded)."""
+        return float(0.5 * z @ (self._P_diag_cost * z) + self._q_cost @ z)
+
+    def cost_gradient(self, z: np.ndarray) -> np.ndarray:
+        """The gradient :math:`P_c z + q_c` of :meth:`cost_value` at ``z``."""
+        return self._P_diag_cost * z + self._q_cost
+
+    def kkt_residual(self, z: np.ndarray, y: np.ndarray, Az: np.ndarray,
+                     ATy: np.ndarray) -> float:
+        r"""Largest of :math:`\|\nabla f + A^\top y\|_\infty`, the violation of
+        :math:`l \le Az \le u` and the complementarity at ``(z, y)``, with the cost of
+        :meth:`cost_gradient` (scratch ``Az (n_con,)``, ``ATy (n_var,)``)."""
+        L = self.layout
+        return float(kkt_residual(self.A_values, L.A_rows, L.A_cols, z, y, self.lower,
+                                  self.upper, self._P_diag_cost, self._q_cost, Az, ATy))
 
     # -------------------------------------------------------------- matrices
     def matrices(self) -> tuple[sp.csc_matrix, np.ndarray, sp.csc_matrix, np.ndarray, np.ndarray]:
@@ -308,72 +373,12 @@ class SparseQP:
         )
 
     # ----------------------------------------------------------------- solve
-    def _rescue(self, x: np.ndarray, y: np.ndarray, status: str
-                ) -> tuple[np.ndarray, np.ndarray, str, bool, float]:
-        """The same QP by the rescue solver: ``(x, y, status, rescued, seconds)``."""
-        if self.settings.rescue_solver is None:
-            return x, y, status, False, 0.0
-        t0 = time.perf_counter()
-        rescue = solve_interior_point(*self.matrices(), solver=self.settings.rescue_solver)
-        spent = time.perf_counter() - t0
-        if rescue is None:
-            return x, y, f"{status}; {self.settings.rescue_solver} found no solution either", \
-                False, spent
-        self.rescue_count += 1
-        return (*rescue, f"solved by {self.settings.rescue_solver} ({status})", True, spent)
-
-    def _solve_backend(self, t0: float) -> QPResult:
-        """Solve with the PIQP or DAQP backend; the rescue as for OSQP."""
-        q = self._q_cost if self._no_curvature else self.q
-        sol = self._backend.solve(self.P_values, q, self.A_values, self.lower, self.upper,
-                                  self._dirty_P)
-        self._dirty_P = self._dirty_A = self._dirty_vec = False
-        x, y, status = sol.x, sol.y, sol.status
-        ok = sol.solved and x.size == self.layout.n_var and all_finite(x) and all_finite(y)
-        rescued, rescue_time = False, 0.0
-        if not ok:
-            x, y, status, rescued, rescue_time = self._rescue(x, y, status)
-            ok = rescued
-        return QPResult(ok, status, x, y, sol.objective, sol.primal_residual,
-                        sol.dual_residual, sol.iterations, sol.solve_time + rescue_time,
-                        time.perf_counter() - t0, {"rescued": float(rescued)})
-
-    def _push(self) -> None:
-        L = self.layout
-        if self._solver is None:
-            P, q, A, lo, up = self.matrices()
-            self._solver = osqp.OSQP()
-            self._solver.setup(P, q, A, lo, up, **self.settings.to_osqp())
-            self.setup_count += 1
-            core = getattr(self._solver, "_solver", None)
-            self._core = core if all(hasattr(core, a) for a in _CORE_METHODS) else None
-        elif self._core is not None and not self.use_osqp_wrapper:
-            core = self._core
-            if self._dirty_vec:
-                q = self._q_cost if self._no_curvature else self.q
-                clip_bounds(self.lower, self.upper, _OSQP_INFINITY, self._lower_osqp,
-                            self._upper_osqp)
-                core.update_data_vec(q=q, l=self._lower_osqp, u=self._upper_osqp)
-            if self._dirty_P or self._dirty_A:
-                core.update_data_mat(
-                    P_x=self.P_values[L.P_order_inverse] if self._dirty_P else None, P_i=None,
-                    A_x=self.A_values[L.A_order_inverse] if self._dirty_A else None, A_i=None)
-        else:
-            kwargs: dict[str, np.ndarray] = {}
-            if self._dirty_vec:
-                kwargs.update(q=self.q, l=self.lower, u=self.upper)
-            if self._dirty_P:
-                kwargs["Px"] = self.P_values[L.P_order_inverse]
-            if self._dirty_A:
-                kwargs["Ax"] = self.A_values[L.A_order_inverse]
-            if kwargs:
-                self._solver.update(**kwargs)
-        self._dirty_P = self._dirty_A = self._dirty_vec = False
-
     def solve(
         self, warm_x: np.ndarray | None = None, warm_y: np.ndarray | None = None
     ) -> QPResult:
-        """Push pending updates, warm start, solve; never raises on solver failure.
+        """Solve with the backend (what changed pushed, warm-started where it can), then
+        the hand-over and the rescue for a QP it left unsolved (not after its time
+        limit); never raises on solver failure.
 
         A Ctrl-C that OSQP caught during the solve is raised as ``KeyboardInterrupt``.
 
@@ -384,64 +389,24 @@ class SparseQP:
             non-finite output.
         """
         t0 = time.perf_counter()
-        if self._backend is not None:
-            return self._solve_backend(t0)
-        try:
-            self._push()
-            if self._core is not None and not self.use_osqp_wrapper:
-                core = self._core
-                if warm_x is not None or warm_y is not None:
-                    core.warm_start(warm_x, warm_y)
-                core.solve()
-                info, solution = core.info, core.solution
-            else:
-                if warm_x is not None or warm_y is not None:
-                    self._solver.warm_start(x=warm_x, y=warm_y)
-                solution = self._solver.solve(raise_error=False)
-                info = solution.info
-        except (ValueError, RuntimeError) as exc:  # OSQP setup/update errors
-            raise SolverError(f"OSQP rejected the QP data: {exc}") from exc
-        wall = time.perf_counter() - t0
-        if info.status_val == _SIGINT:
-            # OSQP catches Ctrl-C during a solve; hand it back to the caller
-            raise KeyboardInterrupt
-        x = np.array(solution.x, dtype=float, copy=True)
-        y = np.array(solution.y, dtype=float, copy=True)
-        finite = x.size == self.layout.n_var and all_finite(x) and all_finite(y)
-        ok_status = info.status_val == _SOLVED_EXACTLY or (
-            self.settings.accept_inaccurate and info.status_val in _SOLVED
-        )
-        status = str(info.status)
+        q = self._q_cost if self._no_curvature else self.q
+        sol = self.backend.solve(self.P_values, q, self.A_values, self.lower, self.upper,
+                                 _CHANGES[self._dirty_P, self._dirty_A, self._dirty_vec],
+                                 warm_x, warm_y)
+        self._dirty_P = self._dirty_A = self._dirty_vec = False
+        ok = sol.solved and sol.x.size == self.layout.n_var and all_finite(sol.x) and (
+            all_finite(sol.y))
         rescued = False
-        rescue_time = 0.0
-        iterations = int(info.iter)
-        if not (finite and ok_status) and self._handover is not None and (
-                info.status_val != _TIME_LIMIT):
-            q = self._q_cost if self._no_curvature else self.q
-            sol = self._handover.solve(self.P_values, q, self.A_values, self.lower, self.upper,
-                                       True)
-            self.handover_count += 1
-            rescue_time += sol.solve_time
-            iterations += sol.iterations
-            if sol.solved and all_finite(sol.x) and all_finite(sol.y):
-                x, y, finite, ok_status = sol.x, sol.y, True, True
-                status = f"solved by PIQP after {iterations - sol.iterations} OSQP iterations"
-            wall = time.perf_counter() - t0
-        if not (finite and ok_status) and info.status_val != _TIME_LIMIT:
-            x, y, status, rescued, rescue_time = self._rescue(x, y, status)
-            finite = ok_status = rescued
-            wall = time.perf_counter() - t0
-        return QPResult(
-            success=bool(finite and ok_status),
-            status=status,
-            x=x,
-            y=y,
-            objective=float(info.obj_val),
-            primal_residual=float(info.prim_res),
-            dual_residual=float(info.dual_res),
-            iterations=iterations,
-            solve_time=float(info.solve_time) + rescue_time,
-            wall_time=wall,
-            extra={"polish_status": float(info.status_polish),
-                   "rho_updates": float(info.rho_updates), "rescued": float(rescued)},
-        )
+        if not ok and not sol.time_limit_reached:
+            if self.handover is not None:
+                sol = self.handover.apply(sol, self.P_values, q, self.A_values, self.lower,
+                                          self.upper)
+                ok = sol.solved
+            if not ok and self.rescue is not None:
+                sol, rescued = self.rescue.apply(sol, self.matrices)
+                ok = rescued
+        extra = sol.extra  # the backend's, new per solve
+        extra["rescued"] = float(rescued)
+        return QPResult(ok, sol.status, sol.x, sol.y, sol.objective, sol.primal_residual,
+                        sol.dual_residual, sol.iterations, sol.solve_time,
+                        time.perf_counter() - t0, extra)

@@ -4,35 +4,41 @@ A *rule* is a frozen, validated dataclass holding its own parameters. A rule
 is on when it is in :attr:`sqpmpc.control.settings.SolverSettings.rules` and off when
 it is not: no parameter value switches it off. At controller construction
 every rule is *bound* (:meth:`Rule.bind`) to a :class:`RuleContext`, giving a
-:class:`RuleInstance` that holds the per-controller state and implements some
-of the hooks at the engine's natural seams, in the order the pipeline calls
-them (:meth:`sqpmpc.control.pipeline.ControllerPipeline.step`):
+:class:`RuleInstance` that holds the per-controller state and declares, in
+:attr:`RuleInstance.hooks`, which of the hooks below the pipeline calls, in
+the order of :meth:`sqpmpc.control.pipeline.ControllerPipeline.run_sample`:
 
-1. :meth:`RuleInstance.configure_rows` (once, at construction): shape the
-   collision-row geometry the compiled kernels build (:class:`RowGeometry`);
-2. :meth:`RuleInstance.shape_references`: change the references of a sample
-   (:attr:`SampleView.references`) or the cost weights;
-3. :meth:`RuleInstance.shape_guess`: change the linearization point
-   (the speeds of the shifted guess, a view into the iterate);
-4. :meth:`RuleInstance.after_solve`: ask for the sample to be iterated to
-   convergence (SQP) after the RTI step;
-5. :meth:`RuleInstance.counters`: what the rule did, as named integer counts;
-6. :meth:`RuleInstance.references_changed`: a reference was replaced between
-   samples (:meth:`sqpmpc.control.pipeline.ControllerPipeline.update_reference`).
+1. ``"rows"`` :meth:`RuleInstance.configure_rows` (once, at construction):
+   returns the collision-row geometry the compiled kernels build
+   (:class:`RowGeometry`);
+2. ``"references"`` :meth:`RuleInstance.shape_references`: may return new
+   references of the sample or a scale of the position weights;
+3. ``"guess"`` :meth:`RuleInstance.shape_guess`: may return new speeds of the
+   linearization point (:attr:`SampleView.guess_speeds`);
+4. ``"after_solve"`` :meth:`RuleInstance.after_solve`: may ask for the sample
+   to be iterated to convergence (SQP) after the RTI step.
 
-Only the hooks a rule overrides are called. Rules never touch safety: the
-collision rows stay inner approximations with a hard stage 1 whatever the
-geometry, and every first input is verified before it is applied; a rule
-changes *which* safe motion the controller picks. The registry of the
-built-in rules is :mod:`sqpmpc.rules.registry`; their implementations are in
-:mod:`sqpmpc.rules.liveness`.
+Data flows one way. A hook reads one :class:`SampleView`, whose arrays are
+read-only, and returns a :class:`Contribution` (or ``None``: nothing to
+change); the pipeline applies it through the engine's public update methods
+and hands the next rule a view with it. A rule never holds the engine or a
+writable view of its arrays; what it keeps is its own state and its counters
+(:meth:`RuleInstance.counters`, in the controller's ``context.counts``).
+:meth:`RuleInstance.references_changed` tells it a reference was replaced
+between samples (:meth:`sqpmpc.control.pipeline.ControllerPipeline.update_reference`).
+
+Rules never touch safety: the collision rows stay inner approximations with
+a hard stage 1 whatever the geometry, and every first input is verified
+before it is applied; a rule changes *which* safe motion the controller
+picks. The registry of the built-in rules is :mod:`sqpmpc.rules.registry`;
+their implementations are in :mod:`sqpmpc.rules.liveness`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import numbers
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
@@ -42,10 +48,12 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.ocp.geometry import RowGeometry
 
 if TYPE_CHECKING:
-    from sqpmpc.ocp.iteration import MultipleShootingSQP
     from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["Rule", "RuleContext", "RuleInstance", "RowGeometry", "SampleView", "check_positive"]
+__all__ = [
+    "HOOKS", "Contribution", "Rule", "RuleContext", "RuleInstance", "RowGeometry", "SampleView",
+    "check_positive", "read_only",
+]
 
 
 @dataclass
@@ -62,10 +70,6 @@ class RuleContext:
         ``"centralized"`` or ``"decentralized"``.
     iteration_scheme
         ``"rti"`` or ``"sqp"``.
-    engine
-        The controller's iteration engine (cost weights, iterate, multipliers).
-    geometry
-        Collision-row geometry, shaped by :meth:`RuleInstance.configure_rows`.
     counts
         The controller's counters (one dict for the engine and every rule, so
         that a sample's snapshot is one copy); rules add their own keys.
@@ -75,8 +79,6 @@ class RuleContext:
     own: np.ndarray
     scheme: str
     iteration_scheme: str
-    engine: MultipleShootingSQP
-    geometry: RowGeometry
     counts: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -101,9 +103,26 @@ class RuleContext:
         return float(max(abs(b.input_lower()[0]), abs(b.input_upper()[0])))
 
 
-@dataclass
+def read_only(array: np.ndarray | None) -> np.ndarray | None:
+    """A view of ``array`` that cannot be written (``None`` stays ``None``)."""
+    if array is None:
+        return None
+    out = array.view()
+    out.setflags(write=False)
+    return out
+
+
+_ARRAYS = ("positions", "own_states", "scenario_references", "references", "applied",
+           "applied_before", "headings", "guess_speeds", "first_speeds")
+
+
+@dataclass(frozen=True)
 class SampleView:
-    """One sample as the rules see it (owned and filled by the pipeline).
+    """One sample as the rules see it: frozen, every array read-only.
+
+    The pipeline builds it after the measurement and replaces it (a new view)
+    when a contribution changed what it shows; the fields of later steps are
+    ``None`` before them.
 
     Attributes
     ----------
@@ -116,11 +135,22 @@ class SampleView:
     scenario_references
         ``(m, N, 2)`` the scenario's references of stages 1..N.
     references
-        ``(m, N, 2)`` the references the QP will track; a rule may replace it.
+        ``(m, N, 2)`` the references the QP will track (the earlier rules'
+        contributions applied).
     applied, applied_before
         ``(m, 2)`` inputs applied at samples ``k-1`` and ``k-2`` (zeros before).
     headings
         ``(n,)`` measured headings of all robots, rad (``None``: not known).
+    guess_speeds
+        ``(m, N)`` speeds of the linearization point (the shifted guess), from
+        the ``"guess"`` hooks on.
+    first_speeds
+        ``(m,)`` first planned speed of each own robot in the solution, in the
+        ``"after_solve"`` hooks.
+    holding
+        In the ``"after_solve"`` hooks: called, the ``(m,)`` bool array of the
+        own robots a collision row holds in the solution (``|y| > 1e-4`` on one
+        of their rows), computed on demand (:meth:`engaged`).
     """
 
     sample: int
@@ -132,39 +162,144 @@ class SampleView:
     applied: np.ndarray
     applied_before: np.ndarray
     headings: np.ndarray | None = None
+    guess_speeds: np.ndarray | None = None
+    first_speeds: np.ndarray | None = None
+    holding: Callable[[], np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        fields = self.__dict__  # a frozen instance: its arrays become read-only views here
+        for name in _ARRAYS:
+            value = fields[name]
+            if value is not None and value.flags.writeable:
+                fields[name] = read_only(value)
+
+    @classmethod
+    def of_sample(cls, sample: int, t: float, positions: np.ndarray, own_states: np.ndarray,
+                  references: np.ndarray, applied: np.ndarray, applied_before: np.ndarray,
+                  headings: np.ndarray | None, guess_speeds: np.ndarray | None
+                  ) -> SampleView:
+        """The view of a sample as the pipeline builds it, once per sample and controller,
+        from arrays that are already read-only (not checked again: the pipeline's hot
+        path); the scenario's references are also the references the QP tracks until a
+        rule changes them."""
+        view = object.__new__(cls)
+        view.__dict__.update(
+            sample=sample, t=t, positions=positions, own_states=own_states,
+            scenario_references=references, references=references, applied=applied,
+            applied_before=applied_before, headings=headings, guess_speeds=guess_speeds,
+            first_speeds=None, holding=None)
+        return view
+
+    def solved(self, first_speeds: np.ndarray, holding: Callable[[], np.ndarray]
+               ) -> SampleView:
+        """This view after the solve, for the ``"after_solve"`` hooks (the pipeline's hot
+        path: ``first_speeds`` is a new array of the solution, made read-only here)."""
+        first_speeds.setflags(write=False)
+        view = object.__new__(SampleView)
+        fields = view.__dict__
+        fields.update(self.__dict__)
+        fields["first_speeds"] = first_speeds
+        fields["holding"] = holding
+        return view
+
+    def engaged(self) -> np.ndarray:
+        """``(m,)`` bool, read-only: own robots a collision row holds in the solution."""
+        if self.holding is None:
+            raise ProblemError("SampleView.engaged: only known after the solve")
+        return read_only(self.holding())
+
+    def but(self, **changes: object) -> SampleView:
+        """This view with ``changes`` of its fields (arrays made read-only).
+
+        Raises
+        ------
+        ProblemError
+            A name that is not a field of the view.
+        """
+        if changes.keys() - _FIELDS:
+            raise ProblemError(f"SampleView has no field "
+                               f"{', '.join(sorted(changes.keys() - _FIELDS))}")
+        new = object.__new__(SampleView)  # a copy without re-checking the unchanged arrays
+        fields = new.__dict__
+        fields.update(self.__dict__)
+        for name, value in changes.items():
+            if isinstance(value, np.ndarray) and value.flags.writeable:
+                value = read_only(value)
+            fields[name] = value
+        return new
+
+
+_FIELDS = frozenset(f.name for f in dataclasses.fields(SampleView))
+
+
+@dataclass(frozen=True)
+class Contribution:
+    """What a hook asks the pipeline to change (``None``: leave it).
+
+    Attributes
+    ----------
+    references
+        ``(m, N, 2)`` new references of the sample (``"references"`` hooks).
+    position_weight_scale
+        ``(m,)`` factor on each own robot's position weight ``Q``, kept until
+        changed again (``"references"`` hooks).
+    guess_speeds
+        ``(m, N)`` new speeds of the linearization point (``"guess"`` hooks).
+    iterate
+        Iterate this sample to convergence (SQP) after the RTI step
+        (``"after_solve"`` hooks).
+    """
+
+    references: np.ndarray | None = None
+    position_weight_scale: np.ndarray | None = None
+    guess_speeds: np.ndarray | None = None
+    iterate: bool = False
+
+
+#: The hooks a :class:`RuleInstance` may declare, in the order the pipeline calls them.
+HOOKS = ("rows", "references", "guess", "after_solve")
 
 
 class RuleInstance:
-    """A rule bound to one controller: its state and its hooks (no-ops here).
+    """A rule bound to one controller: its state and its hooks.
 
-    ``counter_names`` declares the rule's counters; they start at 0 in the
-    controller's ``context.counts``, which the hooks increment.
+    ``hooks`` declares which hooks the pipeline calls (a subset of
+    :data:`HOOKS`); ``counter_names`` declares the rule's counters, which
+    start at 0 in the controller's ``context.counts`` and the hooks increment.
     """
 
+    hooks: tuple[str, ...] = ()
     counter_names: tuple[str, ...] = ()
 
     def __init__(self, rule: Rule, context: RuleContext) -> None:
+        unknown = set(self.hooks) - set(HOOKS)
+        if unknown:
+            raise ProblemError(f"rule {rule.name!r}: unknown hooks {sorted(unknown)}; "
+                               f"hooks are {', '.join(HOOKS)}")
         self.rule = rule
         self.context = context
         self.counts = context.counts
         for name in self.counter_names:
             self.counts.setdefault(name, 0)
 
-    def configure_rows(self, geometry: RowGeometry) -> None:
-        """Shape the collision-row geometry (called once, at construction)."""
+    def configure_rows(self, geometry: RowGeometry) -> RowGeometry:
+        """``"rows"``: the collision-row geometry from ``geometry`` (called once)."""
+        return geometry
 
     def references_changed(self) -> None:
         """``context.scenario``'s references changed: refresh what was derived from them."""
 
-    def shape_references(self, view: SampleView) -> None:
-        """Change ``view.references`` (or the cost weights) for this sample."""
+    def shape_references(self, view: SampleView) -> Contribution | None:
+        """``"references"``: new references or position-weight scales for this sample."""
+        return None
 
-    def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
-        """Change the linearization speeds ``(m, N)`` (a writable view of the guess)."""
+    def shape_guess(self, view: SampleView) -> Contribution | None:
+        """``"guess"``: new linearization speeds ``(m, N)`` for this sample."""
+        return None
 
-    def after_solve(self, view: SampleView) -> bool:
-        """Whether this sample must be iterated to convergence after the RTI step."""
-        return False
+    def after_solve(self, view: SampleView) -> Contribution | None:
+        """``"after_solve"``: ``Contribution(iterate=True)`` to converge this sample."""
+        return None
 
     def counters(self) -> Mapping[str, int]:
         """Named counts of what the rule did so far."""

@@ -36,6 +36,7 @@ rule               what it does
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 from dataclasses import dataclass
 
@@ -45,7 +46,14 @@ import numpy as np
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.rules import detour_step, parking_mask, repair_speeds, reversing, standing_still
 from sqpmpc.ocp.geometry import RowGeometry
-from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
+from sqpmpc.rules.base import (
+    Contribution,
+    Rule,
+    RuleContext,
+    RuleInstance,
+    SampleView,
+    check_positive,
+)
 
 __all__ = [
     "Detour", "GearCycle", "KeepRight", "Parking", "StallRepair", "TouchingPairs", "TurnLimit",
@@ -59,12 +67,14 @@ _jit = numba.njit(cache=True, nogil=True)
 
 class _KeepRightInstance(RuleInstance):
     rule: KeepRight
+    hooks = ("rows",)
 
-    def configure_rows(self, geometry: RowGeometry) -> None:
+    def configure_rows(self, geometry: RowGeometry) -> RowGeometry:
         r = self.rule
         i = np.arange(self.context.horizon)
         angles = np.minimum(r.angle + i * r.growth, r.max_angle)
-        geometry.rotation = np.ascontiguousarray(np.stack((np.cos(angles), np.sin(angles)), -1))
+        return dataclasses.replace(geometry, rotation=np.ascontiguousarray(
+            np.stack((np.cos(angles), np.sin(angles)), -1)))
 
 
 @dataclass(frozen=True)
@@ -92,9 +102,10 @@ class KeepRight(Rule):
 
 class _TurnLimitInstance(RuleInstance):
     rule: TurnLimit
+    hooks = ("rows",)
 
-    def configure_rows(self, geometry: RowGeometry) -> None:
-        geometry.max_turn = self.rule.max_turn
+    def configure_rows(self, geometry: RowGeometry) -> RowGeometry:
+        return dataclasses.replace(geometry, max_turn=self.rule.max_turn)
 
 
 @dataclass(frozen=True)
@@ -114,8 +125,10 @@ class TurnLimit(Rule):
 
 
 class _TouchingInstance(RuleInstance):
-    def configure_rows(self, geometry: RowGeometry) -> None:
-        geometry.hold_touching = True
+    hooks = ("rows",)
+
+    def configure_rows(self, geometry: RowGeometry) -> RowGeometry:
+        return dataclasses.replace(geometry, hold_touching=True)
 
 
 @dataclass(frozen=True)
@@ -144,6 +157,7 @@ def _repair_speeds_within_bounds(context: RuleContext, speed: float
 
 class _StallInstance(RuleInstance):
     rule: StallRepair
+    hooks = ("guess",)
     counter_names = ("stall_repairs",)
 
     def __init__(self, rule: StallRepair, context: RuleContext) -> None:
@@ -153,18 +167,20 @@ class _StallInstance(RuleInstance):
         self._still_for = np.zeros(context.own.size, dtype=np.int64)
         self._stuck = np.zeros(context.own.size, dtype=np.bool_)
 
-    def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
-        goals = np.ascontiguousarray(view.references[:, -1])
+    def shape_guess(self, view: SampleView) -> Contribution | None:
+        goals = view.references[:, -1].copy()
+        speeds = view.guess_speeds.copy()
         stuck = self._stuck
+        repaired = 0
         # standing for `patience` samples with the reference at rest: whatever the guess plans
         if standing_still(view.references, view.applied, self.rule.speed, self.rule.patience,
-                     self._still_for, stuck):
-            self.counts["stall_repairs"] += repair_speeds(
-                speeds, goals, view.own_states, stuck, np.inf, self.rule.distance,
-                self._ahead, self._back)
-        self.counts["stall_repairs"] += repair_speeds(
-            speeds, goals, view.own_states, ~stuck, self._slow, self.rule.distance,
-            self._ahead, self._back)
+                          self._still_for, stuck):
+            repaired += repair_speeds(speeds, goals, view.own_states, stuck, np.inf,
+                                      self.rule.distance, self._ahead, self._back)
+        repaired += repair_speeds(speeds, goals, view.own_states, ~stuck, self._slow,
+                                  self.rule.distance, self._ahead, self._back)
+        self.counts["stall_repairs"] += repaired
+        return Contribution(guess_speeds=speeds) if repaired else None
 
 
 @dataclass(frozen=True)
@@ -190,6 +206,7 @@ class StallRepair(Rule):
 
 class _ParkingInstance(RuleInstance):
     rule: Parking
+    hooks = ("references", "guess")
     counter_names = ("parked_samples", "parking_repairs")
 
     def __init__(self, rule: Parking, context: RuleContext) -> None:
@@ -201,19 +218,25 @@ class _ParkingInstance(RuleInstance):
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
 
-    def shape_references(self, view: SampleView) -> None:
+    def shape_references(self, view: SampleView) -> Contribution | None:
         parked = parking_mask(view.scenario_references, view.own_states, self.radius,
-                               self.parking)
+                              self.parking)
+        out = None
         if parked < 0:  # the mask changed: new weights
             parked = -1 - parked
-            self.context.engine.update_position_weight_scale(
-                np.where(self.parking, self.gain, 1.0))
+            out = Contribution(position_weight_scale=np.where(self.parking, self.gain, 1.0))
         self.counts["parked_samples"] += parked
+        return out
 
-    def shape_guess(self, view: SampleView, speeds: np.ndarray) -> None:
-        self.counts["parking_repairs"] += repair_speeds(
-            speeds, np.ascontiguousarray(view.references[:, -1]), view.own_states, self.parking,
-            self._slow, self.rule.tolerance, self._ahead, self._back)
+    def shape_guess(self, view: SampleView) -> Contribution | None:
+        if not self.parking.any():  # nobody parks: nothing to repair
+            return None
+        speeds = view.guess_speeds.copy()
+        repaired = repair_speeds(speeds, view.references[:, -1].copy(), view.own_states,
+                                 self.parking, self._slow, self.rule.tolerance, self._ahead,
+                                 self._back)
+        self.counts["parking_repairs"] += repaired
+        return Contribution(guess_speeds=speeds) if repaired else None
 
 
 @dataclass(frozen=True)
@@ -252,6 +275,7 @@ class Parking(Rule):
 
 class _GearCycleInstance(RuleInstance):
     rule: GearCycle
+    hooks = ("after_solve",)
     counter_names = ("gear_cycle_samples",)
 
     def __init__(self, rule: GearCycle, context: RuleContext) -> None:
@@ -259,18 +283,16 @@ class _GearCycleInstance(RuleInstance):
         self._rti = context.iteration_scheme == "rti"
         self._cycle = np.zeros(context.own.size, dtype=np.bool_)
 
-    def after_solve(self, view: SampleView) -> bool:
+    def after_solve(self, view: SampleView) -> Contribution | None:
         if not self._rti:
-            return False
-        engine = self.context.engine
-        if not reversing(engine.first_speeds(), np.ascontiguousarray(view.applied[:, 0]),
-                          np.ascontiguousarray(view.applied_before[:, 0]),
-                          self.rule.min_speed, self._cycle):
-            return False
-        if not np.count_nonzero(self._cycle & ~engine.engaged_robots(engine.y)):
-            return False
+            return None
+        if not reversing(view.first_speeds, view.applied[:, 0].copy(),
+                         view.applied_before[:, 0].copy(), self.rule.min_speed, self._cycle):
+            return None
+        if not np.count_nonzero(self._cycle & ~view.engaged()):
+            return None
         self.counts["gear_cycle_samples"] += 1
-        return True
+        return Contribution(iterate=True)
 
 
 @dataclass(frozen=True)
@@ -292,6 +314,7 @@ class GearCycle(Rule):
 
 class _DetourInstance(RuleInstance):
     rule: Detour
+    hooks = ("references",)
     counter_names = ("detour_activations",)
 
     def __init__(self, rule: Detour, context: RuleContext) -> None:
@@ -308,18 +331,17 @@ class _DetourInstance(RuleInstance):
         self._turn = np.array([[np.cos(rule.angle), -np.sin(rule.angle)],
                                [np.sin(rule.angle), np.cos(rule.angle)]])
 
-    def shape_references(self, view: SampleView) -> None:
+    def shape_references(self, view: SampleView) -> Contribution | None:
         r = self.rule
         positions = view.positions
         if positions.shape[0] < 2:
-            return
+            return None
         self.counts["detour_activations"] += detour_step(
-            positions, self.context.own, view.applied,
-            np.ascontiguousarray(view.references[:, -1]), self.own_required, r.speed, r.reach,
-            self._cos_cone, self.patience, r.hold, self.blocked_for, self.active_for,
-            self.blocker)
+            positions, self.context.own, view.applied, view.references[:, -1].copy(),
+            self.own_required, r.speed, r.reach, self._cos_cone, self.patience, r.hold,
+            self.blocked_for, self.active_for, self.blocker)
         if not self.active_for.any():
-            return
+            return None
         active = np.flatnonzero(self.active_for)
         own = self.context.own
         out = view.references.copy()
@@ -331,7 +353,7 @@ class _DetourInstance(RuleInstance):
             rounds = max(0, int(self.blocked_for[i]) - self.patience) // r.hold
             factor = min(r.radius_factor + r.escalation * rounds, r.max_factor)
             out[i] = positions[b] + factor * self.required[own[i], b] * (self._turn @ away)
-        view.references = out
+        return Contribution(references=out)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.rules.base import Rule
+from sqpmpc.rules.formations import Yield
 from sqpmpc.rules.liveness import (
     Detour,
     GearCycle,
@@ -23,6 +24,7 @@ from sqpmpc.rules.liveness import (
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout
+from sqpmpc.rules.routes import RouteFollowing
 
 __all__ = [
     "RULES",
@@ -41,8 +43,8 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, TouchingPairs, Roundabout, Detour, Parking, StallRepair,
-                GearCycle)
+    for cls in (TurnLimit, KeepRight, TouchingPairs, RouteFollowing, Yield, Roundabout,
+                Detour, Parking, StallRepair, GearCycle)
 }
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.ocp.collision_rows`).

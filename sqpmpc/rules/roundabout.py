@@ -60,7 +60,15 @@ import numpy as np
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.rules import roundabout_directions
-from sqpmpc.rules.base import Rule, RuleContext, RuleInstance, SampleView, check_positive
+from sqpmpc.rules.base import (
+    Contribution,
+    Rule,
+    RuleContext,
+    RuleInstance,
+    SampleView,
+    check_positive,
+    read_only,
+)
 
 __all__ = ["Roundabout", "roundabout_directions"]
 
@@ -69,6 +77,7 @@ _jit = numba.njit(cache=True, nogil=True)
 
 class _RoundaboutInstance(RuleInstance):
     rule: Roundabout
+    hooks = ("references",)
     counter_names = ("roundabout_samples",)
 
     def __init__(self, rule: Roundabout, context: RuleContext) -> None:
@@ -81,32 +90,32 @@ class _RoundaboutInstance(RuleInstance):
         self._cos_cone = math.cos(rule.cone)
         self._cos_along = math.cos(rule.along)
         self.references_changed()
-        self._no_headings = np.zeros(context.scenario.n_robots)
+        self._no_headings = read_only(np.zeros(context.scenario.n_robots))
 
     def references_changed(self) -> None:
         sc = self.context.scenario
         rest = np.hypot(*sc.reference_velocities(sc.t_end).T) == 0.0
         self.rest_goals = np.where(rest[:, None], sc.reference_positions(sc.t_end), np.nan)
 
-    def shape_references(self, view: SampleView) -> None:
+    def shape_references(self, view: SampleView) -> Contribution | None:
         r = self.rule
         if view.positions.shape[0] <= r.min_crowd:
-            return
+            return None
         if view.headings is None:  # every robot ahead counts (a cosine never exceeds 2)
             headings, cos_along = self._no_headings, 2.0
         else:
             headings, cos_along = view.headings, self._cos_along
         active = roundabout_directions(
             view.positions, headings, self.rest_goals, self.context.own,
-            np.ascontiguousarray(view.scenario_references[:, -1]), self.required, r.sense,
+            view.scenario_references[:, -1].copy(), self.required, r.sense,
             self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
         if not active:
-            return
+            return None
         self.counts["roundabout_samples"] += active
         out = view.references.copy()
         for k in np.flatnonzero(self.directions.any(axis=1)):
             out[k] = view.own_states[k, :2] + self.offsets[:, None] * self.directions[k]
-        view.references = out
+        return Contribution(references=out)
 
 
 @dataclass(frozen=True)

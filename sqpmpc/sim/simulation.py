@@ -136,7 +136,7 @@ class ClosedLoopSimulation:
         self.qp_iterations = 0
         self.sqp_iterations = np.zeros(K, dtype=np.int64)
         self.timing = {"assembly_s": 0.0, "qp_s": 0.0, "osqp_solve_s": 0.0, "total_s": 0.0}
-        self._plans: dict[int, PlanMessage] = {}
+        self.neighbour_plans: dict[int, PlanMessage] = {}
         self._in_transit: deque[tuple[int, dict[int, PlanMessage]]] = deque()
         self._plan_ages: dict[int, dict[int, int]] = {}
         self._rng = np.random.default_rng(self.options.seed)
@@ -158,8 +158,8 @@ class ClosedLoopSimulation:
         else:
             while self._in_transit and self._in_transit[0][0] <= k:
                 # a lost message leaves the receivers with the older plan, as over a network
-                self._plans.update(self._in_transit.popleft()[1])
-            outs = [c.step(k, self.t[k], measured, self._plans, prev, self._plan_ages)
+                self.neighbour_plans.update(self._in_transit.popleft()[1])
+            outs = [c.step(k, self.t[k], measured, self.neighbour_plans, prev, self._plan_ages)
                     for c in self.controllers]
             u = np.concatenate([o.inputs for o in outs], axis=0)
             self._plan_ages = {c.robot_id: c.plan_ages for c in self.controllers

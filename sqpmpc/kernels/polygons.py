@@ -1,0 +1,200 @@
+r"""Compiled kernels of the polygon-obstacle rows and checks (numba, cached on disk).
+
+Convex pieces come as padded arrays ``vertices (P, V, 2)`` (counter-clockwise)
+and ``counts (P,)`` (:func:`sqpmpc.problem.polygons.pack_pieces`). The rows
+are separating lines :math:`n^\top p \ge h(n) + d` with :math:`h` the piece's
+support value, so a row implies the distance to the whole piece whatever
+:math:`n` is; the check of the first input measures the exact distance of the
+robot's path to every piece's boundary.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["closest_point", "path_keeps_pieces", "polygon_rows", "support"]
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def closest_point(px: float, py: float, vertices: np.ndarray,
+                  count: int) -> tuple[float, float, float]:
+    """Closest boundary point of a convex counter-clockwise piece to ``(px, py)`` and the
+    signed distance (negative inside)."""
+    best = math.inf
+    qx, qy = vertices[0, 0], vertices[0, 1]
+    inside = True
+    for k in range(count):
+        ax, ay = vertices[k, 0], vertices[k, 1]
+        b = (k + 1) % count
+        bx, by = vertices[b, 0], vertices[b, 1]
+        ex, ey = bx - ax, by - ay
+        if ex * (py - ay) - ey * (px - ax) < 0.0:
+            inside = False
+        den = ex * ex + ey * ey
+        s = 0.0 if den <= 0.0 else min(max(((px - ax) * ex + (py - ay) * ey) / den, 0.0), 1.0)
+        cx, cy = ax + s * ex, ay + s * ey
+        d = math.hypot(px - cx, py - cy)
+        if d < best:
+            best, qx, qy = d, cx, cy
+    return qx, qy, -best if inside else best
+
+
+@_jit
+def support(nx: float, ny: float, vertices: np.ndarray, count: int) -> float:
+    r""":math:`\max_v n^\top v` over the piece's vertices."""
+    best = -math.inf
+    for k in range(count):
+        best = max(best, nx * vertices[k, 0] + ny * vertices[k, 1])
+    return best
+
+
+@_jit
+def _normal(px: float, py: float, vertices: np.ndarray, count: int, fx: float,
+            fy: float) -> tuple[float, float]:
+    """Unit direction from the piece to the point (outward when inside), else ``(fx, fy)``."""
+    qx, qy, sd = closest_point(px, py, vertices, count)
+    dx, dy = px - qx, py - qy
+    if sd < 0.0:
+        dx, dy = -dx, -dy
+    d = math.hypot(dx, dy)
+    if d > 1e-9:
+        return dx / d, dy / d
+    return fx, fy
+
+
+@_jit
+def polygon_rows(me: np.ndarray, own: np.ndarray, vertices: np.ndarray, counts: np.ndarray,
+                 required: np.ndarray, rotation: np.ndarray, A_out: np.ndarray,
+                 lower_out: np.ndarray) -> int:
+    r"""Rows :math:`n_i^\top p_i \ge h(n_i) + d` of every piece at the own iterate.
+
+    Parameters
+    ----------
+    me
+        ``(2,)`` the robot's measured position.
+    own
+        ``(N, 2+)`` its predicted stages 1..N.
+    vertices, counts
+        The convex pieces.
+    required
+        ``(P,)`` distance plus margin per piece.
+    rotation
+        ``(N, 2)`` the rules' per-stage rotation of the normals.
+    A_out, lower_out
+        ``(P, N, 2)`` and ``(P, N)`` outputs.
+
+    A stage normal that turns by more than 90 degrees from the previous stage's (from
+    the current one for stage 1) is the prediction tunnelling through the piece: the
+    previous normal is kept. Stage 1 is the hard row: its normal falls back to the
+    current one when the measured position violates it (``stage-one-override``), and its right-hand
+    side is capped at the measured position's value, so standing still always
+    satisfies it. Returns the number of overrides.
+    """
+    overrides = 0
+    N = A_out.shape[1]
+    mx, my = me[0], me[1]
+    for e in range(counts.shape[0]):
+        c_count = counts[e]
+        verts = vertices[e]
+        n0x, n0y = _normal(mx, my, verts, c_count, 1.0, 0.0)
+        d = required[e]
+        px, py = n0x, n0y
+        for i in range(N):
+            nx, ny = _normal(own[i, 0], own[i, 1], verts, c_count, px, py)
+            if nx * px + ny * py < 0.0:
+                # the prediction tunnelled through the piece between two stages (a thin
+                # wall): keep the side it came from, or the plan stays locked beyond it
+                nx, ny = px, py
+            px, py = nx, ny
+            c, sn = rotation[i, 0], rotation[i, 1]
+            ax, ay = nx * c - ny * sn, nx * sn + ny * c
+            A_out[e, i, 0], A_out[e, i, 1] = ax, ay
+            lower_out[e, i] = support(ax, ay, verts, c_count) + d
+        # stage one: keep the current normal when the iterate's cuts the robot off
+        gap = A_out[e, 0, 0] * mx + A_out[e, 0, 1] * my - support(A_out[e, 0, 0],
+                                                                   A_out[e, 0, 1], verts,
+                                                                   c_count)
+        if gap < d:
+            overrides += 1
+            A_out[e, 0, 0], A_out[e, 0, 1] = n0x, n0y
+            lower_out[e, 0] = support(n0x, n0y, verts, c_count) + d
+        lower_out[e, 0] = min(lower_out[e, 0], A_out[e, 0, 0] * mx + A_out[e, 0, 1] * my)
+    return overrides
+
+
+@_jit
+def _growing_point_distance(rx: float, ry: float, dx: float, dy: float,
+                            growth: float) -> float:
+    r"""Smallest :math:`\lVert r + s\Delta\rVert - G s` over :math:`s \in [0, 1]` (convex:
+    ternary search, 60 steps)."""
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        a = lo + (hi - lo) / 3.0
+        b = hi - (hi - lo) / 3.0
+        fa = math.hypot(rx + a * dx, ry + a * dy) - growth * a
+        fb = math.hypot(rx + b * dx, ry + b * dy) - growth * b
+        if fa <= fb:
+            hi = b
+        else:
+            lo = a
+    s = 0.5 * (lo + hi)
+    best = math.hypot(rx + s * dx, ry + s * dy) - growth * s
+    return min(best, math.hypot(rx, ry), math.hypot(rx + dx, ry + dy) - growth)
+
+
+@_jit
+def path_keeps_pieces(x0: float, y0: float, x1: float, y1: float, vertices: np.ndarray,
+                      counts: np.ndarray, keep: np.ndarray, growth: float) -> bool:
+    r"""Whether a path near the segment :math:`p_0 \to p_1` keeps ``keep[e]`` from every
+    piece's boundary (and stays outside), straying at most ``growth`` :math:`\cdot s`.
+
+    The distance to an edge is the smaller of the distances to its end points and,
+    where the projection falls inside the edge, to its line; each is minimized
+    exactly over the path (the path starts outside, so it cannot enter a piece
+    without crossing an edge).
+    """
+    dx, dy = x1 - x0, y1 - y0
+    for e in range(counts.shape[0]):
+        count = counts[e]
+        need = keep[e]
+        if closest_point(x0, y0, vertices[e], count)[2] < need:
+            return False
+        for k in range(count):
+            ax, ay = vertices[e, k, 0], vertices[e, k, 1]
+            b = (k + 1) % count
+            bx, by = vertices[e, b, 0], vertices[e, b, 1]
+            if _growing_point_distance(x0 - ax, y0 - ay, dx, dy, growth) < need:
+                return False
+            ex, ey = bx - ax, by - ay
+            length = math.hypot(ex, ey)
+            if length <= 0.0:
+                continue
+            ux, uy = ex / length, ey / length
+            # along-edge coordinate u(s) = u0 + s du, line distance |h0 + s dh|
+            u0 = (x0 - ax) * ux + (y0 - ay) * uy
+            du = dx * ux + dy * uy
+            h0 = (x0 - ax) * uy - (y0 - ay) * ux
+            dh = dx * uy - dy * ux
+            s_lo, s_hi = 0.0, 1.0
+            if abs(du) > 1e-15:
+                s_a, s_b = (0.0 - u0) / du, (length - u0) / du
+                s_lo = max(s_lo, min(s_a, s_b))
+                s_hi = min(s_hi, max(s_a, s_b))
+            elif u0 < 0.0 or u0 > length:
+                continue
+            if s_lo > s_hi:
+                continue
+            # |h0 + s dh| - G s is piecewise linear: its minimum is at an end or a root
+            for s in (s_lo, s_hi):
+                if abs(h0 + s * dh) - growth * s < need:
+                    return False
+            if abs(dh) > 1e-15:
+                root = -h0 / dh
+                if s_lo <= root <= s_hi and -growth * root < need:
+                    return False
+    return True

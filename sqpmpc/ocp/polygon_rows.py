@@ -1,0 +1,168 @@
+r"""The polygon-obstacle rows of the OCP (:class:`PolygonRows`) and the obstacle rows of a
+map: circles and polygons side by side (:class:`MapRows`).
+
+Each convex piece of every static polygon (:mod:`sqpmpc.problem.polygons`) is one
+obstacle slot per robot and stage: the separating line
+:math:`n_i^\top p_{j,i} \ge h(n_i) + d_j/2 + \text{margin}` with the closest-point
+normal at the iterate and the piece's support value :math:`h`
+(:func:`sqpmpc.kernels.polygons.polygon_rows`). Stage 1 is hard and always
+feasible (capped at the measured position's value: standing still satisfies
+it), and the first input is verified along the whole sample against the true
+distance to every piece (:func:`sqpmpc.kernels.polygons.path_keeps_pieces`), as
+for circles (:mod:`sqpmpc.ocp.obstacle_rows`). A static polygon can therefore
+never be hit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
+from sqpmpc.ocp.geometry import RowGeometry
+from sqpmpc.ocp.obstacle_rows import ObstacleRows
+from sqpmpc.problem.polygons import PolygonObstacle, pack_pieces
+
+__all__ = ["MapRows", "PolygonRows"]
+
+
+class PolygonRows:
+    """The polygon rows of ``m`` own robots (a :class:`sqpmpc.ocp.report.CollisionRows`).
+
+    Parameters
+    ----------
+    polygons
+        The scenario's polygon obstacles (``P`` convex pieces in all).
+    diameters
+        ``(m,)`` diameters of the own robots.
+    horizon
+        :math:`N`.
+    geometry
+        Row geometry from the rules (kept for the interface; the rotation is not
+        applied to walls: tilting a long piece's normal moves its support point
+        along it).
+    margin
+        Added to the radius in the QP rows, m.
+    """
+
+    needs_states = True
+
+    def __init__(self, polygons: Sequence[PolygonObstacle], diameters: np.ndarray,
+                 horizon: int, geometry: RowGeometry, margin: float) -> None:
+        self.vertices, self.counts, self.owner = pack_pieces(polygons)
+        self.n_obstacles = int(self.counts.size)
+        radius = 0.5 * np.asarray(diameters, dtype=float)
+        #: ``(m, P)`` true required distances (the radius)
+        self.safe_distance = np.ascontiguousarray(
+            np.broadcast_to(radius[:, None], (radius.size, self.n_obstacles)))
+        self.required = self.safe_distance + float(margin)
+        self.horizon = int(horizon)
+        self.geometry = geometry
+        # the rules' tilt is for symmetric encounters between robots: tilting a long
+        # wall's normal moves its support point metres along the wall, so walls keep
+        # the closest-point normal
+        self._plain = RowGeometry.plain(self.horizon).rotation
+        self.current = np.zeros((radius.size, 2))
+        self.stage_one_overrides = 0
+
+    def set_sample(self, t: float, current_states: np.ndarray) -> None:
+        """The own robots' measured states ``(m, 3)`` (the polygons do not move)."""
+        self.current = np.ascontiguousarray(current_states[:, :2], dtype=float)
+
+    def write_rows(self, states: np.ndarray, A_out: np.ndarray, lower_out: np.ndarray) -> None:
+        """Rows at the iterate ``states (m, N+1, 3)`` into ``(m, P, N, 2)``, ``(m, P, N)``."""
+        overrides = 0
+        for r in range(self.current.shape[0]):
+            overrides += polygon_rows(self.current[r], states[r, 1:], self.vertices,
+                                      self.counts, self.required[r], self._plain,
+                                      A_out[r], lower_out[r])
+        self.stage_one_overrides = overrides
+
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
+        """Every own robot's path ``now (m, 2) -> nxt (m, 2)`` keeps its radius from every
+        piece over the sample (straying at most ``growth[r] * s`` from the segment; with
+        ``beta``, ``growth[r] s + beta[r] s (1 - s)``, bounded by ``(growth[r] + beta[r]) s``)."""
+        if beta is not None:
+            growth = np.asarray(growth, dtype=float) + np.maximum(beta, 0.0)
+        for r in range(now.shape[0]):
+            if not path_keeps_pieces(float(now[r, 0]), float(now[r, 1]), float(nxt[r, 0]),
+                                     float(nxt[r, 1]), self.vertices, self.counts,
+                                     self.safe_distance[r], float(growth[r])):
+                return False
+        return True
+
+
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
+        """Every own robot's braking path ``paths (m, B+1, 2)`` keeps its radius from every
+        piece, segment ``j`` straying at most ``(alpha[r, j] + beta[r, j]) s``."""
+        for j in range(paths.shape[1] - 1):
+            growth = np.asarray(alpha[:, j], dtype=float) + np.maximum(beta[:, j], 0.0)
+            if not self.first_input_safe(paths[:, j], paths[:, j + 1], growth):
+                return False
+        return True
+
+
+class MapRows:
+    """Circle rows (:class:`ObstacleRows`, optional) then polygon rows, as one model.
+
+    Parameters
+    ----------
+    circles
+        The circles' rows, or ``None`` without circular obstacles.
+    polygons
+        The polygons' rows.
+    """
+
+    needs_states = True
+
+    def __init__(self, circles: ObstacleRows | None, polygons: PolygonRows) -> None:
+        self.circles = circles
+        self.polygons = polygons
+        self.first = 0 if circles is None else circles.n_obstacles
+        self.n_obstacles = self.first + polygons.n_obstacles
+        self.stage_one_overrides = 0
+
+    @property
+    def current(self) -> np.ndarray:
+        """``(m, 2)`` the own robots' measured positions."""
+        return self.polygons.current
+
+    def set_sample(self, t: float, current_states: np.ndarray) -> None:
+        """Both models' sample data."""
+        if self.circles is not None:
+            self.circles.set_sample(t, current_states)
+        self.polygons.set_sample(t, current_states)
+
+    def write_rows(self, states: np.ndarray, A_out: np.ndarray, lower_out: np.ndarray) -> None:
+        """Circle slots first, then the polygon pieces (contiguous scratch for each)."""
+        c = self.first
+        overrides = 0
+        if self.circles is not None:
+            A1 = np.ascontiguousarray(A_out[:, :c])
+            l1 = np.ascontiguousarray(lower_out[:, :c])
+            self.circles.write_rows(states, A1, l1)
+            A_out[:, :c] = A1
+            lower_out[:, :c] = l1
+            overrides += self.circles.stage_one_overrides
+        A2 = np.ascontiguousarray(A_out[:, c:])
+        l2 = np.ascontiguousarray(lower_out[:, c:])
+        self.polygons.write_rows(states, A2, l2)
+        A_out[:, c:] = A2
+        lower_out[:, c:] = l2
+        self.stage_one_overrides = overrides + self.polygons.stage_one_overrides
+
+    def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,
+                         beta: np.ndarray | None = None) -> bool:
+        """Both models' checks of the first input."""
+        if self.circles is not None and not self.circles.first_input_safe(now, nxt, growth,
+                                                                          beta):
+            return False
+        return self.polygons.first_input_safe(now, nxt, growth, beta)
+
+    def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
+        """Both models' checks of a braking path."""
+        if self.circles is not None and not self.circles.braking_safe(paths, alpha, beta):
+            return False
+        return self.polygons.braking_safe(paths, alpha, beta)
