@@ -67,7 +67,8 @@ from .node import (
     setup_logging,
 )
 from .plans import PlanStore, StepPlans, slotted
-from .ros2.robot import add_ros2_arguments, main_ros2
+from .ros2.options import add_ros2_arguments
+from .ros2.robot import main_ros2
 
 __all__ = ["RobotNode", "build_parser", "host", "main"]
 

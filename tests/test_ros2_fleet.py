@@ -28,7 +28,7 @@ sdk = pytest.importorskip("zenoh_ros2_sdk")
 
 SCENARIO = """
 name = "ros2-three"
-t_end = 16.0
+t_end = 24.0
 sample_time = 0.5
 horizon = 8
 

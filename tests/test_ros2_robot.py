@@ -16,6 +16,7 @@ from services.ros2.timing import TimedPlan, arc, committed, plan_position
     (["--id", "1", "--ros2-domain", "300"], "--ros2-domain: expected 0..232"),
     (["--id", "1", "--epoch", "5", "--epoch-file", "x"], "--epoch or --epoch-file"),
     (["--id", "1", "--lead", "0.6"], "--lead: must be less than Ts"),
+    (["--id", "1", "--odom-timeout", "0.5"], "--odom-timeout: must be less than Ts"),
     (["--id", "1", "--decentralized-mode", "paper"], "--decentralized-mode"),
 ])
 def test_bad_ros2_options_are_one_clear_error(capsys, args, message):
@@ -46,3 +47,28 @@ def test_committed_motion_is_the_first_arc_then_held_or_bounded():
     assert np.isclose(rad_gap[0], v_max * 0.7)
     assert np.allclose(gap[0], arc(states[0], 0.4, 0.3, Ts)[:2])
     assert np.allclose(plan_position(plans[0], 10.2, Ts)[:2], pos[1])
+
+
+def test_the_check_keeps_out_of_all_a_neighbour_may_stop_on():
+    import time
+
+    from services.messages import PlanMsg
+    from services.ros2.neighbours import Neighbours
+
+    now = time.time()
+    near = Neighbours([1, 2], 1, np.array([0.0, 0.3]), 0.5, 8, 0.6, lead=0.15, guard=0.02,
+                      margin=0.02)
+    states = np.zeros((9, 3))
+    states[:, 0] = 0.3 * np.arange(9)
+    near.add(PlanMsg(2, 0, 0.0, now - 0.2, states, np.tile([0.6, 0.0], (8, 1))), now)
+    assert near.received == 1
+    go = np.array([0.6, 0.0])
+    assert near.path_is_safe(np.array([0.0, 0.5, 0.0]), go, now)  # side by side
+    assert near.path_is_safe(np.array([0.0, 0.5, 0.0]), np.zeros(2), now)
+    # 0.35 m behind it: it may stop where it was 0.2 s ago, so following is refused
+    assert not near.path_is_safe(np.array([-0.35, 0.0, 0.0]), go, now)
+    assert near.path_is_safe(np.array([-0.35, 0.0, 0.0]), np.zeros(2), now)
+    # a plan from the future is refused, a copy ignored
+    near.add(PlanMsg(2, 5, 0.0, now + 10.0, states, np.zeros((8, 2))), now)
+    near.add(PlanMsg(2, 0, 0.0, now - 0.2, states, np.zeros((8, 2))), now)
+    assert (near.received, near.refused) == (1, 1)

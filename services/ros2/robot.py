@@ -22,8 +22,9 @@ references):
    robot's new plan or is bounded by its reach;
 2. the controller's step with every neighbour a moving obstacle (its exact
    arcs, then standing where they end, at the own stage times);
-3. the check of the first input (:meth:`Ros2Robot.path_is_safe`): along the
-   exact arc of the whole sample, every neighbour's distance plus
+3. the check of the first input
+   (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`): along the exact
+   arc of the whole sample, every neighbour's distance plus
    ``--ros2-margin`` from where it is (arcs, then standing still for a
    neighbour that will see this plan before it decides, or the disc it may
    reach otherwise); if not, the robot stands still, which is always safe:
@@ -60,105 +61,40 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from sqpmpc.cli.options import nonnegative_float, positive_float
 from sqpmpc.control.decentralized import DecentralizedController
-from sqpmpc.control.plans import PlanMessage
 from sqpmpc.problem.scenario import Scenario
 
 from ..control import controller_settings
 from ..messages import Message, PlanMsg, encode
-from ..node import POLL, Node, options_of
+from ..node import POLL, Node
 from ..transport import make_config
 from . import msgs
-from .graph import Received, Ros2Node, check_name
-from .timing import Estimate, TimedPlan, arc, arcs, committed, neighbour_estimate
+from .graph import Received, Ros2Node
+from .neighbours import Neighbours
+from .options import ros2_problem
+from .timing import arc
 
-__all__ = ["FAR", "Ros2Robot", "add_ros2_arguments", "main_ros2", "ros2_problem"]
+__all__ = ["Ros2Robot", "main_ros2"]
 
 log = logging.getLogger(__name__)
 
-FAR = 1.0e4
-"""Where a neighbour never heard from is put (m): beyond every interaction radius."""
-KEPT_PLANS = 4
-"""Plans kept per neighbour (the newest few: one stamped before each of the own instants)."""
 ROW_MARGIN_FACTOR = 3.0
 """The QP's collision margin is at least this many times ``--ros2-margin``."""
+WATCH_PERIOD = 0.01
+"""How often the watchdog thread looks at the odometry's age, s."""
 STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
 PUBLISH_SLACK = 0.005
 """A plan not ready this long before its instant is dropped: the robot stands still."""
-CHECK_STEPS = 100
-"""Points per sample at which :meth:`Ros2Robot.path_is_safe` measures the distances."""
 
 
 class _NoPaperWarning(logging.Filter):
     """The controller's warning about its obstacle mode, which alone has no guarantee: here
-    :meth:`Ros2Robot.path_is_safe` verifies every input."""
+    :meth:`services.ros2.neighbours.Neighbours.path_is_safe` verifies every input."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         return "decentralized mode 'paper'" not in record.getMessage()
 
-
-
-def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
-    """The ``--ros2`` options of ``sqpmpc robot``."""
-    g = parser.add_argument_group("ROS 2 robot (CONTRACT 4)")
-    g.add_argument("--ros2", action="store_true",
-                   help="drive a ROS 2 robot (odom, cmd_vel, plan topics over rmw_zenoh) on "
-                        "this robot's own clock, without a plant process")
-    g.add_argument("--ros2-namespace", default=None, metavar="NS",
-                   help="the robot's ROS 2 namespace (default /robot<ID>)")
-    g.add_argument("--ros2-domain", type=int, default=0, metavar="D",
-                   help="ROS domain id, 0..232 (default 0)")
-    g.add_argument("--twist-stamped", action="store_true",
-                   help="send geometry_msgs/TwistStamped on cmd_vel (Jazzy's "
-                        "diff_drive_controller) instead of Twist")
-    g.add_argument("--ros2-connect", action="append", default=None, metavar="EP",
-                   help="Zenoh endpoint of the ROS 2 side, e.g. the rmw_zenoh router "
-                        "(repeatable; default tcp/127.0.0.1:7447)")
-    g.add_argument("--ros2-zenoh-mode", choices=("client", "peer"), default="client",
-                   help="the ROS 2 session's mode (default client of the router)")
-    g.add_argument("--epoch", type=float, default=None, metavar="UNIX_S",
-                   help="wall time (Unix s) of the scenario's t = 0, shared by the fleet "
-                        "(default: this robot's start)")
-    g.add_argument("--epoch-file", type=Path, default=None, metavar="FILE",
-                   help="wait (publishing standing plans) until FILE exists and holds the "
-                        "epoch in Unix s: a launcher starts the fleet's clock once every "
-                        "controller is up")
-    g.add_argument("--odom-timeout", type=positive_float, default=0.3, metavar="S",
-                   help="odometry older than this is stale: command zero at once (default "
-                        "0.3 s; keep it below Ts: zero within one sample)")
-    g.add_argument("--lead", type=positive_float, default=None, metavar="S",
-                   help="start each sample's computation this long before its instant "
-                        "(default 0.3 Ts)")
-    g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
-                   help="added to every required distance in the check of each input: "
-                        "odometry and timing errors, m (default 0.02)")
-    g.add_argument("--ros2-guard", type=nonnegative_float, default=0.02, metavar="S",
-                   help="bound on the clock offset between robots, s (default 0.02): a "
-                        "neighbour deciding less than this after this robot's check is held "
-                        "by its reach (every robot of a fleet uses the same --lead)")
-
-
-def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
-    """Why the ``--ros2`` options cannot run, if so (one message naming the flag)."""
-    if len(args.id) != 1:
-        return "--ros2 drives one robot: give one --id"
-    if not 0 <= args.ros2_domain <= 232:
-        return f"--ros2-domain: expected 0..232, got {args.ros2_domain}"
-    ns = args.ros2_namespace or f"/robot{args.id[0]}"
-    try:
-        check_name(ns, "--ros2-namespace")
-    except ValueError as exc:
-        return str(exc)
-    lead = args.lead if args.lead is not None else 0.3 * scenario.sample_time
-    if lead >= scenario.sample_time:
-        return f"--lead: must be less than Ts = {scenario.sample_time:g} s, got {lead:g}"
-    if args.epoch is not None and args.epoch_file is not None:
-        return "give --epoch or --epoch-file, not both"
-    if options_of(args).decentralized_mode != "shared":
-        return "--decentralized-mode: --ros2 holds every neighbour by its own check"
-    return None
 
 
 class Ros2Robot(Node):
@@ -176,41 +112,41 @@ class Ros2Robot(Node):
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
         self.robot_id = int(args.id[0])
         # every neighbour is a moving obstacle (its committed arcs); the robot's own
-        # check (path_is_safe) is what keeps the distance
-        logging.getLogger("sqpmpc.controllers").addFilter(_NoPaperWarning())
+        # check (Neighbours.path_is_safe) is what keeps the distance
+        logging.getLogger(DecentralizedController.__module__).addFilter(_NoPaperWarning())
         settings = controller_settings(args)
         # the QP keeps more room than the check asks for (the check is continuous, the
         # QP's rows are at the stage instants)
         settings = replace(settings, collision_margin=max(
             settings.collision_margin, ROW_MARGIN_FACTOR * float(args.ros2_margin)))
         self.controller = DecentralizedController(scenario, self.robot_id, settings, "paper")
+        # stage-one-override on the obstacle rows too: a stage-1 row the current positions
+        # violate is capped at the current gap, so standing still stays feasible
+        self.controller.collisions.stage_one_rule_for_obstacles = True
         super().__init__(scenario, args, f"robot/{self.robot_id}", "decentralized")
         self.index = scenario.index_of(self.robot_id)
-        self.neighbours = [i for i in self.ids if i != self.robot_id]
         self.Ts = scenario.sample_time
-        self.v_max = float(self.controller.context.max_speed)
-        self.margin = float(args.ros2_margin)
-        self.guard = float(args.ros2_guard)
-        self.required = scenario.required_distances()[self.index]
         self.lead = args.lead if args.lead is not None else 0.3 * self.Ts
+        self.neighbours = Neighbours(self.ids, self.robot_id,
+                                     scenario.required_distances()[self.index], self.Ts,
+                                     scenario.horizon, float(self.controller.context.max_speed),
+                                     self.lead, args.ros2_guard, args.ros2_margin)
         self.odom_timeout = float(args.odom_timeout)
         self.timeout = float(args.timeout)
         self.startup_timeout = args.startup_timeout
         self.epoch = args.epoch
         self.epoch_file: Path | None = args.epoch_file
-        self.plans: dict[int, list[TimedPlan]] = {i: [] for i in self.neighbours}
-        self.departed: dict[int, Estimate] = {}
-        self.blocked_by_concurrent = False
         self._cmd_lock = threading.RLock()
         self.counts = {"samples": 0, "brakes": 0, "phase_shifts": 0, "late_samples": 0,
                        "stopped_late": 0,
                        "stale_odometry": 0,
-                       "zero_commands": 0, "plans_received": 0, "plans_refused": 0}
+                       "zero_commands": 0}
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
         self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
         self._braked = False
+        self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
         connect = args.ros2_connect if args.ros2_connect is not None else [
@@ -246,20 +182,8 @@ class Ros2Robot(Node):
                 self._frame = (o.header.frame_id or "odom", o.child_frame_id or "base_link")
 
     def on_message(self, kind: str, msg: Message) -> None:
-        if not isinstance(msg, PlanMsg) or msg.id not in self.plans:
-            return
-        now = time.time()
-        if msg.stamp > now + self.Ts or msg.stamp < now - self.scenario.horizon * self.Ts:
-            self.counts["plans_refused"] += 1  # from the future, or too old to matter
-            return
-        kept = self.plans[msg.id]
-        if any(p.stamp == msg.stamp for p in kept):
-            return
-        kept.append(TimedPlan(msg.stamp, msg.states, msg.inputs))
-        kept.sort(key=lambda p: p.stamp)
-        del kept[:-KEPT_PLANS]
-        self.departed.pop(msg.id, None)  # back
-        self.counts["plans_received"] += 1
+        if isinstance(msg, PlanMsg):
+            self.neighbours.add(msg, time.time())
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         if alive or not name.startswith("robot/"):
@@ -268,12 +192,7 @@ class Ros2Robot(Node):
             rid = int(name.split("/", 1)[1])
         except ValueError:
             return
-        if rid in self.plans and self.plans[rid]:
-            # it stopped (zero on shutdown): standing where its plan had it now
-            est = neighbour_estimate(self.plans[rid], time.time(), self.Ts, self.v_max)
-            if est is not None:
-                self.departed[rid] = Estimate(est.state, est.uncertainty + self.v_max * self.Ts)
-            self.plans[rid].clear()
+        self.neighbours.left(rid, time.time())
 
     # ------------------------------------------------------------------ states
     def own_state(self, t: float) -> np.ndarray | None:
@@ -297,73 +216,6 @@ class Ros2Robot(Node):
         with self._lock:
             return math.inf if self._odom is None else now - self._odom[0]
 
-    def neighbour_plans(self, t: float, sample: int
-                        ) -> tuple[np.ndarray, dict[int, PlanMessage]]:
-        """Every robot's state at wall time ``t`` (own row left zero; unknown robots far
-        away) and, per neighbour heard from, its committed motion sampled at the own
-        stage times ``t + i Ts`` as a plan of the previous sample (what the controller
-        shifts to stages 1..N): exact arcs, then standing where the last one ends."""
-        N = self.scenario.horizon
-        states = np.zeros((len(self.ids), 3))
-        plans: dict[int, PlanMessage] = {}
-        times = t + self.Ts * np.arange(-1, N)
-        for j, rid in enumerate(self.ids):
-            if rid == self.robot_id:
-                continue
-            left = self.departed.get(rid)
-            if left is not None:
-                states[j] = left.state
-                pos = np.repeat(left.state[None, :2], N + 1, axis=0)
-            elif self.plans[rid]:
-                pos, _ = committed(self.plans[rid], times, self.Ts, self.v_max, True)
-                now = committed(self.plans[rid], np.array([t]), self.Ts, self.v_max, True)[0]
-                states[j, :2] = now[0]
-            else:
-                states[j] = (FAR + 10.0 * j, FAR, 0.0)
-                continue
-            stage = np.zeros((N + 1, 3))
-            stage[:, :2] = pos
-            plans[rid] = PlanMessage(rid, sample - 1, stage, np.zeros((N, 2)))
-        return states, plans
-
-    def path_is_safe(self, own: np.ndarray, u: np.ndarray, Tk: float) -> bool:
-        """Whether applying ``u`` from ``own`` at ``Tk`` for one sample keeps every
-        neighbour's distance (plus ``--ros2-margin``) at every instant.
-
-        A neighbour that decides its next input after this check (its next stamp
-        minus the lead is after now plus ``--ros2-guard``, the bound on the clock
-        offset) is checked against its exact arcs and then standing still: when
-        it decides, it either has this robot's new plan and avoids it, or it has
-        an older one and keeps out of everywhere this robot may be. Any other
-        neighbour (it decided before this check, its plan not here yet) is
-        checked against its exact arcs and then the disc it may reach.
-        Neighbours that left: their resting place plus a sample's reach.
-        """
-        dt = self.Ts / CHECK_STEPS
-        times = Tk + dt * np.arange(CHECK_STEPS + 1)
-        path = arcs(own, float(u[0]), float(u[1]), times - Tk)
-        now = time.time()
-        slack = self.margin + self.v_max * dt  # between check points both move v_max dt/2
-        for j, rid in enumerate(self.ids):
-            if rid == self.robot_id:
-                continue
-            left = self.departed.get(rid)
-            concurrent = False
-            if left is not None:
-                pos, rad = left.state[None, :2], np.full(1, left.uncertainty)
-            elif self.plans[rid]:
-                kept = self.plans[rid]
-                later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
-                pos, rad = committed(kept, times, self.Ts, self.v_max, later)
-                concurrent = not later
-            else:
-                continue
-            gap = np.hypot(path[:, 0] - pos[:, 0], path[:, 1] - pos[:, 1]) - rad
-            if float(gap.min()) < self.required[j] + slack:
-                self.blocked_by_concurrent = concurrent
-                return False
-        return True
-
     # ------------------------------------------------------------------ outputs
     def command(self, v: float, omega: float, at: float) -> None:
         """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state)."""
@@ -375,7 +227,10 @@ class Ros2Robot(Node):
             else:
                 self.cmd_pub.publish(twist)
             self._sent.append((at, float(v), float(omega)))
-            del self._sent[:-16]
+            with self._lock:  # the commands since the newest odometry (own_state needs all)
+                t0 = -math.inf if self._odom is None else self._odom[0]
+            if len(self._sent) > 16 and self._sent[0][0] < t0:
+                self._sent = [c for c in self._sent if c[0] >= t0] or self._sent[-1:]
             if v == 0.0 and omega == 0.0:
                 self.counts["zero_commands"] += 1
 
@@ -402,16 +257,32 @@ class Ros2Robot(Node):
             self.publish_plan(sample, now, np.repeat(state[None], N + 1, axis=0),
                               np.zeros((N, 2)))
 
+    def _stop_if_stale(self) -> bool:
+        """Command zero at once if the odometry is stale and the robot is not braked yet
+        (the watchdog thread and the main loop); ``True`` if it did."""
+        with self._cmd_lock:
+            now = time.time()
+            if self._braked or self.odometry_age(now) <= self.odom_timeout:
+                return False
+            self._braked = True
+            self.counts["stale_odometry"] += 1
+            self.command(0.0, 0.0, now)
+        log.warning("%s: odometry %.3f s old: commanding zero", self.name,
+                    self.odometry_age(now))
+        return True
+
+    def _watchdog(self) -> None:
+        """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale,
+        whatever the main loop is doing (a long step, a stalled process)."""
+        while not self.stop.wait(WATCH_PERIOD) and not self._done:
+            self._stop_if_stale()
+
     def _watch(self, until: float, sample: int) -> None:
-        """Handle events until wall time ``until``; brake at once if the odometry goes
-        stale."""
+        """Handle events until wall time ``until``; when the odometry has gone stale,
+        publish a plan standing where the robot stopped."""
         while not self.stop.is_set():
             now = time.time()
-            if not self._braked and self.odometry_age(now) > self.odom_timeout:
-                self._braked = True
-                self.counts["stale_odometry"] += 1
-                log.warning("%s: odometry %.3f s old: commanding zero", self.name,
-                            self.odometry_age(now))
+            if self._stop_if_stale():
                 self.brake(now, sample)
             if now >= until:
                 return
@@ -420,7 +291,7 @@ class Ros2Robot(Node):
     # ------------------------------------------------------------------ loop
     def run(self) -> int:
         """Serve until ``t_end``, SIGINT or SIGTERM; returns the exit status."""
-        self.start([("robot", i, "plan") for i in self.neighbours])
+        self.start([("robot", i, "plan") for i in self.neighbours.plans])
         log.info("%s waiting for odometry on %s", self.name, self.ros.resolve("odom"))
         if not self.wait_until(lambda: self.odometry_age(time.time()) < self.odom_timeout,
                                self.startup_timeout):
@@ -438,6 +309,9 @@ class Ros2Robot(Node):
         # its own phase: no two robots' instants line up
         T0 = max(time.time() + self.lead, epoch) + random.random() * self.Ts
         k, end = 0, epoch + self.scenario.t_end
+        watchdog = threading.Thread(target=self._watchdog, name="odometry-watchdog",
+                                    daemon=True)
+        watchdog.start()
         try:
             while not self.stop.is_set():
                 Tk = T0 + k * self.Ts
@@ -448,19 +322,22 @@ class Ros2Robot(Node):
                     break
                 self._step(k, Tk)
                 k += 1
-                if self.blocked_by_concurrent:
+                if self.neighbours.blocked_by_concurrent:
                     # blocked by a neighbour that decides at about the same instants: it
                     # would stay so every sample; move this robot's instants away from it
-                    self.blocked_by_concurrent = False
+                    self.neighbours.blocked_by_concurrent = False
                     self.counts["phase_shifts"] += 1
                     T0 += random.uniform(0.2, 0.4) * self.Ts
                 behind = time.time() + self.lead - (T0 + k * self.Ts)
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
         finally:
+            self._done = True
             self.command(0.0, 0.0, time.time())
+        counts = {**self.counts, "plans_received": self.neighbours.received,
+                  "plans_refused": self.neighbours.refused}
         log.info("%s: %s, %d invalid messages dropped", self.name,
-                 ", ".join(f"{v} {k}" for k, v in self.counts.items()), self.validator.invalid)
+                 ", ".join(f"{v} {k}" for k, v in counts.items()), self.validator.invalid)
         return 0
 
     def _wait_for_epoch(self) -> float | None:
@@ -487,12 +364,13 @@ class Ros2Robot(Node):
         while not self.stop.is_set():
             now = time.time()
             self.brake(now, 0)
-            alive = [i for i in self.neighbours if f"robot/{i}" in self.alive]
-            if now >= self.epoch - self.Ts and (all(self.plans[i] for i in alive)
+            plans = self.neighbours.plans
+            alive = [i for i in plans if f"robot/{i}" in self.alive]
+            if now >= self.epoch - self.Ts and (all(plans[i] for i in alive)
                                                 or now >= deadline):
                 break
             self.wait_until(lambda: False, min(self.Ts, 0.2))
-        missing = [i for i in self.neighbours if not self.plans[i]]
+        missing = [i for i, kept in self.neighbours.plans.items() if not kept]
         if missing:
             log.warning("%s starts without plans from %s", self.name, missing)
 
@@ -518,12 +396,12 @@ class Ros2Robot(Node):
         timer.start()
         try:
             own = self.own_state(Tk)
-            states, plans = self.neighbour_plans(Tk, k)
+            states, plans = self.neighbours.for_controller(Tk, k)
             states[self.index] = own
             out = self.controller.step(k, Tk - self.epoch, states, plans, None)
             u = out.inputs[0]
             late = time.time() > Tk - PUBLISH_SLACK
-            if not late and self.path_is_safe(own, u, Tk):
+            if not late and self.neighbours.path_is_safe(own, u, Tk):
                 plan = self.controller.published
                 self.publish_plan(k, Tk, plan.states, plan.inputs)
             else:  # standing still is safe: every neighbour keeps out of where it stops
@@ -533,11 +411,11 @@ class Ros2Robot(Node):
                 self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0),
                                   np.zeros((N, 2)))
             self._watch(Tk, k)
-            if self._braked:  # the odometry went stale meanwhile: the zero stands
-                return
-            with self._cmd_lock:
+            with self._cmd_lock:  # the watchdog cannot stop it in between
+                if self._braked:  # the odometry went stale meanwhile: the zero stands
+                    return
                 sent.set()
-            self.command(float(u[0]), float(u[1]), time.time())
+                self.command(float(u[0]), float(u[1]), time.time())
             self.counts["samples"] += 1
         finally:
             timer.cancel()

@@ -1,0 +1,78 @@
+"""The ``--ros2`` options of ``sqpmpc robot`` (CONTRACT 4) and their checks."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sqpmpc.cli.options import nonnegative_float, positive_float
+from sqpmpc.problem.scenario import Scenario
+
+from ..node import options_of
+from .graph import check_name
+
+__all__ = ["add_ros2_arguments", "ros2_problem"]
+
+
+def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
+    """The ``--ros2`` options of ``sqpmpc robot``."""
+    g = parser.add_argument_group("ROS 2 robot (CONTRACT 4)")
+    g.add_argument("--ros2", action="store_true",
+                   help="drive a ROS 2 robot (odom, cmd_vel, plan topics over rmw_zenoh) on "
+                        "this robot's own clock, without a plant process")
+    g.add_argument("--ros2-namespace", default=None, metavar="NS",
+                   help="the robot's ROS 2 namespace (default /robot<ID>)")
+    g.add_argument("--ros2-domain", type=int, default=0, metavar="D",
+                   help="ROS domain id, 0..232 (default 0)")
+    g.add_argument("--twist-stamped", action="store_true",
+                   help="send geometry_msgs/TwistStamped on cmd_vel (Jazzy's "
+                        "diff_drive_controller) instead of Twist")
+    g.add_argument("--ros2-connect", action="append", default=None, metavar="EP",
+                   help="Zenoh endpoint of the ROS 2 side, e.g. the rmw_zenoh router "
+                        "(repeatable; default tcp/127.0.0.1:7447)")
+    g.add_argument("--ros2-zenoh-mode", choices=("client", "peer"), default="client",
+                   help="the ROS 2 session's mode (default client of the router)")
+    g.add_argument("--epoch", type=float, default=None, metavar="UNIX_S",
+                   help="wall time (Unix s) of the scenario's t = 0, shared by the fleet "
+                        "(default: this robot's start)")
+    g.add_argument("--epoch-file", type=Path, default=None, metavar="FILE",
+                   help="wait (publishing standing plans) until FILE exists and holds the "
+                        "epoch in Unix s: a launcher starts the fleet's clock once every "
+                        "controller is up")
+    g.add_argument("--odom-timeout", type=positive_float, default=0.3, metavar="S",
+                   help="odometry older than this is stale: command zero at once (default "
+                        "0.3 s; keep it below Ts: zero within one sample)")
+    g.add_argument("--lead", type=positive_float, default=None, metavar="S",
+                   help="start each sample's computation this long before its instant "
+                        "(default 0.3 Ts)")
+    g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
+                   help="added to every required distance in the check of each input: "
+                        "odometry and timing errors, m (default 0.02)")
+    g.add_argument("--ros2-guard", type=nonnegative_float, default=0.02, metavar="S",
+                   help="bound on the clock offset between robots, s (default 0.02): a "
+                        "neighbour deciding less than this after this robot's check is held "
+                        "by its reach (every robot of a fleet uses the same --lead)")
+
+
+def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
+    """Why the ``--ros2`` options cannot run, if so (one message naming the flag)."""
+    if len(args.id) != 1:
+        return "--ros2 drives one robot: give one --id"
+    if not 0 <= args.ros2_domain <= 232:
+        return f"--ros2-domain: expected 0..232, got {args.ros2_domain}"
+    ns = args.ros2_namespace or f"/robot{args.id[0]}"
+    try:
+        check_name(ns, "--ros2-namespace")
+    except ValueError as exc:
+        return str(exc)
+    lead = args.lead if args.lead is not None else 0.3 * scenario.sample_time
+    if args.odom_timeout >= scenario.sample_time:
+        return (f"--odom-timeout: must be less than Ts = {scenario.sample_time:g} s (zero "
+                f"within one sample of the odometry's loss), got {args.odom_timeout:g}")
+    if lead >= scenario.sample_time:
+        return f"--lead: must be less than Ts = {scenario.sample_time:g} s, got {lead:g}"
+    if args.epoch is not None and args.epoch_file is not None:
+        return "give --epoch or --epoch-file, not both"
+    if options_of(args).decentralized_mode != "shared":
+        return "--decentralized-mode: --ros2 holds every neighbour by its own check"
+    return None
