@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from services.launch import free_ports
+from services.children import free_ports
 from services.messages import PlanMsg, StateMsg, encode
 from services.node import scenario_digest
 from services.transport import Bus

@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .launch import free_ports
+from .children import free_ports
 from .node import POLL
 from .transport import Bus, Event
 

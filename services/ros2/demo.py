@@ -46,8 +46,8 @@ from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.scenario_file import load_scenario
 
+from ..children import Child, free_ports, stop_children
 from ..credentials import write_credentials
-from ..launch import Child, free_ports, stop_children
 from ..node import install_signal_handlers
 from .check import check_fleet
 
@@ -58,7 +58,7 @@ PROG = "services.ros2.demo"
 
 
 class LoggedChild(Child):
-    """A :class:`services.launch.Child` whose stderr goes to a file."""
+    """A :class:`services.children.Child` whose stderr goes to a file."""
 
     def __init__(self, name: str, argv: list[str], logfile: Path,
                  env: dict[str, str] | None = None) -> None:
