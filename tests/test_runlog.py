@@ -98,7 +98,9 @@ def test_kill_9_of_the_plant_leaves_a_readable_record(tmp_path):
     ports = free_ports(6)
     probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
     probe = Probe("kill9", [], [("plant", "state")], listen=[probe_ep])
-    common = ["--scenario", "paper-s2", "--t-end", "100", "--run", "kill9"]
+    # a run far longer than the kill sample: on a loaded machine the probe may see sample
+    # `kill_at` late, and the SIGKILL must still land mid-run
+    common = ["--scenario", "paper-s2", "--t-end", "2000", "--run", "kill9"]
     out = tmp_path / "out"
     plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
                                     "--out", str(out), "--no-plots"], tmp_path / "logs")
@@ -124,7 +126,7 @@ def test_kill_9_of_the_plant_leaves_a_readable_record(tmp_path):
     recorded = rec.inputs.shape[0]
     # state k is published after sample k - 1 is in the record: nothing published is lost
     # (the plant may have recorded a sample or two whose states did not get out)
-    assert kill_at <= published <= recorded < 200, (published, recorded, kill_at)
+    assert kill_at <= published <= recorded < 4000, (published, recorded, kill_at)
     assert rec.extra["recovered_from_record"] is True and not rec.completed
     assert cli_main(["metrics", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
