@@ -51,7 +51,7 @@ from ..credentials import write_credentials
 from ..node import install_signal_handlers
 from .check import check_fleet
 
-__all__ = ["LoggedChild", "build_parser", "main"]
+__all__ = ["LoggedChild", "build_parser", "main", "start_clock"]
 
 log = logging.getLogger("services.ros2.demo")
 PROG = "services.ros2.demo"
@@ -71,10 +71,11 @@ class LoggedChild(Child):
                                          stdout=err)
 
 
-def _start_clock(port: int, ids: list[int], epoch_file: Path, timeout: float,
-                 stop: threading.Event) -> bool:
-    """Once every controller's ROS 2 node is in the graph (seen on the ROS 2 router), write
-    the epoch (2 s from then) into ``epoch_file``; ``False`` if not all came in time."""
+def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
+                stop: threading.Event) -> bool:
+    """Once every controller's ROS 2 node is in the graph (seen on the ROS 2 router at
+    ``endpoint``), write the epoch (2 s from then) into ``epoch_file``; ``False`` if not all
+    came in time (the epoch is written all the same)."""
     import zenoh
 
     from ..transport import make_config
@@ -90,7 +91,7 @@ def _start_clock(port: int, ids: list[int], epoch_file: Path, timeout: float,
                 seen.add(parts[8])
 
     deadline = time.time() + timeout
-    with zenoh.open(make_config((), [f"tcp/127.0.0.1:{port}"], "client")) as session:
+    with zenoh.open(make_config((), [endpoint], "client")) as session:
         sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)
         while not stop.is_set() and time.time() < deadline:
             with lock:
@@ -186,7 +187,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             robots.append(LoggedChild(f"robot/{rid}", cmd, logs / f"robot-{rid}.log", env))
         children.extend(robots)
         log.info("%d robots, t_end %g s; logs in %s", len(ids), t_end, logs)
-        if not _start_clock(ros_port, ids, epoch_file, args.startup, stop):
+        if not start_clock(ros_ep, ids, epoch_file, args.startup, stop):
             log.error("the controllers were not all up within %g s (see %s)", args.startup,
                       logs)
         while not stop.is_set() and any(r.poll() is None for r in robots):
