@@ -34,7 +34,14 @@ CASES = {
 }
 """Row name -> demo arguments."""
 
-__all__ = ["CASES", "main", "run_case"]
+__all__ = ["CASES", "HOSTS_PENDING", "OUT", "log_counts", "main", "run_case", "section"]
+
+HOSTS_PENDING = """<!-- hosts -->
+## Every robot a host of its own
+
+Not run yet: `sudo python -m benchmarks.ros2_hosts` writes this section.
+<!-- /hosts -->"""
+"""The hosts section before :mod:`benchmarks.ros2_hosts` has run."""
 
 
 def run_case(name: str, folder: Path, tolerance: float) -> dict:
@@ -46,16 +53,30 @@ def run_case(name: str, folder: Path, tolerance: float) -> dict:
     check = folder / "check.json"
     if check.exists():
         row.update(json.loads(check.read_text()))
+    row["counts"] = log_counts(folder / "logs")
+    return row
+
+
+def log_counts(logs: Path) -> dict[str, int]:
+    """Every controller's final counts (``samples``, ``brakes``, ...) added up, from the
+    ``robot-*.log`` files in ``logs``."""
     counts: dict[str, int] = {}
-    for log in sorted((folder / "logs").glob("robot-*.log")):
+    for log in sorted(logs.glob("robot-*.log")):
         for line in log.read_text(errors="replace").splitlines():
             if " samples, " in line and "invalid messages dropped" in line:
                 for part in line.split(": ", 2)[-1].split(", "):
                     value, _, key = part.partition(" ")
                     if value.isdigit():
                         counts[key] = counts.get(key, 0) + int(value)
-    row["counts"] = counts
-    return row
+    return counts
+
+
+def section(text: str, name: str) -> str | None:
+    """The text between ``<!-- NAME -->`` and ``<!-- /NAME -->`` in ``text`` (markers
+    included), if there."""
+    start, end = f"<!-- {name} -->", f"<!-- /{name} -->"
+    i, j = text.find(start), text.find(end)
+    return text[i:j + len(end)] if 0 <= i < j else None
 
 
 def _table(rows: list[dict]) -> str:
@@ -98,8 +119,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{name}: {why}" for name, (_, why) in criteria.items()) + ".\n"
     print(table)
     if not args.no_write:
-        OUT.write_text(_DOC.format(table=table, date=time.strftime("%Y-%m-%d %H:%M UTC",
-                                                                    time.gmtime())))
+        hosts = section(OUT.read_text(), "hosts") if OUT.exists() else None
+        OUT.write_text(_DOC.format(table=table, hosts=hosts or HOSTS_PENDING,
+                                   date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())))
         print(f"wrote {OUT}")
     return 0 if all(r.get("collisions", 1) == 0 for r in rows) else 1
 
@@ -170,18 +192,14 @@ poses (exact arcs between commands, checked on a 2 ms grid; the certified cleara
 bounds every instant in between).
 
 {table}
-Not done: every robot and its controller in a network namespace of its own with Zenoh
-routers between the hosts and loss and delay on the links. This machine has `ip netns`,
-veth pairs, `tc` without `netem` (`tbf` works) and `iptables` (its `statistic` match can
-drop a share of packets); a fixed delay would need a user-space relay between the hosts'
-routers.
-
 The counts add up every controller's: *samples* computed, *stood still* (the check
 refused the QP's input), *phase shifts* (a robot blocked by a neighbour deciding at
 about the same instants moved its own instants by 0.2-0.4 Ts), *late samples* (a plan
 not ready before its instant: the robot stood still), *stale odometry* (times a
 controller found its odometry older than `--odom-timeout` and commanded zero). A robot
 whose odometry stops cannot arrive: arrival counts it as not arrived.
+
+{hosts}
 """
 
 if __name__ == "__main__":

@@ -36,6 +36,8 @@ __all__ = ["build_parser", "main", "parse_address", "probe", "relay"]
 
 PROG = "services.relay"
 CHUNK = 65536
+TARGET_TRIES = 50
+"""Attempts (0.1 s apart) to reach a route's target for a new connection."""
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -85,11 +87,15 @@ async def relay(routes: Sequence[tuple[tuple[str, int], tuple[str, int]]], delay
 
     def handler(target: tuple[str, int]):
         async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-            try:
-                up_r, up_w = await asyncio.open_connection(*target)
-            except OSError:
-                writer.close()
-                return
+            for attempt in range(TARGET_TRIES):  # the target may still be starting
+                try:
+                    up_r, up_w = await asyncio.open_connection(*target)
+                    break
+                except OSError:
+                    if attempt == TARGET_TRIES - 1:
+                        writer.close()
+                        return
+                    await asyncio.sleep(0.1)
             for w in (writer, up_w):
                 w.get_extra_info("socket").setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY,
                                                       1)
@@ -134,10 +140,41 @@ async def _echo(tcp: tuple[str, int], udp: tuple[str, int] | None, stop: asyncio
         transport.close()
 
 
+def _connect(address: tuple[str, int], wait: float) -> socket.socket:
+    """A TCP connection to ``address``, retried while refused for up to ``wait`` s (the
+    echo or relay may still be starting)."""
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            return socket.create_connection(address, timeout=30.0)
+        except ConnectionRefusedError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
 def probe(tcp: tuple[str, int], udp: tuple[str, int] | None, count: int = 300,
           interval: float = 0.01, size: int = 64) -> dict:
-    """Round trips through an echo: UDP loss share, TCP round-trip times (s)."""
-    out: dict = {"count": count}
+    """Round trips through an echo: TCP round-trip times (s), then the share of UDP
+    datagrams lost (both ways)."""
+    rtts = []
+    with _connect(tcp, 30.0) as s:
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for _ in range(count):
+            started = time.monotonic()
+            s.sendall(bytes(size))
+            got = 0
+            while got < size:
+                data = s.recv(CHUNK)
+                if not data:
+                    raise ConnectionError("the echo closed the connection")
+                got += len(data)
+            rtts.append(time.monotonic() - started)
+            time.sleep(interval)
+    rtts.sort()
+    out: dict = {"count": count, "tcp_rtt": {
+        "min": rtts[0], "median": statistics.median(rtts),
+        "p90": rtts[int(0.9 * (len(rtts) - 1))], "max": rtts[-1]}}
     if udp is not None:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.settimeout(0.0)
@@ -161,23 +198,6 @@ def probe(tcp: tuple[str, int], udp: tuple[str, int] | None, count: int = 300,
                 except BlockingIOError:
                     time.sleep(0.005)
         out["udp_round_trip_loss"] = 1.0 - len(back) / count
-    rtts = []
-    with socket.create_connection(tcp, timeout=30.0) as s:
-        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        for _ in range(count):
-            started = time.monotonic()
-            s.sendall(bytes(size))
-            got = 0
-            while got < size:
-                data = s.recv(CHUNK)
-                if not data:
-                    raise ConnectionError("the echo closed the connection")
-                got += len(data)
-            rtts.append(time.monotonic() - started)
-            time.sleep(interval)
-    rtts.sort()
-    out["tcp_rtt"] = {"min": rtts[0], "median": statistics.median(rtts),
-                      "p90": rtts[int(0.9 * (len(rtts) - 1))], "max": rtts[-1]}
     return out
 
 

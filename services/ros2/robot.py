@@ -72,7 +72,7 @@ from . import msgs
 from .graph import Received, Ros2Node
 from .neighbours import Neighbours
 from .options import ros2_problem
-from .timing import arc
+from .timing import own_motion
 
 __all__ = ["Ros2Robot", "main_ros2"]
 
@@ -131,6 +131,10 @@ class Ros2Robot(Node):
                                      scenario.required_distances()[self.index], self.Ts,
                                      scenario.horizon, float(self.controller.context.max_speed),
                                      self.lead, args.ros2_guard, args.ros2_margin)
+        self.limits = (scenario.bounds.acceleration_lower(),
+                       scenario.bounds.acceleration_upper()) \
+            if scenario.bounds.dynamic_limits else None
+        """Acceleration limits ``(lower, upper)`` of ``(v, omega)`` (CONTRACT 1c), or ``None``."""
         self.odom_timeout = float(args.odom_timeout)
         self.timeout = float(args.timeout)
         self.startup_timeout = args.startup_timeout
@@ -196,20 +200,37 @@ class Ros2Robot(Node):
 
     # ------------------------------------------------------------------ states
     def own_state(self, t: float) -> np.ndarray | None:
-        """The own state at wall time ``t`` from the newest odometry and the commands sent
+        """The own pose at wall time ``t`` from the newest odometry and the commands sent
         since (``None``: no odometry yet)."""
+        motion = self.own_motion(t)
+        return None if motion is None else motion[0]
+
+    def own_motion(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The own pose and velocities ``(v, omega)`` at wall time ``t``
+        (:func:`services.ros2.timing.own_motion`: the newest odometry carried forward with
+        the commands sent since, ramping under the scenario's acceleration limits);
+        ``None``: no odometry yet."""
         with self._lock:
             if self._odom is None:
                 return None
-            t0, state, v, w = self._odom
-        for ts, cv, cw in self._sent:
-            if ts <= t0:
-                continue
-            if ts >= t:
-                break
-            state = arc(state, v, w, ts - t0)
-            t0, v, w = ts, cv, cw
-        return arc(state, v, w, max(0.0, t - t0))
+            odom = self._odom
+        return own_motion(odom, list(self._sent), t, self.Ts, self.limits)
+
+    def controller_states(self, others: np.ndarray, t: float) -> np.ndarray:
+        """The controller's measured states at wall time ``t``: the neighbours' poses
+        ``others`` ``(n, 3)`` with the own row replaced by the own pose, and, when the
+        robots have velocity states (acceleration limits, CONTRACT 1c), ``(n, 5)`` with
+        the own velocities appended (the neighbours' velocity columns are zero: the
+        controller takes a neighbour's motion from its plan)."""
+        pose, vel = self.own_motion(t)
+        if self.limits is None:
+            out = np.array(others, dtype=float)
+            out[self.index] = pose
+            return out
+        out = np.zeros((others.shape[0], 5))
+        out[:, :3] = others
+        out[self.index] = (*pose, *vel)
+        return out
 
     def odometry_age(self, now: float) -> float:
         """Seconds since the newest odometry (infinite: none yet)."""
@@ -395,9 +416,9 @@ class Ros2Robot(Node):
         timer.daemon = True
         timer.start()
         try:
-            own = self.own_state(Tk)
-            states, plans = self.neighbours.for_controller(Tk, k)
-            states[self.index] = own
+            others, plans = self.neighbours.for_controller(Tk, k)
+            states = self.controller_states(others, Tk)
+            own = states[self.index, :3]
             out = self.controller.step(k, Tk - self.epoch, states, plans, None)
             u = out.inputs[0]
             late = time.time() > Tk - PUBLISH_SLACK

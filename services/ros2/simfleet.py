@@ -2,7 +2,7 @@
 
 ``python -m services.ros2.simfleet --scenario S --router HOST:PORT --out DIR
 [--ids 1,2] [--rate 50] [--domain D] [--twist-stamped] [--odom-stop ID:T]
-[--duration S] [--epoch UNIX_S | --epoch-file FILE] [--seed K]``
+[--duration S] [--epoch UNIX_S | --epoch-file FILE] [--seed K] [--control-rate HZ]``
 
 Each robot of the scenario (or of ``--ids``) is a unicycle that starts at the
 scenario's initial state, obeys ``/robot<ID>/cmd_vel`` (``Twist`` or
@@ -13,6 +13,10 @@ sample), pose and twist in the scenario's frame. Its ROS 2 side is
 zenoh-ros2-sdk (keys, CDR, attachments and graph tokens of that package, CDR
 by rosbags), not the project's encoder: a controller that drives these robots
 speaks the format as another implementation reads it.
+
+With the scenario's acceleration limits (CONTRACT 1c) each robot's velocities
+ramp toward a command no faster than the limits, updated at ``--control-rate``
+Hz (:class:`SimRobot`), and its odometry reports the velocities it has.
 
 ``--odom-stop ID:T`` stops robot ``ID``'s odometry at ``t = T`` (s after the
 epoch) while it keeps obeying its commands (a failed sensor). On SIGINT,
@@ -27,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import random
 import sys
 import tempfile
@@ -52,7 +57,18 @@ PROG = "services.ros2.simfleet"
 
 
 class SimRobot:
-    """One simulated robot: exact unicycle between commands, its log of segments.
+    """One simulated robot: exact unicycle arcs between velocity changes, its log of segments.
+
+    Without acceleration limits a command's velocities hold from its arrival.
+    With ``limits`` (CONTRACT 1c: the scenario's ``[bounds]`` ``acceleration``
+    and ``angular_acceleration``) the robot's velocity controller runs every
+    ``tick`` s (on the grid ``j tick`` of wall time, as a drive controller's
+    update loop) and moves each velocity toward the command by ``rate tick``,
+    ``rate = clip((command - v) / sample_time, lower, upper)`` fixed when the
+    command arrives (as the plant's robots: the command reached within one
+    sample when the limits allow), never past the command; the velocities
+    hold between ticks. So no velocity changes by more than ``|limit| tick``
+    in a tick, and the log's segments are exactly the motion.
 
     Parameters
     ----------
@@ -62,31 +78,68 @@ class SimRobot:
         Initial ``(x, y, psi)``.
     start
         Wall time the state holds at.
+    limits
+        ``(lower, upper)`` accelerations of ``(v, omega)``, or ``None``.
+    sample_time
+        The scenario's ``Ts`` (with ``limits``).
+    tick
+        Period of the velocity controller, s (with ``limits``).
     """
 
-    def __init__(self, robot_id: int, diameter: float, state: np.ndarray, start: float) -> None:
+    def __init__(self, robot_id: int, diameter: float, state: np.ndarray, start: float,
+                 limits: tuple[np.ndarray, np.ndarray] | None = None,
+                 sample_time: float = 0.1, tick: float = 0.005) -> None:
         self.robot_id = robot_id
         self.diameter = diameter
+        self.limits = None if limits is None else (np.asarray(limits[0], dtype=float),
+                                                   np.asarray(limits[1], dtype=float))
+        self.sample_time = float(sample_time)
+        self.tick = float(tick)
         self._lock = threading.Lock()
         self._t = start
         self._state = np.asarray(state, dtype=float).copy()
-        self._u = (0.0, 0.0)
+        self._vel = np.zeros(2)
+        self._cmd = np.zeros(2)
+        self._rate = np.zeros(2)
+        self._tick = math.floor(start / self.tick)  # the last tick applied
         self.segments: list[list[float]] = [[start, *self._state.tolist(), 0.0, 0.0]]
         self.commands = 0
 
+    def _advance(self, t: float) -> None:
+        """Move the state to wall time ``t`` (the velocity controller's ticks on the way)."""
+        if t <= self._t:
+            return
+        while self.limits is not None and not np.array_equal(self._vel, self._cmd):
+            when = (self._tick + 1) * self.tick
+            if when > t:
+                break
+            self._state = arc(self._state, *self._vel, max(0.0, when - self._t))
+            self._t, self._tick = max(when, self._t), self._tick + 1
+            step = self._vel + self._rate * self.tick
+            past = (step - self._cmd) * np.sign(self._rate) >= 0.0
+            self._vel = np.where(past | (self._rate == 0.0), self._cmd, step)
+            self.segments.append([self._t, *self._state.tolist(), *self._vel.tolist()])
+        self._state = arc(self._state, *self._vel, t - self._t)
+        self._t = t
+
     def at(self, t: float) -> tuple[np.ndarray, tuple[float, float]]:
-        """State at wall time ``t`` (not before the last command) and the input in force."""
+        """State at wall time ``t`` (not before the last command) and the velocities then."""
         with self._lock:
-            return arc(self._state, *self._u, max(0.0, t - self._t)), self._u
+            self._advance(t)
+            return self._state.copy(), (float(self._vel[0]), float(self._vel[1]))
 
     def command(self, v: float, omega: float, t: float) -> None:
-        """Apply ``(v, omega)`` from wall time ``t`` on."""
+        """The command ``(v, omega)`` from wall time ``t`` on."""
         with self._lock:
-            t = max(t, self._t)
-            self._state = arc(self._state, *self._u, t - self._t)
-            self._t, self._u = t, (float(v), float(omega))
-            self.segments.append([t, *self._state.tolist(), float(v), float(omega)])
+            self._advance(t)
+            self._cmd = np.array([float(v), float(omega)])
             self.commands += 1
+            if self.limits is None:
+                self._vel = self._cmd.copy()
+                self.segments.append([self._t, *self._state.tolist(), *self._vel.tolist()])
+                return
+            self._tick = math.floor(self._t / self.tick)
+            self._rate = np.clip((self._cmd - self._vel) / self.sample_time, *self.limits)
 
 
 def _odom_message(pub, classes: dict, robot: SimRobot, t: float) -> None:
@@ -123,6 +176,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="folder for poses.json")
     p.add_argument("--ids", default=None, help="comma-separated robot ids (default: all)")
     p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
+    p.add_argument("--control-rate", type=positive_float, default=200.0, metavar="HZ",
+                   help="update rate of the robots' velocity controllers under the "
+                        "scenario's acceleration limits, Hz (default 200)")
     p.add_argument("--domain", type=int, default=0, help="ROS domain id")
     p.add_argument("--twist-stamped", action="store_true",
                    help="cmd_vel carries TwistStamped")
@@ -182,8 +238,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     start = time.time()
     epoch = args.epoch if args.epoch is not None or args.epoch_file else start
     looked = 0.0
+    bounds = scenario.bounds
+    limits = (bounds.acceleration_lower(), bounds.acceleration_upper()) \
+        if bounds.dynamic_limits else None
     robots = {rid: SimRobot(rid, float(scenario.robots[scenario.index_of(rid)].diameter),
-                            scenario.initial_states()[scenario.index_of(rid)], start)
+                            scenario.initial_states()[scenario.index_of(rid)], start, limits,
+                            scenario.sample_time, 1.0 / args.control_rate)
               for rid in ids}
     cmd_type = "geometry_msgs/msg/TwistStamped" if args.twist_stamped else \
         "geometry_msgs/msg/Twist"

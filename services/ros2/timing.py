@@ -19,8 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Estimate", "TimedPlan", "arc", "arcs", "committed", "neighbour_estimate",
-           "plan_position"]
+RAMP_STEP = 0.01
+"""Longest stretch :func:`own_motion` takes on one arc while the velocities ramp, s."""
+
+__all__ = ["RAMP_STEP", "Estimate", "TimedPlan", "arc", "arcs", "committed",
+           "neighbour_estimate", "own_motion", "plan_position", "ramp"]
 
 
 def arc(state: np.ndarray, v: float, omega: float, dt: float) -> np.ndarray:
@@ -144,3 +147,72 @@ def committed(plans: Sequence[TimedPlan], times: np.ndarray, sample_time: float,
         if not (i == len(plans) - 1 and hold_after):
             rad[sel] = np.where(inside, 0.0, max_speed * (tau - sample_time))
     return pos, rad
+
+
+
+def ramp(v0: np.ndarray, target: np.ndarray, dt: float, within: float,
+         limits: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities ``(v, omega)`` ``dt`` s after a command ``target`` at velocities ``v0``,
+    and their mean over those ``dt`` s.
+
+    Under acceleration ``limits`` ``(lower, upper)`` (CONTRACT 1c) each velocity
+    changes linearly at ``clip((target - v0) / within, lower, upper)`` until it
+    reaches the target: with ``within`` the sample time, as the plant's robots
+    (the target reached within one sample when the limits allow).
+    """
+    v0, target = np.asarray(v0, dtype=float), np.asarray(target, dtype=float)
+    if dt <= 0.0:
+        return v0.copy(), v0.copy()
+    rate = np.clip((target - v0) / within, limits[0], limits[1])
+    moving = rate != 0.0
+    reach = np.full(v0.shape, np.inf)
+    reach[moving] = (target - v0)[moving] / rate[moving]  # time to the target
+    tau = np.minimum(np.maximum(reach, 0.0), dt)
+    end = np.where(reach <= dt, target, v0 + rate * dt)
+    mean = (tau * (v0 + 0.5 * rate * tau) + (dt - tau) * end) / dt
+    return end, mean
+
+
+def own_motion(odometry: tuple[float, np.ndarray, float, float],
+               sent: Sequence[tuple[float, float, float]], t: float, sample_time: float,
+               limits: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """A robot's pose ``(x, y, psi)`` and velocities ``(v, omega)`` at wall time ``t``.
+
+    From its newest ``odometry`` ``(time, pose, v, omega)``, carried forward on
+    exact arcs with the measured velocities and then with each command
+    ``(time, v, omega)`` of ``sent`` (time order) given after the odometry and
+    before ``t``, at once. Under acceleration ``limits`` (CONTRACT 1c) the
+    velocities ramp toward each command as :func:`ramp` (a command given
+    before the odometry is still reached by its time plus ``sample_time``),
+    in stretches of at most :data:`RAMP_STEP` s each on the arc of its mean
+    velocities.
+    """
+    t0, pose, v, w = odometry
+    state = np.asarray(pose, dtype=float)
+    vel = np.array([v, w], dtype=float)
+    target, within = vel.copy(), sample_time
+    for ts, cv, cw in sent:
+        if ts >= t:
+            break
+        if ts <= t0:
+            if limits is not None:
+                target, within = np.array([cv, cw]), max(sample_time - (t0 - ts), 1e-9)
+            continue
+        state, vel = _stretch(state, vel, target, ts - t0, within, limits)
+        t0, target, within = ts, np.array([cv, cw], dtype=float), sample_time
+    return _stretch(state, vel, target, max(0.0, t - t0), within, limits)
+
+
+def _stretch(state: np.ndarray, vel: np.ndarray, target: np.ndarray, dt: float,
+             within: float, limits: tuple[np.ndarray, np.ndarray] | None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Pose and velocities ``dt`` s on (``target`` in force: at once without limits)."""
+    if limits is None:
+        return arc(state, float(target[0]), float(target[1]), dt), target
+    pieces = max(1, math.ceil(dt / RAMP_STEP))
+    for i in range(pieces):  # the rate is the command's: ``within`` shrinks as time goes
+        end, mean = ramp(vel, target, dt / pieces, max(within - i * dt / pieces, 1e-9),
+                         limits)
+        state, vel = arc(state, float(mean[0]), float(mean[1]), dt / pieces), end
+    return state, vel
