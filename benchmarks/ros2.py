@@ -184,6 +184,23 @@ command latency within the margins), the fleet shares `--lead`, clocks agree wit
 commands zero at once (checked between samples too) and publishes a plan standing where
 the odometry and its commands put it; the others keep their distance from it.
 
+## Acceleration limits
+
+With the scenario's `[bounds]` `acceleration` and `angular_acceleration` (CONTRACT 1c)
+the simulated robots' velocity controllers move each velocity toward the command at
+`clip((command - v) / Ts, lower, upper)` (the plant's rule: the command reached within a
+sample when the limits allow), updated every 5 ms (`--control-rate`), and the odometry
+reports the velocities the robot has. The controller gets `(robots, 5)` states: its own
+pose and `(v, omega)` from the newest odometry carried forward with the commands sent
+since, ramping under the same rule (`services.ros2.timing.own_motion`). The check of each
+input takes a command as followed at once on its arc; under acceleration limits its
+margin also holds the ramp's distance from that arc (`model_margin` over the velocity and
+acceleration boxes, for the pair) and the braking distance `v^2 / (2 |a|)` of a robot told
+to stop (`services.ros2.options.check_margin`). `tests/test_ros2_limits.py` checks the
+ramp and the carried-forward state against the simulated robot; `tests/test_ros2_fleet.py`
+runs two robots with limits: no velocity step above the limit times the update period,
+no collision, both arrive.
+
 ## Runs
 
 `python -m benchmarks.ros2` ({date}): `sqpmpc launch --ros2-demo` per row, on this

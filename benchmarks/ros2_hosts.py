@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -28,6 +29,7 @@ from benchmarks.faults import arrival_tolerance
 from benchmarks.ros2 import OUT, log_counts, section
 from services.netns import lab_problem
 from services.ros2 import hosts
+from sqpmpc.problem.scenario_file import load_scenario
 
 __all__ = ["main", "report"]
 
@@ -36,6 +38,7 @@ def report(folder: Path, scenario: str, loss: float, delay: float, why: str,
            wall: float, status: int) -> str:
     """The doc section of a run whose output folder is ``folder``."""
     lab = json.loads((folder / "lab.json").read_text())
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     lines = [
         "<!-- hosts -->", "## Every robot a host of its own", "",
@@ -73,19 +76,27 @@ def report(folder: Path, scenario: str, loss: float, delay: float, why: str,
     if check.exists():
         r = json.loads(check.read_text())
         c = log_counts(folder / "logs")
+        cut_file = folder / "check-scenario-t_end.json"
+        cut = json.loads(cut_file.read_text()) if cut_file.exists() else r
         lines += [
             "", "| run | robots | collisions | smallest clearance (certified), m | arrived "
-            "| largest final error, m | samples | stood still (check) | phase shifts | late "
-            "samples | stale odometry | plans received | wall, s |",
+            f"by t_end {lab['scenario_t_end']:g} s (largest error, m) | arrived by the "
+            f"end, {lab['t_end']:g} s (largest error, m) | samples | stood still (check) | "
+            "phase shifts | late samples | stale odometry | plans received | wall, s |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
             f"| {scenario}, {len(packets)} hosts | {r['robots']} | {r['collisions']} | "
             f"{r['min_clearance']:.3f} ({r['certified_clearance']:.3f}) | "
-            f"{r['arrived']}/{r['robots']} | {max(r['final_errors'].values()):.3f} | "
+            f"{cut['arrived']}/{cut['robots']} ({max(cut['final_errors'].values()):.3f}) | "
+            f"{r['arrived']}/{r['robots']} ({max(r['final_errors'].values()):.3f}) | "
             + " | ".join(str(c.get(k, 0)) for k in (
                 "samples", "brakes", "phase_shifts", "late_samples", "stale_odometry",
                 "plans_received")) + f" | {wall:.0f} |",
-            "", f"Arrival: {why}. Collisions and clearance on the simulated robots' true "
-            "poses (exact arcs between commands, 2 ms grid, certified between grid points)."]
+            "", f"Load average at the end (1, 5, 15 min): {load}.",
+            "", f"Arrival: {why}; the run lasts {lab['t_end']:g} s (`--t-end`), arrival "
+            f"is measured on the same run at the scenario's t_end and at the end. Counts as "
+            "in the table above, added up over the controllers. Collisions and clearance on "
+            "the simulated robots' true poses (exact arcs between commands, 2 ms grid, "
+            "certified between grid points)."]
     else:
         lines += ["", f"The run failed (status {status}): no fleet log to check."]
     lines.append("<!-- /hosts -->")
@@ -99,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenario", default="swap-16")
     p.add_argument("--loss", type=float, default=0.05)
     p.add_argument("--delay", type=float, default=0.02)
+    p.add_argument("--t-end-factor", type=float, default=2.0, metavar="F",
+                   help="run F times the scenario's t_end (arrival is reported at both)")
     p.add_argument("--no-write", action="store_true")
     args = p.parse_args(argv)
     problem = lab_problem()
@@ -109,8 +122,10 @@ def main(argv: list[str] | None = None) -> int:
     with TemporaryDirectory(prefix="sqpmpc-ros2-hosts-") as tmp:
         folder = Path(tmp) / "run"
         started = time.time()
+        t_end = args.t_end_factor * load_scenario(args.scenario).t_end
         status = hosts.main(["--scenario", args.scenario, "--loss", repr(args.loss),
                              "--delay", repr(args.delay), "--out", str(folder),
+                             "--t-end", repr(t_end),
                              "--tolerance", repr(tolerance), "--log-level", "INFO"])
         text = report(folder, args.scenario, args.loss, args.delay, why,
                       time.time() - started, status)

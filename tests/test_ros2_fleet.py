@@ -15,6 +15,7 @@ import signal
 import threading
 import time
 
+import numpy as np
 import pytest
 import zenoh
 
@@ -150,3 +151,78 @@ def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robo
     assert result.stop_to_zero["3"] <= scenario.sample_time
     assert not result.moved_after_zero["3"]
     assert math.isfinite(result.min_clearance)
+
+
+ACCEL_SCENARIO = """
+name = "ros2-accel"
+t_end = 20.0
+sample_time = 0.5
+horizon = 8
+
+[weights]
+Q = [1.0, 1.0]
+R = [0.5, 0.5]
+
+[bounds]
+v = [-0.5, 0.5]
+omega = [-0.7853981633974483, 0.7853981633974483]
+acceleration = [-1.0, 1.0]
+angular_acceleration = [-3.0, 3.0]
+
+[[robots]]
+id = 1
+initial_state = [-1.2, 0.2, 0.0]
+diameter = 0.3
+reference = { type = "point", position = [1.2, 0.2] }
+
+[[robots]]
+id = 2
+initial_state = [0.2, -1.2, 1.5707963267948966]
+diameter = 0.3
+reference = { type = "point", position = [0.2, 1.2] }
+"""
+
+
+@pytest.mark.timeout(240)
+def test_ros2_robots_with_acceleration_limits_ramp_within_them_and_arrive(tmp_path):
+    scenario_file = tmp_path / "accel.toml"
+    scenario_file.write_text(ACCEL_SCENARIO)
+    scenario = load_scenario(str(scenario_file))
+    ros_port, sq_port = free_ports(2)
+    ros_ep, sq_ep = f"tcp/127.0.0.1:{ros_port}", f"tcp/127.0.0.1:{sq_port}"
+    epoch_file = tmp_path / "epoch"
+    logs = tmp_path / "logs"
+    tick = 0.005
+    procs = [start_service("router", ["--listen", ros_ep], logs, "ros2-router"),
+             start_service("router", ["--listen", sq_ep], logs, "router")]
+    sim = start_service("ros2.simfleet", [
+        "--scenario", str(scenario_file), "--router", f"127.0.0.1:{ros_port}",
+        "--out", str(tmp_path), "--epoch-file", str(epoch_file),
+        "--control-rate", repr(1.0 / tick)], logs, "simfleet")
+    procs.append(sim)
+    robots = [start_service("robot", [
+        "--id", str(i), "--scenario", str(scenario_file), "--ros2", "--ros2-connect", ros_ep,
+        "--zenoh-mode", "client", "--connect", sq_ep, "--run", "ros2accel",
+        "--epoch-file", str(epoch_file)], logs, f"robot-{i}") for i in (1, 2)]
+    procs += robots
+    try:
+        assert _wait_for_nodes(ros_port, {"sqpmpc_robot1", "sqpmpc_robot2"}, 120.0), \
+            [p.output()[-500:] for p in robots]
+        epoch_file.write_text(repr(time.time() + 1.0))
+        for rob in robots:
+            assert rob.wait(60.0) == 0, rob.output()[-2000:]
+    finally:
+        if sim.proc.poll() is None:
+            sim.proc.send_signal(signal.SIGINT)
+            sim.wait(30.0)
+        stop_processes(procs)
+    data = json.loads((tmp_path / "poses.json").read_text())
+    limit = np.maximum(np.abs(scenario.bounds.acceleration_lower()),
+                       np.abs(scenario.bounds.acceleration_upper()))
+    for rid in ("1", "2"):
+        seg = np.asarray(data["robots"][rid]["segments"])
+        assert (np.abs(np.diff(seg[:, 4:6], axis=0)) <= limit * tick + 1e-9).all()
+        assert np.abs(seg[:, 4]).max() > 0.1  # it moved
+    result = check_fleet(data, scenario, tolerance=0.05)
+    assert result.collisions == 0 and result.certified_clearance > 0.0
+    assert result.arrived == 2, result.final_errors

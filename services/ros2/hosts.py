@@ -23,7 +23,9 @@ other's): two relays' delays and two links' loss. The epoch (t = 0, shared as
 in :mod:`services.ros2.demo`) is set once every controller's ROS 2 node is in
 the hub's graph. When every controller has reached ``t_end`` the robots'
 true poses are merged (``DIR/poses.json``) and checked
-(:mod:`services.ros2.check`, ``DIR/check.json``); ``DIR/lab.json`` holds the
+(:mod:`services.ros2.check`, ``DIR/check.json``; with ``--t-end`` past the
+scenario's, also up to the scenario's ``t_end``: ``DIR/check-scenario-t_end.json``);
+``DIR/lab.json`` holds the
 lab's set-up and the packets the loss rules dropped. The namespaces are
 removed at the end, also after an error, SIGINT or SIGTERM. Exit status 0
 when no robot collided and every one arrived, 1 otherwise, 2 for bad input
@@ -251,7 +253,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         if credentials is not None:
             shutil.rmtree(credentials, ignore_errors=True)
         (out / "lab.json").write_text(json.dumps(
-            {"hosts": len(ids), "loss": args.loss, "delay": args.delay,
+            {"hosts": len(ids), "loss": args.loss, "delay": args.delay, "t_end": t_end,
+             "scenario_t_end": scenario.t_end,
              "packets": {str(k): {"total": t, "dropped": d} for k, (t, d) in packets.items()},
              "probes": links}, indent=1))
     if status == 2:
@@ -265,6 +268,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     (out / "poses.json").write_text(json.dumps(data))
     result = check_fleet(data, scenario, args.tolerance)
     (out / "check.json").write_text(json.dumps(asdict(result), indent=1))
+    if t_end > scenario.t_end and data["epoch"] + scenario.t_end < data["end"]:
+        # the same run cut at the scenario's own t_end: who had arrived by then
+        cut = check_fleet({**data, "end": data["epoch"] + scenario.t_end}, scenario,
+                          args.tolerance)
+        (out / "check-scenario-t_end.json").write_text(json.dumps(asdict(cut), indent=1))
+        print(f"by the scenario's t_end {scenario.t_end:g} s: {cut.arrived}/{cut.robots} "
+              f"within {cut.tolerance:g} m")
     print(f"{result.robots} robots on {len(ids)} hosts: {result.collisions} collisions "
           f"(certified clearance {result.certified_clearance:.4f} m), "
           f"{result.arrived}/{result.robots} within {result.tolerance:g} m (largest "

@@ -6,12 +6,13 @@ import argparse
 from pathlib import Path
 
 from sqpmpc.cli.options import nonnegative_float, positive_float
+from sqpmpc.problem.plant import model_margin
 from sqpmpc.problem.scenario import Scenario
 
 from ..node import options_of
 from .graph import check_name
 
-__all__ = ["add_ros2_arguments", "ros2_problem"]
+__all__ = ["add_ros2_arguments", "check_margin", "ros2_problem"]
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,3 +77,20 @@ def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
     if options_of(args).decentralized_mode != "shared":
         return "--decentralized-mode: --ros2 holds every neighbour by its own check"
     return None
+
+
+def check_margin(margin: float, scenario: Scenario) -> float:
+    """The margin of the check of each input (:mod:`services.ros2.neighbours`), m:
+    ``--ros2-margin`` and, under acceleration limits (CONTRACT 1c), what the check's arcs
+    do not hold: the check takes a command as followed at once on its arc, the robot ramps
+    to it (up to :func:`sqpmpc.problem.plant.model_margin` off the arc, for the pair), and
+    a robot told to stop stands where it was only after its braking distance
+    ``v^2 / (2 |a|)`` at the fastest speed."""
+    bounds = scenario.bounds
+    if not bounds.dynamic_limits:
+        return float(margin)
+    lo, hi = bounds.input_lower(), bounds.input_upper()
+    alo, ahi = bounds.acceleration_lower(), bounds.acceleration_upper()
+    ramp = model_margin(lo, hi, scenario.sample_time, "exact", scenario.plant, (alo, ahi))
+    braking = max(hi[0] ** 2 / (2.0 * abs(alo[0])), lo[0] ** 2 / (2.0 * abs(ahi[0])))
+    return float(margin) + ramp + braking

@@ -71,7 +71,7 @@ from ..transport import make_config
 from . import msgs
 from .graph import Received, Ros2Node
 from .neighbours import Neighbours
-from .options import ros2_problem
+from .options import check_margin, ros2_problem
 from .timing import own_motion
 
 __all__ = ["Ros2Robot", "main_ros2"]
@@ -130,7 +130,8 @@ class Ros2Robot(Node):
         self.neighbours = Neighbours(self.ids, self.robot_id,
                                      scenario.required_distances()[self.index], self.Ts,
                                      scenario.horizon, float(self.controller.context.max_speed),
-                                     self.lead, args.ros2_guard, args.ros2_margin)
+                                     self.lead, args.ros2_guard,
+                                     check_margin(args.ros2_margin, scenario))
         self.limits = (scenario.bounds.acceleration_lower(),
                        scenario.bounds.acceleration_upper()) \
             if scenario.bounds.dynamic_limits else None
