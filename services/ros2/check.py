@@ -71,7 +71,8 @@ class FleetCheck:
     tolerance: float
     commands: int
     stop_to_zero: dict[str, float | None]
-    """Per robot whose odometry stopped: seconds from the stop to its first zero command."""
+    """Per robot whose odometry stopped: seconds from the stop to its first zero command
+    (under acceleration limits: until its velocities are zero, the log holds velocities)."""
     moved_after_zero: dict[str, bool]
     """Per such robot: whether a non-zero command came after that zero."""
 
