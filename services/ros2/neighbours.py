@@ -77,7 +77,7 @@ class Neighbours:
 
     def __init__(self, ids: list[int], robot_id: int, required: np.ndarray,
                  sample_time: float, horizon: int, max_speed: float, lead: float,
-                 guard: float, margin: float) -> None:
+                 guard: float, margin: float, keep_current: bool = False) -> None:
         self.ids = [int(i) for i in ids]
         self.robot_id = int(robot_id)
         self.required = np.asarray(required, dtype=float)
@@ -87,6 +87,10 @@ class Neighbours:
         self.departed: dict[int, Estimate] = {}
         self.received = self.refused = 0
         self.blocked_by_concurrent = False
+        self.keep_current = bool(keep_current)
+        """Inside the margin (never below the required distance), accept a path that gets
+        no closer than the robot is now (under acceleration limits the margin holds the
+        braking distance, which a robot told to stop uses up)."""
 
     def add(self, msg: PlanMsg, now: float) -> None:
         """Keep a neighbour's plan (validated by the node) unless from the future or too old."""
@@ -175,7 +179,10 @@ class Neighbours:
                 gap = self._stretch_gaps(kept, path, times, later)
             else:
                 continue
-            if float(gap.min()) < self.required[j] + slack:
+            need = self.required[j] + slack
+            if self.keep_current:
+                need = max(float(self.required[j]), min(need, float(gap[0])))
+            if float(gap.min()) < need:
                 self.blocked_by_concurrent = concurrent
                 return False
         return True

@@ -79,7 +79,8 @@ __all__ = ["Ros2Robot", "main_ros2"]
 log = logging.getLogger(__name__)
 
 ROW_MARGIN_FACTOR = 3.0
-"""The QP's collision margin is at least this many times ``--ros2-margin``."""
+"""The QP's collision margin is at least this many times ``--ros2-margin`` (plus, under
+acceleration limits, what :func:`services.ros2.options.check_margin` adds)."""
 WATCH_PERIOD = 0.01
 """How often the watchdog thread looks at the odometry's age, s."""
 STOP_GRACE = 0.01
@@ -117,8 +118,10 @@ class Ros2Robot(Node):
         settings = controller_settings(args)
         # the QP keeps more room than the check asks for (the check is continuous, the
         # QP's rows are at the stage instants)
+        self.check_margin = check_margin(args.ros2_margin, scenario)
         settings = replace(settings, collision_margin=max(
-            settings.collision_margin, ROW_MARGIN_FACTOR * float(args.ros2_margin)))
+            settings.collision_margin, self.check_margin
+            + (ROW_MARGIN_FACTOR - 1.0) * float(args.ros2_margin)))
         self.controller = DecentralizedController(scenario, self.robot_id, settings, "paper")
         # stage-one-override on the obstacle rows too: a stage-1 row the current positions
         # violate is capped at the current gap, so standing still stays feasible
@@ -130,8 +133,8 @@ class Ros2Robot(Node):
         self.neighbours = Neighbours(self.ids, self.robot_id,
                                      scenario.required_distances()[self.index], self.Ts,
                                      scenario.horizon, float(self.controller.context.max_speed),
-                                     self.lead, args.ros2_guard,
-                                     check_margin(args.ros2_margin, scenario))
+                                     self.lead, args.ros2_guard, self.check_margin,
+                                     keep_current=scenario.bounds.dynamic_limits)
         self.limits = (scenario.bounds.acceleration_lower(),
                        scenario.bounds.acceleration_upper()) \
             if scenario.bounds.dynamic_limits else None
