@@ -202,9 +202,9 @@ runs two robots with limits: no velocity step above the limit times the update p
 no collision, both arrive. The margins are large at `Ts` = 0.5 s (0.49 m for 0.5 m/s and
 1 m/s^2: 0.36 m of ramp deviation, 0.125 m of braking); inside it the check accepts a path
 that gets no closer than the robot is now, so a robot that used up its braking distance can
-leave. Not solved: in a crossing of two such robots, one stood for good beside the other's
-goal in 4 of 11 runs (0 collisions in all), as the paper's decentralized scheme has no
-liveness rule.
+leave. Not solved: in a crossing of two such robots a robot stood still for good near the
+other (3 of 9 runs of a symmetric crossing, 2 of 6 with one robot 2 s later; 0 collisions
+in all), as the paper's decentralized scheme has no liveness rule.
 
 ## Runs
 
