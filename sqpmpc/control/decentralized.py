@@ -43,6 +43,7 @@ from sqpmpc.control.plans import (
 )
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.collision import halfplanes_hold_path
 from sqpmpc.ocp.collision_rows import (
     MISSING,
     OBSTACLE,
@@ -215,6 +216,12 @@ class DecentralizedController(ControllerPipeline):
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
             if (held < -slack - 1e-9).any():
                 return False
+            # and the true-distance line the neighbour keeps from the other side (a stage-1
+            # row overridden in the margin band only holds "no closer than now")
+            lines, xy = np.ascontiguousarray(c.check_normals[shared]), path[0, :, :2]
+            if not all(halfplanes_hold_path(lines, c.check_rhs[shared], *xy[b], *xy[b + 1],
+                                            alpha[b], beta[b], 1e-12) for b in range(len(pos))):
+                return False
         if inside.any():
             # overlap-recovery: a pair already inside its distance cannot keep it; braking
             # must not take this robot across the current mid-line's check line
@@ -271,6 +278,8 @@ class DecentralizedController(ControllerPipeline):
         self.collisions.set_age_margins(d.age_margins)
         self.collisions.set_sample(states[self.index, :2], states[d.index, :2],
                                    d.own_predictions, d.predictions, d.kinds)
+        if not self._unicycle:
+            self.collisions.set_stage_one_floor(self.braking_path(self._own)[0][0, 1, :2])
 
     def select_neighbours(self, states: np.ndarray) -> None:
         """Fill the slots with the nearest neighbours within the interaction radius.

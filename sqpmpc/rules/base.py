@@ -73,6 +73,15 @@ class RuleContext:
     counts
         The controller's counters (one dict for the engine and every rule, so
         that a sample's snapshot is one copy); rules add their own keys.
+    model_margin
+        Distance, m, the collision rows keep beyond the required distances for
+        a plant that deviates from the prediction
+        (:func:`sqpmpc.problem.plant.model_margin`; 0 for the paper's exact
+        plant, 0.5 m for robots declaring accelerations of 2 m/s^2 at
+        ``Ts`` = 0.5 s). Two robots never come closer than the required
+        distance plus this, so a rule that asks whether a neighbour is *near*
+        (``detour``) or how far to keep around a crowd (``roundabout``) adds it:
+        the rules' distances are free room beyond what the rows keep.
     """
 
     scenario: Scenario
@@ -80,6 +89,17 @@ class RuleContext:
     scheme: str
     iteration_scheme: str
     counts: dict[str, int] = field(default_factory=dict)
+    model_margin: float = 0.0
+
+    def kept_distances(self) -> np.ndarray:
+        """``(m, n)`` distances the rows keep from the own robots to everyone, m: the
+        required distances plus :attr:`model_margin` (zero to itself)."""
+        required = self.scenario.required_distances()[self.own]
+        if self.model_margin == 0.0:
+            return required
+        out = required + self.model_margin
+        out[np.arange(self.own.size), self.own] = 0.0
+        return out
 
     @property
     def horizon(self) -> int:
