@@ -4,8 +4,7 @@ With ``[bounds] acceleration`` the rows keep a margin for how far a robot that
 accelerates within the bounds can stray from the predicted segments (0.5 m
 between two robots at 2 m/s^2 and Ts = 0.5 s), and a robot cannot stop at once.
 The liveness rules measure "near" from that kept distance (``detour``,
-``roundabout``), and the decentralized stage-1 rows ask no more than braking
-at once can give, so the symmetric swap of six robots (which stood still in a
+``roundabout``), so the symmetric swap of six robots (which stood still in a
 ring to the end of the run) and the four-way crossing arrive, in both schemes,
 with no collision at the samples or between them.
 """

@@ -278,8 +278,6 @@ class DecentralizedController(ControllerPipeline):
         self.collisions.set_age_margins(d.age_margins)
         self.collisions.set_sample(states[self.index, :2], states[d.index, :2],
                                    d.own_predictions, d.predictions, d.kinds)
-        if not self._unicycle:
-            self.collisions.set_stage_one_floor(self.braking_path(self._own)[0][0, 1, :2])
 
     def select_neighbours(self, states: np.ndarray) -> None:
         """Fill the slots with the nearest neighbours within the interaction radius.

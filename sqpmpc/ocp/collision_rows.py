@@ -225,22 +225,6 @@ class ExternalCollisionModel:
         #: (:meth:`set_age_margins`); the first-stage check does not use it
         self.age_margin = np.zeros(E)
         self._aged = False
-        #: ``(2,)`` the own stage-1 position of braking as hard as the bounds allow, or
-        #: ``None`` (:meth:`set_stage_one_floor`)
-        self.stage_one_floor: np.ndarray | None = None
-
-    def set_stage_one_floor(self, position: np.ndarray | None) -> None:
-        """Robots with velocity states: the own stage-1 position ``(2,)`` of braking at once.
-
-        Stage 1 is the one hard stage of the rows, and a robot with velocity
-        states cannot stop at once: where the pair is inside the margin band,
-        the stage-1 row "no closer than now" asks more than braking can give
-        and the QP is infeasible every sample (the controller then lives on
-        stale plans). Each stage-1 row is relaxed to hold at this position: the
-        QP asks no more than braking gives; the first input is verified as
-        before (the true distances and the braking path), so safety is kept.
-        """
-        self.stage_one_floor = None if position is None else np.asarray(position, dtype=float)
 
     def set_age_margins(self, margins: np.ndarray) -> None:
         """Per slot, distance added to the obstacle and missing rows (not to the check).
@@ -330,9 +314,6 @@ class ExternalCollisionModel:
         if self._any_obstacle or self._any_missing:
             overrides += self._avoid_rows(states[0, 1:], A_out[0], lower_out[0])
         self.stage_one_overrides = overrides
-        if self.stage_one_floor is not None:
-            first = lower_out[0, :, 0]
-            np.minimum(first, A_out[0, :, 0] @ self.stage_one_floor - 1e-9, out=first)
 
     def _avoid_rows(self, own: np.ndarray, normals: np.ndarray, rhs: np.ndarray) -> int:
         """Obstacle and missing slots, relinearized at the own stages 1..N ``own (N, 2+)``."""
