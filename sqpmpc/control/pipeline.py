@@ -137,8 +137,10 @@ class ControllerPipeline:
         self.model_margin = model_margin(self.input_lower, self.input_upper,
                                          self.sample_time, settings.discretization, plant,
                                          limits)
+        # the rules measure "near" beyond the rows' margin of robots with velocity states
         self.context = RuleContext(scenario, self.indices, self.scheme,
-                                   settings.iteration_scheme, self.counts, self.model_margin)
+                                   settings.iteration_scheme, self.counts,
+                                   0.0 if self._unicycle else self.model_margin)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):
