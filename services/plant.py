@@ -282,6 +282,7 @@ class PlantNode(Presence, FaultyInputs, Node):
                     log.warning("sample %d: no input from robots %s within %.3g s",
                                 k, sorted(set(self.expected()) - set(self.cmds)), self.timeout)
                 if self.mode == "realtime":  # the clock starts now: Ts for sample 1
+                    self.raise_priority()
                     self.start_wall = time.perf_counter() - t0
                     start = time.perf_counter() - ts
             else:
