@@ -177,6 +177,8 @@ def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    if hasattr(signal, "pthread_sigmask"):  # started with them blocked (services.early)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     if "signal" in RECEIVED:  # it came during start-up (services.early)
         handler(RECEIVED["signal"], None)
     return received
