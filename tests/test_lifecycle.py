@@ -8,6 +8,7 @@ only: no timing assertion.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import signal
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from services.priority import Priority, parse_priority, raise_priority
 from services.testing import REPO, child_pids, free_ports, start_service, stop_processes
 
 pytestmark = pytest.mark.timeout(180)
@@ -171,3 +173,15 @@ def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):
     assert "Traceback" not in demo.output() + logs
     check = json.loads((out / "check.json").read_text())
     assert check["collisions"] == 0
+
+
+def test_priority_values_are_checked():
+    assert parse_priority("auto") == Priority("auto")
+    assert parse_priority("off") == Priority("off")
+    assert parse_priority("30") == Priority("rr", 30)
+    for bad in ("0", "100", "high", ""):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse_priority(bad)
+    with pytest.raises(ValueError, match="off, auto or rr"):
+        Priority("fifo")
+    assert raise_priority(Priority("off"), "test") == "normal priority"
