@@ -255,8 +255,10 @@ def render(restarts: list[dict], alone: dict, launches: list[dict], latest: floa
                   f"{silent['samples']} samples, collisions (at / between) "
                   f"{silent['collisions']}, lockstep timeouts {silent['timeouts']} (the plant "
                   "waits once, then brakes robot 2 without waiting until it sends again), "
-                  f"robot 2 braked on {silent['braked']} samples, the other robots arrived "
-                  f"{silent['arrived']}, waits for a plan that did not come per robot "
+                  f"robot 2 braked on {silent['braked']} samples, the other robots within "
+                  f"the undisturbed run's tracking band at the end {silent['arrived']} (in "
+                  "that run robot 2 moves; here it stands where it stopped from t = 10 s "
+                  "on), waits for a plan that did not come per robot "
                   f"{silent['waits']}, {silent['wall']} s wall, {silent['tracebacks']} "
                   "tracebacks.", ""]),
               f"A robot started with no plant (`--startup-timeout 5`): exit status "
