@@ -39,11 +39,9 @@ import json
 import logging
 import os
 import secrets
-import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import asdict
@@ -54,11 +52,10 @@ from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.scenario_file import load_scenario
 
 from ..children import Child, stop_children
-from ..credentials import write_credentials
 from ..netns import HostLab, lab_problem
 from ..node import install_signal_handlers
 from .check import check_fleet
-from .demo import LoggedChild, start_clock
+from .demo import Credentials, LoggedChild, start_clock
 
 __all__ = ["PORTS", "build_parser", "main", "merge_poses", "probe_links"]
 
@@ -172,7 +169,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     stop = threading.Event()
     received = install_signal_handlers(stop)
     lab = HostLab(len(ids), args.loss)
-    credentials = None if args.insecure else Path(tempfile.mkdtemp(prefix="sqpmpc-cred-"))
+    credentials = None if args.insecure else Credentials(
+        scenario, run, [h.hub_address for h in lab.hosts])
     proto = "tcp" if args.insecure else "tls"
     children: list[Child] = []
     status = 1
@@ -182,15 +180,16 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     try:
         lab.create()
         links = probe_links(lab, args.delay, args.probe, env, logs) if args.probe > 0 else {}
-        secure: list[str] = []
-        if credentials is not None:
-            write_credentials(credentials, scenario, run, "decentralized",
-                              hosts=[h.hub_address for h in lab.hosts], router_listen=())
-            secure = ["--credentials", str(credentials)]
+
+        def start(name: str, argv: list[str], logfile: Path, identity: str) -> LoggedChild:
+            if credentials is None:
+                return LoggedChild(name, argv, logfile, env)
+            return credentials.start(name, argv, logfile, identity, env)
+
         quiet = ["--log-level", "WARNING"]
-        children.append(LoggedChild("hub/router", lab.hub_argv(
+        children.append(start("hub/router", lab.hub_argv(
             *py, "services.router", "--listen", f"{proto}/127.0.0.1:{PORTS['sqpmpc']}",
-            *quiet, *secure), logs / "hub-router.log", env))
+            *quiet), logs / "hub-router.log", "router"))
         children.append(LoggedChild("hub/ros2-router", lab.hub_argv(
             *py, "services.router", "--listen", f"tcp/127.0.0.1:{PORTS['ros2']}", "--listen",
             f"tcp/{lab.hub_address}:{PORTS['ros2']}", *quiet), logs / "hub-ros2-router.log",
@@ -217,13 +216,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                 "--rate", repr(args.rate), "--seed", str(rid), "--epoch-file",
                 str(epoch_file), "--log-level", args.log_level),
                 logs / f"host{rid}-simfleet.log", env))
-            robots.append(LoggedChild(f"robot/{rid}", h.argv(
+            robots.append(start(f"robot/{rid}", h.argv(
                 *py, "services.robot", "--id", str(rid), "--scenario", args.scenario,
                 "--t-end", repr(t_end), "--run", run, "--ros2", "--ros2-connect", local,
                 "--zenoh-mode", "client", "--connect",
                 f"{proto}/{h.hub_address}:{PORTS['relay_sqpmpc']}", "--epoch-file",
-                str(epoch_file), "--log-level", args.log_level, *secure, *extra),
-                logs / f"robot-{rid}.log", env))
+                str(epoch_file), "--log-level", args.log_level, *extra),
+                logs / f"robot-{rid}.log", f"robot-{rid}"))
         children.extend(robots)
         log.info("%d hosts, loss %g each way per link, delay %g s each way; logs in %s",
                  len(ids), args.loss, args.delay, logs)
@@ -250,8 +249,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         except ProblemError:
             packets = {}
         lab.close()
-        if credentials is not None:
-            shutil.rmtree(credentials, ignore_errors=True)
         (out / "lab.json").write_text(json.dumps(
             {"hosts": len(ids), "loss": args.loss, "delay": args.delay, "t_end": t_end,
              "scenario_t_end": scenario.t_end,
