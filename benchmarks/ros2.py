@@ -226,11 +226,11 @@ whose odometry stops cannot arrive: arrival counts it as not arrived.
 Four runs of the 16-host swap on this machine (2026-11-24, 5 % loss per direction and 20
 ms each way on every host's link): 0 collisions in all four; every robot had arrived by
 the scenario's t_end (49 s) in two, 10/16 in the other two (in the first of those, which
-ended at 49 s, the six stood within 1.2 m of the centre); all 16 arrived by the end in the
-three that ran on to 98-100 s. Under loss and
-delay more checks fail: a plan in flight (40 ms from host to host) or resent by TCP (200
-ms and more) leaves its robot held by the disc it may reach, so the swap takes longer
-than on loopback, never closer.
+ended at 49 s, the six stood within 1.8 m of the centre, the goals 4.9 m out); all 16
+arrived by the end in the three that ran on to 98-100 s. Under loss and delay more
+checks fail: a plan in flight (40 ms from host to host) or resent by TCP (200 ms and
+more) leaves its robot held by the disc it may reach, so the swap takes longer than on
+loopback, never closer.
 """
 
 if __name__ == "__main__":
