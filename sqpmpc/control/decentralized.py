@@ -174,7 +174,8 @@ class DecentralizedController(ControllerPipeline):
         if not self._unicycle:  # robots with velocity states: the bound itself
             return (self.obstacles_safe(states, next_state, alpha, beta)
                     and self.in_position_bounds(next_state[:, :2]))
-        growth = alpha + np.maximum(beta, 0.0)
+        # alpha + max(beta, 0) (alpha itself, bit for bit, when the plant moves as predicted)
+        growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha
         return (self.obstacles_safe(states, next_state, growth)
                 and self.in_position_bounds(next_state[:, :2]))
 

@@ -55,7 +55,7 @@ import numpy as np
 from sqpmpc.control.output import ControlOutput, braking_input
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite
+from sqpmpc.kernels.ocp import all_finite, within_box
 from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
@@ -201,8 +201,9 @@ class ControllerPipeline:
         else:
             measured = states[self.indices]
         # odometry wraps the yaw; the plans are continuous in it (models.base)
-        measured[:, 2] = continuous_headings(measured[:, 2], self._headings)
-        self._headings = measured[:, 2].copy()
+        headings = continuous_headings(measured[:, 2], self._headings)
+        measured[:, 2] = headings
+        self._headings = headings  # a new array, owned here
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
         self._own = own
@@ -423,8 +424,7 @@ class ControllerPipeline:
     def in_position_bounds(self, positions: np.ndarray) -> bool:
         if not self._bounded:
             return True
-        inside = (positions >= self._position_low) & (positions <= self._position_high)
-        return np.count_nonzero(inside) == inside.size
+        return within_box(positions, self._position_low, self._position_high)
 
     # ------------------------------------------------------------------ setters
     def update_reference(self, robot_id: int, reference: Reference) -> None:
