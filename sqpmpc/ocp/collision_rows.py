@@ -228,15 +228,16 @@ class ExternalCollisionModel:
         self.age_margin = np.zeros(E)
         self._aged = False
 
-    def set_age_margins(self, margins: np.ndarray) -> None:
+    def set_age_margins(self, margins: np.ndarray, aged: bool | None = None) -> None:
         """Per slot, distance added to the obstacle and missing rows (not to the check).
 
         A neighbour whose newest plan is ``a`` samples old has re-planned ``a - 1``
         times unseen: :class:`sqpmpc.control.decentralized.DecentralizedController` asks
         for ``v_max Ts (a - 1)`` more room, so that its rows give way earlier.
+        ``aged``: whether some margin is positive, when the caller knows (else tested).
         """
         self.age_margin = np.asarray(margins, dtype=float)
-        self._aged = bool((self.age_margin > 0.0).any())
+        self._aged = bool((self.age_margin > 0.0).any()) if aged is None else bool(aged)
 
     def set_required(self, required: np.ndarray) -> None:
         """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
