@@ -162,11 +162,17 @@ def warm_up_rules() -> None:
     repair_speeds(speeds, np.ones((2, 2)), states, np.ones(2, dtype=np.bool_), 0.05, 0.1,
                   0.05, -0.05)
     parking_mask(references, states, 1.0, np.zeros(2, dtype=np.bool_))
+    # with velocity states (CONTRACT 1c) the rules see the poses as a strided view
+    poses = _read_only(np.zeros((2, 5)))[:, :3]
+    repair_speeds(speeds, np.ones((2, 2)), poses, np.ones(2, dtype=np.bool_), 0.05, 0.1,
+                  0.05, -0.05)
+    parking_mask(references, poses, 1.0, np.zeros(2, dtype=np.bool_))
     standing_still(references, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
                    np.zeros(2, dtype=np.bool_))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
-    hold_touching_rows(np.zeros(2), np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
-                       np.zeros((1, 2)))
+    for me in (np.zeros(2), _read_only(np.zeros(2))):
+        hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
+                           np.zeros((1, 2)))
     reversing(_read_only(np.zeros(2)), np.zeros(2), np.zeros(2), 0.005,
               np.zeros(2, dtype=np.bool_))
     i = np.zeros(2, dtype=np.int64)
