@@ -140,9 +140,10 @@ class ControllerPipeline:
             geometry = rule.configure_rows(geometry)
         #: the collision-row geometry the rules configured (read by the scheme's rows)
         self.geometry = geometry
-        self._reference_rules = self.rules_with("references")
-        self._guess_rules = self.rules_with("guess")
-        self._after_rules = self.rules_with("after_solve")
+        self._reference_rules: list[RuleInstance] = []
+        self._guess_rules: list[RuleInstance] = []
+        self._after_rules: list[RuleInstance] = []
+        self._bind_hooks()
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
@@ -275,6 +276,14 @@ class ControllerPipeline:
     def rules_with(self, hook: str) -> list[RuleInstance]:
         """The bound rules that declare ``hook`` (:data:`sqpmpc.rules.base.HOOKS`), in order."""
         return [r for r in self.rules if hook in r.hooks]
+
+    def _bind_hooks(self) -> None:
+        """The per-sample hook lists: the rules that declare them, less the idle ones
+        (:attr:`~sqpmpc.rules.base.RuleInstance.idle`: nothing to do until the references
+        change)."""
+        self._reference_rules = [r for r in self.rules_with("references") if not r.idle]
+        self._guess_rules = [r for r in self.rules_with("guess") if not r.idle]
+        self._after_rules = [r for r in self.rules_with("after_solve") if not r.idle]
 
     # ------------------------------------------------------------------- steps
     def predict_neighbours(self, sample: int, states: np.ndarray,
@@ -472,6 +481,7 @@ class ControllerPipeline:
                                          for i in self.indices])
         for rule in self.rules:
             rule.references_changed()
+        self._bind_hooks()
 
     # ------------------------------------------------------------------ queries
     def reference(self, t: float) -> np.ndarray:

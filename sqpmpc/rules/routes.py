@@ -92,6 +92,7 @@ class _RouteInstance(RuleInstance):
             self.tracking.append(None)
         #: whether some own robot has a map and a goal (else the hook has nothing to do)
         self.routed = any(road is not None for road in self.maps)
+        self.idle = not self.routed
 
     def _plan(self, k: int, p: np.ndarray, t: float) -> None:
         road, goal = self.maps[k], self.goals[k]
