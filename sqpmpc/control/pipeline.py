@@ -55,7 +55,7 @@ import numpy as np
 from sqpmpc.control.output import ControlOutput, braking_input
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite, within_box
+from sqpmpc.kernels.ocp import all_finite, headings_jump, within_box
 from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
@@ -202,9 +202,10 @@ class ControllerPipeline:
         else:
             measured = states[self.indices]
         # odometry wraps the yaw; the plans are continuous in it (models.base)
-        headings = continuous_headings(measured[:, 2], self._headings)
-        measured[:, 2] = headings
-        self._headings = headings  # a new array, owned here
+        last = self._headings
+        if last is not None and headings_jump(measured[:, 2], last):  # rarely: a wrapped yaw
+            measured[:, 2] = continuous_headings(measured[:, 2], last)
+        self._headings = measured[:, 2].copy()
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
         self._own = own

@@ -50,6 +50,7 @@ def warm_up() -> float:
     all_finite(np.zeros(3))
     all_finite(_read_only(np.zeros(3)))
     headings_jump(np.zeros(2), np.zeros(2))
+    headings_jump(np.zeros((2, 3))[:, 2], np.zeros(2))  # the measured poses' column
     plan = np.zeros((2, 3, 3))
     within_box(plan[:, 1, :2], -np.ones(2), np.ones(2))  # a stage of a plan (strided)
     within_box(np.zeros((2, 2)), -np.ones(2), np.ones(2))
