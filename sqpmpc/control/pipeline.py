@@ -242,7 +242,8 @@ class ControllerPipeline:
         # 5. linearize and solve
         budget = self.settings.time_budget
         deadline = None if budget is None else t0 + budget
-        report = engine.solve(own, view.references, deadline=deadline, **self._rows)
+        report = engine.solve(own, view.references, deadline=deadline, started=True,
+                              **self._rows)
         # 6. rules after the solve
         if report.success and self._after_rules:
             view = view.solved(engine.first_speeds(),

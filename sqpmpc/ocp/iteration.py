@@ -352,6 +352,7 @@ class MultipleShootingSQP:
         max_iterations: int | None = None,
         iteration_scheme: Literal["rti", "sqp"] | None = None,
         deadline: float | None = None,
+        started: bool = False,
     ) -> IterationReport:
         """Run RTI (one QP) or SQP from the current iterate.
 
@@ -370,6 +371,10 @@ class MultipleShootingSQP:
         deadline
             ``time.perf_counter()`` value after which no new QP is started
             (the first always runs); default: ``settings.time_budget`` from now.
+        started
+            :meth:`start_sample` was called with these ``initial_states`` and the
+            iterate's initial states are unchanged since (only its speeds may have been
+            updated): not called again.
         """
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
@@ -382,7 +387,8 @@ class MultipleShootingSQP:
                 f"initial_states must be finite with shape ({L.n_robots}, {self.model.nx}), "
                 f"got {initial_states.shape}"
             )
-        self.start_sample(initial_states)
+        if not started or self.z is None:
+            self.start_sample(initial_states)
         sqp = (iteration_scheme or s.iteration_scheme) == "sqp"
         if max_iterations is None:
             if self.samples == 0:
