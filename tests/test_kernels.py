@@ -9,6 +9,7 @@ import scipy.sparse as sp
 
 from sqpmpc.kernels import collision as collision_kernels
 from sqpmpc.kernels import ocp as kernels
+from sqpmpc.kernels.rules import inside_pairs
 from sqpmpc.models.unicycle import discrete_dynamics, discrete_jacobians, rollout
 from sqpmpc.problem.paths import segment_distances
 from sqpmpc.qp.layout import A_PATTERN, B_PATTERN, QPLayout
@@ -289,7 +290,7 @@ def test_box_heading_and_overlap_kernels_match_their_numpy_expressions(seed: int
         me, others = rng.normal(size=2), rng.normal(size=(4, 2))
         shared, distance = rng.random(4) < 0.7, rng.uniform(0.0, 2.0, size=4)
         out = np.zeros(4, dtype=np.bool_)
-        count = collision_kernels.inside_pairs(me, others, shared, distance, out)
+        count = inside_pairs(me, others, shared, distance, out)
         gap = np.hypot(others[:, 0] - me[0], others[:, 1] - me[1])
         np.testing.assert_array_equal(out, shared & (gap < distance))
         assert count == int(out.sum())

@@ -20,7 +20,7 @@ import numpy as np
 from sqpmpc.kernels.rules import limit_turning
 
 __all__ = [
-    "growing_segment_distance", "halfplanes_hold", "halfplanes_hold_path", "inside_pairs",
+    "growing_segment_distance", "halfplanes_hold", "halfplanes_hold_path",
     "moving_points_keep_distance", "nearest_within", "obstacle_rows", "pair_rows",
     "pairs_keep_distance", "segment_keeps_distance", "select_pairs", "shared_rows",
     "stage_one_override"
@@ -303,24 +303,6 @@ def select_pairs(pairs: np.ndarray, positions: np.ndarray, radius: np.ndarray, s
         full += stages_out[p] == horizon
         first += stages_out[p] == 1
     return full, first
-
-
-@_jit
-def inside_pairs(me: np.ndarray, others_now: np.ndarray, shared: np.ndarray,
-                 true_distance: np.ndarray, out: np.ndarray) -> int:
-    """Shared slots whose pair is inside its true distance now into ``out (E,)`` bool;
-    returns how many (the ``overlap-recovery`` check's slots, usually none).
-
-    ``me (2,)`` and ``others_now (E, 2)`` are the measured positions; the distance is
-    ``np.hypot`` of the differences, as
-    :meth:`sqpmpc.ocp.collision_rows.ExternalCollisionModel.inside` documents.
-    """
-    count = 0
-    for e in range(others_now.shape[0]):
-        gap = np.hypot(others_now[e, 0] - me[0], others_now[e, 1] - me[1])
-        out[e] = shared[e] and gap < true_distance[e]
-        count += out[e]
-    return count
 
 
 @_jit

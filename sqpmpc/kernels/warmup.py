@@ -31,7 +31,7 @@ from sqpmpc.kernels.ocp import (
 from sqpmpc.kernels.pair_paths import warm_up_pair_paths
 from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
-from sqpmpc.kernels.rules import hold_touching_rows, warm_up_roundabout, warm_up_rules
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
 
 __all__ = ["warm_up"]
 
@@ -94,8 +94,8 @@ def warm_up() -> float:
                        np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
                        np.empty((1, 2)), np.empty(1), touching)
         hold_touching_rows(me, touching, A, lo)
-        ck.inside_pairs(me, np.ones((1, 2)), np.ones(1, dtype=np.bool_), np.ones(1),
-                        np.zeros(1, dtype=np.bool_))
+        inside_pairs(me, np.ones((1, 2)), np.ones(1, dtype=np.bool_), np.ones(1),
+                     np.zeros(1, dtype=np.bool_))
         ck.obstacle_rows(me, np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
                          np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
     euler_defect_l1(z, x, 2, 2, 13, 0.1)

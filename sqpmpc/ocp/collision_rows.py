@@ -68,7 +68,6 @@ import numpy as np
 
 from sqpmpc.kernels.collision import (
     halfplanes_hold_path,
-    inside_pairs,
     obstacle_rows,
     pair_rows,
     pairs_keep_distance,
@@ -76,7 +75,7 @@ from sqpmpc.kernels.collision import (
     select_pairs,
     shared_rows,
 )
-from sqpmpc.kernels.rules import hold_touching_rows
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs
 from sqpmpc.ocp.geometry import RowGeometry
 
 __all__ = [

@@ -160,10 +160,8 @@ class MultipleShootingSQP:
         self._external_A = qp.matrix_entries("external").reshape(m, E, N, 2)
         self._external_lower = qp.row_bounds("external")[0].reshape(m, E, N)
         self._block = L.block_size
-        # the speeds of the linearization point in the iterate: robot blocks, then a stride
-        self._robot_span = L.n_robots * self._block
-        self._speed_stages = slice(self.model.speed_offset, L.stage_size * L.horizon,
-                                   L.stage_size)
+        self._robot_span = L.n_robots * self._block  # the speeds: blocks, then a stride
+        self._speed_stages = slice(self.model.speed_offset, L.stage_size * N, L.stage_size)
 
     def collision_blocks(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """The collision rows as the QP holds them: ``"internal"``: ``(P, N, 4)`` entries
@@ -372,9 +370,8 @@ class MultipleShootingSQP:
             ``time.perf_counter()`` value after which no new QP is started
             (the first always runs); default: ``settings.time_budget`` from now.
         started
-            :meth:`start_sample` was called with these ``initial_states`` and the
-            iterate's initial states are unchanged since (only its speeds may have been
-            updated): not called again.
+            :meth:`start_sample` was called with ``initial_states`` (only the guess's
+            speeds changed since): not called again.
         """
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
