@@ -43,6 +43,7 @@ from sqpmpc.control.plans import (
 )
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.collision import halfplanes_hold_path
 from sqpmpc.ocp.collision_rows import (
     MISSING,
     OBSTACLE,
@@ -216,6 +217,12 @@ class DecentralizedController(ControllerPipeline):
             normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
             if (held < -slack - 1e-9).any():
+                return False
+            # and the true-distance line the neighbour keeps from the other side (a stage-1
+            # row overridden in the margin band only holds "no closer than now")
+            lines, xy = np.ascontiguousarray(c.check_normals[shared]), path[0, :, :2]
+            if not all(halfplanes_hold_path(lines, c.check_rhs[shared], *xy[b], *xy[b + 1],
+                                            alpha[b], beta[b], 1e-12) for b in range(len(pos))):
                 return False
         if inside.any():
             # overlap-recovery: a pair already inside its distance cannot keep it; braking

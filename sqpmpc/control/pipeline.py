@@ -132,8 +132,15 @@ class ControllerPipeline:
         self.counts: dict[str, int] = {
             "samples": 0, "fallbacks": 0, "shifted_plan_fallbacks": 0, "brake_fallbacks": 0,
             "qp_rescues": 0, "stage_one_overrides": 0, "converged_samples": 0}
+        plant = scenario.plant
+        limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
+        self.model_margin = model_margin(self.input_lower, self.input_upper,
+                                         self.sample_time, settings.discretization, plant,
+                                         limits)
+        # the rules measure "near" beyond the rows' margin of robots with velocity states
         self.context = RuleContext(scenario, self.indices, self.scheme,
-                                   settings.iteration_scheme, self.counts)
+                                   settings.iteration_scheme, self.counts,
+                                   0.0 if self._unicycle else self.model_margin)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):
@@ -154,11 +161,6 @@ class ControllerPipeline:
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
-        plant = scenario.plant
-        limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
-        self.model_margin = model_margin(self.input_lower, self.input_upper,
-                                         self.sample_time, settings.discretization, plant,
-                                         limits)
         self._deviates = plant.model != settings.discretization or plant.noisy or not \
             self._unicycle
         self._own = np.zeros((self.indices.size, self.model.nx))
