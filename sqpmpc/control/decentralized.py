@@ -176,8 +176,7 @@ class DecentralizedController(ControllerPipeline):
         if not self._unicycle:  # robots with velocity states: the bound itself
             return (self.obstacles_safe(states, next_state, alpha, beta)
                     and self.in_position_bounds(next_state[:, :2]))
-        # alpha + max(beta, 0) (alpha itself, bit for bit, when the plant moves as predicted)
-        growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha
+        growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha  # as predicted: 0
         return (self.obstacles_safe(states, next_state, growth)
                 and self.in_position_bounds(next_state[:, :2]))
 
@@ -324,8 +323,7 @@ class DecentralizedController(ControllerPipeline):
         N, h = self.horizon, self.sample_time
         margins = self.slot_data.age_margins
         margins[:] = 0.0
-        report: dict[int, int] = {}
-        aged = False
+        report, aged = {}, False  # the ages to report; whether some margin is positive
         for e, jid in self.slot_data.neighbours:
             age, held = self.book.age(jid, plans.get(jid), sample)
             if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen

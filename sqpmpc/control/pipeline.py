@@ -147,10 +147,7 @@ class ControllerPipeline:
             geometry = rule.configure_rows(geometry)
         #: the collision-row geometry the rules configured (read by the scheme's rows)
         self.geometry = geometry
-        self._reference_rules: list[RuleInstance] = []
-        self._guess_rules: list[RuleInstance] = []
-        self._after_rules: list[RuleInstance] = []
-        self._bind_hooks()
+        self._bind_hooks()  # the per-sample hook lists
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
@@ -285,7 +282,8 @@ class ControllerPipeline:
         """The per-sample hook lists: the rules that declare them, less the idle ones
         (:attr:`~sqpmpc.rules.base.RuleInstance.idle`: nothing to do until the references
         change)."""
-        self._reference_rules = [r for r in self.rules_with("references") if not r.idle]
+        self._reference_rules: list[RuleInstance] = [
+            r for r in self.rules_with("references") if not r.idle]
         self._guess_rules = [r for r in self.rules_with("guess") if not r.idle]
         self._after_rules = [r for r in self.rules_with("after_solve") if not r.idle]
 
