@@ -19,17 +19,19 @@ from sqpmpc.kernels.ocp import (
     euler_linearize,
     euler_rollout,
     euler_step,
+    headings_jump,
     kkt_residual,
     rows_shortfall,
     shift_iterate,
     shift_plan,
     split_rows,
+    within_box,
     write_reference,
 )
 from sqpmpc.kernels.pair_paths import warm_up_pair_paths
 from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
-from sqpmpc.kernels.rules import hold_touching_rows, warm_up_roundabout, warm_up_rules
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
 
 __all__ = ["warm_up"]
 
@@ -47,6 +49,11 @@ def warm_up() -> float:
     # no sample compiles a specialization (tests/test_kernel_warmup.py)
     all_finite(np.zeros(3))
     all_finite(_read_only(np.zeros(3)))
+    headings_jump(np.zeros(2), np.zeros(2))
+    headings_jump(np.zeros((2, 3))[:, 2], np.zeros(2))  # the measured poses' column
+    plan = np.zeros((2, 3, 3))
+    within_box(plan[:, 1, :2], -np.ones(2), np.ones(2))  # a stage of a plan (strided)
+    within_box(np.zeros((2, 2)), -np.ones(2), np.ones(2))
     clip_bounds(np.zeros(3), np.zeros(3), 1e30, np.zeros(3), np.zeros(3))
     x = np.zeros((2, 3))
     u = np.zeros((2, 2))
@@ -87,6 +94,8 @@ def warm_up() -> float:
                        np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
                        np.empty((1, 2)), np.empty(1), touching)
         hold_touching_rows(me, touching, A, lo)
+        inside_pairs(me, np.ones((1, 2)), np.ones(1, dtype=np.bool_), np.ones(1),
+                     np.zeros(1, dtype=np.bool_))
         ck.obstacle_rows(me, np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
                          np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
     euler_defect_l1(z, x, 2, 2, 13, 0.1)

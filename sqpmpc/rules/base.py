@@ -294,6 +294,10 @@ class RuleInstance:
 
     hooks: tuple[str, ...] = ()
     counter_names: tuple[str, ...] = ()
+    #: ``True`` when the rule's per-sample hooks have nothing to do for this controller
+    #: (no map to route on, fewer than two goals to yield to, ...): the pipeline does not
+    #: call them until the references change (:meth:`references_changed` may update it)
+    idle: bool = False
 
     def __init__(self, rule: Rule, context: RuleContext) -> None:
         unknown = set(self.hooks) - set(HOOKS)

@@ -229,7 +229,7 @@ class _ParkingInstance(RuleInstance):
         return out
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        if not self.parking.any():  # nobody parks: nothing to repair
+        if not np.count_nonzero(self.parking):  # nobody parks: nothing to repair
             return None
         speeds = view.guess_speeds.copy()
         repaired = repair_speeds(speeds, view.references[:, -1].copy(), view.own_states,
@@ -339,7 +339,7 @@ class _DetourInstance(RuleInstance):
             positions, self.context.own, view.applied, view.references[:, -1].copy(),
             self.kept, r.speed, r.reach, self._cos_cone, self.patience, r.hold,
             self.blocked_for, self.active_for, self.blocker)
-        if not self.active_for.any():
+        if not np.count_nonzero(self.active_for):  # nobody detours
             return None
         active = np.flatnonzero(self.active_for)
         own = self.context.own
