@@ -125,6 +125,13 @@ class _RoundaboutInstance(RuleInstance):
             self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
         if not active:
             return None
+        # a robot an earlier rule already steers (a route around the static map, a
+        # yield) is left to it: the crowd's tangent knows no walls
+        taken = np.any(view.references != view.scenario_references, axis=(1, 2))
+        self.directions[taken] = 0.0
+        active = int(np.count_nonzero(self.directions.any(axis=1)))
+        if not active:
+            return None
         self.counts["roundabout_samples"] += active
         out = view.references.copy()
         for k in np.flatnonzero(self.directions.any(axis=1)):
