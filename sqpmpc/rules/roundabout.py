@@ -58,6 +58,11 @@ where 1.25-2.3 before); swaps of 16-32 got slower on those seeds (about 1.5 to
 crowd ahead keeps carrying sideways (a crowd that moves with the robot is never
 rounded; a disc fixed when first seen was tried and did worse).
 
+A robot whose references an earlier rule already replaced (the route rule's
+way around walls and shelves, the yield rule's step aside) is left to that rule:
+the crowd's tangent knows nothing of the static map and once led a robot of a
+32-robot warehouse off its route against an arrived robot, where it stood.
+
 The rule only changes references: every collision row, the hard stage 1 and
 the verification of the first input are untouched, so it chooses among safe
 motions like the other rules.
