@@ -136,18 +136,6 @@ def test_a_swap_of_sixteen_arrives_without_collision(slots: int | None) -> None:
     assert m["counters"]["roundabout_samples"] > 0
 
 
-def test_a_swap_of_four_flows_round_the_centre() -> None:
-    # 4 robots: with a crowd of 3 the rule wakes (with 4 the four-way jam at the centre
-    # stood still for seconds); all arrive, no collision at or between samples
-    scenario = antipodal_swap(4)
-    record = ClosedLoopSimulation(scenario, "decentralized").run()
-    m = compute_metrics(record)
-    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
-    goals = scenario.reference_positions(record.t[-1])
-    assert np.all(np.hypot(*(record.states[-1, :, :2] - goals).T) <= 0.05)
-    assert m["counters"]["roundabout_samples"] > 0
-
-
 def test_a_robot_another_rule_steers_is_left_to_it() -> None:
     # a route (or a yield) already replaced the references: the crowd's tangent, which
     # knows no walls, does not override them

@@ -44,19 +44,17 @@ direction and :math:`v_\text{ref}` = ``speed_fraction`` times the largest
 speed. Once fewer than ``min_crowd`` robots are ahead (or the path clears the
 disc), the robot tracks its goal again.
 
-The defaults (a crowd of 3 within 2.5 m) come from the maps benchmark
-(``benchmarks/maps.py``, ``docs/maps.md``): with 4 robots within 3 m the rule
-never woke in swaps of 4 (a four-way jam at the centre, stopped for 10 s) and
-missed the head-on pair of swap-6 whose crowd counted 3 (the four others
-circled, the pair stood 6.5 s face to face). On 18 seeded swaps of 4 to 32
-robots the median normalized makespan went from 1.54 to 1.34 (random crossings
-with pillars 1.25 to 1.28); 3 within 2 m did as well on the small swaps but left
-two robots of the built-in swap-16 (SQP) in a stand-off at t_end, and 3 within 3 m
-slowed the crossings (1.59). The gain is the small swaps' (4-8 robots: 1.1-1.6
-where 1.25-2.3 before); swaps of 16-32 got slower on those seeds (about 1.5 to
-1.8-2.0): there the time goes into the dense centre and into stragglers the
-crowd ahead keeps carrying sideways (a crowd that moves with the robot is never
-rounded; a disc fixed when first seen was tried and did worse).
+The defaults (a crowd of 4 within 3 m) leave swaps of 4 robots to the pairwise
+rules (a four-way jam at the centre can stand 10 s) and can miss the head-on
+pair of swap-6 whose crowd counts 3 (the four others circle, the pair stands
+6.5 s face to face). A crowd of 3 within 2.5 m lets the small swaps flow: on
+the maps benchmark (``benchmarks/maps.py``, 257 runs) the swaps' median
+normalized makespan was 1.48 (1.62 with the defaults) and the crossings' 1.32,
+but a 25-robot grid and a 32-robot warehouse were left stuck (every run
+arrives with the defaults), so the defaults stay; swaps of 16-64 were slower
+with it (their time goes into the dense centre and into stragglers the crowd
+ahead keeps carrying sideways: a crowd that moves with the robot is never
+rounded).
 
 A robot whose references an earlier rule already replaced (the route rule's
 way around walls and shelves, the yield rule's step aside) is left to that rule:
@@ -158,10 +156,10 @@ class Roundabout(Rule):
     """
 
     name = "roundabout"
-    summary = "a crowd of 3+ robots ahead is passed counter-clockwise along its right tangent"
+    summary = "a crowd of 4+ robots ahead is passed counter-clockwise along its right tangent"
     instance = _RoundaboutInstance
-    min_crowd: int = 3
-    sense: float = 2.5
+    min_crowd: int = 4
+    sense: float = 3.0
     cone: float = float(np.deg2rad(60.0))
     along: float = float(np.deg2rad(45.0))
     goal_distance: float = 1.0
