@@ -135,15 +135,3 @@ def test_a_swap_of_sixteen_arrives_without_collision(slots: int | None) -> None:
     assert np.all(np.hypot(*(record.states[-1, :, :2] - goals).T) <= 0.05)
     assert m["counters"]["roundabout_samples"] > 0
 
-
-def test_a_robot_another_rule_steers_is_left_to_it() -> None:
-    # a route (or a yield) already replaced the references: the crowd's tangent, which
-    # knows no walls, does not override them
-    rule = Roundabout(sense=3.0)
-    ctrl = DecentralizedController(fleet(STARTS, GOALS), 1, only().with_rule(rule))
-    inst = ctrl.rule("roundabout")
-    states = np.array(STARTS)
-    v = view(ctrl, states)
-    assert inst.shape_references(v) is not None  # its own goal: the crowd is rounded
-    routed = v.but(references=v.references + np.array([0.0, 1.0]))
-    assert inst.shape_references(routed) is None

@@ -56,10 +56,10 @@ with it (their time goes into the dense centre and into stragglers the crowd
 ahead keeps carrying sideways: a crowd that moves with the robot is never
 rounded).
 
-A robot whose references an earlier rule already replaced (the route rule's
-way around walls and shelves, the yield rule's step aside) is left to that rule:
-the crowd's tangent knows nothing of the static map and once led a robot of a
-32-robot warehouse off its route against an arrived robot, where it stood.
+Leaving robots that the route or yield rule already steers to that rule (the
+crowd's tangent knows no walls; it once led a warehouse robot off its route
+against an arrived robot, where it stood) fixed that run but left a 64-robot
+warehouse stuck that arrives without it; it was dropped.
 
 The rule only changes references: every collision row, the hard stage 1 and
 the verification of the first input are untouched, so it chooses among safe
@@ -126,13 +126,6 @@ class _RoundaboutInstance(RuleInstance):
             view.positions, headings, self.rest_goals, self.context.own,
             view.scenario_references[:, -1].copy(), self.required, r.sense,
             self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
-        if not active:
-            return None
-        # a robot an earlier rule already steers (a route around the static map, a
-        # yield) is left to it: the crowd's tangent knows no walls
-        taken = np.any(view.references != view.scenario_references, axis=(1, 2))
-        self.directions[taken] = 0.0
-        active = int(np.count_nonzero(self.directions.any(axis=1)))
         if not active:
             return None
         self.counts["roundabout_samples"] += active
