@@ -1,4 +1,4 @@
-"""Routes stay inside the scenario's [bounds] box; the yield rule sees travellers' routes."""
+"""Routes stay inside the scenario's [bounds] box."""
 
 from __future__ import annotations
 
@@ -68,18 +68,3 @@ def test_a_boxed_robot_goes_the_long_way_inside_the_box() -> None:
     assert m["counters"]["route_plans"] >= 1
     assert record.states[:, 0, 1].max() <= 1.1 + 1e-3  # never over the top
 
-
-def test_an_arrived_robot_on_a_travellers_route_steps_aside() -> None:
-    # robot 2 rests on the first leg of robot 1's route over the wall, far off its straight
-    # way (through the wall)
-    second = """[[robots]]
-id = 2
-initial_state = [-1.0, 1.3, 0.0]
-diameter = 0.3
-reference = { type = "point", position = [-1.0, 1.3] }"""
-    sc = _scenario(second=second)
-    m = compute_metrics(simulate(sc, "decentralized"))
-    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
-    assert m["obstacle_collisions"] == 0
-    assert m["counters"]["yield_starts"] >= 1
-    assert m["max_final_position_error"] <= 0.05

@@ -6,13 +6,9 @@ at rest *yields* when a travelling robot (one farther than ``travelling`` from
 its own resting goal, so that a robot stepping aside is not one) within
 ``reach`` metres has it in its way: the arrived robot lies ahead of the
 traveller and closer than their required distance plus ``clearance`` to the
-traveller's way to its goal: the straight way, or where static obstacles block
-it the traveller's shortest route around them (the route rule's,
-:class:`sqpmpc.problem.routes.RoadMap` with ``margin``, inside the scenario's
-``[bounds]`` box). Its reference then becomes its goal moved sideways,
-perpendicular to the traveller's way where it passes (the nearest leg of the
-route) on the side it already is (the traveller's right when exactly on the
-way), far enough to leave the
+traveller's straight way to its goal. Its reference then becomes its goal
+moved sideways, perpendicular to the traveller's way on the side it already is
+(the traveller's right when exactly on the way), far enough to leave the
 required distance plus ``clearance``; it holds that point for ``hold`` samples
 after the last such traveller and then returns to its goal. Every robot
 applies the same rule to the same shared data (the scenario's goals, the
@@ -36,7 +32,6 @@ from sqpmpc.rules.base import (
     SampleView,
     check_positive,
 )
-from sqpmpc.rules.routes import road_map
 
 __all__ = ["Yield"]
 
@@ -59,24 +54,6 @@ class _YieldInstance(RuleInstance):
         self.goals = np.array([r.reference.goal if isinstance(r.reference, PointReference)
                                else (np.nan, np.nan) for r in sc.robots], dtype=float)
         self.active = bool(self.has_goal.sum() >= 2)
-        static = bool(sc.polygons) or any(not o.moving for o in sc.obstacles)
-        self.maps = [road_map(sc, 0.5 * r.diameter, self.rule.margin)
-                     if static and self.has_goal[j] else None
-                     for j, r in enumerate(sc.robots)]
-        self._ways: dict[int, np.ndarray] = {}
-
-    def way(self, j: int, p: np.ndarray) -> np.ndarray:
-        """Traveller ``j``'s way from ``p`` to its goal, ``(K, 2)``: the straight way, or
-        its route around the static map where that blocks the straight way (a route
-        that does not exist: the straight way)."""
-        goal = self.goals[j]
-        road = self.maps[j]
-        if road is None or road.free(p, goal):
-            return np.array([p, goal])
-        if j not in self._ways:
-            route = road.route(p, goal)
-            self._ways[j] = np.array([p, goal]) if route is None else route.points
-        return self._ways[j]
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         if not self.active:
@@ -85,7 +62,6 @@ class _YieldInstance(RuleInstance):
         pos = view.positions
         to_goal = np.hypot(*(self.goals - pos).T)
         travelling = self.has_goal & (to_goal > rule.travelling)
-        self._ways = {}  # this sample's routes of the travellers
         out: np.ndarray | None = None
         for k, i in enumerate(self.context.own):
             i = int(i)
@@ -117,10 +93,16 @@ class _YieldInstance(RuleInstance):
         near &= gap < rule.reach
         best, target = np.inf, None
         for j in np.flatnonzero(near):
-            leg = _nearest_leg(self.way(int(j), pos[j]), p, self.required[i, j])
-            if leg is None:
+            way = self.goals[j] - pos[j]
+            length = float(np.hypot(*way))
+            if length <= 1e-9:
+                continue
+            u = way / length
+            rel = p - pos[j]
+            along = float(rel @ u)
+            if along <= 0.0 or along > length + self.required[i, j]:
                 continue  # behind the traveller or beyond its goal
-            u, lateral = leg  # lateral > 0: left of the way
+            lateral = float(u[0] * rel[1] - u[1] * rel[0])  # > 0: left of the way
             keep = self.required[i, j] + rule.clearance
             if abs(lateral) >= keep or gap[j] >= best:
                 continue
@@ -129,30 +111,6 @@ class _YieldInstance(RuleInstance):
             best = gap[j]
             target = self.goals[i] + normal * (keep - abs(lateral))
         return target
-
-
-def _nearest_leg(way: np.ndarray, p: np.ndarray, beyond: float
-                 ) -> tuple[np.ndarray, float] | None:
-    """The unit direction of the leg of polyline ``way (K, 2)`` nearest ``p`` and ``p``'s
-    signed offset from it (> 0: left), or ``None`` when ``p`` lies behind the way's start
-    or more than ``beyond`` past its end."""
-    best: tuple[float, np.ndarray, float] | None = None
-    legs = way.shape[0] - 1
-    for k in range(legs):
-        d = way[k + 1] - way[k]
-        length = float(np.hypot(*d))
-        if length <= 1e-9:
-            continue
-        u = d / length
-        rel = p - way[k]
-        along = float(rel @ u)
-        if k == 0 and along <= 0.0 or k == legs - 1 and along > length + beyond:
-            continue
-        lateral = float(u[0] * rel[1] - u[1] * rel[0])
-        gap = abs(lateral) + max(0.0, -along, along - length)
-        if best is None or gap < best[0]:
-            best = (gap, u, lateral)
-    return None if best is None else (best[1], best[2])
 
 
 @dataclass(frozen=True)
@@ -171,9 +129,6 @@ class Yield(Rule):
         Room left beyond the required distance to the traveller's way, m.
     hold
         Samples the sideways goal is held after the last blocking traveller.
-    margin
-        Clearance beyond a traveller's radius its route around the static map keeps,
-        m (the route rule's default).
     """
 
     name = "yield"
@@ -184,9 +139,8 @@ class Yield(Rule):
     reach: float = 1.5
     clearance: float = 0.25
     hold: int = 6
-    margin: float = 0.2
 
     def __post_init__(self) -> None:
-        check_positive(self, "arrived", "travelling", "reach", "clearance", "hold", "margin")
+        check_positive(self, "arrived", "travelling", "reach", "clearance", "hold")
         if not isinstance(self.hold, numbers.Integral):
             raise ProblemError(f"rule 'yield': hold must be an integer, got {self.hold!r}")
