@@ -5,6 +5,7 @@ Usage (from the repository root, with the ``bench`` extra installed)::
     python -m benchmarks.compare_ipopt                  # full comparison, writes docs/benchmarks.md
     python -m benchmarks.compare_ipopt --quick          # short smoke run, prints only
     python -m benchmarks.compare_ipopt --scenarios head-on swap-6 --output /tmp/b.md
+    python -m benchmarks.compare_ipopt --baseline ../before   # per-sample time before/after
 
 For every scenario it runs the closed loop with
 
@@ -20,6 +21,13 @@ For every scenario it runs the closed loop with
 
 and prints two tables (quality and time, where the time goes) and the targets
 met or missed. Everything is measured in the run; nothing is hard-coded.
+
+Before and after: ``--baseline PATH`` names another checkout (for example a ``git
+worktree`` of the commit before a change); then, instead of the comparison with IPOPT,
+the per-sample controller time of this checkout and of ``PATH`` is measured side by
+side in alternating rounds, each in a subprocess with its own ``PYTHONPATH``, with the
+same measure (:mod:`benchmarks.baseline`; scenarios default to paper-s2, RTI, both
+schemes), and written to ``docs/before-after.md``.
 
 Timing: every closed loop is deterministic, so RTI and IPOPT runs are repeated
 ``--repeats`` times and the repetition with the smallest total controller
@@ -47,6 +55,7 @@ from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 
+from .baseline import BaselineError, compare_baseline, render_baseline, resolve_checkout
 from .report import publish, render_report
 from .rows import (
     COMMAND,
@@ -59,7 +68,11 @@ from .rows import (
     ScenarioResult,
 )
 
-__all__ = ["build_parser", "compare", "machine_info", "machine_line", "main", "run_row"]
+#: Where ``--baseline`` writes its report.
+BASELINE_DOC_PATH = Path(__file__).resolve().parents[1] / "docs" / "before-after.md"
+
+__all__ = ["BASELINE_DOC_PATH", "build_parser", "compare", "machine_info", "machine_line", "main",
+           "run_row"]
 
 
 # ------------------------------------------------------------------------------ running
@@ -246,12 +259,49 @@ def build_parser() -> argparse.ArgumentParser:
                         help="markdown file to write (default: docs/benchmarks.md for a full "
                         "run, none with --quick)")
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--baseline", metavar="PATH", default=None,
+                        help="instead: per-sample time of this checkout and the checkout at "
+                        "PATH side by side (default scenario paper-s2, RTI, both schemes; "
+                        "writes docs/before-after.md)")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="--baseline: alternating rounds (default 3)")
+    parser.add_argument("--iteration-scheme", choices=("rti", "sqp"), default="rti",
+                        help="--baseline: iteration scheme (default rti)")
     return parser
+
+
+def _main_baseline(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    """``--baseline``: the before/after timing table (:mod:`benchmarks.baseline`)."""
+    try:
+        root = resolve_checkout(args.baseline)
+    except BaselineError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    scenarios = args.scenarios if args.scenarios != list(DEFAULT_SCENARIOS) else ["paper-s2"]
+    repeats = args.repeats if args.repeats is not None else 5
+    output = args.output if args.output is not None else BASELINE_DOC_PATH
+    if args.no_write:
+        output = None
+    started = time.perf_counter()
+    try:
+        result = compare_baseline(root, scenarios, ("centralized", "decentralized"),
+                                  args.iteration_scheme, args.rounds, repeats,
+                                  lambda line: print(line, file=sys.stderr, flush=True))
+    except BaselineError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    argv_text = " ".join(sys.argv[1:] if argv is None else argv)
+    report = render_baseline(result, f"{COMMAND} {argv_text}".strip(),
+                             machine_line(started), args.iteration_scheme, repeats)
+    publish(report, output)
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     args = build_parser().parse_args(argv)
+    if args.baseline is not None:
+        return _main_baseline(args, argv)
     try:
         import casadi  # noqa: F401
     except ImportError:

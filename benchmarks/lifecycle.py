@@ -17,16 +17,22 @@
    error lines, how long it took.
 3. **SIGTERM at random times**: ``--launches`` runs of ``services.launch``
    (paper-s2, decentralized, real time: 400 s if not stopped), each sent
-   SIGTERM after a uniform random delay in ``[0, --latest]`` s. Reported per
-   launch: the delay, the exit status, ``Traceback`` lines in everything the
-   launcher and its children wrote, whether a child needed SIGKILL, whether
-   ``sqpmpc metrics`` reads the run folder, and its samples.
+   SIGTERM after a uniform random delay in ``[0, --latest]`` s, counted from
+   the return of ``Popen`` (the launcher exec'd, its interpreter not yet
+   started). The launcher is started with SIGINT and SIGTERM blocked, as a
+   supervisor that wants every stop honoured does (:mod:`services.early`): a
+   signal that comes before the interpreter runs the launcher's first line is
+   held by the kernel and handled there. Reported per launch: the delay, the
+   exit status, ``Traceback`` lines in everything the launcher and its
+   children wrote, whether a child needed SIGKILL, whether ``sqpmpc metrics``
+   reads the run folder, and its samples.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import signal
 import subprocess
@@ -48,11 +54,9 @@ DOC = REPO / "docs" / "reliability.md"
 BEGIN, END = "<!-- measured: benchmarks/lifecycle.py -->", "<!-- /measured lifecycle -->"
 SCENARIO = "paper-s2"
 NOTE = ("A launch whose SIGTERM comes before the interpreter has run the launcher's first "
-        "line (its handler is in place 0.06-0.2 s after the start on this machine, "
-        "site-packages loading included) ends by the signal's default action: no traceback, "
-        "no child started, nothing written, so no run folder (the rows with status -15). "
-        "From the launcher's first line on, every stop leaves a folder `sqpmpc metrics` "
-        "reads.")
+        "line and whose signals were not blocked ends by the signal's default action: no "
+        "traceback, no child started, nothing written, so no run folder (the rows with "
+        "status -15).")
 
 
 def _newest(probe: Probe, horizon: int) -> int:
@@ -119,6 +123,45 @@ def restart_case(mode: str, work: Path, t_end: float | None) -> dict:
     }
 
 
+def silent_case(work: Path) -> dict:
+    """paper-s2 in lockstep with robot 2 alive but silent from sample 20 on
+    (``SQPMPC_FAULTS=mute=20``: its token stays, it publishes nothing); returns the row."""
+    scenario = load_scenario(SCENARIO)
+    ids = [int(i) for i in scenario.ids]
+    ports = free_ports(1 + len(ids))
+    plant_ep = f"tcp/127.0.0.1:{ports[0]}"
+    common = ["--scenario", SCENARIO, "--run", "silent", "--log-level", "INFO"]
+    out = work / "out"
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--out", str(out),
+                                    "--no-plots", "--quiet", "--timeout", "2"], work / "logs")
+    robots = [start_service("robot", ["--id", str(i), *common, "--listen",
+                                      f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
+                                      "--timeout", "1"], work / "logs", name=f"robot-{i}",
+                            env={**os.environ, "SQPMPC_FAULTS": "mute=20"} if i == ids[1]
+                            else None)
+              for i, port in zip(ids, ports[1:], strict=True)]
+    t0 = time.monotonic()
+    try:
+        status = plant.wait(3600)
+    finally:
+        stop_processes([plant, *robots])
+    m = json.loads((out / "metrics.json").read_text())
+    traj = np.load(out / "trajectory.npz")
+    k = traj["states"].shape[0] - 1
+    tolerance, _ = arrival_tolerance(SCENARIO, None)
+    err = np.hypot(*(traj["states"][-1, :, :2]
+                     - scenario.reference_positions(k * scenario.sample_time)).T)
+    others = [j for j, i in enumerate(ids) if i != ids[1]]
+    return {"status": status, "samples": f"{k}/{scenario.steps}",
+            "collisions": f"{m['collisions']} / {m.get('intersample_collisions')}",
+            "timeouts": m["lockstep_timeouts"],
+            "braked": m["missed_deadlines_by_robot"][str(ids[1])],
+            "arrived": f"{int((err[others] <= tolerance).sum())}/{len(others)}",
+            "waits": [r.output().count("no plan of sample") for r in robots],
+            "wall": f"{time.monotonic() - t0:.0f}",
+            "tracebacks": "".join(p.output() for p in [plant, *robots]).count("Traceback")}
+
+
 def no_plant(work: Path) -> dict:
     """A robot started with nothing to connect to and ``--startup-timeout 5``."""
     (port,) = free_ports(1)
@@ -132,6 +175,11 @@ def no_plant(work: Path) -> dict:
             "tracebacks": robot.output().count("Traceback")}
 
 
+def _block_stops() -> None:
+    """In the launcher before ``exec``: SIGINT and SIGTERM held until its first line."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
 def sigterm_launch(work: Path, delay: float) -> dict:
     """One real-time launch sent SIGTERM after ``delay`` s; returns its row."""
     out = work / "run"
@@ -139,7 +187,7 @@ def sigterm_launch(work: Path, delay: float) -> dict:
         [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
          "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots",
          "--log-level", "INFO"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True)
+        text=True, preexec_fn=_block_stops)
     time.sleep(delay)
     launcher.send_signal(signal.SIGTERM)
     try:
@@ -159,7 +207,7 @@ def sigterm_launch(work: Path, delay: float) -> dict:
 
 
 def render(restarts: list[dict], alone: dict, launches: list[dict], latest: float,
-           wall: float) -> str:
+           wall: float, silent: dict | None = None) -> str:
     """The lifecycle section of ``docs/reliability.md``."""
     lines = [BEGIN, "", "## Lifecycle", "",
              f"Measured by `python -m benchmarks.lifecycle` "
@@ -175,8 +223,15 @@ def render(restarts: list[dict], alone: dict, launches: list[dict], latest: floa
              "left mid-run (a restarted robot rejoins at the sample where it left), then brakes "
              "its robots; when every controller has been gone `--rejoin-timeout` it stops with "
              "one error line (`abandoned` in `metrics.json`), writes what it has, status 1;",
+             "- in lockstep a controller that is alive (its liveliness token stays) but sends "
+             "nothing is waited for once (the plant's `--timeout`, the neighbours' "
+             "`--timeout`), then its robot is braked and nobody waits for it until it sends "
+             "again (the neighbours predict it from its states); the run goes on at the "
+             "others' pace;",
              "- SIGINT/SIGTERM at any moment, start-up included: each service records a signal "
-             "from its first lines on (`services/early.py`, before its slow imports) and "
+             "from its first lines on (`services/early.py`, before its slow imports; one sent "
+             "even earlier is held by the kernel when the service was started with the "
+             "signals blocked, and handled there) and "
              "honours it once it can, without a traceback; the launcher signals a child only "
              "once it handles signals, and always starts the plant, which writes what was "
              "simulated (a run stopped before its first sample has `steps 0` and "
@@ -193,12 +248,32 @@ def render(restarts: list[dict], alone: dict, launches: list[dict], latest: floa
                      f"{r['restart_s']} | {r['tracebacks']} | {r['wall']} |")
     lines += ["", "*Arrived*: " + "; ".join(f"{r['mode']}: {r['why']}" for r in restarts)
               + ".", "",
+              *([] if silent is None else [
+                  "Robot 2 alive but silent from sample 20 on in lockstep (`SQPMPC_FAULTS="
+                  "mute=20`: its liveliness token stays, it publishes nothing; plant "
+                  f"`--timeout 2`, robots `--timeout 1`): plant status {silent['status']}, "
+                  f"{silent['samples']} samples, collisions (at / between) "
+                  f"{silent['collisions']}, lockstep timeouts {silent['timeouts']} (the plant "
+                  "waits once, then brakes robot 2 without waiting until it sends again), "
+                  f"robot 2 braked on {silent['braked']} samples, the other robots within "
+                  f"the undisturbed run's tracking band at the end {silent['arrived']} (in "
+                  "that run robot 2 moves; here it stands where it stopped from t = 10 s "
+                  "on), waits for a plan that did not come per robot "
+                  f"{silent['waits']}, {silent['wall']} s wall, {silent['tracebacks']} "
+                  "tracebacks.", ""]),
               f"A robot started with no plant (`--startup-timeout 5`): exit status "
               f"{alone['status']} after {alone['wall']:.1f} s (imports included), "
               f"{len(alone['errors'])} error line: `{' '.join(alone['errors'])[-160:]}`, "
               f"{alone['tracebacks']} tracebacks.", "",
               f"{len(launches)} launches (paper-s2, decentralized, real time) sent SIGTERM at a "
-              f"uniform random time in [0, {latest:g}] s:", "",
+              f"uniform random time in [0, {latest:g}] s after `Popen` returned (the launcher "
+              "exec'd, its interpreter not yet started), each started with SIGINT/SIGTERM "
+              "blocked as a supervisor that wants every stop honoured does: a signal before the "
+              "launcher's first line is held by the kernel and handled there "
+              "(`services/early.py`). Started from a shell without that, a SIGTERM in the "
+              "first 0.06-0.2 s (before the interpreter runs the launcher) ends it by the "
+              "default action with nothing started and nothing written; `sqpmpc metrics` on "
+              "the folder then says in one line that it holds no record.", "",
               "| delay s | launcher status | tracebacks | a child needed SIGKILL | "
               "`sqpmpc metrics` reads the folder | samples written |", "|---|---|---|---|---|---|"]
     for r in sorted(launches, key=lambda r: r["delay"]):
@@ -249,12 +324,14 @@ def main(argv: list[str] | None = None) -> int:
             print(restarts[-1], flush=True)
         alone = no_plant(Path(tmp) / "alone")
         print(alone, flush=True)
+        silent = silent_case(Path(tmp) / "silent")
+        print(silent, flush=True)
         launches = []
         for j in range(args.launches):
             launches.append(sigterm_launch(Path(tmp) / f"launch-{j}",
                                            rng.uniform(0.0, args.latest)))
             print(launches[-1], flush=True)
-    publish(render(restarts, alone, launches, args.latest, time.monotonic() - t0),
+    publish(render(restarts, alone, launches, args.latest, time.monotonic() - t0, silent),
             None if args.no_write else DOC)
     return 0
 

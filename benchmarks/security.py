@@ -140,17 +140,18 @@ class Flood:
     # sends nothing (what its CPU alone costs); else bytes per payload
     limits: bool  # services.limits in the run's processes
     niced: bool  # the flooder at the lowest CPU priority (as if on a computer of its own)
+    priority: str = "auto"  # services.launch --priority: the honest processes' sample loops
 
 
+MAX = "well-formed messages at the highest rate"
 FLOODS = [
     Flood("no flood", None, True, False),
+    Flood("none: a busy loop (CPU only)", -1, True, False, "off"),
     Flood("none: a busy loop (CPU only)", -1, True, False),
-    Flood("well-formed messages at the highest rate", 0, False, True),
-    Flood("well-formed messages at the highest rate", 0, True, True),
-    Flood("8 MB payloads", 8_000_000, False, True),
-    Flood("8 MB payloads", 8_000_000, True, True),
-    Flood("well-formed messages at the highest rate", 0, False, False),
-    Flood("well-formed messages at the highest rate", 0, True, False),
+    Flood(MAX, 0, True, True, "off"),
+    Flood(MAX, 0, True, False, "off"),
+    Flood(MAX, 0, False, False),
+    Flood(MAX, 0, True, False),
     Flood("8 MB payloads", 8_000_000, False, False),
     Flood("8 MB payloads", 8_000_000, True, False),
 ]
@@ -177,11 +178,12 @@ def run_flooded(work: Path, flood: Flood, t_end: float) -> dict:
             os.setpriority(os.PRIO_PROCESS, forger.pid, 19)
         wait_ready(forger, 60.0)
     out = work / "out"
+    load = f"{os.getloadavg()[0]:.1f}"
     try:
         subprocess.run([sys.executable, "-m", "services.launch", "--scenario", SCENARIO,
                         "--scheme", "decentralized", "--mode", "realtime", "--sample-time",
                         "0.1", "--t-end", repr(t_end), "--run", run, "--credentials",
-                        str(creds), "--out", str(out), "--no-plots",
+                        str(creds), "--out", str(out), "--no-plots", "--priority", flood.priority,
                         *(["--connect", endpoint] if forger else []),
                         *([] if flood.limits else ["--no-flood-limits"])],
                        cwd=REPO, capture_output=True, timeout=900)
@@ -195,7 +197,8 @@ def run_flooded(work: Path, flood: Flood, t_end: float) -> dict:
     if forger is not None:
         lines = [ln for ln in forger.output().splitlines() if ln.startswith('{"opened"')]
         summary = json.loads(lines[-1]) if lines else {}
-    return {"metrics": json.loads((out / "metrics.json").read_text()), "forger": summary}
+    return {"metrics": json.loads((out / "metrics.json").read_text()), "forger": summary,
+            "load": load}
 
 
 def render_floods(rows: list[tuple[Flood, dict]], t_end: float) -> list[str]:
@@ -206,23 +209,31 @@ def render_floods(rows: list[tuple[Flood, dict]], t_end: float) -> list[str]:
              "`cmd` and `plan` (also addressed to robots 1, 3, 4) of the newest sample it saw "
              "in a loop without pause; "
              "limits: `services.limits` (`--max-rate` 200 Hz per key, 64 KiB payloads); "
-             "niced: the flooder at `nice 19`, as if it ran on its own computer (unniced, it "
-             "also takes one of the machine's 2 shared cores).", "",
-             "| flood | limits | flooder | messages/s sent | MB/s offered | missed deadlines "
-             "robots 1, 3, 4 | robot 2 | collisions | completed |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "flooder: `nice 19` as if it ran on a computer of its own, `nice 0` sharing the "
+             "machine's 2 cores with the run; priority: `services.launch --priority` of the "
+             "run's processes (`auto`: their sample loops at `SCHED_RR` 20, `off`: normal); "
+             "response: from the plant publishing a sample's states to a robot's input of "
+             "that sample arriving, robots 1, 3, 4 (the deadline is Ts = 100 ms after the "
+             "states); load: `uptime` before the row.", "",
+             "| flood | limits | flooder | priority | messages/s sent | MB/s offered | missed "
+             "deadlines robots 1, 3, 4 | robot 2 | response median / p99 / max ms | "
+             "collisions | completed | load (1 min) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for flood, res in rows:
         m, f = res["metrics"], res["forger"]
         by = m["missed_deadlines_by_robot"]
         others = sum(by[k] for k in ("1", "3", "4"))
+        resp = [m.get("response_ms", {}).get(k) or {} for k in ("1", "3", "4")]
+        worst = [max((r.get(q) or 0.0) for r in resp) for q in ("median", "p99", "max")]
         seconds = f.get("seconds") or 0.0
         rate = f"{sum(f['sent'].values()) / seconds:,.0f}" if seconds else "-"
         mb = f"{f['flood_bytes'] / seconds / 1e6:,.0f}" if seconds else "-"
         lines.append(f"| {flood.label} | {'yes' if flood.limits else 'no'} | "
                      f"{'-' if flood.payload is None else 'nice 19' if flood.niced else 'nice 0'}"
-                     f" | {rate} | {mb} | {others} / {3 * m['steps']} "
+                     f" | {flood.priority} | {rate} | {mb} | {others} / {3 * m['steps']} "
                      f"({100 * others / max(3 * m['steps'], 1):.1f} %) | {by['2']} | "
-                     f"{m['collisions']} | {m['completed']} |")
+                     f"{' / '.join(f'{v:.1f}' for v in worst)} | "
+                     f"{m['collisions']} | {m['completed']} | {res['load']} |")
     return lines
 
 

@@ -259,6 +259,8 @@ class ControllerNode(Node):
                 self.stop.set()
                 break
             self.steps_done += 1
+            if entry.budget is not None:  # real time: the samples after the first are timed
+                self.raise_priority()
             self.last_sample = k
             while len(self._outputs) > 4:
                 del self._outputs[min(self._outputs)]

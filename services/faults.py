@@ -15,7 +15,10 @@ a service (the launcher passes its environment on), e.g.::
 - ``seed``: seed of the random draws (each process draws its own stream, from
   the seed and its name);
 - ``kinds``: the message kinds affected, ``+``-separated among ``state``,
-  ``cmd``, ``plan``, ``done`` (default ``plan``).
+  ``cmd``, ``plan``, ``done`` (default ``plan``);
+- ``mute``: from the plant's sample ``mute`` on (as this process sees the
+  states), the process publishes nothing more while its liveliness token
+  stays: a hung or compromised controller that is there but silent.
 
 Liveliness tokens are never affected. The injector runs on the thread that
 reads the inbox (:meth:`services.transport.Bus.get`), never in a Zenoh callback.
@@ -64,6 +67,7 @@ class FaultSpec:
     delay: int = 0
     seed: int = 0
     kinds: tuple[str, ...] = ("plan",)
+    mute: int | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.drop <= 1.0:
@@ -71,6 +75,8 @@ class FaultSpec:
         if not 0 <= self.delay <= MAX_DELAY:
             raise ValueError(f"{ENV}: delay must be an integer in 0..{MAX_DELAY} (samples), "
                              f"got {self.delay!r}")
+        if self.mute is not None and self.mute < 0:
+            raise ValueError(f"{ENV}: mute must be a sample >= 0, got {self.mute!r}")
         bad = [k for k in self.kinds if k not in KINDS]
         if bad or not self.kinds:
             raise ValueError(f"{ENV}: kinds must be among {'+'.join(KINDS)}, got "
@@ -79,7 +85,7 @@ class FaultSpec:
     @property
     def active(self) -> bool:
         """Whether anything is injected."""
-        return self.drop > 0.0 or self.delay > 0
+        return self.drop > 0.0 or self.delay > 0 or self.mute is not None
 
     @classmethod
     def parse(cls, text: str) -> FaultSpec:
@@ -95,17 +101,18 @@ class FaultSpec:
                     raise ValueError
                 if key == "drop":
                     fields["drop"] = float(value)
-                elif key in ("delay", "seed"):
+                elif key in ("delay", "seed", "mute"):
                     fields[key] = int(value)
                 elif key == "kinds":
                     fields["kinds"] = tuple(k.strip() for k in value.split("+") if k.strip())
                 else:
-                    raise ValueError(f"{ENV}: unknown field {key!r} (drop, delay, seed, kinds)")
+                    raise ValueError(f"{ENV}: unknown field {key!r} (drop, delay, seed, kinds, "
+                                     "mute)")
             except ValueError as exc:
                 if str(exc).startswith(ENV):
                     raise
                 raise ValueError(f"{ENV}: cannot read {item!r}, expected key=value with a "
-                                 "number (drop, delay, seed) or kinds=a+b") from None
+                                 "number (drop, delay, seed, mute) or kinds=a+b") from None
         return cls(**fields)  # type: ignore[arg-type]
 
 
@@ -147,6 +154,10 @@ class FaultInjector:
         """A state of ``sample`` was seen (received or published)."""
         if sample > self.clock:
             self.clock = sample
+
+    def muted(self) -> bool:
+        """Whether this process must publish nothing more (``mute``)."""
+        return self.spec.mute is not None and self.clock >= self.spec.mute
 
     def admit(self, kind: str | None, payload: bytes, event: object) -> list[object]:
         """Events to deliver now, given one more received ``event`` of ``kind``.

@@ -83,6 +83,7 @@ from .credentials import config_for, identities, issue, read_meta
 from .handover import Handover, make_private
 from .node import install_signal_handlers, options_of, scenario_from_args
 from .plant import summarize
+from .priority import parse_priority
 
 __all__ = ["Child", "build_parser", "free_ports", "main", "stop_children"]
 
@@ -130,6 +131,11 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--no-flood-limits", action="store_true",
                         help="benchmarks only: no per-publisher rate or size limit "
                              "(services.limits) in the run's processes")
+    parser.add_argument("--priority", default="auto", metavar="off|auto|N",
+                        type=lambda text: parse_priority(text) and text,
+                        help="real time: the scheduling priority of every process's sample "
+                             "loop (services.priority; default auto: SCHED_RR where "
+                             "permitted, else a negative nice, else unchanged)")
     parser.add_argument("--credentials", type=Path, default=None, metavar="DIR",
                         help="the run's credentials made by 'sqpmpc credentials' (same "
                              "--run) instead of fresh ones, e.g. to let a services.viewer "
@@ -157,6 +163,8 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
         common.append("--no-flood-limits")
     elif args.mode == "realtime":  # per-publisher rate limit (services.limits)
         common += ["--max-rate", repr(MAX_RATE_PER_SAMPLE / sample_time)]
+    if args.mode == "realtime":  # the sample loops at real-time priority where permitted
+        common += ["--priority", args.priority]
     secure = [] if credentials is None else ["--credentials", str(credentials)]
     common += secure
     proto = "tcp" if credentials is None and not secured else "tls"

@@ -41,6 +41,7 @@ from .early import RECEIVED
 from .faults import FaultInjector
 from .limits import interceptors
 from .messages import InvalidMessage, Message, Mismatch
+from .priority import Priority, check_priority, parse_priority, raise_priority
 from .protocol import AcceptancePolicy
 from .transport import Bus, Event, check_run_name, run_prefix
 from .validator import MessageValidator
@@ -101,6 +102,12 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              "default: no rate limit, payloads above 64 KiB are always dropped)")
     parser.add_argument("--no-flood-limits", action="store_true",
                         help="benchmarks only: neither the rate nor the size limit")
+    parser.add_argument("--priority", type=parse_priority, default=Priority("off"),
+                        metavar="off|auto|N",
+                        help="scheduling priority of the sample loop (services.priority): "
+                             "off (default), auto (SCHED_RR where permitted, else a negative "
+                             "nice; services.launch passes it in real time) or a SCHED_RR "
+                             "priority 1-99")
     add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
 
@@ -170,6 +177,8 @@ def install_signal_handlers(stop: threading.Event) -> dict[str, int]:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    if hasattr(signal, "pthread_sigmask"):  # started with them blocked (services.early)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     if "signal" in RECEIVED:  # it came during start-up (services.early)
         handler(RECEIVED["signal"], None)
     return received
@@ -208,6 +217,11 @@ class Node:
         self.alive: set[str] = set()
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
+        self.priority: Priority = getattr(args, "priority", Priority("off"))
+        try:
+            check_priority(self.priority)
+        except PermissionError as exc:
+            raise ProblemError(str(exc)) from exc
         config = config_for(args, name)
         try:
             self.bus = Bus(args.run, args.listen, args.connect, args.zenoh_mode, config,
@@ -234,6 +248,13 @@ class Node:
         self.bus.declare_alive(*self.name.split("/"))
         if signals:
             self.signals = install_signal_handlers(self.stop)
+
+    def raise_priority(self) -> None:
+        """Put every thread of this process at the ``--priority`` it asked for (once; the
+        sample loop starts: :mod:`services.priority`)."""
+        if self.priority.mode != "off":
+            raise_priority(self.priority, self.name)
+            self.priority = Priority("off")
 
     def close(self) -> None:
         """Close the Zenoh session."""

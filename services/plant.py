@@ -76,7 +76,7 @@ import logging
 import signal
 import sys
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -112,6 +112,7 @@ from .node import (
 )
 from .presence import FaultyInputs, Presence
 from .protocol import Verdict
+from .tallies import response_ms, summed
 
 __all__ = ["REJOIN_TIMEOUT", "PlantNode", "build_parser", "main", "summarize"]
 
@@ -163,8 +164,11 @@ class PlantNode(Presence, FaultyInputs, Node):
         self.missed = dict.fromkeys(self.ids, 0)
         self.faulty = dict.fromkeys(self.ids, 0)  # inconsistent inputs dropped, per robot
         self.faulty_now: set[int] = set()  # robots braked at this sample for such an input
+        self.silent: set[int] = set()  # alive, but no input within --timeout: not waited for
         self.refusing: set[str] = set()  # controllers that sent another settings digest
         self.late_commands = 0
+        self.responses: dict[int, list[float]] = {rid: [] for rid in self.ids}  # s
+        self.published_at = 0.0  # when the states of the current sample went out
         self.timeouts = 0
         self._missing: set[int] = set()
         self.solver_failures = 0
@@ -204,10 +208,14 @@ class PlantNode(Presence, FaultyInputs, Node):
             self._refused(decision.reason)
             self.faulty_message(msg.id, decision.reason)
             return
+        self.spoke(msg.id)
         sender = "central" if self.scheme == "centralized" else f"robot/{msg.id}"
         self.reported_invalid[sender] = msg.invalid
         self.reported_counts[sender] = msg.counters or {}
         if decision.accepted and msg.id not in self.faulty_now:
+            if self.running and msg.id not in self.cmds and (self.k > 0 or self.timed_start):
+                # the states out -> this input in (sample 0 untimed: compilation, joins)
+                self.responses[msg.id].append(time.perf_counter() - self.published_at)
             self.cmds[msg.id] = msg  # the newest valid input for this sample
         else:
             self.late_commands += 1
@@ -274,14 +282,18 @@ class PlantNode(Presence, FaultyInputs, Node):
         for k in range(self.scenario.steps):
             t0 = time.perf_counter()
             self.k, self.cmds, self.faulty_now = k, {}, set()
+            self.published_at = time.perf_counter()
             self.publish_states(k)
             if self.mode == "lockstep" or (k == 0 and not self.timed_start):
                 if not self.collect(k, t0 + self.timeout, min(RESEND, self.timeout / 2)) \
                         and not self.stop.is_set():
                     self.timeouts += 1
+                    late = sorted(set(self.expected()) - set(self.cmds) - self.faulty_now)
                     log.warning("sample %d: no input from robots %s within %.3g s",
-                                k, sorted(set(self.expected()) - set(self.cmds)), self.timeout)
+                                k, late, self.timeout)
+                    self.went_silent(late)
                 if self.mode == "realtime":  # the clock starts now: Ts for sample 1
+                    self.raise_priority()
                     self.start_wall = time.perf_counter() - t0
                     start = time.perf_counter() - ts
             else:
@@ -338,7 +350,7 @@ class PlantNode(Presence, FaultyInputs, Node):
             "stale_messages": int(self.validator.stale),
             "invalid_messages": int(sum(invalid.values())),
             "invalid_messages_by_process": invalid,
-            "counters": _summed(self.reported_counts.values()),
+            "counters": summed(self.reported_counts.values()),
             "interrupted": signal.Signals(sig).name if sig else None,
             "refused": self.refused,
             "abandoned": self.gave_up,
@@ -346,6 +358,7 @@ class PlantNode(Presence, FaultyInputs, Node):
             "plant_discretization": self.method,
             "sample_loop_wall_s": float(self.loop_wall),
             "start_wall_s": float(self.start_wall),
+            "response_ms": response_ms(self.responses),
             "sample_wall_ms": {
                 "median": float(np.median(walls)) if walls.size else None,
                 "max": float(walls.max()) if walls.size else None,
@@ -420,15 +433,6 @@ def _relayed(cmds: Iterable[CmdMsg]) -> dict[int, dict[int, int]]:
             out[cmd.id] = dict(cmd.plan_ages)
             room -= len(cmd.plan_ages)
     return out
-
-
-def _summed(counters: Iterable[Mapping[str, int]]) -> dict[str, int]:
-    """Counters of several controllers added up by name."""
-    total: dict[str, int] = {}
-    for c in counters:
-        for key, value in c.items():
-            total[key] = total.get(key, 0) + int(value)
-    return total
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:

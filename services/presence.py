@@ -44,6 +44,7 @@ class Presence:
     startup_timeout: float
     gave_up: str | None
     refusing: set[str]
+    silent: set[int]
     status: Any
     stop: Any
 
@@ -58,10 +59,27 @@ class Presence:
         return [f"robot/{i}" for i in self.ids]
 
     def expected(self) -> list[int]:
-        """Robots whose controller is alive now."""
+        """Robots whose controller is alive now and not silent (:meth:`went_silent`)."""
         if self.scheme == "centralized":
-            return list(self.ids) if "central" in self.alive else []
-        return [i for i in self.ids if f"robot/{i}" in self.alive]
+            return [i for i in self.ids if i not in self.silent] if "central" in self.alive \
+                else []
+        return [i for i in self.ids if f"robot/{i}" in self.alive and i not in self.silent]
+
+    def went_silent(self, robots: list[int]) -> None:
+        """Lockstep: ``robots`` sent no input within ``--timeout`` while their controller is
+        alive (hung, or compromised and silent): braked and not waited for from now on, the
+        others going on at their pace, until an input of theirs comes again."""
+        fresh = sorted(set(robots) - self.silent)
+        if fresh:
+            self.silent.update(fresh)
+            log.warning("robots %s: alive but silent, braked and not waited for until they "
+                        "send again", fresh)
+
+    def spoke(self, rid: int) -> None:
+        """An input of robot ``rid`` came (of any sample): waited for again."""
+        if rid in self.silent:
+            self.silent.discard(rid)
+            log.info("robot %d sends again at sample %d: waited for again", rid, self.k)
 
     # ------------------------------------------------------------------ events
     def on_liveliness(self, name: str, alive: bool) -> None:
@@ -80,6 +98,10 @@ class Presence:
             return
         now = time.perf_counter()
         self.departed[name] = now
+        if self.scheme == "centralized":  # gone, not silent: waited for as one that left
+            self.silent.clear()
+        elif name.startswith("robot/"):
+            self.silent.discard(int(name.split("/")[1]))
         if not self.expected():
             self.all_gone_since = now
         log.warning("%s left at sample %d%s", name, self.k,

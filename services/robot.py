@@ -111,6 +111,9 @@ class RobotNode(ControllerNode):
         self.fallback_samples = 0
         self.joined = False
         self.waited_for: set[int] = set()  # neighbours alive at this robot's previous step
+        # lockstep: neighbours alive but silent (no plan within --timeout), by the sample of
+        # the plan that did not come; not waited for until a plan of it or later does
+        self.silent: dict[int, int] = {}
 
     def take_plan(self, robot_id: int, payload: bytes) -> bool:
         if robot_id not in self.plans:
@@ -192,8 +195,11 @@ class RobotNode(ControllerNode):
         # wait for the plan of the pair's sample (k - 1 unless plans were late) of every
         # neighbour within reach that was there at this robot's step k - 1 (one that joined
         # since then has none; at the first step: none)
+        for i in [i for i, s in self.silent.items() if self.plans.has(i, s)]:
+            del self.silent[i]
+            log.info("robot %d sample %d: robot %d sends plans again", self.robot_id, sample, i)
         if sample > 0 and self.waited_for:
-            pending = [i for i in needed if i in self.waited_for]
+            pending = [i for i in needed if i in self.waited_for and i not in self.silent]
             wanted = {i: pair_sample(sample, self.robot_id, i, entry.plan_ages)
                       for i in pending}
 
@@ -208,9 +214,12 @@ class RobotNode(ControllerNode):
             wait = self.timeout if entry.budget is None else min(self.timeout,
                                                                   0.2 * entry.budget)
             if not self.wait_until(ready, wait) and not self.stop.is_set():
-                log.warning("robot %d sample %d: no plan of sample %s from %s in %.3g s",
+                log.warning("robot %d sample %d: no plan of sample %s from %s in %.3g s%s",
                             self.robot_id, sample, sorted({wanted[i] for i in pending}),
-                            pending, wait)
+                            pending, wait, "" if entry.budget is not None else
+                            ": predicted from its states, not waited for until it sends again")
+                if entry.budget is None:  # lockstep: there but silent, not waited for again
+                    self.silent.update((i, wanted[i]) for i in pending)
         self.waited_for = set(self._alive_neighbours())
         plans = self.plans_for(sample, entry.states)
         if len(plans) < len(needed):

@@ -239,8 +239,11 @@ class Bus:
     def put(self, payload: bytes, *parts: object) -> None:
         """Publish ``payload`` on ``<prefix>/<parts>`` (reliable, blocking congestion control)."""
         key = self.key(*parts)
-        if self.faults is not None and parts == ("plant", "state"):
-            self.faults.tick(int(msgpack.unpackb(payload, raw=False)["sample"]))
+        if self.faults is not None:
+            if parts == ("plant", "state"):
+                self.faults.tick(int(msgpack.unpackb(payload, raw=False)["sample"]))
+            if self.faults.muted():  # services.faults 'mute': there, but silent
+                return
         try:
             pub = self._publishers.get(key)
             if pub is None:

@@ -9,6 +9,7 @@ import scipy.sparse as sp
 
 from sqpmpc.kernels import collision as collision_kernels
 from sqpmpc.kernels import ocp as kernels
+from sqpmpc.kernels.rules import inside_pairs
 from sqpmpc.models.unicycle import discrete_dynamics, discrete_jacobians, rollout
 from sqpmpc.problem.paths import segment_distances
 from sqpmpc.qp.layout import A_PATTERN, B_PATTERN, QPLayout
@@ -269,3 +270,27 @@ def test_halfplanes_hold_path_is_the_brute_force_test(seed: int) -> None:
                                                      alpha, beta, 1e-9)
         if got != expected:  # only a grid point away from the boundary may differ
             assert abs(margin[1:].min()) < 1e-6
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_box_heading_and_overlap_kernels_match_their_numpy_expressions(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    low, high = np.array([-1.0, -2.0]), np.array([1.0, 2.0])
+    for _ in range(50):
+        points = rng.uniform(-1.3, 1.3, size=(3, 2)) * [1.0, 2.0]
+        if rng.random() < 0.1:
+            points[rng.integers(3), rng.integers(2)] = np.nan
+        expected = bool(((points >= low) & (points <= high)).all())
+        assert kernels.within_box(points, low, high) is expected
+        plan = np.zeros((3, 4, 3))
+        plan[:, 1, :2] = points
+        assert kernels.within_box(plan[:, 1, :2], low, high) is expected  # strided
+        psi, last = rng.uniform(-4.0, 4.0, size=4), rng.uniform(-4.0, 4.0, size=4)
+        assert kernels.headings_jump(psi, last) is bool((np.abs(psi - last) > np.pi).any())
+        me, others = rng.normal(size=2), rng.normal(size=(4, 2))
+        shared, distance = rng.random(4) < 0.7, rng.uniform(0.0, 2.0, size=4)
+        out = np.zeros(4, dtype=np.bool_)
+        count = inside_pairs(me, others, shared, distance, out)
+        gap = np.hypot(others[:, 0] - me[0], others[:, 1] - me[1])
+        np.testing.assert_array_equal(out, shared & (gap < distance))
+        assert count == int(out.sum())

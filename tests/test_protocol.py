@@ -118,6 +118,19 @@ def test_fault_spec_parsing_and_errors():
             FaultSpec.parse(bad)
     assert FaultInjector.from_env("robot/1", {ENV: "drop=0"}) is None
     assert FaultInjector.from_env("robot/1", {}) is None
+    with pytest.raises(ValueError, match="mute"):
+        FaultSpec.parse("mute=-1")
+
+
+def test_a_muted_process_publishes_nothing_from_its_sample_on():
+    """``mute=N``: silent once a state of sample N was seen, not before."""
+    inj = FaultInjector(FaultSpec.parse("mute=3"), "robot/2")
+    assert FaultSpec.parse("mute=3").active and not inj.muted()
+    for k in range(3):
+        inj.admit("state", encode(StateMsg(k, k * TS, (1,), np.zeros((1, 3)))), k)
+        assert not inj.muted()
+    inj.admit("state", encode(StateMsg(3, 3 * TS, (1,), np.zeros((1, 3)))), 3)
+    assert inj.muted()
 
 
 def test_fault_injector_drops_at_the_rate_and_delays_by_samples():

@@ -11,7 +11,10 @@ Starts, as processes on loopback (multicast scouting off):
   zenoh-ros2-sdk), odometry at ``--rate`` Hz (default 50) with phases of
   their own;
 - the sqpmpc side's router with the run's credentials (mutual TLS, access
-  control; ``--insecure``: plain TCP), for the plans;
+  control; ``--insecure``: plain TCP), for the plans. As :mod:`services.launch`,
+  the demo issues them in its memory, only the identities used (``router``,
+  ``robot-<id>``), and hands each child only its own over an inherited socket
+  (:mod:`services.handover`): no key is written to disk;
 - one controller process per robot, ``sqpmpc robot --id I --ros2`` (client of
   both routers), all with the same epoch (t = 0 of the references, a few
   seconds after the start: every controller is up by then) and each with a
@@ -32,11 +35,9 @@ import json
 import logging
 import os
 import secrets
-import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import asdict
@@ -44,14 +45,16 @@ from pathlib import Path
 
 from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario
 
 from ..children import Child, free_ports, stop_children
-from ..credentials import write_credentials
+from ..credentials import issue
+from ..handover import Handover, make_private
 from ..node import install_signal_handlers
 from .check import check_fleet
 
-__all__ = ["LoggedChild", "build_parser", "main"]
+__all__ = ["Credentials", "LoggedChild", "build_parser", "main"]
 
 log = logging.getLogger("services.ros2.demo")
 PROG = "services.ros2.demo"
@@ -61,14 +64,35 @@ class LoggedChild(Child):
     """A :class:`services.children.Child` whose stderr goes to a file."""
 
     def __init__(self, name: str, argv: list[str], logfile: Path,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, pass_fds: tuple[int, ...] = ()) -> None:
         self.name = name
         self.argv = argv
         self.reported = False
         logfile.parent.mkdir(parents=True, exist_ok=True)
         with open(logfile, "wb") as err:
             self.proc = subprocess.Popen(argv, process_group=0, env=env, stderr=err,
-                                         stdout=err)
+                                         stdout=err, pass_fds=pass_fds)
+
+
+class Credentials:
+    """The demo's credentials, in its memory only (as :mod:`services.launch`): the sqpmpc
+    side's ``router`` and one ``robot-<id>`` per controller (no ``plant``: there is none),
+    each child handed only its own over an inherited socket (:mod:`services.handover`)."""
+
+    def __init__(self, scenario: Scenario, run: str) -> None:
+        make_private()  # it holds every identity's key for a moment
+        names = ["router", *(f"robot-{int(i)}" for i in scenario.ids)]
+        self.issued = issue(scenario, run, names)
+        self.handover = Handover(self.issued.meta)
+
+    def start(self, name: str, argv: list[str], logfile: Path, identity: str,
+              env: dict[str, str]) -> LoggedChild:
+        """Start a child that receives ``identity``'s credentials (``--credentials-fd``)."""
+        fd = self.handover.child_end({identity: self.issued.config(identity)})
+        try:
+            return LoggedChild(name, [*argv, "--credentials-fd", str(fd)], logfile, env, (fd,))
+        finally:
+            self.handover.started()
 
 
 def _start_clock(port: int, ids: list[int], epoch_file: Path, timeout: float,
@@ -151,20 +175,22 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         env.setdefault(var, "1")
     stop = threading.Event()
     received = install_signal_handlers(stop)
-    credentials = None if args.insecure else Path(tempfile.mkdtemp(prefix="sqpmpc-cred-"))
     children: list[Child] = []
     status = 1
     try:
-        secure: list[str] = []
-        if credentials is not None:
-            write_credentials(credentials, scenario, run, "decentralized", router_listen=())
-            secure = ["--credentials", str(credentials)]
+        credentials = None if args.insecure else Credentials(scenario, run)
+
+        def start(name: str, argv: list[str], logfile: Path, identity: str) -> LoggedChild:
+            if credentials is None:
+                return LoggedChild(name, argv, logfile, env)
+            return credentials.start(name, argv, logfile, identity, env)
+
         children.append(LoggedChild("ros2-router", [*py, "services.router", "--listen", ros_ep,
                                                     "--log-level", "WARNING"],
                                     logs / "ros2-router.log", env))
-        children.append(LoggedChild("router", [*py, "services.router", "--listen", sq_ep,
-                                               "--log-level", "WARNING", *secure],
-                                    logs / "router.log", env))
+        children.append(start("router", [*py, "services.router", "--listen", sq_ep,
+                                         "--log-level", "WARNING"], logs / "router.log",
+                              "router"))
         epoch_file = out / "epoch"
         epoch_file.unlink(missing_ok=True)
         sim = [*py, "services.ros2.simfleet", "--scenario", args.scenario, "--router",
@@ -179,11 +205,11 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             cmd = [*py, "services.robot", "--id", str(rid), "--scenario", args.scenario,
                    "--t-end", repr(t_end), "--run", run, "--ros2", "--ros2-connect", ros_ep,
                    "--zenoh-mode", "client", "--connect", sq_ep, "--epoch-file",
-                   str(epoch_file), "--log-level", args.log_level, *secure,
-                   *extra]
+                   str(epoch_file), "--log-level", args.log_level, *extra]
             if args.twist_stamped:
                 cmd.append("--twist-stamped")
-            robots.append(LoggedChild(f"robot/{rid}", cmd, logs / f"robot-{rid}.log", env))
+            robots.append(start(f"robot/{rid}", cmd, logs / f"robot-{rid}.log",
+                                f"robot-{rid}"))
         children.extend(robots)
         log.info("%d robots, t_end %g s; logs in %s", len(ids), t_end, logs)
         if not _start_clock(ros_port, ids, epoch_file, args.startup, stop):
@@ -200,8 +226,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         stop_children([c for c in children if c.name == "simfleet"],
                       {"simfleet": signal.SIGINT}, 30.0)
         stop_children([c for c in children if "router" in c.name], {}, 10.0)
-        if credentials is not None:
-            shutil.rmtree(credentials, ignore_errors=True)
     poses = out / "poses.json"
     if not poses.exists():
         log.error("the fleet wrote no poses (see %s)", logs)

@@ -108,7 +108,8 @@ class CentralizedController(ControllerPipeline):
                                             self._keep, alpha, beta):
                 return False
             return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
-        growth = alpha + np.maximum(beta, 0.0)
+        # alpha + max(beta, 0) (alpha itself, bit for bit, when the plant moves as predicted)
+        growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha
         if not self.collisions.first_input_safe(now, p, growth):
             return False
         return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)

@@ -43,6 +43,7 @@ from sqpmpc.control.plans import (
 )
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.collision import halfplanes_hold_path
 from sqpmpc.ocp.collision_rows import (
     MISSING,
     OBSTACLE,
@@ -143,6 +144,7 @@ class DecentralizedController(ControllerPipeline):
         self.own_prediction = np.zeros((N, 3))
         self._timing = (N, scenario.sample_time, settings.discretization)  # of the plans
         self.book = PlanBook(N)
+        self._aged = False  # some age margin positive (track_plan_ages)
         self.plan_ages: dict[int, int] = {}
         self.published: PlanMessage | None = None
         self._received: dict[int, PlanMessage] = {}
@@ -174,7 +176,7 @@ class DecentralizedController(ControllerPipeline):
         if not self._unicycle:  # robots with velocity states: the bound itself
             return (self.obstacles_safe(states, next_state, alpha, beta)
                     and self.in_position_bounds(next_state[:, :2]))
-        growth = alpha + np.maximum(beta, 0.0)
+        growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha  # as predicted: 0
         return (self.obstacles_safe(states, next_state, growth)
                 and self.in_position_bounds(next_state[:, :2]))
 
@@ -214,6 +216,12 @@ class DecentralizedController(ControllerPipeline):
             normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
             if (held < -slack - 1e-9).any():
+                return False
+            # and the true-distance line the neighbour keeps from the other side (a stage-1
+            # row overridden in the margin band only holds "no closer than now")
+            lines, xy = np.ascontiguousarray(c.check_normals[shared]), path[0, :, :2]
+            if not all(halfplanes_hold_path(lines, c.check_rhs[shared], *xy[b], *xy[b + 1],
+                                            alpha[b], beta[b], 1e-12) for b in range(len(pos))):
                 return False
         if inside.any():
             # overlap-recovery: a pair already inside its distance cannot keep it; braking
@@ -268,7 +276,7 @@ class DecentralizedController(ControllerPipeline):
         self.plan_ages = self.track_plan_ages(sample, plans)
         self.classify(sample, states, plans, previous_states, plan_ages)
         d = self.slot_data
-        self.collisions.set_age_margins(d.age_margins)
+        self.collisions.set_age_margins(d.age_margins, self._aged)
         self.collisions.set_sample(states[self.index, :2], states[d.index, :2],
                                    d.own_predictions, d.predictions, d.kinds)
 
@@ -315,14 +323,16 @@ class DecentralizedController(ControllerPipeline):
         N, h = self.horizon, self.sample_time
         margins = self.slot_data.age_margins
         margins[:] = 0.0
-        report: dict[int, int] = {}
+        report, aged = {}, False  # the ages to report; whether some margin is positive
         for e, jid in self.slot_data.neighbours:
             age, held = self.book.age(jid, plans.get(jid), sample)
             if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
                 margins[e] = self.context.max_speed * h * min(age - 1, N)
+                aged = aged or margins[e] > 0.0
                 self.counts["late_plan_neighbours"] += 1
             if held is not None:  # delayed, not a plan or two lost
                 report[jid] = min(held, N + 2)
+        self._aged = aged  # whether some margin is positive (the rows' set_age_margins)
         return report
 
     def classify(self, sample: int, states: np.ndarray, plans: Mapping[int, object],

@@ -55,7 +55,7 @@ import numpy as np
 from sqpmpc.control.output import ControlOutput, braking_input
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite
+from sqpmpc.kernels.ocp import all_finite, headings_jump, within_box
 from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
@@ -132,17 +132,22 @@ class ControllerPipeline:
         self.counts: dict[str, int] = {
             "samples": 0, "fallbacks": 0, "shifted_plan_fallbacks": 0, "brake_fallbacks": 0,
             "qp_rescues": 0, "stage_one_overrides": 0, "converged_samples": 0}
+        plant = scenario.plant
+        limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
+        self.model_margin = model_margin(self.input_lower, self.input_upper,
+                                         self.sample_time, settings.discretization, plant,
+                                         limits)
+        # the rules measure "near" beyond the rows' margin of robots with velocity states
         self.context = RuleContext(scenario, self.indices, self.scheme,
-                                   settings.iteration_scheme, self.counts)
+                                   settings.iteration_scheme, self.counts,
+                                   0.0 if self._unicycle else self.model_margin)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):
             geometry = rule.configure_rows(geometry)
         #: the collision-row geometry the rules configured (read by the scheme's rows)
         self.geometry = geometry
-        self._reference_rules = self.rules_with("references")
-        self._guess_rules = self.rules_with("guess")
-        self._after_rules = self.rules_with("after_solve")
+        self._bind_hooks()  # the per-sample hook lists
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
@@ -153,11 +158,6 @@ class ControllerPipeline:
         self._n = scenario.n_robots
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
-        plant = scenario.plant
-        limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
-        self.model_margin = model_margin(self.input_lower, self.input_upper,
-                                         self.sample_time, settings.discretization, plant,
-                                         limits)
         self._deviates = plant.model != settings.discretization or plant.noisy or not \
             self._unicycle
         self._own = np.zeros((self.indices.size, self.model.nx))
@@ -201,7 +201,9 @@ class ControllerPipeline:
         else:
             measured = states[self.indices]
         # odometry wraps the yaw; the plans are continuous in it (models.base)
-        measured[:, 2] = continuous_headings(measured[:, 2], self._headings)
+        last = self._headings
+        if last is not None and headings_jump(measured[:, 2], last):  # rarely: a wrapped yaw
+            measured[:, 2] = continuous_headings(measured[:, 2], last)
         self._headings = measured[:, 2].copy()
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
@@ -239,7 +241,8 @@ class ControllerPipeline:
         # 5. linearize and solve
         budget = self.settings.time_budget
         deadline = None if budget is None else t0 + budget
-        report = engine.solve(own, view.references, deadline=deadline, **self._rows)
+        report = engine.solve(own, view.references, deadline=deadline, started=True,
+                              **self._rows)
         # 6. rules after the solve
         if report.success and self._after_rules:
             view = view.solved(engine.first_speeds(),
@@ -274,6 +277,15 @@ class ControllerPipeline:
     def rules_with(self, hook: str) -> list[RuleInstance]:
         """The bound rules that declare ``hook`` (:data:`sqpmpc.rules.base.HOOKS`), in order."""
         return [r for r in self.rules if hook in r.hooks]
+
+    def _bind_hooks(self) -> None:
+        """The per-sample hook lists: the rules that declare them, less the idle ones
+        (:attr:`~sqpmpc.rules.base.RuleInstance.idle`: nothing to do until the references
+        change)."""
+        self._reference_rules: list[RuleInstance] = [
+            r for r in self.rules_with("references") if not r.idle]
+        self._guess_rules = [r for r in self.rules_with("guess") if not r.idle]
+        self._after_rules = [r for r in self.rules_with("after_solve") if not r.idle]
 
     # ------------------------------------------------------------------- steps
     def predict_neighbours(self, sample: int, states: np.ndarray,
@@ -423,8 +435,7 @@ class ControllerPipeline:
     def in_position_bounds(self, positions: np.ndarray) -> bool:
         if not self._bounded:
             return True
-        inside = (positions >= self._position_low) & (positions <= self._position_high)
-        return np.count_nonzero(inside) == inside.size
+        return within_box(positions, self._position_low, self._position_high)
 
     # ------------------------------------------------------------------ setters
     def update_reference(self, robot_id: int, reference: Reference) -> None:
@@ -472,6 +483,7 @@ class ControllerPipeline:
                                          for i in self.indices])
         for rule in self.rules:
             rule.references_changed()
+        self._bind_hooks()
 
     # ------------------------------------------------------------------ queries
     def reference(self, t: float) -> np.ndarray:

@@ -39,6 +39,8 @@ __all__ = [
     "euler_linearize",
     "euler_rollout",
     "euler_step",
+    "headings_jump",
+    "within_box",
 ]
 
 _jit = numba.njit(cache=True, nogil=True)
@@ -51,6 +53,27 @@ def all_finite(values: np.ndarray) -> bool:
         if not math.isfinite(v):
             return False
     return True
+
+
+@_jit
+def within_box(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> bool:
+    """Whether every point ``(m, 2)`` satisfies ``low <= p <= high`` (``(2,)`` each; NaN
+    fails), the comparisons of ``((points >= low) & (points <= high)).all()``."""
+    for i in range(points.shape[0]):
+        for k in range(points.shape[1]):
+            if not (points[i, k] >= low[k] and points[i, k] <= high[k]):
+                return False
+    return True
+
+
+@_jit
+def headings_jump(headings: np.ndarray, last: np.ndarray) -> bool:
+    """Whether some ``|headings[i] - last[i]| > pi`` (a wrapped yaw to move by whole turns,
+    :func:`sqpmpc.models.base.continuous_headings`)."""
+    for i in range(headings.shape[0]):
+        if abs(headings[i] - last[i]) > math.pi:
+            return True
+    return False
 
 
 @_jit

@@ -13,8 +13,9 @@ import numba
 import numpy as np
 
 __all__ = [
-    "detour_step", "hold_touching_rows", "limit_turning", "parking_mask", "repair_speeds",
-    "reversing", "roundabout_directions", "standing_still", "warm_up_roundabout", "warm_up_rules",
+    "detour_step", "hold_touching_rows", "inside_pairs", "limit_turning", "parking_mask",
+    "repair_speeds", "reversing", "roundabout_directions", "standing_still",
+    "warm_up_roundabout", "warm_up_rules",
 ]
 
 
@@ -162,11 +163,17 @@ def warm_up_rules() -> None:
     repair_speeds(speeds, np.ones((2, 2)), states, np.ones(2, dtype=np.bool_), 0.05, 0.1,
                   0.05, -0.05)
     parking_mask(references, states, 1.0, np.zeros(2, dtype=np.bool_))
+    # with velocity states (CONTRACT 1c) the rules see the poses as a strided view
+    poses = _read_only(np.zeros((2, 5)))[:, :3]
+    repair_speeds(speeds, np.ones((2, 2)), poses, np.ones(2, dtype=np.bool_), 0.05, 0.1,
+                  0.05, -0.05)
+    parking_mask(references, poses, 1.0, np.zeros(2, dtype=np.bool_))
     standing_still(references, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
                    np.zeros(2, dtype=np.bool_))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
-    hold_touching_rows(np.zeros(2), np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
-                       np.zeros((1, 2)))
+    for me in (np.zeros(2), _read_only(np.zeros(2))):
+        hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
+                           np.zeros((1, 2)))
     reversing(_read_only(np.zeros(2)), np.zeros(2), np.zeros(2), 0.005,
               np.zeros(2, dtype=np.bool_))
     i = np.zeros(2, dtype=np.int64)
@@ -317,3 +324,22 @@ def warm_up_roundabout() -> None:
     roundabout_directions(_read_only(np.zeros((3, 2))), _read_only(np.zeros(3)),
                           np.full((3, 2), np.nan), np.arange(2), np.ones((2, 2)),
                           np.ones((2, 3)), 3.0, 0.5, 0.7, 4, 1.0, np.zeros((2, 2)))
+
+
+@_jit
+def inside_pairs(me: np.ndarray, others_now: np.ndarray, shared: np.ndarray,
+                 true_distance: np.ndarray, out: np.ndarray) -> int:
+    """Shared slots whose pair is inside its true distance now into ``out (E,)`` bool;
+    returns how many (the ``overlap-recovery`` check's slots, usually none).
+
+    ``me (2,)`` and ``others_now (E, 2)`` are the measured positions; the distance is
+    ``np.hypot`` of the differences, as
+    :meth:`sqpmpc.ocp.collision_rows.ExternalCollisionModel.inside` documents (the
+    ``overlap-recovery`` rule).
+    """
+    count = 0
+    for e in range(others_now.shape[0]):
+        gap = np.hypot(others_now[e, 0] - me[0], others_now[e, 1] - me[1])
+        out[e] = shared[e] and gap < true_distance[e]
+        count += out[e]
+    return count

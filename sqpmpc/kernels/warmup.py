@@ -19,26 +19,41 @@ from sqpmpc.kernels.ocp import (
     euler_linearize,
     euler_rollout,
     euler_step,
+    headings_jump,
     kkt_residual,
     rows_shortfall,
     shift_iterate,
     shift_plan,
     split_rows,
+    within_box,
     write_reference,
 )
 from sqpmpc.kernels.pair_paths import warm_up_pair_paths
 from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
-from sqpmpc.kernels.rules import hold_touching_rows, warm_up_roundabout, warm_up_rules
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
 
 __all__ = ["warm_up"]
 
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
 
 
 def warm_up() -> float:
     """Compile (first time on a machine) or load every kernel; returns the seconds taken."""
     t0 = time.perf_counter()
+    # every call as the pipeline makes it: its arrays read-only where it passes views of
+    # frozen data (the models' bounds, the rules' sample view, a decoded message), so that
+    # no sample compiles a specialization (tests/test_kernel_warmup.py)
     all_finite(np.zeros(3))
+    all_finite(_read_only(np.zeros(3)))
+    headings_jump(np.zeros(2), np.zeros(2))
+    headings_jump(np.zeros((2, 3))[:, 2], np.zeros(2))  # the measured poses' column
+    plan = np.zeros((2, 3, 3))
+    within_box(plan[:, 1, :2], -np.ones(2), np.ones(2))  # a stage of a plan (strided)
+    within_box(np.zeros((2, 2)), -np.ones(2), np.ones(2))
     clip_bounds(np.zeros(3), np.zeros(3), 1e30, np.zeros(3), np.zeros(3))
     x = np.zeros((2, 3))
     u = np.zeros((2, 2))
@@ -46,6 +61,8 @@ def warm_up() -> float:
     euler_rollout(x, np.zeros((2, 2, 2)), 0.1, np.empty((2, 3, 3)))
     shift_plan(np.zeros((3, 3)), np.zeros((2, 2)), 0.1, np.empty((2, 3)))
     clip_and_roll_out(x, np.zeros((2, 2, 2)), -np.ones(2), np.ones(2), 0.1, np.empty((2, 3, 3)))
+    clip_and_roll_out(x, np.zeros((2, 2, 2)), _read_only(-np.ones(2)), _read_only(np.ones(2)),
+                      0.1, np.empty((2, 3, 3)))
     ck.halfplanes_hold(np.zeros((1, 2)), np.zeros(1), 0.0, 0.0, 1e-12)
     ck.halfplanes_hold_path(np.zeros((1, 2)), np.zeros(1), 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1e-12)
     ck.segment_keeps_distance(0.0, 0.0, 1.0, 0.0, np.ones((1, 2)), np.ones(1), 1e-12, 0.0)
@@ -72,12 +89,15 @@ def warm_up() -> float:
     touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))
-    ck.shared_rows(np.zeros(2), np.ones((1, 2)), np.zeros((1, 2, 3)), np.ones((1, 2, 3)),
-                np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
-                np.empty((1, 2)), np.empty(1), touching)
-    hold_touching_rows(np.zeros(2), touching, A, lo)
-    ck.obstacle_rows(np.zeros(2), np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
-                  np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
+    for me in (np.zeros(2), _read_only(np.zeros(2))):
+        ck.shared_rows(me, np.ones((1, 2)), np.zeros((1, 2, 3)), np.ones((1, 2, 3)),
+                       np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
+                       np.empty((1, 2)), np.empty(1), touching)
+        hold_touching_rows(me, touching, A, lo)
+        inside_pairs(me, np.ones((1, 2)), np.ones(1, dtype=np.bool_), np.ones(1),
+                     np.zeros(1, dtype=np.bool_))
+        ck.obstacle_rows(me, np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
+                         np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
     euler_defect_l1(z, x, 2, 2, 13, 0.1)
     idx = np.zeros(2, dtype=np.int64)
     ck.nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],

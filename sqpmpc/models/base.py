@@ -39,6 +39,7 @@ from typing import ClassVar
 import numpy as np
 
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.ocp import headings_jump
 
 __all__ = ["ModelKernels", "RobotModel", "check_box", "continuous_headings"]
 
@@ -218,9 +219,8 @@ def continuous_headings(headings: np.ndarray, last: np.ndarray | None) -> np.nda
     robot turns half a circle in a sample); the others are returned unchanged, bit for bit.
     """
     psi = np.array(headings, dtype=float)
-    if last is not None:
+    if last is not None and headings_jump(psi, np.asarray(last, dtype=float)):
         jump = np.abs(psi - last) > np.pi
-        if jump.any():
-            psi[jump] = last[jump] + (np.remainder(psi[jump] - last[jump] + np.pi,
-                                                   2.0 * np.pi) - np.pi)
+        psi[jump] = last[jump] + (np.remainder(psi[jump] - last[jump] + np.pi,
+                                               2.0 * np.pi) - np.pi)
     return psi

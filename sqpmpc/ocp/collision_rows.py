@@ -75,7 +75,7 @@ from sqpmpc.kernels.collision import (
     select_pairs,
     shared_rows,
 )
-from sqpmpc.kernels.rules import hold_touching_rows
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs
 from sqpmpc.ocp.geometry import RowGeometry
 
 __all__ = [
@@ -216,6 +216,7 @@ class ExternalCollisionModel:
         self._shared_mask = np.zeros(E, dtype=np.bool_)
         self._any_shared = self._any_obstacle = self._any_missing = False
         self._avoid = np.zeros(E, dtype=np.bool_)
+        self._inside = np.zeros(E, dtype=np.bool_)  # scratch of the recovery check
         self._kinds_key = b""
         self._margin = float(margin)
         self.unslotted = np.zeros((0, 2))
@@ -226,15 +227,16 @@ class ExternalCollisionModel:
         self.age_margin = np.zeros(E)
         self._aged = False
 
-    def set_age_margins(self, margins: np.ndarray) -> None:
+    def set_age_margins(self, margins: np.ndarray, aged: bool | None = None) -> None:
         """Per slot, distance added to the obstacle and missing rows (not to the check).
 
         A neighbour whose newest plan is ``a`` samples old has re-planned ``a - 1``
         times unseen: :class:`sqpmpc.control.decentralized.DecentralizedController` asks
         for ``v_max Ts (a - 1)`` more room, so that its rows give way earlier.
+        ``aged``: whether some margin is positive, when the caller knows (else tested).
         """
         self.age_margin = np.asarray(margins, dtype=float)
-        self._aged = bool((self.age_margin > 0.0).any())
+        self._aged = bool((self.age_margin > 0.0).any()) if aged is None else bool(aged)
 
     def set_required(self, required: np.ndarray) -> None:
         """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
@@ -325,9 +327,10 @@ class ExternalCollisionModel:
     def inside(self) -> np.ndarray:
         """``(E,)`` shared slots whose pair is inside its true distance now (a push, a slip):
         the ``overlap-recovery`` rule checks them against the current mid-line alone."""
-        gap = np.hypot(self.current_others[:, 0] - self.current_self[0],
-                       self.current_others[:, 1] - self.current_self[1])
-        return self._shared_mask & (gap < self.safe_distance)
+        inside = np.zeros(self.kind.shape[0], dtype=np.bool_)
+        inside_pairs(self.current_self, self.current_others, self._shared_mask,
+                     self.safe_distance, inside)
+        return inside
 
     def first_stage_safe(self, position: np.ndarray, tolerance: float = 1e-12,
                          alpha: float = 0.0, beta: float = 0.0) -> bool:
@@ -346,8 +349,10 @@ class ExternalCollisionModel:
         x0, y0 = float(self.current_self[0]), float(self.current_self[1])
         normals, rhs = self.check_normals, self.check_rhs
         if self._any_shared and self.recovery >= 0.0:
-            inside = self.inside()
-            if inside.any():  # overlap-recovery: no closer to the mid-line than now
+            inside = self._inside
+            if inside_pairs(self.current_self, self.current_others, self._shared_mask,
+                            self.safe_distance, inside):
+                # overlap-recovery: no closer to the mid-line than now
                 if not halfplanes_hold_path(
                         np.ascontiguousarray(normals[inside]), rhs[inside], x0, y0,
                         float(p[0]), float(p[1]), 0.0, 0.0, self.recovery):

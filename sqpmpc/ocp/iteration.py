@@ -160,6 +160,8 @@ class MultipleShootingSQP:
         self._external_A = qp.matrix_entries("external").reshape(m, E, N, 2)
         self._external_lower = qp.row_bounds("external")[0].reshape(m, E, N)
         self._block = L.block_size
+        self._robot_span = L.n_robots * self._block  # the speeds: blocks, then a stride
+        self._speed_stages = slice(self.model.speed_offset, L.stage_size * N, L.stage_size)
 
     def collision_blocks(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """The collision rows as the QP holds them: ``"internal"``: ``(P, N, 4)`` entries
@@ -233,19 +235,13 @@ class MultipleShootingSQP:
         """Speeds ``(m, N)`` of stages 0..N-1 of the current iterate, a read-only view (the
         linearization point; :meth:`update_guess_speeds` changes them): the model's forward
         speed, an input of the unicycle, a state of a model with velocity states."""
-        L = self.layout
-        stride, offset = L.stage_size, self.model.speed_offset
-        out = self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
-            :, offset:stride * L.horizon:stride]
+        out = self.z[:self._robot_span].reshape(-1, self._block)[:, self._speed_stages]
         out.setflags(write=False)
         return out
 
     def update_guess_speeds(self, speeds: np.ndarray) -> None:
         """Set the speeds ``(m, N)`` of the current iterate (the linearization point)."""
-        L = self.layout
-        stride, offset = L.stage_size, self.model.speed_offset
-        self.z[:L.n_robots * self._block].reshape(L.n_robots, self._block)[
-            :, offset:stride * L.horizon:stride] = speeds
+        self.z[:self._robot_span].reshape(-1, self._block)[:, self._speed_stages] = speeds
 
     def first_speeds(self) -> np.ndarray:
         """The speed commanded at this sample ``(m,)`` of each own robot in the current iterate
@@ -354,6 +350,7 @@ class MultipleShootingSQP:
         max_iterations: int | None = None,
         iteration_scheme: Literal["rti", "sqp"] | None = None,
         deadline: float | None = None,
+        started: bool = False,
     ) -> IterationReport:
         """Run RTI (one QP) or SQP from the current iterate.
 
@@ -372,6 +369,9 @@ class MultipleShootingSQP:
         deadline
             ``time.perf_counter()`` value after which no new QP is started
             (the first always runs); default: ``settings.time_budget`` from now.
+        started
+            :meth:`start_sample` was called with ``initial_states`` (only the guess's
+            speeds changed since): not called again.
         """
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
@@ -384,7 +384,8 @@ class MultipleShootingSQP:
                 f"initial_states must be finite with shape ({L.n_robots}, {self.model.nx}), "
                 f"got {initial_states.shape}"
             )
-        self.start_sample(initial_states)
+        if not started or self.z is None:
+            self.start_sample(initial_states)
         sqp = (iteration_scheme or s.iteration_scheme) == "sqp"
         if max_iterations is None:
             if self.samples == 0:

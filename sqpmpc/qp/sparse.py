@@ -117,6 +117,7 @@ class SparseQP:
         self._Q_diag = np.zeros(2)
         self._position_scale = np.ones(L.n_robots)
         self._reference_scale = np.zeros((L.n_robots, 1, 2))
+        self._sizes = (L.block_size, L.stage_size)  # of the reference's kernel
         self.lower = np.full(L.n_con, -np.inf)
         self.upper = np.full(L.n_con, np.inf)
         self.lower[L.slack_rows] = 0.0
@@ -214,8 +215,7 @@ class SparseQP:
 
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
-        write_reference(self._q_cost, reference, self._reference_scale, self.layout.block_size,
-                        self.layout.stage_size)
+        write_reference(self._q_cost, reference, self._reference_scale, *self._sizes)
         self._dirty_vec = True
 
     def update_initial_state(self, initial_states: np.ndarray) -> None:

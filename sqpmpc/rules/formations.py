@@ -54,6 +54,7 @@ class _YieldInstance(RuleInstance):
         self.goals = np.array([r.reference.goal if isinstance(r.reference, PointReference)
                                else (np.nan, np.nan) for r in sc.robots], dtype=float)
         self.active = bool(self.has_goal.sum() >= 2)
+        self.idle = not self.active
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         if not self.active:

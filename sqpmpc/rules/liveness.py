@@ -229,7 +229,7 @@ class _ParkingInstance(RuleInstance):
         return out
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        if not self.parking.any():  # nobody parks: nothing to repair
+        if not np.count_nonzero(self.parking):  # nobody parks: nothing to repair
             return None
         speeds = view.guess_speeds.copy()
         repaired = repair_speeds(speeds, view.references[:, -1].copy(), view.own_states,
@@ -322,8 +322,7 @@ class _DetourInstance(RuleInstance):
         m = context.own.size
         self.patience = rule.patience_centralized if context.scheme == "centralized" \
             else rule.patience
-        self.required = context.scenario.required_distances()
-        self.own_required = self.required[context.own]
+        self.kept = context.kept_distances()  # near: within what the rows keep + reach
         self.blocked_for = np.zeros(m, dtype=np.int64)
         self.active_for = np.zeros(m, dtype=np.int64)
         self.blocker = np.full(m, -1, dtype=np.int64)
@@ -338,9 +337,9 @@ class _DetourInstance(RuleInstance):
             return None
         self.counts["detour_activations"] += detour_step(
             positions, self.context.own, view.applied, view.references[:, -1].copy(),
-            self.own_required, r.speed, r.reach, self._cos_cone, self.patience, r.hold,
+            self.kept, r.speed, r.reach, self._cos_cone, self.patience, r.hold,
             self.blocked_for, self.active_for, self.blocker)
-        if not self.active_for.any():
+        if not np.count_nonzero(self.active_for):  # nobody detours
             return None
         active = np.flatnonzero(self.active_for)
         own = self.context.own
@@ -352,7 +351,7 @@ class _DetourInstance(RuleInstance):
             # still blocked after each `hold` samples of detour: a wider one
             rounds = max(0, int(self.blocked_for[i]) - self.patience) // r.hold
             factor = min(r.radius_factor + r.escalation * rounds, r.max_factor)
-            out[i] = positions[b] + factor * self.required[own[i], b] * (self._turn @ away)
+            out[i] = positions[b] + factor * self.kept[i, b] * (self._turn @ away)
         return Contribution(references=out)
 
 
@@ -361,13 +360,16 @@ class Detour(Rule):
     r"""Right-hand detour around a blocking neighbour.
 
     A robot is *blocked* when its last applied speed is below ``speed`` and a
-    neighbour closer than the required distance plus ``reach`` lies within
+    neighbour closer than the kept distance plus ``reach`` lies within
     ``cone`` of the direction to its stage-N reference, which is farther than
-    ``reach``. After ``patience`` blocked samples (``patience_centralized``
+    ``reach`` (the *kept* distance is the required one plus the rows' margin
+    for the plant, :meth:`RuleContext.kept_distances`: robots with
+    acceleration bounds never come closer than that, so ``reach`` stays free
+    room). After ``patience`` blocked samples (``patience_centralized``
     for the centralized controller, whose joint optimization resolves most
     encounters itself) its reference on every stage becomes, for ``hold``
     samples (renewed while blocked), the point at ``radius_factor`` times the
-    required distance from the blocker, ``angle`` to the right of the
+    kept distance from the blocker, ``angle`` to the right of the
     direction from the blocker to itself: two robots doing so pass on their
     right. A robot still blocked after each further ``hold`` samples widens
     its detour by ``escalation`` (up to ``max_factor``): at the default 60

@@ -34,15 +34,16 @@ rules and the rows handle it), not a flow to circle with.
 When :math:`|C| \ge` ``min_crowd``, the crowd is the disc of centre
 :math:`c = \operatorname{mean}_{j \in C} p_j` and radius
 :math:`\rho = \max_{j \in C} (\|p_j - c\| + d_j)`, with :math:`d_j` the
-required distance to robot ``j``. If the straight path to the goal crosses
-that disc (the goal direction lies between the two tangents from :math:`p`),
-the robot heads along the *right* tangent, which keeps the crowd on its left
-(counter-clockwise around it); inside the disc it moves along the circle
-around :math:`c`, counter-clockwise. Its references of stages 1..N become
-the points :math:`p + i\,T_s\,v_\text{ref}\,u`, :math:`u` the chosen
-direction and :math:`v_\text{ref}` = ``speed_fraction`` times the largest
-speed. Once fewer than ``min_crowd`` robots are ahead (or the path clears the
-disc), the robot tracks its goal again.
+distance the rows keep to robot ``j`` (the required distance plus their margin
+for the plant, :meth:`~sqpmpc.rules.base.RuleContext.kept_distances`). If the
+straight path to the goal crosses that disc (the goal direction lies between
+the two tangents from :math:`p`), the robot heads along the *right* tangent,
+which keeps the crowd on its left (counter-clockwise around it); inside the
+disc it moves along the circle around :math:`c`, counter-clockwise. Its
+references of stages 1..N become the points :math:`p + i\,T_s\,v_\text{ref}\,u`,
+:math:`u` the chosen direction and :math:`v_\text{ref}` = ``speed_fraction``
+times the largest speed. Once fewer than ``min_crowd`` robots are ahead (or
+the path clears the disc), the robot tracks its goal again.
 
 The defaults (a crowd of 4 within 3 m) leave swaps of 4 robots to the pairwise
 rules (a four-way jam at the centre can stand 10 s) and can miss the head-on
@@ -99,8 +100,7 @@ class _RoundaboutInstance(RuleInstance):
 
     def __init__(self, rule: Roundabout, context: RuleContext) -> None:
         super().__init__(rule, context)
-        self.required = np.ascontiguousarray(
-            context.scenario.required_distances()[context.own])
+        self.required = np.ascontiguousarray(context.kept_distances())
         self.directions = np.zeros((context.own.size, 2))
         step = rule.speed_fraction * context.max_speed * context.sample_time
         self.offsets = step * np.arange(1, context.horizon + 1, dtype=float)

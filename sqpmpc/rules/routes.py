@@ -100,6 +100,9 @@ class _RouteInstance(RuleInstance):
                 self.maps.append(road_map(sc, 0.5 * robot.diameter, self.rule.margin))
                 self.goals.append(np.asarray(ref.goal, dtype=float))
             self.tracking.append(None)
+        #: whether some own robot has a map and a goal (else the hook has nothing to do)
+        self.routed = any(road is not None for road in self.maps)
+        self.idle = not self.routed
 
     def _plan(self, k: int, p: np.ndarray, t: float) -> None:
         road, goal = self.maps[k], self.goals[k]
@@ -140,6 +143,8 @@ class _RouteInstance(RuleInstance):
         return True
 
     def shape_references(self, view: SampleView) -> Contribution | None:
+        if not self.routed:  # no map or no goal: nothing to route
+            return None
         rule = self.rule
         out: np.ndarray | None = None
         N = view.references.shape[1]
