@@ -12,6 +12,11 @@ goal inside the inflation band (closer than the margin, not the radius) is
 joined to its nearest outline point first. There is no route when the goal
 is nearer an obstacle than the radius or no path connects the two.
 
+A scenario's ``[bounds]`` ``x``/``y`` box (it bounds the robot's centre) is part
+of the map: the routes stay inside it (a frame around the box, not inflated by
+the radius), so a route never leads where the NMPC may not go; a goal outside
+the box has no route.
+
 :class:`Route` is the polyline with its arc length; the route rule
 (:mod:`sqpmpc.rules.routes`) time-parametrizes it at the robot's speed.
 """
@@ -25,13 +30,13 @@ from dataclasses import dataclass
 import networkx as nx
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Point
+from shapely.geometry import LineString, Point, box
 from shapely.ops import nearest_points, unary_union
 
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.polygons import PolygonObstacle
 
-__all__ = ["RoadMap", "Route", "route_lengths"]
+__all__ = ["RoadMap", "Route", "route_lengths", "scenario_box"]
 
 _SIDES = 8  # circles become circumscribed octagons
 _EPS = 1e-6  # the outline itself counts as free
@@ -97,10 +102,15 @@ class RoadMap:
         The robot's radius: nearer than this to an obstacle nothing can go, m.
     margin
         Added to ``radius`` for the inflation the routes keep, m.
+    bounds
+        ``(lower, upper)``, each ``(x, y)``, of the robot centre's position
+        (``-inf``/``inf`` where unbounded; ``None``: no box): the routes stay
+        inside it.
     """
 
     def __init__(self, polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacle],
-                 radius: float, margin: float) -> None:
+                 radius: float, margin: float,
+                 bounds: tuple[Sequence[float], Sequence[float]] | None = None) -> None:
         self.radius = float(radius)
         self.clearance = float(radius) + float(margin)
         c = self.clearance
@@ -111,8 +121,15 @@ class RoadMap:
         self.bare = unary_union([p.shape for p in polygons]
                                 + [Point(o.position).buffer(0.5 * o.diameter, quad_segs=16)
                                    for o in circles if not o.moving])
+        outside = _outside(self.bare, bounds)
+        self._outside = outside
+        if outside is not None:  # the centre's box: not inflated by the radius
+            shapes.append(outside)
         self.inflated = unary_union(shapes)
-        self._hard = self.bare.buffer(self.radius).buffer(-_EPS)
+        hard = self.bare.buffer(self.radius)
+        if outside is not None:
+            hard = hard.union(outside)
+        self._hard = hard.buffer(-_EPS)
         shapely.prepare(self._hard)
         self.empty = self.inflated.is_empty
         self._inner = self.inflated.buffer(-_EPS)
@@ -155,7 +172,7 @@ class RoadMap:
     def away_from_walls(self, p: np.ndarray) -> tuple[float, np.ndarray]:
         """Clearance of a robot centred at ``p`` (distance to the static map minus the
         radius, m) and the unit direction from the nearest obstacle point to ``p``."""
-        if self.empty:
+        if self.bare.is_empty:
             return math.inf, np.array([1.0, 0.0])
         point = Point(p)
         q = np.asarray(nearest_points(self.bare, point)[0].coords[0])
@@ -169,7 +186,8 @@ class RoadMap:
         point = Point(p)
         if self.empty or not self._inner.contains(point):
             return [np.asarray(p, dtype=float)]
-        if self.bare.distance(point) < self.radius:
+        if self.bare.distance(point) < self.radius or (
+                self._outside is not None and self._outside.contains(point)):
             return None
         q = np.asarray(nearest_points(self.inflated.boundary, point)[0].coords[0])
         out = q - np.asarray(p)
@@ -206,18 +224,48 @@ class RoadMap:
         return Route(np.array(head + middle + tail[::-1]))
 
 
+def _outside(bare: object, bounds: tuple[Sequence[float], Sequence[float]] | None
+             ) -> object | None:
+    """The frame outside the box ``bounds`` (``None``: no box), as wide as the map and
+    the box together plus a metre, so every vertex stays finite."""
+    if bounds is None:
+        return None
+    lo, hi = np.asarray(bounds[0], dtype=float), np.asarray(bounds[1], dtype=float)
+    if not (np.isfinite(lo).any() or np.isfinite(hi).any()):
+        return None
+    finite = np.concatenate((lo[np.isfinite(lo)], hi[np.isfinite(hi)]))
+    extent = float(np.abs(finite).max()) + 1.0
+    if not bare.is_empty:  # type: ignore[attr-defined]
+        extent = max(extent, float(np.abs(bare.bounds).max()) + 1.0)  # type: ignore[attr-defined]
+    far = 2.0 * extent
+    a = np.where(np.isfinite(lo), lo, -far)
+    b = np.where(np.isfinite(hi), hi, far)
+    inner = box(float(a[0]), float(a[1]), float(max(b[0], a[0])), float(max(b[1], a[1])))
+    return box(-2.0 * far, -2.0 * far, 2.0 * far, 2.0 * far).difference(inner)
+
+
+def scenario_box(scenario: object) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ``[bounds]`` ``x``/``y`` box of a scenario's robot centres, or ``None``."""
+    bounds = getattr(scenario, "bounds", None)
+    if bounds is None or (bounds.x is None and bounds.y is None):
+        return None
+    return bounds.position_lower(), bounds.position_upper()
+
+
 def route_lengths(scenario: object, goals: np.ndarray, margin: float = 0.0
                   ) -> list[float | None]:
     """Length of every robot's shortest route from its initial position to ``goals (n, 2)``
-    (``None``: no route), with ``margin`` beyond its radius."""
+    (``None``: no route), with ``margin`` beyond its radius, inside the scenario's
+    ``[bounds]`` box."""
     polygons = tuple(getattr(scenario, "polygons", ()))
     circles = tuple(getattr(scenario, "obstacles", ()))
+    frame = scenario_box(scenario)
     starts = scenario.initial_states()[:, :2]  # type: ignore[attr-defined]
     radii = 0.5 * scenario.diameters()  # type: ignore[attr-defined]
     maps: dict[float, RoadMap] = {}
     out: list[float | None] = []
     for p, g, r in zip(starts, goals, radii, strict=True):
-        road = maps.setdefault(float(r), RoadMap(polygons, circles, float(r), margin))
+        road = maps.setdefault(float(r), RoadMap(polygons, circles, float(r), margin, frame))
         route = road.route(p, g)
         out.append(None if route is None else route.length)
     return out

@@ -45,6 +45,23 @@ references of stages 1..N become the points :math:`p + i\,T_s\,v_\text{ref}\,u`,
 times the largest speed. Once fewer than ``min_crowd`` robots are ahead (or
 the path clears the disc), the robot tracks its goal again.
 
+The defaults (a crowd of 4 within 3 m) leave swaps of 4 robots to the pairwise
+rules (a four-way jam at the centre can stand 10 s) and can miss the head-on
+pair of swap-6 whose crowd counts 3 (the four others circle, the pair stands
+6.5 s face to face). A crowd of 3 within 2.5 m lets the small swaps flow: on
+the maps benchmark (``benchmarks/maps.py``, 257 runs) the swaps' median
+normalized makespan was 1.48 (1.62 with the defaults) and the crossings' 1.32,
+but a 25-robot grid and a 32-robot warehouse were left stuck (every run
+arrives with the defaults), so the defaults stay; swaps of 16-64 were slower
+with it (their time goes into the dense centre and into stragglers the crowd
+ahead keeps carrying sideways: a crowd that moves with the robot is never
+rounded).
+
+Leaving robots that the route or yield rule already steers to that rule (the
+crowd's tangent knows no walls; it once led a warehouse robot off its route
+against an arrived robot, where it stood) fixed that run but left a 64-robot
+warehouse stuck that arrives without it; it was dropped.
+
 The rule only changes references: every collision row, the hard stage 1 and
 the verification of the first input are untouched, so it chooses among safe
 motions like the other rules.

@@ -3,7 +3,8 @@ r"""The ``route`` rule: a robot whose goal lies behind static obstacles tracks a
 A robot with a goal at rest (a ``point`` reference) whose straight way to it
 crosses the static map inflated by its radius plus ``margin`` gets the
 shortest route around it (:class:`sqpmpc.problem.routes.RoadMap`: a visibility
-graph of the inflated walls, shelves and resting circles). The route is
+graph of the inflated walls, shelves and resting circles, inside the scenario's
+``[bounds]`` box). The route is
 time-parametrized at ``speed`` times the robot's top speed from the moment it
 is planned, but never runs more than ``lead`` metres of arc ahead of the
 robot's progress (its projection on the route), so a robot held up by others
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.problem.references import PointReference
-from sqpmpc.problem.routes import RoadMap, Route
+from sqpmpc.problem.routes import RoadMap, Route, scenario_box
 from sqpmpc.rules.base import (
     Contribution,
     Rule,
@@ -39,13 +40,23 @@ from sqpmpc.rules.base import (
     check_positive,
 )
 
-__all__ = ["RouteFollowing"]
+__all__ = ["RouteFollowing", "road_map"]
 
 
 @functools.lru_cache(maxsize=16)
-def _road_map(polygons: tuple, circles: tuple, radius: float, margin: float) -> RoadMap:
-    """One road map per map and clearance, shared by the controllers of a run."""
-    return RoadMap(polygons, circles, radius, margin)
+def _road_map(polygons: tuple, circles: tuple, radius: float, margin: float,
+              bounds: tuple | None) -> RoadMap:
+    """One road map per map, box and clearance, shared by the controllers of a run."""
+    return RoadMap(polygons, circles, radius, margin, bounds)
+
+
+def road_map(scenario: object, radius: float, margin: float) -> RoadMap:
+    """The (cached) road map of a scenario's static map and ``[bounds]`` box for a robot
+    of ``radius`` keeping ``margin``."""
+    frame = scenario_box(scenario)
+    key = None if frame is None else (tuple(map(float, frame[0])), tuple(map(float, frame[1])))
+    return _road_map(tuple(scenario.polygons), tuple(scenario.obstacles),  # type: ignore
+                     float(radius), float(margin), key)
 
 
 @dataclass
@@ -86,8 +97,7 @@ class _RouteInstance(RuleInstance):
                 self.maps.append(None)
                 self.goals.append(None)
             else:
-                self.maps.append(_road_map(tuple(sc.polygons), tuple(sc.obstacles),
-                                           0.5 * robot.diameter, self.rule.margin))
+                self.maps.append(road_map(sc, 0.5 * robot.diameter, self.rule.margin))
                 self.goals.append(np.asarray(ref.goal, dtype=float))
             self.tracking.append(None)
         #: whether some own robot has a map and a goal (else the hook has nothing to do)
