@@ -62,9 +62,16 @@ def lab_problem() -> str | None:
     except ProblemError as exc:
         return f"cannot create a network namespace: {exc}"
     try:
-        _run("ip", "netns", "exec", name, "iptables", "-L", "INPUT", "-n")
+        _run("ip", "netns", "exec", name, "ip", "link", "add", "probe0", "type", "veth",
+             "peer", "name", "probe1")
     except ProblemError as exc:
-        return f"iptables does not work in a network namespace: {exc}"
+        subprocess.run(["ip", "netns", "del", name], capture_output=True, check=False)
+        return f"cannot create a veth link: {exc}"
+    try:
+        _run("ip", "netns", "exec", name, "iptables", "-A", "INPUT", "-m", "statistic",
+             "--mode", "random", "--probability", "0.5", "-j", "ACCEPT")
+    except ProblemError as exc:
+        return f"iptables' statistic match does not work in a network namespace: {exc}"
     finally:
         subprocess.run(["ip", "netns", "del", name], capture_output=True, check=False)
     return None
