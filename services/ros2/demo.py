@@ -55,7 +55,8 @@ from ..handover import Handover, make_private
 from ..node import install_signal_handlers
 from .check import check_fleet
 
-__all__ = ["Credentials", "LoggedChild", "build_parser", "main", "start_clock"]
+__all__ = ["Credentials", "LoggedChild", "add_fleet_arguments", "build_parser", "main",
+           "start_clock"]
 
 log = logging.getLogger("services.ros2.demo")
 PROG = "services.ros2.demo"
@@ -136,21 +137,28 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     """The argument parser of ``python -m services.ros2.demo``."""
     p = Parser(prog=prog, description=__doc__.splitlines()[0])
     p.add_argument("--scenario", required=True, help="TOML file or built-in name")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default runs/ros2-<scenario>-<time>)")
-    p.add_argument("--t-end", type=positive_float, default=None, help="override t_end, s")
-    p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
+    add_fleet_arguments(p, "ros2")
     p.add_argument("--odom-stop", action="append", default=[], metavar="ID:T",
                    help="robot ID's odometry stops at t = T s (repeatable)")
     p.add_argument("--twist-stamped", action="store_true", help="cmd_vel as TwistStamped")
+    p.add_argument("--log-level", default="INFO", help="log level of the processes")
+    return p
+
+
+def add_fleet_arguments(p: argparse.ArgumentParser, kind: str) -> None:
+    """The options every simulated ROS 2 fleet run takes (this demo and
+    :mod:`services.ros2.hosts`): output folder ``runs/<kind>-<scenario>-<time>``, t_end,
+    odometry rate, security, start-up wait and arrival tolerance."""
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"output folder (default runs/{kind}-<scenario>-<time>)")
+    p.add_argument("--t-end", type=positive_float, default=None, help="override t_end, s")
+    p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
     p.add_argument("--insecure", action="store_true",
                    help="plans over plain TCP without credentials (debugging only)")
     p.add_argument("--startup", type=positive_float, default=600.0, metavar="S",
                    help="longest wait for every controller to be up, s (default 600)")
     p.add_argument("--tolerance", type=positive_float, default=0.05,
                    help="arrival: final distance to the reference, m")
-    p.add_argument("--log-level", default="INFO", help="log level of the processes")
-    return p
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:

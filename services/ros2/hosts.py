@@ -47,7 +47,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from sqpmpc.cli.options import Parser, nonnegative_float, positive_float
+from sqpmpc.cli.options import Parser, nonnegative_float
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.scenario_file import load_scenario
 
@@ -55,7 +55,7 @@ from ..children import Child, stop_children
 from ..netns import HostLab, lab_problem
 from ..node import install_signal_handlers
 from .check import check_fleet
-from .demo import Credentials, LoggedChild, start_clock
+from .demo import Credentials, LoggedChild, add_fleet_arguments, start_clock
 
 __all__ = ["PORTS", "build_parser", "main", "merge_poses", "probe_links"]
 
@@ -123,16 +123,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                    help="share of packets dropped in each direction of a host's link")
     p.add_argument("--delay", type=nonnegative_float, default=0.02,
                    help="one-way delay of a host's link, s (the hub's relay)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default runs/ros2-hosts-<scenario>-<time>)")
-    p.add_argument("--t-end", type=positive_float, default=None, help="override t_end, s")
-    p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
-    p.add_argument("--insecure", action="store_true",
-                   help="plans over plain TCP without credentials (debugging only)")
-    p.add_argument("--startup", type=positive_float, default=600.0, metavar="S",
-                   help="longest wait for every controller to be up, s (default 600)")
-    p.add_argument("--tolerance", type=positive_float, default=0.05,
-                   help="arrival: final distance to the reference, m")
+    add_fleet_arguments(p, "ros2-hosts")
     p.add_argument("--probe", type=int, default=200, metavar="K",
                    help="round trips measured on the first and last host's links before the "
                         "run (0: none; default 200)")
