@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["ring_path", "ring_zones", "segment_distance", "warm_up_rings"]
+__all__ = ["ring_busy", "ring_path", "ring_zones", "segment_distance", "warm_up_rings"]
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -158,6 +158,25 @@ def ring_zones(positions: np.ndarray, goals: np.ndarray, travelling: np.ndarray,
 
 
 @_jit
+def ring_busy(positions: np.ndarray, goals: np.ndarray, zone_of: np.ndarray, zone: int,
+              me: int, cx: float, cy: float, radius: float, goal_distance: float) -> int:
+    """How many other robots of ``zone`` still have to pass its ring: not within
+    ``goal_distance`` of their goals, and inside the ring or with a straight way
+    through it; ``-1`` when a robot that has arrived stands in the ring."""
+    busy = 0
+    for j in range(positions.shape[0]):
+        arrived = math.hypot(positions[j, 0] - goals[j, 0],
+                             positions[j, 1] - goals[j, 1]) <= goal_distance
+        inside = math.hypot(positions[j, 0] - cx, positions[j, 1] - cy) < radius
+        if arrived and inside:
+            return -1
+        if j != me and zone_of[j] == zone and not arrived and (inside or segment_distance(
+                positions[j, 0], positions[j, 1], goals[j, 0], goals[j, 1], cx, cy) < radius):
+            busy += 1
+    return busy
+
+
+@_jit
 def ring_path(px: float, py: float, gx: float, gy: float, cx: float, cy: float,
               radius: float, step: float, out: np.ndarray) -> None:
     """References ``out (N, 2)`` ``step`` apart from ``(px, py)`` around the ring.
@@ -218,4 +237,7 @@ def warm_up_rings() -> None:
     zone_of = np.zeros(4, dtype=np.int64)
     ring_zones(positions, -positions, np.ones(4, dtype=np.bool_), 1.5, 0.7, 0.5, 4, 0.5,
                zone_of, np.zeros((4, 2)))
+    ring_busy(positions, -positions, zone_of, 0, 0, 0.0, 0.0, 1.0, 1.0)
+    positions.setflags(write=False)  # as the rule passes the measured positions
+    ring_busy(positions, -positions, zone_of, 0, 0, 0.0, 0.0, 1.0, 1.0)
     ring_path(-2.0, 0.0, 2.0, 0.0, 0.0, 0.0, 1.0, 0.3, np.zeros((8, 2)))

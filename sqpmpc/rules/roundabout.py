@@ -77,7 +77,7 @@ import numba
 import numpy as np
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.rings import ring_path, ring_zones, segment_distance
+from sqpmpc.kernels.rings import ring_busy, ring_path, ring_zones, segment_distance
 from sqpmpc.kernels.rules import roundabout_directions
 from sqpmpc.rules.base import (
     Contribution,
@@ -136,7 +136,7 @@ class _RoundaboutInstance(RuleInstance):
                                                  > r.goal_distance)
         if sc.polygons or np.count_nonzero(travelling) < r.ring_crowd:
             return  # walls and shelves: the routes know the map, a ring does not
-        zones = ring_zones(np.ascontiguousarray(positions, dtype=float), goals, travelling,
+        zones = ring_zones(np.array(positions, dtype=float), goals, travelling,
                            r.ring_window, self._cos_along, r.ring_cluster, r.ring_crowd, 0.5,
                            self.zone_of, self.centres)
         kept = float(self.required.max())
@@ -171,16 +171,8 @@ class _RoundaboutInstance(RuleInstance):
             if np.hypot(gx - p[i, 0], gy - p[i, 1]) <= r.goal_distance or segment_distance(
                     p[i, 0], p[i, 1], gx, gy, c[0], c[1]) >= radius:
                 continue
-            busy = 0
-            for j in range(p.shape[0]):
-                arrived = np.hypot(*(p[j] - goals[j])) <= r.goal_distance
-                inside = np.hypot(*(p[j] - c)) < radius
-                if arrived and inside:  # an arrived robot in the ring: it is no ring now
-                    busy = -p.shape[0]
-                    break
-                if j != i and self.zone_of[j] == z and not arrived and (inside or segment_distance(
-                        p[j, 0], p[j, 1], goals[j, 0], goals[j, 1], c[0], c[1]) < radius):
-                    busy += 1
+            busy = ring_busy(p, goals, self.zone_of, z, i, c[0], c[1], radius,
+                             r.goal_distance)
             if busy < r.ring_crowd - 1:
                 continue
             if out is None:
