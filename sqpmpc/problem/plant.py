@@ -88,6 +88,9 @@ rows imply the checks; measured (``benchmarks/acceleration.py``, 24 runs, 0 coll
 either way) it made 22 instead of 19 runs arrive, but paper-s2 decentralized ended
 0.116 m from its moving reference, outside the paper robot's band of 0.095 m.
 
+The decentralized robots' shared rows keep less where the robot stands clear of its
+check line: :mod:`sqpmpc.problem.margins`.
+
 Braking takes several samples: from :math:`v` it takes
 :math:`\lceil |v|/(|a_{\min}|T_s)\rceil` samples and about :math:`v^2/(2|a_{\min}|)`
 of travel (0.18 m from 0.6 m/s at 1 m/s^2). The controllers therefore accept a
