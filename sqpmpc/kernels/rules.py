@@ -14,7 +14,8 @@ import numpy as np
 
 __all__ = [
     "detour_step", "hold_touching_rows", "inside_pairs", "limit_turning", "parking_mask",
-    "repair_speeds", "reversing", "roundabout_directions", "standing_still",
+    "repair_guess", "repair_speeds", "reversing", "roundabout_directions",
+    "stall_repair", "standing_still",
     "warm_up_roundabout", "warm_up_rules",
 ]
 
@@ -90,6 +91,55 @@ def repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
         speeds[r, :] = speed
         repaired += 1
     return repaired
+
+
+@_jit
+def repair_guess(guess: np.ndarray, references: np.ndarray, states: np.ndarray,
+                 stuck: np.ndarray, only: np.ndarray, slow: float, distance: float,
+                 ahead_speed: float, back_speed: float, out: np.ndarray) -> int:
+    """The guess speeds ``(m, N)`` into ``out`` with stalled robots repaired; count them.
+
+    As :func:`repair_speeds` on a copy of ``guess`` with the goals ``references[:, -1]``:
+    a robot with ``stuck[r]`` at any speed, one with ``only[r]`` when every
+    ``|speeds[r]| < slow`` (one call for the stall and parking repairs).
+    """
+    out[:, :] = guess
+    last = references.shape[1] - 1
+    repaired = 0
+    for r in range(out.shape[0]):
+        if stuck[r]:
+            limit = np.inf
+        elif only[r]:
+            limit = slow
+        else:
+            continue
+        fastest = 0.0
+        for i in range(out.shape[1]):
+            fastest = max(fastest, abs(out[r, i]))
+        if not fastest < limit:
+            continue
+        gx, gy = references[r, last, 0] - states[r, 0], references[r, last, 1] - states[r, 1]
+        if not np.hypot(gx, gy) > distance:
+            continue
+        ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
+        speed = ahead_speed if ahead else back_speed
+        if speed == 0.0:  # the bounds forbid that direction: nothing to repair
+            continue
+        out[r, :] = speed
+        repaired += 1
+    return repaired
+
+
+@_jit
+def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
+                 states: np.ndarray, speed: float, patience: int, distance: float, slow: float,
+                 ahead_speed: float, back_speed: float, still_for: np.ndarray,
+                 stuck: np.ndarray, everyone: np.ndarray, out: np.ndarray) -> int:
+    """:func:`standing_still` then :func:`repair_guess` (``only = everyone``), one call:
+    the stall repair's new guess speeds in ``out``; returns how many robots it repaired."""
+    standing_still(references, applied, speed, patience, still_for, stuck)
+    return repair_guess(guess, references, states, stuck, everyone, slow, distance,
+                        ahead_speed, back_speed, out)
 
 
 @_jit
@@ -170,6 +220,15 @@ def warm_up_rules() -> None:
     parking_mask(references, poses, 1.0, np.zeros(2, dtype=np.bool_))
     standing_still(references, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
                    np.zeros(2, dtype=np.bool_))
+    # the guess speeds as the engine shows them: a read-only strided view of the iterate
+    guess = _read_only(np.zeros(2 * 13)).reshape(2, 13)[:, 3:13:5]
+    mask = np.zeros(2, dtype=np.bool_)
+    for own in (states, poses):
+        stall_repair(guess, references, applied, own, 0.05, 10, 0.1, 0.05, 0.05, -0.05,
+                     np.zeros(2, dtype=np.int64), mask, np.ones(2, dtype=np.bool_),
+                     np.empty((2, 2)))
+        repair_guess(guess, references, own, mask, mask, 0.05, 0.01, 0.05, -0.05,
+                     np.empty((2, 2)))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
     for me in (np.zeros(2), _read_only(np.zeros(2))):
         hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),

@@ -44,7 +44,7 @@ import numba
 import numpy as np
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.rules import detour_step, parking_mask, repair_speeds, reversing, standing_still
+from sqpmpc.kernels.rules import detour_step, parking_mask, repair_guess, reversing, stall_repair
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.rules.base import (
     Contribution,
@@ -166,21 +166,21 @@ class _StallInstance(RuleInstance):
         self._all = np.ones(context.own.size, dtype=np.bool_)
         self._still_for = np.zeros(context.own.size, dtype=np.int64)
         self._stuck = np.zeros(context.own.size, dtype=np.bool_)
+        self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        goals = view.references[:, -1].copy()
-        speeds = view.guess_speeds.copy()
-        stuck = self._stuck
-        repaired = 0
-        # standing for `patience` samples with the reference at rest: whatever the guess plans
-        if standing_still(view.references, view.applied, self.rule.speed, self.rule.patience,
-                          self._still_for, stuck):
-            repaired += repair_speeds(speeds, goals, view.own_states, stuck, np.inf,
-                                      self.rule.distance, self._ahead, self._back)
-        repaired += repair_speeds(speeds, goals, view.own_states, ~stuck, self._slow,
-                                  self.rule.distance, self._ahead, self._back)
+        r = self.rule
+        # standing for `patience` samples with the reference at rest: whatever the guess
+        # plans; else every guess |v| < the repair speed (one kernel, the new speeds into
+        # this rule's buffer: no contribution when it repaired nothing)
+        repaired = stall_repair(view.guess_speeds, view.references, view.applied,
+                                view.own_states, r.speed, r.patience, r.distance, self._slow,
+                                self._ahead, self._back, self._still_for, self._stuck,
+                                self._all, self._speeds)
+        if not repaired:
+            return None
         self.counts["stall_repairs"] += repaired
-        return Contribution(guess_speeds=speeds) if repaired else None
+        return Contribution(guess_speeds=self._speeds)
 
 
 @dataclass(frozen=True)
@@ -217,6 +217,8 @@ class _ParkingInstance(RuleInstance):
                           rule.reach * context.max_speed * max(horizon_time, rule.horizon))
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
+        self._none = np.zeros(context.own.size, dtype=np.bool_)  # none repaired at any speed
+        self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         parked = parking_mask(view.scenario_references, view.own_states, self.radius,
@@ -231,12 +233,13 @@ class _ParkingInstance(RuleInstance):
     def shape_guess(self, view: SampleView) -> Contribution | None:
         if not np.count_nonzero(self.parking):  # nobody parks: nothing to repair
             return None
-        speeds = view.guess_speeds.copy()
-        repaired = repair_speeds(speeds, view.references[:, -1].copy(), view.own_states,
-                                 self.parking, self._slow, self.rule.tolerance, self._ahead,
-                                 self._back)
+        repaired = repair_guess(view.guess_speeds, view.references, view.own_states,
+                                self._none, self.parking, self._slow, self.rule.tolerance,
+                                self._ahead, self._back, self._speeds)
+        if not repaired:
+            return None
         self.counts["parking_repairs"] += repaired
-        return Contribution(guess_speeds=speeds) if repaired else None
+        return Contribution(guess_speeds=self._speeds)
 
 
 @dataclass(frozen=True)
