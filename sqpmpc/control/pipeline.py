@@ -55,7 +55,7 @@ import numpy as np
 from sqpmpc.control.output import ControlOutput, braking_input
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite, headings_jump, within_box
+from sqpmpc.kernels.ocp import all_finite, measure_headings, within_box
 from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
@@ -153,9 +153,10 @@ class ControllerPipeline:
         m = self.indices.size
         self._applied = read_only(np.zeros((m, 2)))  # the rules read both (read-only)
         self._applied_before = self._applied
-        #: the own robots' headings of the last sample, unwrapped
-        self._headings: np.ndarray | None = None
+        #: the own robots' headings of the last sample, unwrapped (once known)
+        self._headings, self._known = np.zeros(self.indices.size), False
         self._n = scenario.n_robots
+        self._shapes = ((self._n, 3), (self._n, 5))  # of the measured states
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
         self._deviates = plant.model != settings.discretization or plant.noisy or not \
@@ -192,19 +193,19 @@ class ControllerPipeline:
         t0 = time.perf_counter()
         # 1. measure
         states = np.asarray(states, dtype=float)
-        if states.shape not in ((self._n, 3), (self._n, 5)) or not all_finite(states.ravel()):
+        shape = states.shape
+        # finite; the own headings kept (odometry wraps the yaw, plans do not: models.base)
+        checked = -1 if shape not in self._shapes else measure_headings(
+            states.ravel(), measured := states[self.indices], self._headings, self._known)
+        if checked < 0:
             raise ProblemError(f"states must be finite with shape ({self._n}, 3) (poses) or "
-                               f"({self._n}, 5) (poses and measured v, omega), got "
-                               f"{states.shape}")
-        if states.shape[1] == 5:
-            measured, states = states[self.indices], np.ascontiguousarray(states[:, :3])
-        else:
-            measured = states[self.indices]
-        # odometry wraps the yaw; the plans are continuous in it (models.base)
-        last = self._headings
-        if last is not None and headings_jump(measured[:, 2], last):  # rarely: a wrapped yaw
-            measured[:, 2] = continuous_headings(measured[:, 2], last)
-        self._headings = measured[:, 2].copy()
+                               f"({self._n}, 5) (poses and measured v, omega), got {shape}")
+        if checked:  # rarely: a wrapped yaw
+            measured[:, 2] = continuous_headings(measured[:, 2], self._headings)
+            self._headings[:] = measured[:, 2]
+        self._known = True
+        if shape[1] == 5:
+            states = np.ascontiguousarray(states[:, :3])
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
         self._own = own

@@ -31,6 +31,7 @@ __all__ = [
     "clip_bounds",
     "euler_defect_l1",
     "kkt_residual",
+    "measure_headings",
     "shift_iterate",
     "shift_plan",
     "split_rows",
@@ -74,6 +75,25 @@ def headings_jump(headings: np.ndarray, last: np.ndarray) -> bool:
         if abs(headings[i] - last[i]) > math.pi:
             return True
     return False
+
+
+@_jit
+def measure_headings(states: np.ndarray, measured: np.ndarray, last: np.ndarray,
+                     known: bool) -> int:
+    """The measurement's checks in one call: ``-1`` when some entry of the flat ``states``
+    is not finite; ``1`` when some measured heading ``measured[:, 2]`` is more than pi from
+    ``last`` (``known``: ``last`` holds the previous sample's; a wrapped yaw, see
+    :func:`headings_jump`); else ``0``, the measured headings copied into ``last``."""
+    for v in states:
+        if not math.isfinite(v):
+            return -1
+    if known:
+        for i in range(measured.shape[0]):
+            if abs(measured[i, 2] - last[i]) > math.pi:
+                return 1
+    for i in range(measured.shape[0]):
+        last[i] = measured[i, 2]
+    return 0
 
 
 @_jit

@@ -187,13 +187,16 @@ def parking_mask(raw: np.ndarray, positions: np.ndarray, radius: float,
 
 
 @_jit
-def reversing(v: np.ndarray, v1: np.ndarray, v2: np.ndarray, eps: float,
+def reversing(v: np.ndarray, applied: np.ndarray, applied_before: np.ndarray, eps: float,
                out: np.ndarray) -> int:
-    """Robots whose plan reverses gear a second sample in a row (speeds above ``eps``)."""
+    """Robots whose plan reverses gear a second sample in a row (speeds above ``eps``): the
+    planned speeds ``v (m,)`` against the speeds ``[:, 0]`` of the inputs ``(m, nu)``
+    applied at the last two samples."""
     count = 0
     for r in range(v.shape[0]):
-        moving = abs(v[r]) > eps and abs(v1[r]) > eps and abs(v2[r]) > eps
-        out[r] = moving and np.sign(v[r]) == np.sign(v2[r]) and np.sign(v[r]) != np.sign(v1[r])
+        v1, v2 = applied[r, 0], applied_before[r, 0]
+        moving = abs(v[r]) > eps and abs(v1) > eps and abs(v2) > eps
+        out[r] = moving and np.sign(v[r]) == np.sign(v2) and np.sign(v[r]) != np.sign(v1)
         count += out[r]
     return count
 
@@ -233,8 +236,7 @@ def warm_up_rules() -> None:
     for me in (np.zeros(2), _read_only(np.zeros(2))):
         hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
                            np.zeros((1, 2)))
-    reversing(_read_only(np.zeros(2)), np.zeros(2), np.zeros(2), 0.005,
-              np.zeros(2, dtype=np.bool_))
+    reversing(_read_only(np.zeros(2)), applied, applied, 0.005, np.zeros(2, dtype=np.bool_))
     i = np.zeros(2, dtype=np.int64)
     detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, np.ones((2, 2)),
                 np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())

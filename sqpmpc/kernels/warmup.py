@@ -21,6 +21,7 @@ from sqpmpc.kernels.ocp import (
     euler_step,
     headings_jump,
     kkt_residual,
+    measure_headings,
     rows_shortfall,
     shift_iterate,
     shift_plan,
@@ -51,6 +52,8 @@ def warm_up() -> float:
     all_finite(_read_only(np.zeros(3)))
     headings_jump(np.zeros(2), np.zeros(2))
     headings_jump(np.zeros((2, 3))[:, 2], np.zeros(2))  # the measured poses' column
+    for flat in (np.zeros(6), _read_only(np.zeros(6))):  # measured states (a decoded message)
+        measure_headings(flat, np.zeros((2, 3)), np.zeros(2), True)
     plan = np.zeros((2, 3, 3))
     within_box(plan[:, 1, :2], -np.ones(2), np.ones(2))  # a stage of a plan (strided)
     within_box(np.zeros((2, 2)), -np.ones(2), np.ones(2))

@@ -218,6 +218,7 @@ class _ParkingInstance(RuleInstance):
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
         self._none = np.zeros(context.own.size, dtype=np.bool_)  # none repaired at any speed
+        self._parked = 0
         self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
 
     def shape_references(self, view: SampleView) -> Contribution | None:
@@ -228,10 +229,11 @@ class _ParkingInstance(RuleInstance):
             parked = -1 - parked
             out = Contribution(position_weight_scale=np.where(self.parking, self.gain, 1.0))
         self.counts["parked_samples"] += parked
+        self._parked = parked  # how many park (the guess hook of the same sample reads it)
         return out
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        if not np.count_nonzero(self.parking):  # nobody parks: nothing to repair
+        if not self._parked:  # nobody parks: nothing to repair
             return None
         repaired = repair_guess(view.guess_speeds, view.references, view.own_states,
                                 self._none, self.parking, self._slow, self.rule.tolerance,
@@ -289,8 +291,8 @@ class _GearCycleInstance(RuleInstance):
     def after_solve(self, view: SampleView) -> Contribution | None:
         if not self._rti:
             return None
-        if not reversing(view.first_speeds, view.applied[:, 0].copy(),
-                         view.applied_before[:, 0].copy(), self.rule.min_speed, self._cycle):
+        if not reversing(view.first_speeds, view.applied, view.applied_before,
+                         self.rule.min_speed, self._cycle):
             return None
         if not np.count_nonzero(self._cycle & ~view.engaged()):
             return None
