@@ -31,7 +31,7 @@ __all__ = [
     "clip_bounds",
     "euler_defect_l1",
     "kkt_residual",
-    "measure_headings",
+    "measure_sample",
     "shift_iterate",
     "shift_plan",
     "split_rows",
@@ -78,15 +78,25 @@ def headings_jump(headings: np.ndarray, last: np.ndarray) -> bool:
 
 
 @_jit
-def measure_headings(states: np.ndarray, measured: np.ndarray, last: np.ndarray,
-                     known: bool) -> int:
-    """The measurement's checks in one call: ``-1`` when some entry of the flat ``states``
-    is not finite; ``1`` when some measured heading ``measured[:, 2]`` is more than pi from
-    ``last`` (``known``: ``last`` holds the previous sample's; a wrapped yaw, see
-    :func:`headings_jump`); else ``0``, the measured headings copied into ``last``."""
-    for v in states:
-        if not math.isfinite(v):
-            return -1
+def measure_sample(states: np.ndarray, measured: np.ndarray, last: np.ndarray, known: bool,
+                   positions: np.ndarray, headings: np.ndarray, own: np.ndarray) -> int:
+    """The measurement's checks and copies in one call.
+
+    Returns ``-1`` when some entry of ``states (n, k)`` is not finite. Else copies
+    ``states[:, :2]``, ``states[:, 2]`` and the own robots' poses ``measured[:, :3]`` into
+    ``positions``, ``headings`` and ``own``, and returns ``1`` when some measured heading is
+    more than pi from ``last`` (``known``: ``last`` holds the previous sample's; a wrapped
+    yaw, see :func:`headings_jump`), else ``0`` with the measured headings copied into
+    ``last``.
+    """
+    for i in range(states.shape[0]):
+        for j in range(states.shape[1]):
+            if not math.isfinite(states[i, j]):
+                return -1
+    for i in range(states.shape[0]):
+        positions[i, 0], positions[i, 1], headings[i] = states[i, 0], states[i, 1], states[i, 2]
+    for i in range(measured.shape[0]):
+        own[i, 0], own[i, 1], own[i, 2] = measured[i, 0], measured[i, 1], measured[i, 2]
     if known:
         for i in range(measured.shape[0]):
             if abs(measured[i, 2] - last[i]) > math.pi:

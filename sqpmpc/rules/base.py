@@ -146,7 +146,8 @@ class SampleView:
 
     The pipeline builds it after the measurement and replaces it (a new view)
     when a contribution changed what it shows; the fields of later steps are
-    ``None`` before them.
+    ``None`` before them. Its arrays hold for the sample: the pipeline refreshes
+    the measurement's in place at the next one (a rule copies what it keeps).
 
     Attributes
     ----------
