@@ -198,8 +198,8 @@ class ControllerPipeline:
         states = np.asarray(states, dtype=float)
         # finite; the headings kept (odometry wraps the yaw: models.base); the view's arrays
         checked = -1 if (shape := states.shape) not in self._shapes else measure_sample(
-            states, measured := states[self.indices], self._headings, self._known,
-            *self._view_buffers)
+            states, self.indices, measured := np.empty((self.indices.size, shape[1])),
+            self._headings, self._known, *self._view_buffers)
         if checked < 0:
             raise ProblemError(f"states must be finite with shape ({self._n}, 3) (poses) or "
                                f"({self._n}, 5) (poses and measured v, omega), got {shape}")
