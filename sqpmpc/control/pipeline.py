@@ -148,6 +148,7 @@ class ControllerPipeline:
         #: the collision-row geometry the rules configured (read by the scheme's rows)
         self.geometry = geometry
         self._bind_hooks()  # the per-sample hook lists
+        self._engaged = lambda: engaged_robots(self.engine.layout, self.engine.y)  # held robots
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
@@ -246,8 +247,7 @@ class ControllerPipeline:
                               **self._rows)
         # 6. rules after the solve
         if report.success and self._after_rules:
-            view = view.solved(engine.first_speeds(),
-                               functools.partial(engaged_robots, engine.layout, engine.y))
+            view = view.solved(engine.first_speeds(), self._engaged)
             iterate = False
             for rule in self._after_rules:  # every rule sees the solution
                 contribution = rule.after_solve(view)
