@@ -94,52 +94,59 @@ def repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
 
 
 @_jit
-def repair_guess(guess: np.ndarray, references: np.ndarray, states: np.ndarray,
-                 stuck: np.ndarray, only: np.ndarray, slow: float, distance: float,
-                 ahead_speed: float, back_speed: float, out: np.ndarray) -> int:
-    """The guess speeds ``(m, N)`` into ``out`` with stalled robots repaired; count them.
-
-    As :func:`repair_speeds` on a copy of ``guess`` with the goals ``references[:, -1]``:
-    a robot with ``stuck[r]`` at any speed, one with ``only[r]`` when every
-    ``|speeds[r]| < slow`` (one call for the stall and parking repairs).
-    """
-    out[:, :] = guess
+def _repair_robot(out: np.ndarray, r: int, references: np.ndarray, states: np.ndarray,
+                  limit: float, distance: float, ahead_speed: float, back_speed: float) -> bool:
+    """:func:`repair_speeds` of robot ``r`` on ``out`` (goal ``references[r, -1]``)."""
+    fastest = 0.0
+    for i in range(out.shape[1]):
+        fastest = max(fastest, abs(out[r, i]))
+    if not fastest < limit:
+        return False
     last = references.shape[1] - 1
+    gx, gy = references[r, last, 0] - states[r, 0], references[r, last, 1] - states[r, 1]
+    if not np.hypot(gx, gy) > distance:
+        return False
+    ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
+    speed = ahead_speed if ahead else back_speed
+    if speed == 0.0:  # the bounds forbid that direction: nothing to repair
+        return False
+    out[r, :] = speed
+    return True
+
+
+@_jit
+def repair_guess(guess: np.ndarray, references: np.ndarray, states: np.ndarray,
+                 only: np.ndarray, slow: float, distance: float, ahead_speed: float,
+                 back_speed: float, out: np.ndarray) -> int:
+    """The guess speeds ``(m, N)`` into ``out`` with the stalled robots among ``only``
+    repaired (:func:`repair_speeds` with the goals ``references[:, -1]``); count them."""
+    out[:, :] = guess
     repaired = 0
     for r in range(out.shape[0]):
-        if stuck[r]:
-            limit = np.inf
-        elif only[r]:
-            limit = slow
-        else:
-            continue
-        fastest = 0.0
-        for i in range(out.shape[1]):
-            fastest = max(fastest, abs(out[r, i]))
-        if not fastest < limit:
-            continue
-        gx, gy = references[r, last, 0] - states[r, 0], references[r, last, 1] - states[r, 1]
-        if not np.hypot(gx, gy) > distance:
-            continue
-        ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
-        speed = ahead_speed if ahead else back_speed
-        if speed == 0.0:  # the bounds forbid that direction: nothing to repair
-            continue
-        out[r, :] = speed
-        repaired += 1
+        if only[r] and _repair_robot(out, r, references, states, slow, distance, ahead_speed,
+                                     back_speed):
+            repaired += 1
     return repaired
 
 
 @_jit
 def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
-                 states: np.ndarray, speed: float, patience: int, distance: float, slow: float,
-                 ahead_speed: float, back_speed: float, still_for: np.ndarray,
-                 stuck: np.ndarray, everyone: np.ndarray, out: np.ndarray) -> int:
-    """:func:`standing_still` then :func:`repair_guess` (``only = everyone``), one call:
-    the stall repair's new guess speeds in ``out``; returns how many robots it repaired."""
-    standing_still(references, applied, speed, patience, still_for, stuck)
-    return repair_guess(guess, references, states, stuck, everyone, slow, distance,
-                        ahead_speed, back_speed, out)
+                 states: np.ndarray, params: np.ndarray, still_for: np.ndarray,
+                 stuck: np.ndarray, out: np.ndarray) -> int:
+    """The stall repair in one call: :func:`standing_still`, then the guess speeds
+    ``(m, N)`` into ``out`` with the robots repaired (a stuck one at any speed, the
+    others when every ``|v| < slow``, as :func:`repair_speeds`); returns how many.
+
+    ``params``: ``(speed, patience, distance, slow, ahead_speed, back_speed)``.
+    """
+    standing_still(references, applied, params[0], np.int64(params[1]), still_for, stuck)
+    out[:, :] = guess
+    repaired = 0
+    for r in range(out.shape[0]):
+        limit = np.inf if stuck[r] else params[3]
+        if _repair_robot(out, r, references, states, limit, params[2], params[4], params[5]):
+            repaired += 1
+    return repaired
 
 
 @_jit
@@ -227,11 +234,10 @@ def warm_up_rules() -> None:
     guess = _read_only(np.zeros(2 * 13)).reshape(2, 13)[:, 3:13:5]
     mask = np.zeros(2, dtype=np.bool_)
     for own in (states, poses):
-        stall_repair(guess, references, applied, own, 0.05, 10, 0.1, 0.05, 0.05, -0.05,
-                     np.zeros(2, dtype=np.int64), mask, np.ones(2, dtype=np.bool_),
-                     np.empty((2, 2)))
-        repair_guess(guess, references, own, mask, mask, 0.05, 0.01, 0.05, -0.05,
-                     np.empty((2, 2)))
+        stall_repair(guess, references, applied, own, np.array([0.05, 10, 0.1, 0.05, 0.05,
+                                                                -0.05]),
+                     np.zeros(2, dtype=np.int64), mask, np.empty((2, 2)))
+        repair_guess(guess, references, own, mask, 0.05, 0.01, 0.05, -0.05, np.empty((2, 2)))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
     for me in (np.zeros(2), _read_only(np.zeros(2))):
         hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),

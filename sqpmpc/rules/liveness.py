@@ -167,16 +167,16 @@ class _StallInstance(RuleInstance):
         self._still_for = np.zeros(context.own.size, dtype=np.int64)
         self._stuck = np.zeros(context.own.size, dtype=np.bool_)
         self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
+        self._params = np.array([rule.speed, rule.patience, rule.distance, self._slow,
+                                 self._ahead, self._back], dtype=float)  # the kernel's
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        r = self.rule
         # standing for `patience` samples with the reference at rest: whatever the guess
         # plans; else every guess |v| < the repair speed (one kernel, the new speeds into
         # this rule's buffer: no contribution when it repaired nothing)
         repaired = stall_repair(view.guess_speeds, view.references, view.applied,
-                                view.own_states, r.speed, r.patience, r.distance, self._slow,
-                                self._ahead, self._back, self._still_for, self._stuck,
-                                self._all, self._speeds)
+                                view.own_states, self._params, self._still_for, self._stuck,
+                                self._speeds)
         if not repaired:
             return None
         self.counts["stall_repairs"] += repaired
@@ -217,7 +217,6 @@ class _ParkingInstance(RuleInstance):
                           rule.reach * context.max_speed * max(horizon_time, rule.horizon))
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
-        self._none = np.zeros(context.own.size, dtype=np.bool_)  # none repaired at any speed
         self._parked = 0
         self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
 
@@ -236,8 +235,8 @@ class _ParkingInstance(RuleInstance):
         if not self._parked:  # nobody parks: nothing to repair
             return None
         repaired = repair_guess(view.guess_speeds, view.references, view.own_states,
-                                self._none, self.parking, self._slow, self.rule.tolerance,
-                                self._ahead, self._back, self._speeds)
+                                self.parking, self._slow, self.rule.tolerance, self._ahead,
+                                self._back, self._speeds)
         if not repaired:
             return None
         self.counts["parking_repairs"] += repaired
