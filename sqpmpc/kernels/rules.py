@@ -243,27 +243,33 @@ def warm_up_rules() -> None:
         hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
                            np.zeros((1, 2)))
     reversing(_read_only(np.zeros(2)), applied, applied, 0.005, np.zeros(2, dtype=np.bool_))
-    i = np.zeros(2, dtype=np.int64)
-    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, np.ones((2, 2)),
-                np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())
+    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, references,
+                np.ones((2, 3)), np.array([0.05, 0.3, 0.2, 2, 6]),
+                np.zeros((3, 2), dtype=np.int64))
 
 
 @_jit
 def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
-                 goals: np.ndarray, required: np.ndarray, speed: float, reach: float,
-                 cos_cone: float, patience: int, hold: int, blocked_for: np.ndarray,
-                 active_for: np.ndarray, blocker: np.ndarray) -> int:
-    """Advance the detour state of the own robots by one sample; returns new activations.
+                references: np.ndarray, required: np.ndarray, params: np.ndarray,
+                state: np.ndarray) -> int:
+    """Advance the detour state of the own robots by one sample; returns the new
+    activations, or ``-1`` when no robot detours after the step.
 
-    ``required (m, n)`` are the own robots' required distances to everyone and
-    ``goals (m, 2)`` their stage-N references; the state arrays ``(m,)`` are
-    updated in place (see :class:`Detour`).
+    ``required (m, n)`` are the own robots' required distances to everyone, their goals
+    the stage-N references ``references[:, -1]``; ``params`` are ``(speed, reach, cos_cone,
+    patience, hold)``; the rows of ``state (3, m)`` (samples blocked, samples of detour
+    left, blocker) are updated in place (see :class:`Detour`).
     """
+    speed, reach, cos_cone = params[0], params[1], params[2]
+    patience, hold = np.int64(params[3]), np.int64(params[4])
+    blocked_for, active_for, blocker = state[0], state[1], state[2]
+    last = references.shape[1] - 1
     activations = 0
+    detouring = False
     for r in range(own.shape[0]):
         i = own[r]
         px, py = positions[i, 0], positions[i, 1]
-        gx, gy = goals[r, 0] - px, goals[r, 1] - py
+        gx, gy = references[r, last, 0] - px, references[r, last, 1] - py
         goal_dist = np.hypot(gx, gy)
         blocked = False
         closest = -1
@@ -287,7 +293,8 @@ def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
             active_for[r] = hold
         else:
             active_for[r] = max(active_for[r] - 1, 0)
-    return activations
+        detouring = detouring or active_for[r] != 0
+    return activations if detouring else -1
 
 
 @_jit

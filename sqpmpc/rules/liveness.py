@@ -327,10 +327,12 @@ class _DetourInstance(RuleInstance):
         self.patience = rule.patience_centralized if context.scheme == "centralized" \
             else rule.patience
         self.kept = context.kept_distances()  # near: within what the rows keep + reach
-        self.blocked_for = np.zeros(m, dtype=np.int64)
-        self.active_for = np.zeros(m, dtype=np.int64)
-        self.blocker = np.full(m, -1, dtype=np.int64)
+        self._state = np.zeros((3, m), dtype=np.int64)  # the kernel's, by row:
+        self.blocked_for, self.active_for, self.blocker = self._state
+        self.blocker[:] = -1
         self._cos_cone = np.cos(rule.cone)
+        self._params = np.array([rule.speed, rule.reach, self._cos_cone, self.patience,
+                                 rule.hold], dtype=float)  # the kernel's numbers
         self._turn = np.array([[np.cos(rule.angle), -np.sin(rule.angle)],
                                [np.sin(rule.angle), np.cos(rule.angle)]])
 
@@ -339,12 +341,11 @@ class _DetourInstance(RuleInstance):
         positions = view.positions
         if positions.shape[0] < 2:
             return None
-        self.counts["detour_activations"] += detour_step(
-            positions, self.context.own, view.applied, view.references[:, -1].copy(),
-            self.kept, r.speed, r.reach, self._cos_cone, self.patience, r.hold,
-            self.blocked_for, self.active_for, self.blocker)
-        if not np.count_nonzero(self.active_for):  # nobody detours
+        activations = detour_step(positions, self.context.own, view.applied, view.references,
+                                  self.kept, self._params, self._state)
+        if activations < 0:  # nobody detours
             return None
+        self.counts["detour_activations"] += activations
         active = np.flatnonzero(self.active_for)
         own = self.context.own
         out = view.references.copy()
