@@ -269,7 +269,9 @@ class Contribution:
         ``(m,)`` factor on each own robot's position weight ``Q``, kept until
         changed again (``"references"`` hooks).
     guess_speeds
-        ``(m, N)`` new speeds of the linearization point (``"guess"`` hooks).
+        ``(m, N)`` new speeds of the linearization point (``"guess"`` hooks); the
+        pipeline applies a contribution at once, so a rule may hand out a buffer it
+        reuses at the next sample.
     iterate
         Iterate this sample to convergence (SQP) after the RTI step
         (``"after_solve"`` hooks).
