@@ -241,4 +241,4 @@ def warm_up_rings() -> None:
     positions.setflags(write=False)  # as the rule passes the measured positions
     ring_busy(positions, -positions, zone_of, 0, 0, 0.0, 0.0, 1.0, 1.0)
     ring_path(-2.0, 0.0, 2.0, 0.0, 0.0, 0.0, 1.0, 0.3, np.zeros((8, 2)))
-    segment_distance(-2.0, 0.0, 2.0, 0.0, 0.0, 0.0)  # as the rule calls it (floats)
+    segment_distance(-2.0, 0.0, 2.0, 0.0, 0.0, 0.5)  # the rule also calls it itself
