@@ -159,9 +159,8 @@ class ControllerPipeline:
         self._shapes = ((n, 3), (n, 5))  # of the measured states
         #: the own robots' headings of the last sample, unwrapped (once known)
         self._headings, self._known = np.zeros(m), False
-        # the measurement writes the rules' view: positions, headings, own poses
-        self._view_buffers = (np.zeros((n, 2)), np.zeros(n), np.zeros((m, 3)))
-        self._views = tuple(map(read_only, self._view_buffers))  # what the rules see of them
+        self._view_buffers = (np.zeros((n, 2)), np.zeros(n), np.zeros((m, 3)))  # measured:
+        self._views = tuple(map(read_only, self._view_buffers))  # positions, headings, poses
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
         self._deviates = plant.model != settings.discretization or plant.noisy or not \
