@@ -55,13 +55,13 @@ import math
 import random
 import threading
 import time
+from collections import deque
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.problem.scenario import Scenario
 
 from ..control import controller_settings
@@ -69,6 +69,7 @@ from ..messages import Message, PlanMsg, encode
 from ..node import POLL, Node
 from ..transport import make_config
 from . import msgs
+from .controller import Ros2Controller
 from .graph import Received, Ros2Node
 from .neighbours import Neighbours
 from .options import check_margin, ros2_problem
@@ -89,15 +90,6 @@ PUBLISH_SLACK = 0.005
 """A plan not ready this long before its instant is dropped: the robot stands still."""
 
 
-class _NoPaperWarning(logging.Filter):
-    """The controller's warning about its obstacle mode, which alone has no guarantee: here
-    :meth:`services.ros2.neighbours.Neighbours.path_is_safe` verifies every input."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return "decentralized mode 'paper'" not in record.getMessage()
-
-
-
 class Ros2Robot(Node):
     """The controller of one ROS 2 robot (see the module notes).
 
@@ -112,9 +104,6 @@ class Ros2Robot(Node):
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
         self.robot_id = int(args.id[0])
-        # every neighbour is a moving obstacle (its committed arcs); the robot's own
-        # check (Neighbours.path_is_safe) is what keeps the distance
-        logging.getLogger(DecentralizedController.__module__).addFilter(_NoPaperWarning())
         settings = controller_settings(args)
         # the QP keeps more room than the check asks for (the check is continuous, the
         # QP's rows are at the stage instants)
@@ -122,7 +111,7 @@ class Ros2Robot(Node):
         settings = replace(settings, collision_margin=max(
             settings.collision_margin, self.check_margin
             + (ROW_MARGIN_FACTOR - 1.0) * float(args.ros2_margin)))
-        self.controller = DecentralizedController(scenario, self.robot_id, settings, "paper")
+        self.controller = Ros2Controller(scenario, self.robot_id, settings)
         # stage-one-override on the obstacle rows too: a stage-1 row the current positions
         # violate is capped at the current gap, so standing still stays feasible
         self.controller.collisions.stage_one_rule_for_obstacles = True
@@ -135,6 +124,7 @@ class Ros2Robot(Node):
                                      scenario.horizon, float(self.controller.context.max_speed),
                                      self.lead, args.ros2_guard, self.check_margin,
                                      keep_current=scenario.bounds.dynamic_limits)
+        self.controller.neighbours = self.neighbours  # its first-input check is the robot's
         self.limits = (scenario.bounds.acceleration_lower(),
                        scenario.bounds.acceleration_upper()) \
             if scenario.bounds.dynamic_limits else None
@@ -145,7 +135,8 @@ class Ros2Robot(Node):
         self.epoch = args.epoch
         self.epoch_file: Path | None = args.epoch_file
         self._cmd_lock = threading.RLock()
-        self.counts = {"samples": 0, "brakes": 0, "phase_shifts": 0, "late_samples": 0,
+        self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
+                       "late_samples": 0, "plan_waits": 0,
                        "stopped_late": 0,
                        "stale_odometry": 0,
                        "zero_commands": 0}
@@ -153,6 +144,7 @@ class Ros2Robot(Node):
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
         self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
+        self._step_seconds: deque[float] = deque(maxlen=10)  # the recent steps' durations
         self._braked = False
         self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
@@ -345,6 +337,7 @@ class Ros2Robot(Node):
                 self._watch(Tk - self.lead, k)
                 if self.stop.is_set():
                     break
+                self._await_plans(Tk)
                 self._step(k, Tk)
                 k += 1
                 if self.neighbours.blocked_by_concurrent:
@@ -399,6 +392,26 @@ class Ros2Robot(Node):
         if missing:
             log.warning("%s starts without plans from %s", self.name, missing)
 
+    def _await_plans(self, Tk: float) -> None:
+        """Handle events while a plan of a neighbour that decided before this robot is in
+        flight (:meth:`services.ros2.neighbours.Neighbours.awaited`), at most until the
+        sample's computation must start (``Tk`` less :data:`PUBLISH_SLACK` and twice the
+        longest of the recent steps)."""
+        self.drain()
+        budget = 2.0 * max(self._step_seconds, default=0.05) + PUBLISH_SLACK
+        deadline = Tk - budget
+        own = self.own_state(Tk)
+        if own is None or time.time() >= deadline:
+            return
+        waited = False
+        while not self.stop.is_set() and self.neighbours.awaited(own, Tk, time.time()):
+            now = time.time()
+            if now >= deadline:
+                break
+            waited = True
+            self.pump(deadline - now)
+        self.counts["plan_waits"] += waited
+
     def _step(self, k: int, Tk: float) -> None:
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
         now = time.time()
@@ -423,12 +436,19 @@ class Ros2Robot(Node):
             others, plans = self.neighbours.for_controller(Tk, k)
             states = self.controller_states(others, Tk)
             own = states[self.index, :3]
+            self.neighbours.blocked_by_concurrent = False
+            self.controller.check_time = Tk
+            started = time.perf_counter()
             out = self.controller.step(k, Tk - self.epoch, states, plans, None)
-            u = out.inputs[0]
+            self._step_seconds.append(time.perf_counter() - started)
             late = time.time() > Tk - PUBLISH_SLACK
-            if not late and self.neighbours.path_is_safe(own, u, Tk):
+            if not late and out.fallback != "brake":  # the input (or the shifted plan's)
+                u = out.inputs[0]  # passed the check (Ros2Controller.first_input_safe)
                 plan = self.controller.published
                 self.publish_plan(k, Tk, plan.states, plan.inputs)
+                self.neighbours.blocked_by_concurrent = False  # it moves: no phase shift
+                if out.fallback is not None:
+                    self.counts["shifted_plans"] += 1
             else:  # standing still is safe: every neighbour keeps out of where it stops
                 u = np.zeros(2)
                 self.counts["late_samples" if late else "brakes"] += 1
