@@ -1,6 +1,6 @@
 """Simulated ROS 2 fleets driven by ``sqpmpc robot --ros2`` -> ``docs/ros2.md``.
 
-``python -m benchmarks.ros2 [--only NAME ...] [--no-write]``
+``python -m benchmarks.ros2 [--only NAME ...] [--repeat NAME:N ...] [--no-write]``
 
 Each row is one run of :mod:`services.ros2.demo`: the simulated ROS 2 robots
 (zenoh-ros2-sdk, odometry at 50 Hz with phases of their own), one controller
@@ -81,22 +81,26 @@ def section(text: str, name: str) -> str | None:
 
 def _table(rows: list[dict]) -> str:
     head = ("| run | robots | collisions | smallest clearance (certified), m | arrived "
-            "| largest final error, m | stop to zero, s | samples | stood still "
-            "(check) | phase shifts | late samples | stale odometry | wall, s |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "| largest final error, m | last arrival, s | stop to zero, s | samples | stood "
+            "still (check) | shifted plans | phase shifts | plan waits | late samples | stale "
+            "odometry | wall, s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
         if "robots" not in r:
-            lines.append(f"| {r['name']} | failed (status {r['status']}) ||||||||||||")
+            lines.append(f"| {r['name']} | failed (status {r['status']}) |||||||||||||||")
             continue
         stops = ", ".join(f"robot {k}: {v:.3f}" if v is not None else f"robot {k}: none"
                           for k, v in r["stop_to_zero"].items()) or "-"
+        arrivals = r.get("arrival_times", {}).values()
+        last = "-" if not arrivals or None in arrivals else f"{max(arrivals):.1f}"
         lines.append(
             f"| {r['name']} | {r['robots']} | {r['collisions']} | {r['min_clearance']:.3f} "
             f"({r['certified_clearance']:.3f}) | {r['arrived']}/{r['robots']} | "
-            f"{max(r['final_errors'].values()):.3f} | {stops} | "
+            f"{max(r['final_errors'].values()):.3f} | {last} | {stops} | "
             + " | ".join(str(r["counts"].get(key, 0)) for key in (
-                "samples", "brakes", "phase_shifts", "late_samples", "stale_odometry"))
+                "samples", "brakes", "shifted_plans", "phase_shifts", "plan_waits",
+                "late_samples", "stale_odometry"))
             + f" | {r['wall']:.0f} |")
     return head + "\n".join(lines) + "\n"
 
@@ -105,16 +109,30 @@ def main(argv: list[str] | None = None) -> int:
     """Run the rows, print the table, write ``docs/ros2.md``."""
     p = argparse.ArgumentParser(prog="benchmarks.ros2", description=__doc__.splitlines()[0])
     p.add_argument("--only", nargs="+", choices=sorted(CASES), default=None)
+    p.add_argument("--repeat", nargs="+", default=["swap-16:3"], metavar="NAME:N",
+                   help="run row NAME N times in a row, rows 'NAME #i' (default swap-16:3)")
     p.add_argument("--no-write", action="store_true")
     args = p.parse_args(argv)
+    repeat = {}
+    for item in args.repeat:
+        name, _, n = item.partition(":")
+        if name not in CASES or not n.isdigit() or int(n) < 1:
+            p.error(f"--repeat: expected NAME:N with NAME one of {', '.join(CASES)} and N >= "
+                    f"1, got {item!r}")
+        repeat[name] = int(n)
     rows, criteria = [], {}
     with TemporaryDirectory(prefix="sqpmpc-ros2-") as tmp:
         for name in args.only or CASES:
             scenario = CASES[name][1]
             if scenario not in criteria:
                 criteria[scenario] = arrival_tolerance(scenario)
-            rows.append(run_case(name, Path(tmp) / name, criteria[scenario][0]))
-            print(_table(rows[-1:]), flush=True)
+            runs = repeat.get(name, 1)
+            for i in range(runs):
+                label = name if runs == 1 else f"{name} #{i + 1}"
+                rows.append(run_case(name, Path(tmp) / f"{name}-{i + 1}",
+                                     criteria[scenario][0]))
+                rows[-1]["name"] = label
+                print(_table(rows[-1:]), flush=True)
     table = _table(rows) + "\nArrival: " + "; ".join(
         f"{name}: {why}" for name, (_, why) in criteria.items()) + ".\n"
     print(table)
