@@ -190,11 +190,31 @@ robot may stop at any moment: its odometry lost, shut down), and after that arc 
   lost): the disc it may reach since;
 - a neighbour that left: where it stopped, plus a sample's reach.
 
-A failed check makes the robot stand still, which is always safe: whoever decides later
+The check is the controller's own first-input check
+(`services.ros2.controller.Ros2Controller.first_input_safe`), so a refused input is
+handled as in lockstep: the shifted plan of the previous sample if its first input passes
+the same check, else the robot stands still, which is always safe: whoever decides later
 avoids it, whoever decided earlier kept out of all of its arc and where it ends, or of
-all it could reach. (An earlier version took a neighbour's arc as certain to be
-followed to its end; in its odometry-stop run a robot that stopped inside its sample
-was hit, clearance -0.025 m. The check now covers a stop at any moment.)
+all it could reach. As the controller knows what the robot applied, the liveness rules
+work as in lockstep: `detour`, `stall-repair` and `gear-cycle` read the applied inputs,
+`roundabout` the neighbours' headings (taken from their plans' arcs). Before (up to
+6384a41) the check ran after the controller's step: a refused input was still taken
+as applied, so `detour` never saw a held robot as standing, and every neighbour's
+heading read 0, so `roundabout` took every neighbour as traffic for a robot heading
+east and as a crowd for one heading west; the swap's centre jammed (14/16 on loopback;
+10/16 by t_end in two of four runs on the hosts, 482 refused inputs, 478 phase shifts).
+
+A robot about to compute its sample waits while a neighbour within reach that decides
+before it (its next instant in the sample before this robot's) has not delivered that
+plan yet (at most until twice its recent step time before its instant;
+`Neighbours.awaited`): the check then has the neighbour's exact arc instead of the disc
+it may reach, and a pair decides in the order of its instants. Only the later robot of a
+pair waits, so two never wait for each other. Deciding later than `T_k - lead` is safe:
+a neighbour deciding in between has this robot's previous plan, whose next decision it
+sees as past, so it keeps out of all this robot may reach. (An earlier version took a
+neighbour's arc as certain to be followed to its end; in its odometry-stop run a robot
+that stopped inside its sample was hit, clearance -0.025 m. The check now covers a stop
+at any moment.)
 So at every instant the robot of a pair that decided last kept the distance from what
 the other does. The assumptions: every robot follows its published arc (odometry and
 command latency within the margins), the fleet shares `--lead`, clocks agree within
@@ -220,9 +240,12 @@ runs two robots with limits: no velocity step above the limit times the update p
 no collision, both arrive. The margins are large at `Ts` = 0.5 s (0.49 m for 0.5 m/s and
 1 m/s^2: 0.36 m of ramp deviation, 0.125 m of braking); inside it the check accepts a path
 that gets no closer than the robot is now, so a robot that used up its braking distance can
-leave. Not solved: in a crossing of two such robots a robot stood still for good near the
-other (3 of 9 runs of a symmetric crossing, 2 of 6 with one robot 2 s later; 0 collisions
-in all), as the paper's decentralized scheme has no liveness rule.
+leave. Not solved: in a crossing of two such robots both can stand still for good near
+each other (before the check moved into the controller: 3 of 9 runs of a symmetric
+crossing, 2 of 6 with one robot 2 s later; after, with the liveness rules seeing the
+robots stand: 2 of 3 runs of the symmetric crossing, both robots 1.84 m before their
+goals and 0.73 m apart, inside the 0.79 m the check keeps, where every `detour` target
+lies closer to the other; 0 collisions in all).
 
 ## Runs
 
@@ -232,24 +255,32 @@ poses (exact arcs between commands, checked on a 2 ms grid; the certified cleara
 bounds every instant in between).
 
 {table}
-The counts add up every controller's: *samples* computed, *stood still* (the check
-refused the QP's input), *phase shifts* (a robot blocked by a neighbour deciding at
-about the same instants moved its own instants by 0.2-0.4 Ts), *late samples* (a plan
-not ready before its instant: the robot stood still), *stale odometry* (times a
-controller found its odometry older than `--odom-timeout` and commanded zero). A robot
-whose odometry stops cannot arrive: arrival counts it as not arrived.
+*Last arrival*: the scenario time from which the last robot stayed within the
+tolerance (`services.ros2.check`). The counts add up every controller's: *samples*
+computed, *stood still* (the check refused the QP's input and the shifted plan's),
+*shifted plans* (it refused the QP's input and passed the shifted plan's), *phase
+shifts* (a robot held by a neighbour deciding at about the same instants moved its own
+instants by 0.2-0.4 Ts; only while standing), *plan waits* (samples in which the robot
+waited for a plan in flight), *late samples* (a plan not ready before its instant: the
+robot stood still), *stale odometry* (times a controller found its odometry older than
+`--odom-timeout` and commanded zero). A robot whose odometry stops cannot arrive:
+arrival counts it as not arrived.
 
 {hosts}
 
-Four runs of the 16-host swap on this machine (2026-11-24, 5 % loss per direction and 20
-ms each way on every host's link): 0 collisions in all four; every robot had arrived by
-the scenario's t_end (49 s) in two, 10/16 in the other two (in the first of those, which
-ended at 49 s, the six stood within 1.8 m of the centre, the goals 4.9 m out); all 16
-arrived by the end in the three that ran on to 98-100 s. Under loss and delay more
-checks fail: a plan in flight (40 ms from host to host) or resent by TCP (200 ms and
-more) leaves its robot held by the disc it may reach, so the swap takes longer than on
-loopback, never closer. On loopback the swap-16 row also varies from run to run: 16/16
-at 02:37 and 04:28, 14/16 in the table above (05:08); 0 collisions in every run.
+Every run of this tree is in the two tables (swap-16 three times on loopback, three
+times on the hosts). Before them, three runs on the hosts at the default `--lead` (0.3 Ts
+= 0.15 s; 2026-11-24 07:14-07:22, load average 9-16): 0 collisions in all three; 16/16
+by t_end (last arrival 41.1 s), 14/16 (2.474 m) and 12/16 (5.914 m); refused inputs
+101, 208 and 328, phase shifts 106, 205 and 345, late samples 10, 9 and 30. A plan from
+a host takes the neighbour's step and 40 ms to arrive: at a lead of 0.15 s a robot
+deciding less than about 30 ms after a neighbour could not wait for its plan (the wait
+ends twice the step time before the instant) and took the disc the neighbour may reach.
+`--lead` is the fleet's budget for a step plus a plan's way to the neighbours: at 0.25 s
+both fit. The tree before (6384a41) on the same machine: loopback swap-16
+14/16 (05:08; 16/16 at 02:37 and 04:28), 181 refused inputs, 172 phase shifts; hosts
+16/16 by t_end in two of four runs, 10/16 in the other two (all 16 by 98 s), 482
+refused inputs and 478 phase shifts in one run; 0 collisions in every run.
 """
 
 if __name__ == "__main__":

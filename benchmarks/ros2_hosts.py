@@ -56,7 +56,7 @@ def _row(folder: Path, scenario: str, run: int, wall: float, status: int) -> str
 
 
 def report(runs: list[tuple[Path, float, int]], scenario: str, loss: float, delay: float,
-           why: str) -> str:
+           why: str, lead: float) -> str:
     """The doc section of the runs ``(output folder, wall s, exit status)``."""
     labs = [json.loads((f / "lab.json").read_text()) for f, _, _ in runs
             if (f / "lab.json").exists()]
@@ -67,7 +67,7 @@ def report(runs: list[tuple[Path, float, int]], scenario: str, loss: float, dela
         "<!-- hosts -->", "## Every robot a host of its own", "",
         f"`sudo python -m benchmarks.ros2_hosts --repeat {len(runs)}` ({date}): "
         f"`python -m services.ros2.hosts --scenario {scenario} --loss {loss:g} --delay "
-        f"{delay:g}` {len(runs)} times in a row on this machine (2 cores "
+        f"{delay:g} --lead {lead:g}` {len(runs)} times in a row on this machine (2 cores "
         "shared by every process). Each robot's controller, its simulated ROS 2 robot and "
         "its ROS 2 router run in a network namespace of their own (a host); a hub "
         "namespace holds the sqpmpc router (mutual TLS, access control), the fleet's ROS 2 "
@@ -124,6 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--delay", type=float, default=0.02)
     p.add_argument("--t-end-factor", type=float, default=1.0, metavar="F",
                    help="run F times the scenario's t_end (arrival is reported at both)")
+    p.add_argument("--lead", type=float, default=0.25, metavar="S",
+                   help="the controllers' --lead (default 0.25 s: the step and a plan's "
+                        "way between hosts, 40 ms, fit in it)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="runs in a row, one row each (default 3)")
     p.add_argument("--no-write", action="store_true")
@@ -142,10 +145,11 @@ def main(argv: list[str] | None = None) -> int:
             status = hosts.main(["--scenario", args.scenario, "--loss", repr(args.loss),
                                  "--delay", repr(args.delay), "--out", str(folder),
                                  "--t-end", repr(t_end),
-                                 "--tolerance", repr(tolerance), "--log-level", "INFO"])
+                                 "--tolerance", repr(tolerance), "--log-level", "INFO",
+                                 "--lead", repr(args.lead)])
             runs.append((folder, time.time() - started, status))
             print(_row(folder, args.scenario, i + 1, runs[-1][1], status), flush=True)
-        text = report(runs, args.scenario, args.loss, args.delay, why)
+        text = report(runs, args.scenario, args.loss, args.delay, why, args.lead)
     print(text)
     if not args.no_write:
         doc = OUT.read_text()

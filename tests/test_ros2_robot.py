@@ -1,4 +1,5 @@
-"""The ROS 2 robot's pieces without processes: bad options, committed motion of plans."""
+"""The ROS 2 robot's pieces without processes: bad options, committed motion of plans, the
+controller's check, the neighbours' headings and the plans awaited."""
 
 from __future__ import annotations
 

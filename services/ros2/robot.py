@@ -13,24 +13,31 @@ run), with the wall time of their stage 0 in ``stamp``.
 One sample ``k`` (instant ``T_k = T_0 + k Ts``, ``t_k = T_k - epoch`` for the
 references):
 
-1. at ``T_k - lead``: the own state at ``T_k`` from the newest odometry (pose
-   and ``v``, ``omega``), carried forward on the exact unicycle arc with the
-   measured twist and then the commands sent since; each neighbour's motion
-   from its plans (:func:`services.ros2.timing.committed`): a robot applies a
-   plan's first input from the plan's stamp for one sample, so that arc is
-   exact, and after it the neighbour either decides again knowing this
-   robot's new plan or is bounded by its reach;
-2. the controller's step with every neighbour a moving obstacle (its exact
-   arcs, then standing where they end, at the own stage times);
-3. the check of the first input
+1. at ``T_k - lead``, after waiting for a plan in flight of a neighbour
+   within reach that decides before this robot
+   (:meth:`services.ros2.neighbours.Neighbours.awaited`, at most until twice
+   the recent step time before ``T_k``): the own state at ``T_k`` from the
+   newest odometry (pose and ``v``, ``omega``), carried forward on the exact
+   unicycle arc with the measured twist and then the commands sent since;
+   each neighbour's motion from its plans
+   (:func:`services.ros2.timing.committed`): a robot applies a plan's first
+   input from the plan's stamp for one sample, so that arc is exact, and
+   after it the neighbour either decides again knowing this robot's new plan
+   or is bounded by its reach;
+2. the controller's step (:class:`services.ros2.controller.Ros2Controller`)
+   with every neighbour a moving obstacle (its exact arcs, then standing
+   where they end, at the own stage times; its heading from its arc);
+3. inside the step, the check of the first input
    (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`): along the exact
    arc of the whole sample, every neighbour's distance plus
    ``--ros2-margin`` from where it is (arcs, then standing still for a
    neighbour that will see this plan before it decides, or the disc it may
-   reach otherwise); if not, the robot stands still, which is always safe:
-   every neighbour deciding later keeps out of where this robot stops (it
-   checks the same way), and one deciding at about the same time had to keep
-   out of it already (it took this robot's previous arc, then standing still);
+   reach otherwise); if not, the shifted plan of the previous sample if it
+   passes, else the robot stands still, which is always safe: every
+   neighbour deciding later keeps out of where this robot stops (it checks
+   the same way), and one deciding at about the same time had to keep out of
+   it already (it took this robot's previous arc, then standing still); the
+   controller's rules see what the robot applied, as in lockstep;
 4. the plan is sent at once, the command at ``T_k``.
 
 Every robot of a fleet uses the same ``--lead`` (it tells when a neighbour
