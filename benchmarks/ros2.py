@@ -272,13 +272,20 @@ Every run of this tree is in the two tables (swap-16 three times on loopback, th
 times on the hosts). Before them, three runs on the hosts at the default `--lead` (0.3 Ts
 = 0.15 s; 2026-11-24 07:14-07:22, load average 9-16): 0 collisions in all three; 16/16
 by t_end (last arrival 41.1 s), 14/16 (2.474 m) and 12/16 (5.914 m); refused inputs
-101, 208 and 328, phase shifts 106, 205 and 345, late samples 10, 9 and 30. A plan from
-a host takes the neighbour's step and 40 ms to arrive: at a lead of 0.15 s a robot
-deciding less than about 30 ms after a neighbour could not wait for its plan (the wait
-ends twice the step time before the instant) and took the disc the neighbour may reach.
-`--lead` is the fleet's budget for a step plus a plan's way to the neighbours: at 0.25 s
-both fit. The tree before (6384a41) on the same machine: loopback swap-16
-14/16 (05:08; 16/16 at 02:37 and 04:28), 181 refused inputs, 172 phase shifts; hosts
+101, 208 and 328, phase shifts 106, 205 and 345, late samples 10, 9 and 30. The table above is at
+`--lead 0.25` (a plan from a host takes the neighbour's step and 40 ms to arrive; at
+0.15 s a robot deciding less than about 30 ms after a neighbour cannot wait for its
+plan): no better, 16/16, 16/16 and 5/16 by t_end. Not solved on the hosts: the links'
+TCP round trip has a 90th percentile of about 250 ms (a lost packet is resent after 200
+ms or more and holds every later byte of its link), so for long stretches a robot's
+plans reach nobody, and every robot near it is held by the disc it may reach (0.6 m/s
+times the delay) until they come; in a jammed centre almost every refusal is of that
+kind (phase shifts close to refused inputs in every run). A reach tighter than a disc
+(a unicycle with a known heading and a bounded turn rate cannot move sideways) would
+hold the neighbours less without weakening the check; not done.
+
+The tree before (6384a41) on the same machine: loopback swap-16 14/16 (05:08; 16/16 at
+02:37 and 04:28), 181 refused inputs, 172 phase shifts; hosts
 16/16 by t_end in two of four runs, 10/16 in the other two (all 16 by 98 s), 482
 refused inputs and 478 phase shifts in one run; 0 collisions in every run.
 """

@@ -125,8 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--t-end-factor", type=float, default=1.0, metavar="F",
                    help="run F times the scenario's t_end (arrival is reported at both)")
     p.add_argument("--lead", type=float, default=0.25, metavar="S",
-                   help="the controllers' --lead (default 0.25 s: the step and a plan's "
-                        "way between hosts, 40 ms, fit in it)")
+                   help="the controllers' --lead, s (default 0.25)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="runs in a row, one row each (default 3)")
     p.add_argument("--no-write", action="store_true")
