@@ -4,7 +4,7 @@ The README promises that no sample, the first one of a service included,
 pays for a compilation. A fresh interpreter runs :func:`warm_up`, notes every
 kernel's compiled signatures, then runs short closed loops of both schemes
 over built-ins that reach every kernel family (paper robots, circle
-obstacles, polygons, a door, acceleration limits) and the services' input
+obstacles, polygons, a door, a swap's roundabout ring, acceleration limits) and the services' input
 types (read-only measured states, as decoded from a message): no kernel may
 gain a signature. Found by a fresh clone's ``make demo``, where robot
 processes spent 2 s of their first sample compiling ``clip_and_roll_out``
@@ -43,7 +43,7 @@ def limited(sc):
                                           angular_acceleration=(-3.0, 3.0)))
 
 
-for name in ("paper-s2", "corridor", "warehouse", "room-door"):
+for name in ("paper-s2", "corridor", "warehouse", "room-door", "swap-6"):
     for sc in (short(sqpmpc.load_scenario(name)), limited(short(sqpmpc.load_scenario(name)))):
         for scheme in ("centralized", "decentralized"):
             sqpmpc.ClosedLoopSimulation(sc, scheme).run()

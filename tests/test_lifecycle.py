@@ -78,17 +78,23 @@ def _block_stops() -> None:
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
-def test_a_stop_sent_before_the_launchers_first_line_leaves_a_readable_run(tmp_path):
-    """SIGTERM sent the moment the launcher is exec'd (its interpreter not even started),
-    the launcher started with SIGINT/SIGTERM blocked as a supervisor can: the signal is
-    held, honoured at the launcher's first line; no traceback, a folder `sqpmpc metrics`
-    reads, with no samples."""
+@pytest.mark.parametrize("when", ["before-first-line", "during-start-up"])
+def test_a_stop_early_in_the_launch_leaves_a_readable_run_without_samples(tmp_path, when):
+    """SIGTERM to the launcher early: *before-first-line* sends it the moment the launcher
+    is exec'd (its interpreter not even started), the launcher started with SIGINT/SIGTERM
+    blocked as a supervisor can, so the signal is held and honoured at its first line;
+    *during-start-up* sends it 0.5 s in, while every process still imports its modules.
+    Either way: no traceback, every child gone, a folder `sqpmpc metrics` reads, with no
+    samples."""
     out = tmp_path / "early"
     cmd = [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
            "decentralized", "--out", str(out), "--no-plots"]
+    early = when == "before-first-line"
     launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                cwd=REPO, preexec_fn=_block_stops)
+                                cwd=REPO, preexec_fn=_block_stops if early else None)
     try:
+        if not early:
+            time.sleep(0.5)
         launcher.send_signal(signal.SIGTERM)
         stdout, err = launcher.communicate(timeout=150)
     finally:
@@ -102,6 +108,8 @@ def test_a_stop_sent_before_the_launchers_first_line_leaves_a_readable_run(tmp_p
     assert res.returncode == 0 and "0 samples" in res.stdout, res.stderr
     m = _metrics(out)
     assert m["steps"] == 0 and m["completed"] is False and m["interrupted"]
+    if not early:
+        assert m["interrupted"] == "SIGINT"
 
 
 def test_real_time_sample_loops_take_the_priority_they_may(tmp_path):

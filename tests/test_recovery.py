@@ -19,24 +19,35 @@ GOAL = 0.05
 
 
 def _push_run(scheme: str, scenario_name: str, depth: float, accelerations: bool = False
-              ) -> tuple[ClosedLoopSimulation, int]:
-    """Run until robots 0 and 1 are within 1 m, push robot 0 to ``depth`` inside robot 1's
-    distance (its measured state), run to the end; returns the loop and the push sample.
-    ``accelerations``: the robots declare acceleration bounds (CONTRACT 1c)."""
+              ) -> tuple[ClosedLoopSimulation, int, int, int]:
+    """Push a robot into another and run to the end; returns the loop, the push sample and
+    the pair ``(i, j)``, ``i`` the pushed robot.
+
+    A first run finds where two robots meet: the first sample at which a pair is within
+    1 m, or the pair's closest approach if none ever is (a roundabout's ring keeps a swap's
+    robots further apart). The second run pushes ``i`` there to ``depth`` inside ``j``'s
+    distance (its measured state). ``accelerations``: the robots declare acceleration
+    bounds (CONTRACT 1c)."""
     sc = load_scenario(scenario_name)
     if accelerations:
         sc = sc.with_changes(bounds=dataclasses.replace(
             sc.bounds, acceleration=(-2.0, 2.0), angular_acceleration=(-7.0, 7.0)))
+    d = sc.required_distances()
+    pairs = sc.pairs().reshape(-1, 2)
+    free = ClosedLoopSimulation(sc, scheme, SolverSettings()).run().states[:, :, :2]
+    gaps = np.linalg.norm(free[:, pairs[:, 0]] - free[:, pairs[:, 1]], axis=-1).min(axis=1)
+    near = np.flatnonzero(gaps <= 1.0)
+    k = int(near[0]) if near.size else int(np.argmin(gaps))
     sim = ClosedLoopSimulation(sc, scheme, SolverSettings())
-    d = sc.required_distances()[0, 1]
-    while np.linalg.norm(sim.states[sim.k, 0, :2] - sim.states[sim.k, 1, :2]) > 1.0:
+    while sim.k < k:
         sim.step()
-    k = sim.k
     x = sim.states[k]
-    away = x[0, :2] - x[1, :2]
-    x[0, :2] = x[1, :2] + (d - depth) * away / np.linalg.norm(away)
+    gap = np.linalg.norm(x[pairs[:, 0], :2] - x[pairs[:, 1], :2], axis=-1)
+    i, j = (int(v) for v in pairs[int(np.argmin(gap))])
+    away = x[i, :2] - x[j, :2]
+    x[i, :2] = x[j, :2] + (d[i, j] - depth) * away / np.linalg.norm(away)
     sim.run()
-    return sim, k
+    return sim, k, i, j
 
 
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
@@ -44,14 +55,15 @@ def _push_run(scheme: str, scenario_name: str, depth: float, accelerations: bool
 @pytest.mark.parametrize("accelerations", [False, True], ids=["paper-robot", "accelerations"])
 def test_a_pushed_pair_separates_and_every_robot_arrives(scheme: str, scenario_name: str,
                                                          accelerations: bool) -> None:
-    sim, k = _push_run(scheme, scenario_name, depth=0.1, accelerations=accelerations)
+    sim, k, i, j = _push_run(scheme, scenario_name, depth=0.1, accelerations=accelerations)
     rec = sim.record()
     sc = sim.scenario
     d = sc.required_distances()
     pairs = sc.pairs().reshape(-1, 2)
     dist = np.linalg.norm(rec.states[:, pairs[:, 0], :2] - rec.states[:, pairs[:, 1], :2],
                           axis=-1) - d[pairs[:, 0], pairs[:, 1]]
-    pushed = dist[k:, np.flatnonzero((pairs[:, 0] == 0) & (pairs[:, 1] == 1))[0]]
+    column = np.flatnonzero((pairs[:, 0] == min(i, j)) & (pairs[:, 1] == max(i, j)))[0]
+    pushed = dist[k:, column]
     assert pushed[0] == pytest.approx(-0.1)
     # the pushed pair never comes closer than the push left it (robots with acceleration
     # limits: less what they cover while braking from the speeds they had, v^2 / (2 |a|)
@@ -59,7 +71,7 @@ def test_a_pushed_pair_separates_and_every_robot_arrives(scheme: str, scenario_n
     # before the push plus |a| Ts / 2), and separates
     coast = 0.0
     if accelerations:
-        speeds = np.linalg.norm(rec.states[k - 1, :2, :2] - rec.states[k - 2, :2, :2],
+        speeds = np.linalg.norm(rec.states[k - 1, [i, j], :2] - rec.states[k - 2, [i, j], :2],
                                 axis=-1) / sc.sample_time + 2.0 * sc.sample_time / 2.0
         coast = float((speeds ** 2).sum() / (2.0 * 2.0))
     assert pushed.min() >= pushed[0] - sim.settings.collision_margin - coast
@@ -68,8 +80,7 @@ def test_a_pushed_pair_separates_and_every_robot_arrives(scheme: str, scenario_n
     first = k + int(apart[0])
     # once apart, no pair overlaps again, and no other pair overlapped at all
     assert dist[first:].min() >= -1e-6
-    others = np.delete(dist[:first], np.flatnonzero((pairs[:, 0] == 0) & (pairs[:, 1] == 1)),
-                       axis=1)
+    others = np.delete(dist[:first], column, axis=1)
     assert others.min(initial=np.inf) >= -1e-6
     # never frozen: not braking for the rest of the run, every robot arrives
     counters = sim.counters()

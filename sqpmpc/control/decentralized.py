@@ -133,7 +133,7 @@ class DecentralizedController(ControllerPipeline):
             self.required[:slots], N, self.geometry,
             reach=scenario.sample_time * self.context.max_speed, margin=self.pair_margin,
             stage_one_rule_for_obstacles=mode == "shared", recovery=self.recovery_tolerance,
-        )
+            deviation=self.margins.deviation, shared_margin=settings.collision_margin)
         self._rows = {"external": self.collisions if self.obstacle_rows is None
                       else StackedRows(self.collisions, self.obstacle_rows, slots, N)}
         for name in ("fallback_neighbours", "unslotted_neighbours", "late_plan_neighbours",
@@ -212,7 +212,7 @@ class DecentralizedController(ControllerPipeline):
         if shared.any():
             # each robot keeps half the true distance plus its own deviation: the rows' half
             # margin less the braking path's growth may be used
-            slack = 0.5 * (c.required - c.safe_distance)[shared][:, None] - growth[None]
+            slack = c.own_margin[shared][:, None] - growth[None]
             normals = c.fixed_normals[shared][:, rows]          # (S, B, 2)
             held = np.einsum("sbk,bk->sb", normals, pos) - c.fixed_rhs[shared][:, rows]
             if (held < -slack - 1e-9).any():

@@ -63,7 +63,8 @@ from sqpmpc.ocp.iteration import MultipleShootingSQP, engaged_robots
 from sqpmpc.ocp.obstacle_rows import ObstacleRows
 from sqpmpc.ocp.polygon_rows import MapRows, PolygonRows
 from sqpmpc.ocp.report import CollisionRows, IterationReport
-from sqpmpc.problem.plant import acceleration_path_deviation, model_margin, path_deviation
+from sqpmpc.problem.margins import RowMargins
+from sqpmpc.problem.plant import acceleration_path_deviation, path_deviation
 from sqpmpc.problem.references import Reference, ReferenceSet
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
@@ -134,13 +135,13 @@ class ControllerPipeline:
             "qp_rescues": 0, "stage_one_overrides": 0, "converged_samples": 0}
         plant = scenario.plant
         limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
-        self.model_margin = model_margin(self.input_lower, self.input_upper,
-                                         self.sample_time, settings.discretization, plant,
-                                         limits)
-        # the rules measure "near" beyond the rows' margin of robots with velocity states
+        self.margins = RowMargins(self.input_lower, self.input_upper, self.sample_time,
+                                  settings.discretization, plant, limits,
+                                  self.scheme == "decentralized")
+        self.model_margin = self.margins.model_margin
+        # the rules measure "near" beyond RowMargins.rules (problem.margins)
         self.context = RuleContext(scenario, self.indices, self.scheme,
-                                   settings.iteration_scheme, self.counts,
-                                   0.0 if self._unicycle else self.model_margin)
+                                   settings.iteration_scheme, self.counts, self.margins.rules)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):

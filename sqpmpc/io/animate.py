@@ -25,15 +25,16 @@ import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Polygon
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.io.files import load_trajectory
 from sqpmpc.io.recording import robot_rgba
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["MAX_FRAMES", "RunData", "animate", "frame_size", "load_run", "render_frames",
            "write_frame"]
@@ -196,6 +197,12 @@ def render_frames(run: RunData, step: int, size: tuple[float, float] | None = No
                   dpi: int = 100, samples: list[int] | None = None) -> Iterator[np.ndarray]:
     """RGB frames ``(H, W, 3)`` uint8 of samples ``0, step, 2 step, ...`` and the last one
     (or of the given ``samples``); ``size`` in inches, default :func:`frame_size`."""
+    # matplotlib is imported here, not with the module: the command line (every robot and
+    # plant process parses it) starts without it
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle, Polygon
+
     n = len(run.ids)
     colors = robot_rgba(n)
     width, height = size or frame_size(run, dpi=dpi)

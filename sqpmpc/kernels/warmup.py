@@ -31,6 +31,7 @@ from sqpmpc.kernels.ocp import (
 from sqpmpc.kernels.pair_paths import warm_up_pair_paths
 from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
+from sqpmpc.kernels.rings import warm_up_rings
 from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
 
 __all__ = ["warm_up"]
@@ -116,6 +117,7 @@ def warm_up() -> float:
     warm_up_acceleration()
     warm_up_pair_paths()
     warm_up_roundabout()
+    warm_up_rings()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     square = np.array([[[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]])
     four = np.full(1, 4, dtype=np.int64)

@@ -77,6 +77,8 @@ from sqpmpc.kernels.collision import (
 )
 from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs
 from sqpmpc.ocp.geometry import RowGeometry
+from sqpmpc.problem.margins import required_height
+from sqpmpc.problem.plant import largest_deviation
 
 __all__ = [
     "MISSING", "OBSTACLE", "OFF", "SHARED", "ExternalCollisionModel", "PairwiseCollisionModel",
@@ -188,11 +190,30 @@ class ExternalCollisionModel:
     stage_one_rule_for_obstacles
         Apply ``stage-one-override`` to obstacle slots too (off for the
         paper's literal mode, which has no guarantee).
+    deviation
+        ``(alpha_max, beta_max)`` of :func:`sqpmpc.problem.margins.row_deviation` (robots
+        with velocity states), or ``None``. With it the shared slots' hyperplane and
+        check come from ``required + shared_margin`` (the solver's margin, the same in
+        both robots) and each row of this robot keeps :attr:`own_margin` more:
+        ``alpha_max + max(0, beta_max - h0)``, ``h0`` its current height above the
+        check line (:mod:`sqpmpc.problem.plant`, "Where the robot stands decides the
+        margin"); the obstacle and missing slots keep ``margin``.
+    shared_margin
+        See ``deviation``.
     """
 
     def __init__(self, required: np.ndarray, horizon: int, geometry: RowGeometry,
                  reach: float = 0.0, margin: float = 0.0,
-                 stage_one_rule_for_obstacles: bool = True, recovery: float = -1.0) -> None:
+                 stage_one_rule_for_obstacles: bool = True, recovery: float = -1.0,
+                 deviation: tuple[float, float] | None = None,
+                 shared_margin: float = 0.0) -> None:
+        self.deviation = None if deviation is None else (float(deviation[0]),
+                                                         float(deviation[1]))
+        #: ``(E,)`` the margin this robot's shared rows keep beyond the check line
+        #: (``deviation``; without it half the margin), m
+        self.own_margin = np.full(np.asarray(required).size, 0.5 * float(margin))
+        self._shared_margin = float(shared_margin)
+        self._steady = 0.0 if deviation is None else float(largest_deviation(*self.deviation))
         #: tolerance of the ``overlap-recovery`` rule, m (negative: off)
         self.recovery = float(recovery)
         self.safe_distance = np.asarray(required, dtype=float)
@@ -290,14 +311,35 @@ class ExternalCollisionModel:
         if own_prediction.ndim == 2:
             own_prediction = np.repeat(own_prediction[None], kinds.shape[0], axis=0)
         g = self.geometry
+        own = self.deviation is not None and self._any_shared
         self._shared_overrides = shared_rows(
             self.current_self, self.current_others, own_prediction, other_predictions,
-            self._shared_mask, self.required, self.safe_distance, g.rotation,
+            self._shared_mask,
+            self.safe_distance + self._shared_margin if own else self.required,
+            self.safe_distance, g.rotation,
             g.kernel_max_turn, self.fixed_normals, self.fixed_rhs, self.check_normals,
             self.check_rhs, self.touching)
+        if own:
+            self._keep_own_margin()
         if g.hold_touching:
             hold_touching_rows(self.current_self, self.touching, self.fixed_normals,
                                self.fixed_rhs)
+
+    def _keep_own_margin(self) -> None:
+        """The shared rows keep :attr:`own_margin` beyond what the kernel wrote; stage 1
+        never asks for more than the current height (the row of a pair in the band)."""
+        alpha, beta = self.deviation
+        shared = self._shared_mask
+        me = self.current_self
+        h0 = np.maximum(self.check_normals[shared] @ me - self.check_rhs[shared], 0.0)
+        # the smallest h1 of a passing segment, and at least its fixed point (the next stages)
+        own = np.maximum(required_height(h0, alpha, beta), self._steady)
+        self.own_margin[:] = 0.5 * self._shared_margin
+        self.own_margin[shared] += self._steady
+        now = self.fixed_normals[shared, 0] @ me
+        first = self.fixed_rhs[shared, 0]
+        self.fixed_rhs[shared, 1:] += self._steady
+        self.fixed_rhs[shared, 0] = np.maximum(first, np.minimum(first + own, now))
 
     @property
     def needs_states(self) -> bool:

@@ -79,14 +79,18 @@ predicted segment :math:`p_0 \to \hat p_1` over the sample, with
 (RK4 integrates the heading and the velocities exactly here and the position to
 :math:`O(T_s^5)`; it is taken to move as the exact solution.) The first-input and
 braking checks of these robots take the bound :math:`\alpha s + \beta s(1-s)` itself
-(:mod:`sqpmpc.kernels.acceleration`, and the half-planes as before). The rows keep,
-as for the paper's robot, twice the largest linear growth :math:`\alpha + \max(\beta, 0)`
-over the velocity and acceleration boxes: :math:`|a|_{\max}T_s^2` for the Euler
-plant, 0.25 m on paper-s2 with ``acceleration = [-1, 1]``. Twice the largest value
-of the bound itself (:func:`largest_deviation`, a quarter of that) would also make the
-rows imply the checks; measured (``benchmarks/acceleration.py``, 24 runs, 0 collisions
-either way) it made 22 instead of 19 runs arrive, but paper-s2 decentralized ended
-0.116 m from its moving reference, outside the paper robot's band of 0.095 m.
+(:mod:`sqpmpc.kernels.acceleration`, and the half-planes as before). The centralized
+rows and the rows against obstacles and missing neighbours keep, as for the paper's
+robot, twice the largest linear growth :math:`\alpha + \max(\beta, 0)` over the
+velocity and acceleration boxes: :math:`|a|_{\max}T_s^2` for the Euler plant, 0.25 m
+on paper-s2 with ``acceleration = [-1, 1]`` (it covers a robot that starts on its
+check line). The decentralized shared rows keep what the robot's current height
+above its check line needs, at least twice the largest value of the bound
+(:func:`largest_deviation`, a quarter of the above for the Euler plant):
+:mod:`sqpmpc.problem.margins`. (That quarter kept by every row of both schemes,
+measured on ``benchmarks/acceleration.py``, 24 runs, 0 collisions either way, made 22
+instead of 19 runs arrive, but paper-s2 decentralized ended 0.116 m from its moving
+reference, outside the paper robot's band of 0.095 m.)
 
 Braking takes several samples: from :math:`v` it takes
 :math:`\lceil |v|/(|a_{\min}|T_s)\rceil` samples and about :math:`v^2/(2|a_{\min}|)`

@@ -62,6 +62,47 @@ crowd's tangent knows no walls; it once led a warehouse robot off its route
 against an arrived robot, where it stood) fixed that run but left a 64-robot
 warehouse stuck that arrives without it; it was dropped.
 
+**Rings.** A sensed crowd is found late (3 m ahead, when the jam has already
+formed) and its disc moves with it. Where the straight ways of several
+robots cross at about the same time (an antipodal swap: every way through the
+centre), the conflict zone is known from the start, so the rule fixes it
+then: at the first sample (and again after a reference changes) the ways
+from the measured positions to the goals at rest are grouped by
+:func:`sqpmpc.kernels.rings.ring_zones`: two ways *meet* where they cross
+when both robots are within ``ring_window`` metres of the same distance from
+that point and go different ways (more than ``along`` apart; opposite ways
+on one line meet half-way); the meeting point with the most others within
+``ring_cluster`` metres makes a zone of the robots meeting there, if they are
+at least ``ring_crowd`` and come from all sides (the mean of their unit
+directions is at most 0.5 long: a group meeting one robot head-on is left to
+the crowd rule), centred at the mean of those meeting points. Its *ring*
+has the radius :math:`\rho = \max(m\,s / 2\pi,
+\rho_\min)` for :math:`m` members ``ring_spacing`` = :math:`s` apart, with
+:math:`\rho_\min` the larger of twice the kept distance and the turning
+radius at the reference speed (:math:`v_\text{ref}/\omega_\max`); a zone
+whose ring would come closer than the kept distance to a member's start or
+goal or to a pillar, and any zone in a map with walls (polygons: the route
+rule knows them, a ring does not), is dropped. At every sample, a member
+farther than ``goal_distance`` from its goal whose straight way still
+crosses the ring, while at least ``ring_crowd - 1`` other members still have
+to pass it (not arrived, inside the ring or with a way through it) and no
+arrived robot stands in it, tracks references :math:`v_\text{ref} T_s`
+apart along the ring's counter-clockwise tangent, around the ring and off it
+towards the goal as soon as the straight way clears it
+(:func:`sqpmpc.kernels.rings.ring_path`); otherwise the crowd rule above
+applies. Every robot computes the same zones from the same measured
+positions, so the decentralized robots agree on them.
+
+On the maps benchmark's swaps (50 seeded runs of 4 to 64 robots,
+decentralized) the rings took the median normalized makespan from 1.62 to
+1.13 (swap-6 1.10, swap-64 1.35) and the crossings among pillars from 1.41
+to 1.39, with every run arriving; the paper's scenarios (references that
+never rest) have no ring and keep their costs. A first spacing of 0.55 m
+packed eight robots on a ring they could not follow at full speed (swap-8
+1.99); 0.7 m gives them room. A ring squeezed next to a pillar (radius 0.52 m)
+once changed a 64-robot crossing enough that another robot was left standing
+against a pillar elsewhere: hence the dropped zones without room.
+
 The rule only changes references: every collision row, the hard stage 1 and
 the verification of the first input are untouched, so it chooses among safe
 motions like the other rules.
@@ -77,6 +118,7 @@ import numba
 import numpy as np
 
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.rings import ring_busy, ring_path, ring_zones, segment_distance
 from sqpmpc.kernels.rules import roundabout_directions
 from sqpmpc.rules.base import (
     Contribution,
@@ -96,7 +138,7 @@ _jit = numba.njit(cache=True, nogil=True)
 class _RoundaboutInstance(RuleInstance):
     rule: Roundabout
     hooks = ("references",)
-    counter_names = ("roundabout_samples",)
+    counter_names = ("roundabout_samples", "ring_samples")
 
     def __init__(self, rule: Roundabout, context: RuleContext) -> None:
         super().__init__(rule, context)
@@ -106,18 +148,85 @@ class _RoundaboutInstance(RuleInstance):
         self.offsets = step * np.arange(1, context.horizon + 1, dtype=float)
         self._cos_cone = math.cos(rule.cone)
         self._cos_along = math.cos(rule.along)
+        self.step = step
+        n = context.scenario.n_robots
+        self.zone_of = np.full(n, -1, dtype=np.int64)
+        self.centres = np.zeros((n, 2))
+        self.radii = np.zeros(n)
+        self.zones_ready = False
+        bounds = context.scenario.bounds
+        turn = min(abs(bounds.input_lower()[1]), abs(bounds.input_upper()[1]))
+        self.min_radius = max(2.0 * float(self.required.max()),
+                              step / context.sample_time / max(turn, 1e-9))
         self.references_changed()
-        self._no_headings = read_only(np.zeros(context.scenario.n_robots))
+        self._no_headings = read_only(np.zeros(n))
 
     def references_changed(self) -> None:
         sc = self.context.scenario
         rest = np.hypot(*sc.reference_velocities(sc.t_end).T) == 0.0
         self.rest_goals = np.where(rest[:, None], sc.reference_positions(sc.t_end), np.nan)
+        self.zones_ready = False  # found again from the positions of the next sample
+
+    def _find_rings(self, positions: np.ndarray) -> None:
+        """The rings of the straight ways from ``positions`` to the goals at rest."""
+        r, sc = self.rule, self.context.scenario
+        self.zones_ready = True
+        self.zone_of[:] = -1
+        goals = self.rest_goals
+        travelling = np.isfinite(goals[:, 0]) & (np.hypot(*(np.nan_to_num(goals) - positions).T)
+                                                 > r.goal_distance)
+        if sc.polygons or np.count_nonzero(travelling) < r.ring_crowd:
+            return  # walls and shelves: the routes know the map, a ring does not
+        zones = ring_zones(np.array(positions, dtype=float), goals, travelling,
+                           r.ring_window, self._cos_along, r.ring_cluster, r.ring_crowd, 0.5,
+                           self.zone_of, self.centres)
+        kept = float(self.required.max())
+        for z in range(zones):
+            members = np.flatnonzero(self.zone_of == z)
+            c = self.centres[z]
+            radius = max(self.min_radius, members.size * r.ring_spacing / (2.0 * np.pi))
+            room = min(np.hypot(*(positions[members] - c).T).min(),
+                       np.hypot(*(goals[members] - c).T).min()) - kept
+            for o in sc.obstacles:  # a pillar in the ring: no ring
+                room = min(room, float(np.hypot(*(np.asarray(o.position) - c)))
+                           - 0.5 * o.diameter - kept)
+            self.radii[z] = min(radius, room)
+            if room < self.min_radius:  # no room for a ring a robot can follow
+                self.zone_of[members] = -1
+
+    def _ring_references(self, view: SampleView) -> np.ndarray | None:
+        """References around the rings of the own robots that have one now (``None``: none)."""
+        r = self.rule
+        if not self.zones_ready:
+            self._find_rings(view.positions)
+        own = self.context.own
+        zones = self.zone_of[own]
+        if not np.any(zones >= 0):
+            return None
+        p, goals = view.positions, self.rest_goals
+        out = None
+        for k in np.flatnonzero(zones >= 0):
+            i, z = own[k], zones[k]
+            c, radius = self.centres[z], self.radii[z]
+            gx, gy = goals[i]
+            if np.hypot(gx - p[i, 0], gy - p[i, 1]) <= r.goal_distance or segment_distance(
+                    p[i, 0], p[i, 1], gx, gy, c[0], c[1]) >= radius:
+                continue
+            busy = ring_busy(p, goals, self.zone_of, z, i, c[0], c[1], radius,
+                             r.goal_distance)
+            if busy < r.ring_crowd - 1:
+                continue
+            if out is None:
+                out = view.references.copy()
+            ring_path(p[i, 0], p[i, 1], gx, gy, c[0], c[1], radius, self.step, out[k])
+            self.counts["ring_samples"] += 1
+        return out
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         r = self.rule
+        ring = self._ring_references(view)
         if view.positions.shape[0] <= r.min_crowd:
-            return None
+            return None if ring is None else Contribution(references=ring)
         if view.headings is None:  # every robot ahead counts (a cosine never exceeds 2)
             headings, cos_along = self._no_headings, 2.0
         else:
@@ -127,10 +236,12 @@ class _RoundaboutInstance(RuleInstance):
             view.scenario_references[:, -1].copy(), self.required, r.sense,
             self._cos_cone, cos_along, r.min_crowd, r.goal_distance, self.directions)
         if not active:
-            return None
-        self.counts["roundabout_samples"] += active
-        out = view.references.copy()
+            return None if ring is None else Contribution(references=ring)
+        out = view.references.copy() if ring is None else ring
         for k in np.flatnonzero(self.directions.any(axis=1)):
+            if ring is not None and np.any(ring[k] != view.references[k]):
+                continue  # on a ring
+            self.counts["roundabout_samples"] += 1
             out[k] = view.own_states[k, :2] + self.offsets[:, None] * self.directions[k]
         return Contribution(references=out)
 
@@ -145,11 +256,14 @@ class Roundabout(Rule):
     the angle within which a robot heading the way this one goes is traffic
     rather than a conflict (it does not count in the crowd), and
     ``speed_fraction`` the share of the largest speed the roundabout
-    references move at.
+    references move at. ``ring_crowd`` (robots), ``ring_spacing`` (m per
+    robot along a ring), ``ring_window`` and ``ring_cluster`` (m) shape the
+    fixed rings where straight ways cross (module docstring).
     """
 
     name = "roundabout"
-    summary = "a crowd of 4+ robots ahead is passed counter-clockwise along its right tangent"
+    summary = ("a crowd of 4+ robots ahead, or a ring where 4+ straight ways cross, is passed "
+               "counter-clockwise")
     instance = _RoundaboutInstance
     min_crowd: int = 4
     sense: float = 3.0
@@ -157,13 +271,19 @@ class Roundabout(Rule):
     along: float = float(np.deg2rad(45.0))
     goal_distance: float = 1.0
     speed_fraction: float = 1.0
+    ring_crowd: int = 4
+    ring_spacing: float = 0.7
+    ring_window: float = 1.5
+    ring_cluster: float = 0.5
 
     def __post_init__(self) -> None:
         check_positive(self, "min_crowd", "sense", "cone", "along", "goal_distance",
-                       "speed_fraction")
-        if not isinstance(self.min_crowd, numbers.Integral):
-            raise ProblemError(f"rule 'roundabout': min_crowd must be an integer, "
-                               f"got {self.min_crowd!r}")
+                       "speed_fraction", "ring_crowd", "ring_spacing", "ring_window",
+                       "ring_cluster")
+        for name in ("min_crowd", "ring_crowd"):
+            if not isinstance(getattr(self, name), numbers.Integral):
+                raise ProblemError(f"rule 'roundabout': {name} must be an integer, "
+                                   f"got {getattr(self, name)!r}")
         if self.cone >= np.pi / 2:
             raise ProblemError(f"rule 'roundabout': cone must be below pi/2, got {self.cone}")
         if self.along >= np.pi:
