@@ -13,31 +13,24 @@ run), with the wall time of their stage 0 in ``stamp``.
 One sample ``k`` (instant ``T_k = T_0 + k Ts``, ``t_k = T_k - epoch`` for the
 references):
 
-1. at ``T_k - lead``, after waiting for a plan in flight of a neighbour
-   within reach that decides before this robot
-   (:meth:`services.ros2.neighbours.Neighbours.awaited`, at most until twice
-   the recent step time before ``T_k``): the own state at ``T_k`` from the
-   newest odometry (pose and ``v``, ``omega``), carried forward on the exact
-   unicycle arc with the measured twist and then the commands sent since;
-   each neighbour's motion from its plans
-   (:func:`services.ros2.timing.committed`): a robot applies a plan's first
-   input from the plan's stamp for one sample, so that arc is exact, and
-   after it the neighbour either decides again knowing this robot's new plan
-   or is bounded by its reach;
-2. the controller's step (:class:`services.ros2.controller.Ros2Controller`)
-   with every neighbour a moving obstacle (its exact arcs, then standing
-   where they end, at the own stage times; its heading from its arc);
-3. inside the step, the check of the first input
-   (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`): along the exact
-   arc of the whole sample, every neighbour's distance plus
-   ``--ros2-margin`` from where it is (arcs, then standing still for a
-   neighbour that will see this plan before it decides, or the disc it may
-   reach otherwise); if not, the shifted plan of the previous sample if it
-   passes, else the robot stands still, which is always safe: every
-   neighbour deciding later keeps out of where this robot stops (it checks
-   the same way), and one deciding at about the same time had to keep out of
-   it already (it took this robot's previous arc, then standing still); the
-   controller's rules see what the robot applied, as in lockstep;
+1. at ``T_k - lead``, after waiting for a plan in flight of a neighbour that
+   decides before this robot (:meth:`services.ros2.neighbours.Neighbours.awaited`):
+   the own state at ``T_k`` from the newest odometry, carried forward on exact
+   arcs with the measured twist and the commands sent since; each neighbour's
+   motion from its plans (:func:`services.ros2.timing.committed`): a robot
+   applies a plan's first input from its stamp for one sample, exactly, and
+   then decides again knowing this robot's new plan or is bounded by its reach;
+2. the step of :class:`services.ros2.controller.Ros2Controller`, every
+   neighbour a moving obstacle (its exact arcs, then standing where they end);
+3. inside it, the check of the first input
+   (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`) along the exact
+   arc of the whole sample; if it fails, the shifted plan if that passes, else
+   the robot stands still, which is always safe: a neighbour deciding later
+   keeps out of where it stops, one deciding at about the same time kept out of
+   it already (this robot's previous arc, then standing); the rules see what
+   the robot applied, as in lockstep. A robot held by a neighbour deciding at
+   about its instants shifts its own and announces it (a standing plan
+   stamped a sample before its new instant);
 4. the plan is sent at once, the command at ``T_k``.
 
 Every robot of a fleet uses the same ``--lead`` (it tells when a neighbour
@@ -45,13 +38,11 @@ decides). The safety argument is per pair: at every instant the robot that
 decided last knew the other's motion up to then and kept the distance from it.
 
 The command is zero when the odometry is older than ``--odom-timeout``
-(checked continuously, so within one sample of its loss), at the end
-(``t_end``), and on SIGINT/SIGTERM; while the odometry is stale the robot
-publishes a plan that stands still where the odometry and the commands sent
-put it. A neighbour that has not sent a plan yet is unknown (it is not
-running); one whose token disappears (it stopped, commanding zero) is held
-where its last plan put it, standing still. Before moving, the robot waits up
-to ``--timeout`` for a plan of every neighbour whose token it sees.
+(checked continuously), at the end and on SIGINT/SIGTERM; while the odometry is
+stale the robot publishes a plan standing where odometry and commands put it. A
+neighbour without a plan yet is unknown (not running); one whose token disappears
+(it stopped, commanding zero) is held where its last plan put it, standing still.
+Before moving, the robot waits up to ``--timeout`` for every alive neighbour's plan.
 """
 
 from __future__ import annotations
@@ -153,6 +144,7 @@ class Ros2Robot(Node):
         self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
         self._step_seconds: deque[float] = deque(maxlen=10)  # the recent steps' durations
         self._braked = False
+        self._standing: np.ndarray | None = None
         self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
@@ -201,7 +193,6 @@ class Ros2Robot(Node):
             return
         self.neighbours.left(rid, time.time())
 
-    # ------------------------------------------------------------------ states
     def own_state(self, t: float) -> np.ndarray | None:
         """The own pose at wall time ``t`` from the newest odometry and the commands sent
         since (``None``: no odometry yet)."""
@@ -347,12 +338,14 @@ class Ros2Robot(Node):
                 self._await_plans(Tk)
                 self._step(k, Tk)
                 k += 1
-                if self.neighbours.blocked_by_concurrent:
-                    # blocked by a neighbour that decides at about the same instants: it
-                    # would stay so every sample; move this robot's instants away from it
+                if self.neighbours.blocked_by_concurrent:  # by a neighbour deciding at
+                    # about the same instants, as every sample: move away from them
                     self.neighbours.blocked_by_concurrent = False
                     self.counts["phase_shifts"] += 1
-                    T0 += random.uniform(0.2, 0.4) * self.Ts
+                    shift = random.uniform(0.2, 0.4) * self.Ts
+                    T0 += shift
+                    if self._standing is not None:  # it stands until its new instant
+                        self._announce_shift(k - 1, T0 + (k - 1) * self.Ts)
                 behind = time.time() + self.lead - (T0 + k * self.Ts)
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
@@ -399,6 +392,14 @@ class Ros2Robot(Node):
         if missing:
             log.warning("%s starts without plans from %s", self.name, missing)
 
+    def _announce_shift(self, sample: int, stamp: float) -> None:
+        """A plan standing where the robot stands, stamped a sample before its new instant
+        (true: zero until then): the neighbours see when it decides next, instead of a
+        plan in flight that holds them by its reach (and shifts them in turn)."""
+        N = self.scenario.horizon
+        self.publish_plan(sample, stamp, np.repeat(self._standing[None], N + 1, axis=0),
+                          np.zeros((N, 2)))
+
     def _await_plans(self, Tk: float) -> None:
         """Handle events while a plan of a neighbour that decided before this robot is in
         flight (:meth:`services.ros2.neighbours.Neighbours.awaited`), at most until the
@@ -444,6 +445,7 @@ class Ros2Robot(Node):
             states = self.controller_states(others, Tk)
             own = states[self.index, :3]
             self.neighbours.blocked_by_concurrent = False
+            self._standing = None  # where it stands this sample, if so
             self.controller.check_time = Tk
             started = time.perf_counter()
             out = self.controller.step(k, Tk - self.epoch, states, plans, None)
@@ -458,6 +460,7 @@ class Ros2Robot(Node):
                     self.counts["shifted_plans"] += 1
             else:  # standing still is safe: every neighbour keeps out of where it stops
                 u = np.zeros(2)
+                self._standing = own.copy()
                 self.counts["late_samples" if late else "brakes"] += 1
                 N = self.scenario.horizon
                 self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0),
