@@ -211,7 +211,16 @@ plan yet (at most until twice its recent step time before its instant;
 it may reach, and a pair decides in the order of its instants. Only the later robot of a
 pair waits, so two never wait for each other. Deciding later than `T_k - lead` is safe:
 a neighbour deciding in between has this robot's previous plan, whose next decision it
-sees as past, so it keeps out of all this robot may reach. (An earlier version took a
+sees as past, so it keeps out of all this robot may reach.
+
+A robot held by a neighbour deciding at about its own instants moves its instants by
+0.2-0.4 Ts (a phase shift; only while it stands) and announces it at once: a plan
+standing where it is, stamped a sample before its new instant (true: it commands zero
+until then). Without it the neighbours expected its next plan a sample after the last,
+took the shifted one for a plan in flight, held the robot by the disc it may reach and
+were refused in turn, and shifted too: on the hosts (plans 40 ms and TCP resends on
+their way) refusals and phase shifts fed each other, 582 refused inputs and 577 phase
+shifts in a run that ended 5/16. (An earlier version took a
 neighbour's arc as certain to be followed to its end; in its odometry-stop run a robot
 that stopped inside its sample was hit, clearance -0.025 m. The check now covers a stop
 at any moment.)
@@ -242,8 +251,8 @@ no collision, both arrive. The margins are large at `Ts` = 0.5 s (0.49 m for 0.5
 that gets no closer than the robot is now, so a robot that used up its braking distance can
 leave. Not solved: in a crossing of two such robots both can stand still for good near
 each other (before the check moved into the controller: 3 of 9 runs of a symmetric
-crossing, 2 of 6 with one robot 2 s later; after, with the liveness rules seeing the
-robots stand: 2 of 3 runs of the symmetric crossing, both robots 1.84 m before their
+crossing, 2 of 6 with one robot 2 s later; after (db837b9), with the liveness rules
+seeing the robots stand: 2 of 3 runs of the symmetric crossing, both robots 1.84 m before their
 goals and 0.73 m apart, inside the 0.79 m the check keeps, where every `detour` target
 lies closer to the other; 0 collisions in all).
 
@@ -260,7 +269,7 @@ tolerance (`services.ros2.check`). The counts add up every controller's: *sample
 computed, *stood still* (the check refused the QP's input and the shifted plan's),
 *shifted plans* (it refused the QP's input and passed the shifted plan's), *phase
 shifts* (a robot held by a neighbour deciding at about the same instants moved its own
-instants by 0.2-0.4 Ts; only while standing), *plan waits* (samples in which the robot
+instants by 0.2-0.4 Ts, announced; only while standing), *plan waits* (samples in which the robot
 waited for a plan in flight), *late samples* (a plan not ready before its instant: the
 robot stood still), *stale odometry* (times a controller found its odometry older than
 `--odom-timeout` and commanded zero). A robot whose odometry stops cannot arrive:
@@ -268,26 +277,29 @@ arrival counts it as not arrived.
 
 {hosts}
 
-Every run of this tree is in the two tables (swap-16 three times on loopback, three
-times on the hosts). Before them, three runs on the hosts at the default `--lead` (0.3 Ts
-= 0.15 s; 2026-11-24 07:14-07:22, load average 9-16): 0 collisions in all three; 16/16
-by t_end (last arrival 41.1 s), 14/16 (2.474 m) and 12/16 (5.914 m); refused inputs
-101, 208 and 328, phase shifts 106, 205 and 345, late samples 10, 9 and 30. The table above is at
-`--lead 0.25` (a plan from a host takes the neighbour's step and 40 ms to arrive; at
-0.15 s a robot deciding less than about 30 ms after a neighbour cannot wait for its
-plan): no better, 16/16, 16/16 and 5/16 by t_end. Not solved on the hosts: the links'
-TCP round trip has a 90th percentile of about 250 ms (a lost packet is resent after 200
-ms or more and holds every later byte of its link), so for long stretches a robot's
-plans reach nobody, and every robot near it is held by the disc it may reach (0.6 m/s
-times the delay) until they come; in a jammed centre almost every refusal is of that
-kind (phase shifts close to refused inputs in every run). A reach tighter than a disc
-(a unicycle with a known heading and a bounded turn rate cannot move sideways) would
-hold the neighbours less without weakening the check; not done.
+Runs of the swap-16 on the hosts on the way (2026-11-24, 0 collisions in every one):
+with the check inside the controller and the awaited plans, before merging main's
+roundabout rings, at the default `--lead` (0.15 s; 07:14-07:22, load average 9-16):
+16/16 by t_end (last arrival 41.1 s), 14/16 (2.474 m), 12/16 (5.914 m), refused
+inputs 101, 208, 328, phase shifts 106, 205, 345; at `--lead 0.25` (a step and a plan's
+40 ms between hosts fit in it; 07:25-07:34): 16/16 (47.4 s), 16/16 (39.7 s), 5/16
+(6.139 m), refused 125, 185, 582, phase shifts 136, 189, 577. After merging main,
+without the announced phase shifts: 8/16 (5.709 m), 580 refused, 618 phase shifts
+(07:38); with them: 16/16 (32.9 s), 42 refused, 47 phase shifts (07:42), then the three
+runs of the table. The hosts benchmark runs at `--lead 0.25`. On loopback, the same tree
+before main's merge (07:08-07:13): swap-16 16/16 three times (last arrivals 34.9, 35.0,
+35.9 s; refused 57, 13, 14; phase shifts 54, 10, 11), odometry stop 15/16 (robot 5).
+
+The loopback table's swap-16 and odometry-stop rows are of the final tree; its
+paper-s2 row is of the tree before main's merge and the announced phase shifts
+(07:00-07:07): 4 robots rarely wait or shift (1 refused input, 1 phase shift). Load
+averages while the loopback rows ran: 3.8 at their start, 9-16 by their end (other
+sessions share the machine).
 
 The tree before (6384a41) on the same machine: loopback swap-16 14/16 (05:08; 16/16 at
-02:37 and 04:28), 181 refused inputs, 172 phase shifts; hosts
-16/16 by t_end in two of four runs, 10/16 in the other two (all 16 by 98 s), 482
-refused inputs and 478 phase shifts in one run; 0 collisions in every run.
+02:37 and 04:28), 181 refused inputs, 172 phase shifts; hosts 16/16 by t_end in two of
+four runs, 10/16 in the other two (all 16 by 98 s), 482 refused inputs and 478 phase
+shifts in one run; 0 collisions in every run.
 """
 
 if __name__ == "__main__":
