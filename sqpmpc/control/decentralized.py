@@ -145,6 +145,7 @@ class DecentralizedController(ControllerPipeline):
         self._timing = (N, scenario.sample_time, settings.discretization)  # of the plans
         self.book = PlanBook(N)
         self._aged = False  # some age margin positive (track_plan_ages)
+        self._reach = self.context.max_speed * scenario.sample_time  # a plan age's margin
         self.plan_ages: dict[int, int] = {}
         self.published: PlanMessage | None = None
         self._received: dict[int, PlanMessage] = {}
@@ -320,19 +321,11 @@ class DecentralizedController(ControllerPipeline):
         more (:attr:`NeighbourSlots.age_margins`). Its age is reported once it
         has been late :data:`LATE_STEPS` steps in a row (:class:`PlanBook.age`).
         """
-        N, h = self.horizon, self.sample_time
-        margins = self.slot_data.age_margins
-        margins[:] = 0.0
-        report, aged = {}, False  # the ages to report; whether some margin is positive
-        for e, jid in self.slot_data.neighbours:
-            age, held = self.book.age(jid, plans.get(jid), sample)
-            if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
-                margins[e] = self.context.max_speed * h * min(age - 1, N)
-                aged = aged or margins[e] > 0.0
-                self.counts["late_plan_neighbours"] += 1
-            if held is not None:  # delayed, not a plan or two lost
-                report[jid] = min(held, N + 2)
-        self._aged = aged  # whether some margin is positive (the rows' set_age_margins)
+        d = self.slot_data
+        report, self._aged, late = self.book.track(d.neighbours, plans, sample, d.age_margins,
+                                                   self._reach)
+        if late:
+            self.counts["late_plan_neighbours"] += late
         return report
 
     def classify(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
@@ -346,10 +339,13 @@ class DecentralizedController(ControllerPipeline):
         for e, jid in d.neighbours:
             plan = plans.get(jid)
             if shared:
-                pair = pair_sample(sample, self.robot_id, jid, plan_ages)
-                mine = self._own_at(pair, sample, own_cache)
-                theirs = None if mine is None else self.book.neighbour_plan(plans, jid, pair,
-                                                                            plan)
+                pair = pair_sample(sample, self.robot_id, jid, plan_ages) if plan_ages else (
+                    sample - 1)
+                mine = own_cache[pair] if pair in own_cache else self._own_at(pair, sample,
+                                                                              own_cache)
+                theirs = None if mine is None else plan if (
+                    plan is not None and plan.sample == pair) else self.book.neighbour_plan(
+                        plans, jid, pair, plan)
                 if theirs is not None and fill_from_plan(d.predictions[e], theirs, sample,
                                                          *self._timing):
                     d.own_predictions[e] = mine

@@ -55,7 +55,7 @@ import numpy as np
 from sqpmpc.control.output import ControlOutput, braking_input
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.ocp import all_finite, headings_jump, within_box
+from sqpmpc.kernels.ocp import all_finite, measure_sample, within_box
 from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
@@ -149,14 +149,18 @@ class ControllerPipeline:
         #: the collision-row geometry the rules configured (read by the scheme's rows)
         self.geometry = geometry
         self._bind_hooks()  # the per-sample hook lists
+        self._engaged = lambda: engaged_robots(self.engine.layout, self.engine.y)  # held robots
         self._references = ReferenceSet([scenario.robots[i].reference for i in self.indices])
         self._stage_offsets = self.sample_time * np.arange(1, self.horizon + 1)
         m = self.indices.size
         self._applied = read_only(np.zeros((m, 2)))  # the rules read both (read-only)
         self._applied_before = self._applied
-        #: the own robots' headings of the last sample, unwrapped
-        self._headings: np.ndarray | None = None
-        self._n = scenario.n_robots
+        n = self._n = scenario.n_robots
+        self._shapes = ((n, 3), (n, 5))  # of the measured states
+        #: the own robots' headings of the last sample, unwrapped (once known)
+        self._headings, self._known = np.zeros(m), False
+        self._view_buffers = (np.zeros((n, 2)), np.zeros(n), np.zeros((m, 3)))  # measured:
+        self._views = tuple(map(read_only, self._view_buffers))  # positions, headings, poses
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
         self._deviates = plant.model != settings.discretization or plant.noisy or not \
@@ -193,19 +197,19 @@ class ControllerPipeline:
         t0 = time.perf_counter()
         # 1. measure
         states = np.asarray(states, dtype=float)
-        if states.shape not in ((self._n, 3), (self._n, 5)) or not all_finite(states.ravel()):
+        # finite; the headings kept (odometry wraps the yaw: models.base); the view's arrays
+        checked = -1 if (shape := states.shape) not in self._shapes else measure_sample(
+            states, self.indices, measured := np.empty((self.indices.size, shape[1])),
+            self._headings, self._known, *self._view_buffers)
+        if checked < 0:
             raise ProblemError(f"states must be finite with shape ({self._n}, 3) (poses) or "
-                               f"({self._n}, 5) (poses and measured v, omega), got "
-                               f"{states.shape}")
-        if states.shape[1] == 5:
-            measured, states = states[self.indices], np.ascontiguousarray(states[:, :3])
-        else:
-            measured = states[self.indices]
-        # odometry wraps the yaw; the plans are continuous in it (models.base)
-        last = self._headings
-        if last is not None and headings_jump(measured[:, 2], last):  # rarely: a wrapped yaw
-            measured[:, 2] = continuous_headings(measured[:, 2], last)
-        self._headings = measured[:, 2].copy()
+                               f"({self._n}, 5) (poses and measured v, omega), got {shape}")
+        if checked:  # rarely: a wrapped yaw
+            measured[:, 2] = continuous_headings(measured[:, 2], self._headings)
+            self._headings[:] = self._view_buffers[2][:, 2] = measured[:, 2]
+        self._known = True
+        if shape[1] == 5:
+            states = np.ascontiguousarray(states[:, :3])
         own = measured if self._unicycle else self.model.measured_states(measured,
                                                                          self._applied)
         self._own = own
@@ -221,15 +225,12 @@ class ControllerPipeline:
             shifted = engine.inputs()
         engine.start_sample(own)
         # 4. rules shape the references, then the linearization point; their view's arrays:
-        # this sample's new ones made read-only, the pipeline's and the engine's as views
+        # the references made read-only, read-only views of the others (for this sample)
         raw = self.reference(t)
-        positions = np.ascontiguousarray(states[:, :2])
-        headings = np.ascontiguousarray(states[:, 2])
-        for fresh in (raw, positions, headings):
-            fresh.setflags(write=False)
+        raw.setflags(write=False)
         view = SampleView.of_sample(
-            sample, t, positions, read_only(own if self._unicycle else own[:, :3]), raw,
-            self._applied, self._applied_before, headings,
+            sample, t, self._views[0], self._views[2], raw, self._applied,
+            self._applied_before, self._views[1],
             engine.guess_speeds() if self._guess_rules else None)
         for rule in self._reference_rules:
             contribution = rule.shape_references(view)
@@ -246,8 +247,7 @@ class ControllerPipeline:
                               **self._rows)
         # 6. rules after the solve
         if report.success and self._after_rules:
-            view = view.solved(engine.first_speeds(),
-                               functools.partial(engaged_robots, engine.layout, engine.y))
+            view = view.solved(engine.first_speeds(), self._engaged)
             iterate = False
             for rule in self._after_rules:  # every rule sees the solution
                 contribution = rule.after_solve(view)

@@ -54,6 +54,7 @@ one sample without that shared row, not one per jitter.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -217,13 +218,21 @@ class PlanBook:
         self.seen: dict[int, int] = {}
         # per neighbour: (steps late in a row, largest age of the last samples, held until)
         self.hold: dict[int, tuple[int, int, int]] = {}
+        # no plan of a sample below these is held (own, per neighbour): pruning visits
+        # only the samples from there (:func:`_drop_before`)
+        self._own_floor: int = sys.maxsize
+        self._floors: dict[int, int] = {}
 
     def publish(self, plan: PlanMessage, sample: int) -> None:
         """Keep the own plan of ``sample`` (a second one of the same sample: never shared)."""
-        self.own[sample] = None if sample in self.own else plan
-        if len(self.own) > self.horizon + 2:
-            for old in [s for s in self.own if s < sample - self.horizon - 1]:
-                del self.own[old]
+        own = self.own
+        if sample in own:
+            own[sample] = None
+        else:
+            own[sample] = plan
+            self._own_floor = min(self._own_floor, sample)
+        if len(own) > self.horizon + 2:
+            self._own_floor = _drop_before(own, self._own_floor, sample - self.horizon - 1)
 
     def own_plan(self, sample: int, published: PlanMessage | None) -> PlanMessage | None:
         """The own plan of ``sample`` (``None``: not held, or published twice)."""
@@ -233,13 +242,18 @@ class PlanBook:
     def remember(self, robot_id: int, plan: PlanMessage, sample: int) -> None:
         """Keep a neighbour's plan for shared rows of later samples (the first of a sample
         wins, as in the services' plan store)."""
-        held = self.neighbours.setdefault(robot_id, {})
-        if plan.sample in held:
+        held = self.neighbours.get(robot_id)
+        if held is None:
+            held = self.neighbours[robot_id] = {}
+        key = plan.sample
+        if key in held:
             return
-        held[plan.sample] = plan
+        held[key] = plan
+        floors = self._floors
+        floor = min(floors.get(robot_id, key), key)
         if len(held) > self.horizon + 2:
-            for old in [s for s in held if s < sample - self.horizon - 1]:
-                del held[old]
+            floor = _drop_before(held, floor, sample - self.horizon - 1)
+        floors[robot_id] = floor
 
     def neighbour_plan(self, plans: Mapping[int, object], robot_id: int, sample: int,
                        newest: PlanMessage | None) -> PlanMessage | None:
@@ -267,3 +281,52 @@ class PlanBook:
             held_age, until = age, sample + AGE_HOLD - 1
         self.hold[robot_id] = (late, held_age, until)
         return age, (held_age if late >= LATE_STEPS else None)
+
+    def track(self, neighbours: list[tuple[int, int]], plans: Mapping[int, object],
+              sample: int, margins: np.ndarray, reach: float) -> tuple[dict[int, int], bool, int]:
+        """:meth:`age` of every slotted neighbour at ``sample`` in one pass.
+
+        ``neighbours`` are ``(slot, id)`` pairs, ``plans`` the newest plans by id. A
+        neighbour whose plans' age ``a`` is above 1 gets ``margins[slot] = reach min(a - 1,
+        N)`` (the others 0). Returns the ages to report by id (``min(age, N + 2)``),
+        whether some margin is positive and how many neighbours were late.
+        """
+        N = self.horizon
+        seen, hold = self.seen, self.hold
+        report: dict[int, int] = {}
+        aged, late_count = False, 0
+        margins[:] = 0.0
+        for e, jid in neighbours:
+            plan = plans.get(jid)
+            if plan is not None:
+                self.remember(jid, plan, sample)
+                if seen.get(jid, -1) < plan.sample < sample:
+                    seen[jid] = plan.sample
+            age = sample - seen.get(jid, sample - 1)
+            late, held_age, until = hold.get(jid, (0, 1, -1))
+            if age > 1:  # its plans are late or lost: it re-planned age - 1 times unseen
+                late += 1
+                margins[e] = reach * min(age - 1, N)
+                aged = aged or margins[e] > 0.0
+                late_count += 1
+            else:
+                late = 0
+            if age >= held_age or sample > until:  # the largest age of the last few samples
+                held_age, until = age, sample + AGE_HOLD - 1
+            hold[jid] = (late, held_age, until)
+            if late >= LATE_STEPS:  # delayed, not a plan or two lost
+                report[jid] = min(held_age, N + 2)
+        return report, aged, late_count
+
+
+def _drop_before(held: dict[int, object], floor: int, threshold: int) -> int:
+    """Delete the entries of ``held`` whose sample is below ``threshold``, knowing none is
+    below ``floor``; returns the new floor. Integer samples close to the floor (the usual
+    case: one sample per step) are looked up, others scanned."""
+    if type(floor) is int and type(threshold) is int and threshold - floor <= len(held):
+        for old in range(floor, threshold):
+            held.pop(old, None)
+    else:
+        for old in [s for s in held if s < threshold]:
+            del held[old]
+    return max(floor, threshold)

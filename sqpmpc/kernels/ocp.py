@@ -31,6 +31,7 @@ __all__ = [
     "clip_bounds",
     "euler_defect_l1",
     "kkt_residual",
+    "measure_sample",
     "shift_iterate",
     "shift_plan",
     "split_rows",
@@ -74,6 +75,39 @@ def headings_jump(headings: np.ndarray, last: np.ndarray) -> bool:
         if abs(headings[i] - last[i]) > math.pi:
             return True
     return False
+
+
+@_jit
+def measure_sample(states: np.ndarray, indices: np.ndarray, measured: np.ndarray,
+                   last: np.ndarray, known: bool, positions: np.ndarray, headings: np.ndarray,
+                   own: np.ndarray) -> int:
+    """The measurement's checks and copies in one call.
+
+    Returns ``-1`` when some entry of ``states (n, k)`` is not finite. Else copies the own
+    robots' rows ``states[indices]`` into ``measured (m, k)``, ``states[:, :2]``,
+    ``states[:, 2]`` and the own poses ``measured[:, :3]`` into ``positions``, ``headings``
+    and ``own``, and returns ``1`` when some measured heading is more than pi from ``last``
+    (``known``: ``last`` holds the previous sample's; a wrapped yaw, see
+    :func:`headings_jump`), else ``0`` with the measured headings copied into ``last``.
+    """
+    for i in range(states.shape[0]):
+        for j in range(states.shape[1]):
+            if not math.isfinite(states[i, j]):
+                return -1
+    for r in range(indices.shape[0]):
+        for j in range(states.shape[1]):
+            measured[r, j] = states[indices[r], j]
+    for i in range(states.shape[0]):
+        positions[i, 0], positions[i, 1], headings[i] = states[i, 0], states[i, 1], states[i, 2]
+    for i in range(measured.shape[0]):
+        own[i, 0], own[i, 1], own[i, 2] = measured[i, 0], measured[i, 1], measured[i, 2]
+    if known:
+        for i in range(measured.shape[0]):
+            if abs(measured[i, 2] - last[i]) > math.pi:
+                return 1
+    for i in range(measured.shape[0]):
+        last[i] = measured[i, 2]
+    return 0
 
 
 @_jit

@@ -14,7 +14,8 @@ import numpy as np
 
 __all__ = [
     "detour_step", "hold_touching_rows", "inside_pairs", "limit_turning", "parking_mask",
-    "repair_speeds", "reversing", "roundabout_directions", "standing_still",
+    "repair_guess", "repair_speeds", "reversing", "roundabout_directions",
+    "stall_repair", "standing_still",
     "warm_up_roundabout", "warm_up_rules",
 ]
 
@@ -93,6 +94,62 @@ def repair_speeds(speeds: np.ndarray, goals: np.ndarray, states: np.ndarray,
 
 
 @_jit
+def _repair_robot(out: np.ndarray, r: int, references: np.ndarray, states: np.ndarray,
+                  limit: float, distance: float, ahead_speed: float, back_speed: float) -> bool:
+    """:func:`repair_speeds` of robot ``r`` on ``out`` (goal ``references[r, -1]``)."""
+    fastest = 0.0
+    for i in range(out.shape[1]):
+        fastest = max(fastest, abs(out[r, i]))
+    if not fastest < limit:
+        return False
+    last = references.shape[1] - 1
+    gx, gy = references[r, last, 0] - states[r, 0], references[r, last, 1] - states[r, 1]
+    if not np.hypot(gx, gy) > distance:
+        return False
+    ahead = gx * np.cos(states[r, 2]) + gy * np.sin(states[r, 2]) >= 0.0
+    speed = ahead_speed if ahead else back_speed
+    if speed == 0.0:  # the bounds forbid that direction: nothing to repair
+        return False
+    out[r, :] = speed
+    return True
+
+
+@_jit
+def repair_guess(guess: np.ndarray, references: np.ndarray, states: np.ndarray,
+                 only: np.ndarray, slow: float, distance: float, ahead_speed: float,
+                 back_speed: float, out: np.ndarray) -> int:
+    """The guess speeds ``(m, N)`` into ``out`` with the stalled robots among ``only``
+    repaired (:func:`repair_speeds` with the goals ``references[:, -1]``); count them."""
+    out[:, :] = guess
+    repaired = 0
+    for r in range(out.shape[0]):
+        if only[r] and _repair_robot(out, r, references, states, slow, distance, ahead_speed,
+                                     back_speed):
+            repaired += 1
+    return repaired
+
+
+@_jit
+def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
+                 states: np.ndarray, params: np.ndarray, still_for: np.ndarray,
+                 stuck: np.ndarray, out: np.ndarray) -> int:
+    """The stall repair in one call: :func:`standing_still`, then the guess speeds
+    ``(m, N)`` into ``out`` with the robots repaired (a stuck one at any speed, the
+    others when every ``|v| < slow``, as :func:`repair_speeds`); returns how many.
+
+    ``params``: ``(speed, patience, distance, slow, ahead_speed, back_speed)``.
+    """
+    standing_still(references, applied, params[0], np.int64(params[1]), still_for, stuck)
+    out[:, :] = guess
+    repaired = 0
+    for r in range(out.shape[0]):
+        limit = np.inf if stuck[r] else params[3]
+        if _repair_robot(out, r, references, states, limit, params[2], params[4], params[5]):
+            repaired += 1
+    return repaired
+
+
+@_jit
 def standing_still(references: np.ndarray, applied: np.ndarray, speed: float, patience: int,
               still_for: np.ndarray, stuck: np.ndarray) -> bool:
     """Count the samples each robot has applied ``|v| < speed`` with its references
@@ -137,13 +194,16 @@ def parking_mask(raw: np.ndarray, positions: np.ndarray, radius: float,
 
 
 @_jit
-def reversing(v: np.ndarray, v1: np.ndarray, v2: np.ndarray, eps: float,
+def reversing(v: np.ndarray, applied: np.ndarray, applied_before: np.ndarray, eps: float,
                out: np.ndarray) -> int:
-    """Robots whose plan reverses gear a second sample in a row (speeds above ``eps``)."""
+    """Robots whose plan reverses gear a second sample in a row (speeds above ``eps``): the
+    planned speeds ``v (m,)`` against the speeds ``[:, 0]`` of the inputs ``(m, nu)``
+    applied at the last two samples."""
     count = 0
     for r in range(v.shape[0]):
-        moving = abs(v[r]) > eps and abs(v1[r]) > eps and abs(v2[r]) > eps
-        out[r] = moving and np.sign(v[r]) == np.sign(v2[r]) and np.sign(v[r]) != np.sign(v1[r])
+        v1, v2 = applied[r, 0], applied_before[r, 0]
+        moving = abs(v[r]) > eps and abs(v1) > eps and abs(v2) > eps
+        out[r] = moving and np.sign(v[r]) == np.sign(v2) and np.sign(v[r]) != np.sign(v1)
         count += out[r]
     return count
 
@@ -170,33 +230,46 @@ def warm_up_rules() -> None:
     parking_mask(references, poses, 1.0, np.zeros(2, dtype=np.bool_))
     standing_still(references, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
                    np.zeros(2, dtype=np.bool_))
+    # the guess speeds as the engine shows them: a read-only strided view of the iterate
+    guess = _read_only(np.zeros(2 * 13)).reshape(2, 13)[:, 3:13:5]
+    mask = np.zeros(2, dtype=np.bool_)
+    for own in (states, poses):
+        stall_repair(guess, references, applied, own, np.array([0.05, 10, 0.1, 0.05, 0.05,
+                                                                -0.05]),
+                     np.zeros(2, dtype=np.int64), mask, np.empty((2, 2)))
+        repair_guess(guess, references, own, mask, 0.05, 0.01, 0.05, -0.05, np.empty((2, 2)))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
     for me in (np.zeros(2), _read_only(np.zeros(2))):
         hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
                            np.zeros((1, 2)))
-    reversing(_read_only(np.zeros(2)), np.zeros(2), np.zeros(2), 0.005,
-              np.zeros(2, dtype=np.bool_))
-    i = np.zeros(2, dtype=np.int64)
-    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, np.ones((2, 2)),
-                np.ones((2, 3)), 0.05, 0.3, 0.2, 2, 6, i, i.copy(), i.copy())
+    reversing(_read_only(np.zeros(2)), applied, applied, 0.005, np.zeros(2, dtype=np.bool_))
+    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, references,
+                np.ones((2, 3)), np.array([0.05, 0.3, 0.2, 2, 6]),
+                np.zeros((3, 2), dtype=np.int64))
 
 
 @_jit
 def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
-                 goals: np.ndarray, required: np.ndarray, speed: float, reach: float,
-                 cos_cone: float, patience: int, hold: int, blocked_for: np.ndarray,
-                 active_for: np.ndarray, blocker: np.ndarray) -> int:
-    """Advance the detour state of the own robots by one sample; returns new activations.
+                references: np.ndarray, required: np.ndarray, params: np.ndarray,
+                state: np.ndarray) -> int:
+    """Advance the detour state of the own robots by one sample; returns the new
+    activations, or ``-1`` when no robot detours after the step.
 
-    ``required (m, n)`` are the own robots' required distances to everyone and
-    ``goals (m, 2)`` their stage-N references; the state arrays ``(m,)`` are
-    updated in place (see :class:`Detour`).
+    ``required (m, n)`` are the own robots' required distances to everyone, their goals
+    the stage-N references ``references[:, -1]``; ``params`` are ``(speed, reach, cos_cone,
+    patience, hold)``; the rows of ``state (3, m)`` (samples blocked, samples of detour
+    left, blocker) are updated in place (see :class:`Detour`).
     """
+    speed, reach, cos_cone = params[0], params[1], params[2]
+    patience, hold = np.int64(params[3]), np.int64(params[4])
+    blocked_for, active_for, blocker = state[0], state[1], state[2]
+    last = references.shape[1] - 1
     activations = 0
+    detouring = False
     for r in range(own.shape[0]):
         i = own[r]
         px, py = positions[i, 0], positions[i, 1]
-        gx, gy = goals[r, 0] - px, goals[r, 1] - py
+        gx, gy = references[r, last, 0] - px, references[r, last, 1] - py
         goal_dist = np.hypot(gx, gy)
         blocked = False
         closest = -1
@@ -220,7 +293,8 @@ def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
             active_for[r] = hold
         else:
             active_for[r] = max(active_for[r] - 1, 0)
-    return activations
+        detouring = detouring or active_for[r] != 0
+    return activations if detouring else -1
 
 
 @_jit

@@ -21,6 +21,7 @@ from sqpmpc.kernels.ocp import (
     euler_step,
     headings_jump,
     kkt_residual,
+    measure_sample,
     rows_shortfall,
     shift_iterate,
     shift_plan,
@@ -52,6 +53,10 @@ def warm_up() -> float:
     all_finite(_read_only(np.zeros(3)))
     headings_jump(np.zeros(2), np.zeros(2))
     headings_jump(np.zeros((2, 3))[:, 2], np.zeros(2))  # the measured poses' column
+    # measured states: the simulation's, a decoded message's (read-only), a strided view
+    for measured in (np.zeros((2, 3)), _read_only(np.zeros((2, 3))), np.zeros((2, 5))[:, :3]):
+        measure_sample(measured, np.zeros(1, dtype=np.int64), np.empty((1, 3)), np.zeros(1),
+                       True, np.empty((2, 2)), np.empty(2), np.empty((1, 3)))
     plan = np.zeros((2, 3, 3))
     within_box(plan[:, 1, :2], -np.ones(2), np.ones(2))  # a stage of a plan (strided)
     within_box(np.zeros((2, 2)), -np.ones(2), np.ones(2))

@@ -63,6 +63,7 @@ class OSQPBackend:
 
     def _push(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
               lower: np.ndarray, upper: np.ndarray, changed: Changes) -> None:
+        """The set-up (first call), or what changed through the public ``osqp.OSQP``."""
         L = self.layout
         if self.solver is None:
             self.solver = osqp.OSQP()
@@ -71,15 +72,6 @@ class OSQPBackend:
             self.setup_count += 1
             core = getattr(self.solver, "_solver", None)
             self._core = core if all(hasattr(core, a) for a in _CORE_METHODS) else None
-        elif self._core is not None and not self.use_osqp_wrapper:
-            core = self._core
-            if changed.vectors:
-                clip_bounds(lower, upper, _OSQP_INFINITY, self._lower, self._upper)
-                core.update_data_vec(q=q, l=self._lower, u=self._upper)
-            if changed.P or changed.A:
-                core.update_data_mat(
-                    P_x=P_values[L.P_order_inverse] if changed.P else None, P_i=None,
-                    A_x=A_values[L.A_order_inverse] if changed.A else None, A_i=None)
         else:
             kwargs: dict[str, np.ndarray] = {}
             if changed.vectors:
@@ -98,10 +90,21 @@ class OSQPBackend:
         """Push what ``changed``, warm start, solve (the :class:`~sqpmpc.qp.backend.QPBackend`
         protocol). A Ctrl-C that OSQP caught during the solve is raised as
         ``KeyboardInterrupt``; data OSQP refuses as :class:`SolverError`."""
+        core = self._core
         try:
-            self._push(P_values, q, A_values, lower, upper, changed)
-            if self._core is not None and not self.use_osqp_wrapper:
-                core = self._core
+            if core is None or self.use_osqp_wrapper:  # the set-up, or the public wrapper
+                self._push(P_values, q, A_values, lower, upper, changed)
+                core = None if self.use_osqp_wrapper else self._core
+            else:  # the hot path: what changed straight to the compiled solver
+                if changed.vectors:
+                    clip_bounds(lower, upper, _OSQP_INFINITY, self._lower, self._upper)
+                    core.update_data_vec(q=q, l=self._lower, u=self._upper)
+                if changed.P or changed.A:
+                    L = self.layout
+                    core.update_data_mat(
+                        P_x=P_values[L.P_order_inverse] if changed.P else None, P_i=None,
+                        A_x=A_values[L.A_order_inverse] if changed.A else None, A_i=None)
+            if core is not None:
                 if warm_x is not None or warm_y is not None:
                     core.warm_start(warm_x, warm_y)
                 core.solve()
@@ -113,15 +116,15 @@ class OSQPBackend:
                 info = solution.info
         except (ValueError, RuntimeError) as exc:  # OSQP setup/update errors
             raise SolverError(f"OSQP rejected the QP data: {exc}") from exc
-        if info.status_val == _SIGINT:
+        status = info.status_val
+        if status == _SIGINT:
             # OSQP catches Ctrl-C during a solve; hand it back to the caller
             raise KeyboardInterrupt
-        solved = info.status_val == _SOLVED_EXACTLY or (
-            self.settings.accept_inaccurate and info.status_val in _SOLVED)
+        solved = status == _SOLVED_EXACTLY or (
+            self.settings.accept_inaccurate and status in _SOLVED)
         return BackendSolution(
             np.array(solution.x, dtype=float, copy=True),
             np.array(solution.y, dtype=float, copy=True), bool(solved), str(info.status),
             int(info.iter), float(info.solve_time), float(info.obj_val), float(info.prim_res),
-            float(info.dual_res), time_limit_reached=info.status_val == _TIME_LIMIT,
-            extra={"polish_status": float(info.status_polish),
-                   "rho_updates": float(info.rho_updates)})
+            float(info.dual_res), status == _TIME_LIMIT,
+            {"polish_status": float(info.status_polish), "rho_updates": float(info.rho_updates)})

@@ -146,7 +146,8 @@ class SampleView:
 
     The pipeline builds it after the measurement and replaces it (a new view)
     when a contribution changed what it shows; the fields of later steps are
-    ``None`` before them.
+    ``None`` before them. Its arrays hold for the sample: the pipeline refreshes
+    the measurement's in place at the next one (a rule copies what it keeps).
 
     Attributes
     ----------
@@ -268,7 +269,9 @@ class Contribution:
         ``(m,)`` factor on each own robot's position weight ``Q``, kept until
         changed again (``"references"`` hooks).
     guess_speeds
-        ``(m, N)`` new speeds of the linearization point (``"guess"`` hooks).
+        ``(m, N)`` new speeds of the linearization point (``"guess"`` hooks); the
+        pipeline applies a contribution at once, so a rule may hand out a buffer it
+        reuses at the next sample.
     iterate
         Iterate this sample to convergence (SQP) after the RTI step
         (``"after_solve"`` hooks).

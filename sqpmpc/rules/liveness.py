@@ -44,7 +44,7 @@ import numba
 import numpy as np
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.kernels.rules import detour_step, parking_mask, repair_speeds, reversing, standing_still
+from sqpmpc.kernels.rules import detour_step, parking_mask, repair_guess, reversing, stall_repair
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.rules.base import (
     Contribution,
@@ -166,21 +166,21 @@ class _StallInstance(RuleInstance):
         self._all = np.ones(context.own.size, dtype=np.bool_)
         self._still_for = np.zeros(context.own.size, dtype=np.int64)
         self._stuck = np.zeros(context.own.size, dtype=np.bool_)
+        self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
+        self._params = np.array([rule.speed, rule.patience, rule.distance, self._slow,
+                                 self._ahead, self._back], dtype=float)  # the kernel's
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        goals = view.references[:, -1].copy()
-        speeds = view.guess_speeds.copy()
-        stuck = self._stuck
-        repaired = 0
-        # standing for `patience` samples with the reference at rest: whatever the guess plans
-        if standing_still(view.references, view.applied, self.rule.speed, self.rule.patience,
-                          self._still_for, stuck):
-            repaired += repair_speeds(speeds, goals, view.own_states, stuck, np.inf,
-                                      self.rule.distance, self._ahead, self._back)
-        repaired += repair_speeds(speeds, goals, view.own_states, ~stuck, self._slow,
-                                  self.rule.distance, self._ahead, self._back)
+        # standing for `patience` samples with the reference at rest: whatever the guess
+        # plans; else every guess |v| < the repair speed (one kernel, the new speeds into
+        # this rule's buffer: no contribution when it repaired nothing)
+        repaired = stall_repair(view.guess_speeds, view.references, view.applied,
+                                view.own_states, self._params, self._still_for, self._stuck,
+                                self._speeds)
+        if not repaired:
+            return None
         self.counts["stall_repairs"] += repaired
-        return Contribution(guess_speeds=speeds) if repaired else None
+        return Contribution(guess_speeds=self._speeds)
 
 
 @dataclass(frozen=True)
@@ -217,6 +217,8 @@ class _ParkingInstance(RuleInstance):
                           rule.reach * context.max_speed * max(horizon_time, rule.horizon))
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self.parking = np.zeros(context.own.size, dtype=np.bool_)
+        self._parked = 0
+        self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         parked = parking_mask(view.scenario_references, view.own_states, self.radius,
@@ -226,17 +228,19 @@ class _ParkingInstance(RuleInstance):
             parked = -1 - parked
             out = Contribution(position_weight_scale=np.where(self.parking, self.gain, 1.0))
         self.counts["parked_samples"] += parked
+        self._parked = parked  # how many park (the guess hook of the same sample reads it)
         return out
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        if not np.count_nonzero(self.parking):  # nobody parks: nothing to repair
+        if not self._parked:  # nobody parks: nothing to repair
             return None
-        speeds = view.guess_speeds.copy()
-        repaired = repair_speeds(speeds, view.references[:, -1].copy(), view.own_states,
-                                 self.parking, self._slow, self.rule.tolerance, self._ahead,
-                                 self._back)
+        repaired = repair_guess(view.guess_speeds, view.references, view.own_states,
+                                self.parking, self._slow, self.rule.tolerance, self._ahead,
+                                self._back, self._speeds)
+        if not repaired:
+            return None
         self.counts["parking_repairs"] += repaired
-        return Contribution(guess_speeds=speeds) if repaired else None
+        return Contribution(guess_speeds=self._speeds)
 
 
 @dataclass(frozen=True)
@@ -286,8 +290,8 @@ class _GearCycleInstance(RuleInstance):
     def after_solve(self, view: SampleView) -> Contribution | None:
         if not self._rti:
             return None
-        if not reversing(view.first_speeds, view.applied[:, 0].copy(),
-                         view.applied_before[:, 0].copy(), self.rule.min_speed, self._cycle):
+        if not reversing(view.first_speeds, view.applied, view.applied_before,
+                         self.rule.min_speed, self._cycle):
             return None
         if not np.count_nonzero(self._cycle & ~view.engaged()):
             return None
@@ -323,10 +327,12 @@ class _DetourInstance(RuleInstance):
         self.patience = rule.patience_centralized if context.scheme == "centralized" \
             else rule.patience
         self.kept = context.kept_distances()  # near: within what the rows keep + reach
-        self.blocked_for = np.zeros(m, dtype=np.int64)
-        self.active_for = np.zeros(m, dtype=np.int64)
-        self.blocker = np.full(m, -1, dtype=np.int64)
+        self._state = np.zeros((3, m), dtype=np.int64)  # the kernel's, by row:
+        self.blocked_for, self.active_for, self.blocker = self._state
+        self.blocker[:] = -1
         self._cos_cone = np.cos(rule.cone)
+        self._params = np.array([rule.speed, rule.reach, self._cos_cone, self.patience,
+                                 rule.hold], dtype=float)  # the kernel's numbers
         self._turn = np.array([[np.cos(rule.angle), -np.sin(rule.angle)],
                                [np.sin(rule.angle), np.cos(rule.angle)]])
 
@@ -335,12 +341,11 @@ class _DetourInstance(RuleInstance):
         positions = view.positions
         if positions.shape[0] < 2:
             return None
-        self.counts["detour_activations"] += detour_step(
-            positions, self.context.own, view.applied, view.references[:, -1].copy(),
-            self.kept, r.speed, r.reach, self._cos_cone, self.patience, r.hold,
-            self.blocked_for, self.active_for, self.blocker)
-        if not np.count_nonzero(self.active_for):  # nobody detours
+        activations = detour_step(positions, self.context.own, view.applied, view.references,
+                                  self.kept, self._params, self._state)
+        if activations < 0:  # nobody detours
             return None
+        self.counts["detour_activations"] += activations
         active = np.flatnonzero(self.active_for)
         own = self.context.own
         out = view.references.copy()

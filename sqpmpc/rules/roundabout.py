@@ -197,12 +197,14 @@ class _RoundaboutInstance(RuleInstance):
     def _ring_references(self, view: SampleView) -> np.ndarray | None:
         """References around the rings of the own robots that have one now (``None``: none)."""
         r = self.rule
-        if not self.zones_ready:
-            self._find_rings(view.positions)
         own = self.context.own
-        zones = self.zone_of[own]
-        if not np.any(zones >= 0):
+        if not self.zones_ready:  # the zones hold until the next search: their test too
+            self._find_rings(view.positions)
+            self._own_zones = self.zone_of[own]
+            self._ringed = bool(np.any(self._own_zones >= 0))
+        if not self._ringed:
             return None
+        zones = self._own_zones
         p, goals = view.positions, self.rest_goals
         out = None
         for k in np.flatnonzero(zones >= 0):
