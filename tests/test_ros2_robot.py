@@ -1,4 +1,5 @@
-"""The ROS 2 robot's pieces without processes: bad options, committed motion of plans."""
+"""The ROS 2 robot's pieces without processes: bad options, committed motion of plans, the
+controller's check, the neighbours' headings and the plans awaited."""
 
 from __future__ import annotations
 
@@ -72,3 +73,53 @@ def test_the_check_keeps_out_of_all_a_neighbour_may_stop_on():
     near.add(PlanMsg(2, 5, 0.0, now + 10.0, states, np.zeros((8, 2))), now)
     near.add(PlanMsg(2, 0, 0.0, now - 0.2, states, np.zeros((8, 2))), now)
     assert (near.received, near.refused) == (1, 1)
+
+
+def test_the_controller_checks_as_the_robot_and_waits_for_plans_in_flight():
+    import time
+
+    from services.control import controller_settings
+    from services.messages import PlanMsg
+    from services.robot import build_parser
+    from services.ros2.controller import Ros2Controller
+    from services.ros2.neighbours import Neighbours
+    from sqpmpc.problem.scenario_file import load_scenario
+
+    scenario = load_scenario("paper-s2")
+    ids = [int(i) for i in scenario.ids]
+    me, other = ids[0], ids[1]
+    settings = controller_settings(build_parser().parse_args(
+        ["--id", str(me), "--scenario", "paper-s2", "--ros2"]))
+    controller = Ros2Controller(scenario, me, settings)
+    now = time.time()
+    nb = Neighbours(ids, me, scenario.required_distances()[0], 0.5, scenario.horizon,
+                    float(controller.context.max_speed), lead=0.15, guard=0.02, margin=0.02)
+    controller.neighbours = nb
+    own = np.array(scenario.initial_states()[0], dtype=float)
+    # a neighbour standing 0.5 m ahead on the own way to the reference, facing it
+    goal = scenario.reference_positions(0.0)[0]
+    ahead = own[:2] + 0.5 * (goal - own[:2]) / np.hypot(*(goal - own[:2]))
+    heading = float(np.arctan2(*(own[:2] - ahead)[::-1]))
+    standing = np.tile([*ahead, heading], (scenario.horizon + 1, 1))
+    nb.add(PlanMsg(other, 0, 0.0, now - 0.1, standing, np.zeros((scenario.horizon, 2))), now)
+    t = now + 0.1
+    others, plans = nb.for_controller(t, 0)
+    assert np.isclose(others[1, 2], heading)  # the rules see its heading (roundabout)
+    states = others.copy()
+    states[0] = own
+    controller.check_time = t
+    out = controller.step(0, 0.0, states, plans, None)
+    # what the controller applies passes the robot's check: the QP's input, the shifted
+    # plan or standing still (then its plan stands where it is)
+    assert nb.path_is_safe(own, out.inputs[0], t)
+    if out.fallback == "brake":
+        assert np.allclose(out.inputs[0], 0.0)
+    # the neighbour's next instant (now + 0.4) comes before one at now + 0.45: decided at
+    # now + 0.25, its plan is awaited from then on, not before; a robot deciding after
+    # this one (its instant later than this one's) is not
+    assert not nb.awaited(own, now + 0.45, now)
+    assert nb.awaited(own, now + 0.45, now + 0.26)
+    assert not nb.awaited(own, now + 0.35, now + 0.26)
+    nb.add(PlanMsg(other, 1, 0.0, now + 0.4, standing, np.zeros((scenario.horizon, 2))),
+           now + 0.27)
+    assert not nb.awaited(own, now + 0.45, now + 0.27)  # it came

@@ -20,7 +20,7 @@ import argparse
 import json
 import math
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,10 @@ from sqpmpc.io.atomic import atomic_path
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario
 
-__all__ = ["FleetCheck", "check_fleet", "main", "poses_at"]
+__all__ = ["ARRIVAL_STEP", "FleetCheck", "check_fleet", "main", "poses_at"]
+
+ARRIVAL_STEP = 0.05
+"""Grid of :attr:`FleetCheck.arrival_times`, s."""
 
 
 def poses_at(segments: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -75,6 +78,10 @@ class FleetCheck:
     (under acceleration limits: until its velocities are zero, the log holds velocities)."""
     moved_after_zero: dict[str, bool]
     """Per such robot: whether a non-zero command came after that zero."""
+    arrival_times: dict[str, float | None] = field(default_factory=dict)
+    """Per robot: the scenario time (s from the epoch) from which it stayed within
+    ``tolerance`` of its reference to the end, on a grid of :data:`ARRIVAL_STEP`
+    (``None``: not within at the end)."""
 
     @property
     def ok(self) -> bool:
@@ -115,6 +122,17 @@ def check_fleet(data: dict, scenario: Scenario, tolerance: float = 0.05,
     for k, rid in enumerate(ids):
         j = scenario.index_of(int(rid))
         errors[rid] = float(np.hypot(*(pos[k, -1] - ref[j])))
+    epoch = float(data["epoch"])
+    every = max(1, round(ARRIVAL_STEP / dt))
+    grid = times[::every] - epoch
+    refs = np.stack([scenario.reference_positions(min(max(t, 0.0), scenario.t_end))
+                     for t in grid])  # (G, n, 2)
+    arrival: dict[str, float | None] = {}
+    for k, rid in enumerate(ids):
+        err = np.hypot(*(pos[k, ::every] - refs[:, scenario.index_of(int(rid))]).T)
+        out = np.flatnonzero(err > tolerance)
+        arrival[rid] = (float(grid[0]) if out.size == 0 else
+                        None if out[-1] + 1 >= grid.size else float(grid[out[-1] + 1]))
     stop_to_zero: dict[str, float | None] = {}
     moved: dict[str, bool] = {}
     for rid, t_stop in data.get("odom_stop", {}).items():
@@ -128,7 +146,7 @@ def check_fleet(data: dict, scenario: Scenario, tolerance: float = 0.05,
         min_clearance=worst, certified_clearance=worst - v_max * dt, closest_pair=pair,
         final_errors=errors, arrived=sum(e <= tolerance for e in errors.values()),
         tolerance=tolerance, commands=sum(len(s) - 1 for s in segs.values()),
-        stop_to_zero=stop_to_zero, moved_after_zero=moved)
+        stop_to_zero=stop_to_zero, moved_after_zero=moved, arrival_times=arrival)
 
 
 def build_parser(prog: str = "services.ros2.check") -> argparse.ArgumentParser:

@@ -251,3 +251,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                     for r, d in result.stop_to_zero.items()))
     print(f"wrote {out}")
     return status if status else (0 if result.ok else 1)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -139,6 +139,7 @@ class Neighbours:
             elif self.plans[rid]:
                 pos, _ = committed(self.plans[rid], times, self.Ts, self.v_max, True)
                 states[j, :2] = pos[1]
+                states[j, 2] = self._heading(self.plans[rid], t)
             else:
                 states[j] = (FAR + 10.0 * j, FAR, 0.0)
                 continue
@@ -146,6 +147,39 @@ class Neighbours:
             stage[:, :2] = pos
             plans[rid] = PlanMessage(rid, sample - 1, stage, np.zeros((N, 2)))
         return states, plans
+
+    def awaited(self, own: np.ndarray, t: float, now: float) -> bool:
+        """Whether a neighbour that may come near ``own`` during the sample at wall time ``t``
+        has decided its own sample before this robot (its next instant in ``[t - Ts, t)``,
+        its decision ``lead`` before that, no later than ``now`` plus the guard) and its plan
+        is not here yet: waiting for it (it is in flight) spares the check the disc it may
+        reach. Only a neighbour deciding earlier is awaited, so two never wait for each
+        other."""
+        reach = 4.0 * self.v_max * self.Ts + self.margin
+        for j, rid in enumerate(self.ids):
+            if rid == self.robot_id or rid in self.departed or not self.plans.get(rid):
+                continue
+            kept = self.plans[rid]
+            nxt = kept[-1].stamp + self.Ts
+            if not (t - self.Ts <= nxt < t and nxt - self.lead <= now + self.guard):
+                continue
+            at, r = committed(kept, np.array([t]), self.Ts, self.v_max, False)
+            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] \
+                    <= self.required[j] + reach:
+                return True
+        return False
+
+    def _heading(self, kept: list[TimedPlan], t: float) -> float:
+        """A neighbour's heading at wall time ``t`` on the arc of its newest plan stamped at or
+        before ``t`` (held at the arc's end; the rules read it, e.g. ``roundabout``'s
+        "heading the way this robot goes is traffic")."""
+        best = kept[0]
+        for plan in kept:
+            if plan.stamp <= t:
+                best = plan
+        tau = min(max(t - best.stamp, 0.0), self.Ts)
+        u = best.inputs[0]
+        return float(best.states[0, 2] + float(u[1]) * tau)
 
     def path_is_safe(self, own: np.ndarray, u: np.ndarray, t: float) -> bool:
         """Whether applying ``u`` from ``own`` at wall time ``t`` for one sample keeps every

@@ -13,24 +13,24 @@ run), with the wall time of their stage 0 in ``stamp``.
 One sample ``k`` (instant ``T_k = T_0 + k Ts``, ``t_k = T_k - epoch`` for the
 references):
 
-1. at ``T_k - lead``: the own state at ``T_k`` from the newest odometry (pose
-   and ``v``, ``omega``), carried forward on the exact unicycle arc with the
-   measured twist and then the commands sent since; each neighbour's motion
-   from its plans (:func:`services.ros2.timing.committed`): a robot applies a
-   plan's first input from the plan's stamp for one sample, so that arc is
-   exact, and after it the neighbour either decides again knowing this
-   robot's new plan or is bounded by its reach;
-2. the controller's step with every neighbour a moving obstacle (its exact
-   arcs, then standing where they end, at the own stage times);
-3. the check of the first input
-   (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`): along the exact
-   arc of the whole sample, every neighbour's distance plus
-   ``--ros2-margin`` from where it is (arcs, then standing still for a
-   neighbour that will see this plan before it decides, or the disc it may
-   reach otherwise); if not, the robot stands still, which is always safe:
-   every neighbour deciding later keeps out of where this robot stops (it
-   checks the same way), and one deciding at about the same time had to keep
-   out of it already (it took this robot's previous arc, then standing still);
+1. at ``T_k - lead``, after waiting for a plan in flight of a neighbour that
+   decides before this robot (:meth:`services.ros2.neighbours.Neighbours.awaited`):
+   the own state at ``T_k`` from the newest odometry, carried forward on exact
+   arcs with the measured twist and the commands sent since; each neighbour's
+   motion from its plans (:func:`services.ros2.timing.committed`): a robot
+   applies a plan's first input from its stamp for one sample, exactly, and
+   then decides again knowing this robot's new plan or is bounded by its reach;
+2. the step of :class:`services.ros2.controller.Ros2Controller`, every
+   neighbour a moving obstacle (its exact arcs, then standing where they end);
+3. inside it, the check of the first input
+   (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`) along the exact
+   arc of the whole sample; if it fails, the shifted plan if that passes, else
+   the robot stands still, which is always safe: a neighbour deciding later
+   keeps out of where it stops, one deciding at about the same time kept out of
+   it already (this robot's previous arc, then standing); the rules see what
+   the robot applied, as in lockstep. A robot held by a neighbour deciding at
+   about its instants shifts its own and announces it (a standing plan
+   stamped a sample before its new instant);
 4. the plan is sent at once, the command at ``T_k``.
 
 Every robot of a fleet uses the same ``--lead`` (it tells when a neighbour
@@ -38,13 +38,11 @@ decides). The safety argument is per pair: at every instant the robot that
 decided last knew the other's motion up to then and kept the distance from it.
 
 The command is zero when the odometry is older than ``--odom-timeout``
-(checked continuously, so within one sample of its loss), at the end
-(``t_end``), and on SIGINT/SIGTERM; while the odometry is stale the robot
-publishes a plan that stands still where the odometry and the commands sent
-put it. A neighbour that has not sent a plan yet is unknown (it is not
-running); one whose token disappears (it stopped, commanding zero) is held
-where its last plan put it, standing still. Before moving, the robot waits up
-to ``--timeout`` for a plan of every neighbour whose token it sees.
+(checked continuously), at the end and on SIGINT/SIGTERM; while the odometry is
+stale the robot publishes a plan standing where odometry and commands put it. A
+neighbour without a plan yet is unknown (not running); one whose token disappears
+(it stopped, commanding zero) is held where its last plan put it, standing still.
+Before moving, the robot waits up to ``--timeout`` for every alive neighbour's plan.
 """
 
 from __future__ import annotations
@@ -55,13 +53,13 @@ import math
 import random
 import threading
 import time
+from collections import deque
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from sqpmpc.control.decentralized import DecentralizedController
 from sqpmpc.problem.scenario import Scenario
 
 from ..control import controller_settings
@@ -69,6 +67,7 @@ from ..messages import Message, PlanMsg, encode
 from ..node import POLL, Node
 from ..transport import make_config
 from . import msgs
+from .controller import Ros2Controller
 from .graph import Received, Ros2Node
 from .neighbours import Neighbours
 from .options import check_margin, ros2_problem
@@ -89,15 +88,6 @@ PUBLISH_SLACK = 0.005
 """A plan not ready this long before its instant is dropped: the robot stands still."""
 
 
-class _NoPaperWarning(logging.Filter):
-    """The controller's warning about its obstacle mode, which alone has no guarantee: here
-    :meth:`services.ros2.neighbours.Neighbours.path_is_safe` verifies every input."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return "decentralized mode 'paper'" not in record.getMessage()
-
-
-
 class Ros2Robot(Node):
     """The controller of one ROS 2 robot (see the module notes).
 
@@ -112,9 +102,6 @@ class Ros2Robot(Node):
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
         self.robot_id = int(args.id[0])
-        # every neighbour is a moving obstacle (its committed arcs); the robot's own
-        # check (Neighbours.path_is_safe) is what keeps the distance
-        logging.getLogger(DecentralizedController.__module__).addFilter(_NoPaperWarning())
         settings = controller_settings(args)
         # the QP keeps more room than the check asks for (the check is continuous, the
         # QP's rows are at the stage instants)
@@ -122,7 +109,7 @@ class Ros2Robot(Node):
         settings = replace(settings, collision_margin=max(
             settings.collision_margin, self.check_margin
             + (ROW_MARGIN_FACTOR - 1.0) * float(args.ros2_margin)))
-        self.controller = DecentralizedController(scenario, self.robot_id, settings, "paper")
+        self.controller = Ros2Controller(scenario, self.robot_id, settings)
         # stage-one-override on the obstacle rows too: a stage-1 row the current positions
         # violate is capped at the current gap, so standing still stays feasible
         self.controller.collisions.stage_one_rule_for_obstacles = True
@@ -135,6 +122,7 @@ class Ros2Robot(Node):
                                      scenario.horizon, float(self.controller.context.max_speed),
                                      self.lead, args.ros2_guard, self.check_margin,
                                      keep_current=scenario.bounds.dynamic_limits)
+        self.controller.neighbours = self.neighbours  # its first-input check is the robot's
         self.limits = (scenario.bounds.acceleration_lower(),
                        scenario.bounds.acceleration_upper()) \
             if scenario.bounds.dynamic_limits else None
@@ -145,7 +133,8 @@ class Ros2Robot(Node):
         self.epoch = args.epoch
         self.epoch_file: Path | None = args.epoch_file
         self._cmd_lock = threading.RLock()
-        self.counts = {"samples": 0, "brakes": 0, "phase_shifts": 0, "late_samples": 0,
+        self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
+                       "late_samples": 0, "plan_waits": 0,
                        "stopped_late": 0,
                        "stale_odometry": 0,
                        "zero_commands": 0}
@@ -153,7 +142,9 @@ class Ros2Robot(Node):
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
         self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
+        self._step_seconds: deque[float] = deque(maxlen=10)  # the recent steps' durations
         self._braked = False
+        self._standing: np.ndarray | None = None
         self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
@@ -202,7 +193,6 @@ class Ros2Robot(Node):
             return
         self.neighbours.left(rid, time.time())
 
-    # ------------------------------------------------------------------ states
     def own_state(self, t: float) -> np.ndarray | None:
         """The own pose at wall time ``t`` from the newest odometry and the commands sent
         since (``None``: no odometry yet)."""
@@ -345,14 +335,17 @@ class Ros2Robot(Node):
                 self._watch(Tk - self.lead, k)
                 if self.stop.is_set():
                     break
+                self._await_plans(Tk)
                 self._step(k, Tk)
                 k += 1
-                if self.neighbours.blocked_by_concurrent:
-                    # blocked by a neighbour that decides at about the same instants: it
-                    # would stay so every sample; move this robot's instants away from it
+                if self.neighbours.blocked_by_concurrent:  # by a neighbour deciding at
+                    # about the same instants, as every sample: move away from them
                     self.neighbours.blocked_by_concurrent = False
                     self.counts["phase_shifts"] += 1
-                    T0 += random.uniform(0.2, 0.4) * self.Ts
+                    shift = random.uniform(0.2, 0.4) * self.Ts
+                    T0 += shift
+                    if self._standing is not None:  # it stands until its new instant
+                        self._announce_shift(k - 1, T0 + (k - 1) * self.Ts)
                 behind = time.time() + self.lead - (T0 + k * self.Ts)
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
@@ -399,6 +392,34 @@ class Ros2Robot(Node):
         if missing:
             log.warning("%s starts without plans from %s", self.name, missing)
 
+    def _announce_shift(self, sample: int, stamp: float) -> None:
+        """A plan standing where the robot stands, stamped a sample before its new instant
+        (true: zero until then): the neighbours see when it decides next, instead of a
+        plan in flight that holds them by its reach (and shifts them in turn)."""
+        N = self.scenario.horizon
+        self.publish_plan(sample, stamp, np.repeat(self._standing[None], N + 1, axis=0),
+                          np.zeros((N, 2)))
+
+    def _await_plans(self, Tk: float) -> None:
+        """Handle events while a plan of a neighbour that decided before this robot is in
+        flight (:meth:`services.ros2.neighbours.Neighbours.awaited`), at most until the
+        sample's computation must start (``Tk`` less :data:`PUBLISH_SLACK` and twice the
+        longest of the recent steps)."""
+        self.drain()
+        budget = 2.0 * max(self._step_seconds, default=0.05) + PUBLISH_SLACK
+        deadline = Tk - budget
+        own = self.own_state(Tk)
+        if own is None or time.time() >= deadline:
+            return
+        waited = False
+        while not self.stop.is_set() and self.neighbours.awaited(own, Tk, time.time()):
+            now = time.time()
+            if now >= deadline:
+                break
+            waited = True
+            self.pump(deadline - now)
+        self.counts["plan_waits"] += waited
+
     def _step(self, k: int, Tk: float) -> None:
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
         now = time.time()
@@ -423,14 +444,23 @@ class Ros2Robot(Node):
             others, plans = self.neighbours.for_controller(Tk, k)
             states = self.controller_states(others, Tk)
             own = states[self.index, :3]
+            self.neighbours.blocked_by_concurrent = False
+            self._standing = None  # where it stands this sample, if so
+            self.controller.check_time = Tk
+            started = time.perf_counter()
             out = self.controller.step(k, Tk - self.epoch, states, plans, None)
-            u = out.inputs[0]
+            self._step_seconds.append(time.perf_counter() - started)
             late = time.time() > Tk - PUBLISH_SLACK
-            if not late and self.neighbours.path_is_safe(own, u, Tk):
+            if not late and out.fallback != "brake":  # the input (or the shifted plan's)
+                u = out.inputs[0]  # passed the check (Ros2Controller.first_input_safe)
                 plan = self.controller.published
                 self.publish_plan(k, Tk, plan.states, plan.inputs)
+                self.neighbours.blocked_by_concurrent = False  # it moves: no phase shift
+                if out.fallback is not None:
+                    self.counts["shifted_plans"] += 1
             else:  # standing still is safe: every neighbour keeps out of where it stops
                 u = np.zeros(2)
+                self._standing = own.copy()
                 self.counts["late_samples" if late else "brakes"] += 1
                 N = self.scenario.horizon
                 self.publish_plan(k, Tk, np.repeat(own[None], N + 1, axis=0),
