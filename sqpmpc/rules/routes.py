@@ -9,23 +9,14 @@ time-parametrized at ``speed`` times the robot's top speed from the moment it
 is planned, but never runs more than ``lead`` metres of arc ahead of the
 robot's progress (its projection on the route), so a robot held up by others
 is not pulled across a corner; stages 1..N of the reference are the route's
-points at that arc length plus ``speed`` times the stage's time; a stage the
-robot cannot reach in a straight line keeping what the rows against the walls
-keep (its radius plus :attr:`~sqpmpc.rules.base.RuleContext.obstacle_margin`,
-or its current clearance if it stands nearer) is held at the farthest route
-point it can reach so. A unicycle tracking a point beyond a corner cuts it
-and can end up pinned against it: the rows hold it off the corner while the
-cost pulls it on (room-door with acceleration limits, decentralized, exact
-plant: robot 5 stayed 4.70 m from its goal against the door jamb, tracking a
-point it saw by its radius alone). When no route point ahead is in reach, the
-route is re-planned from where the robot stands (its first leg is then in
-reach). The routes keep ``margin`` beyond the radius, at least 5 cm more than
-the rows keep. The route is also
+points at that arc length plus ``speed`` times the stage's time, each held at
+the last one the robot can reach in a straight line without coming nearer an
+obstacle than its radius (a unicycle tracking a point beyond a corner cuts
+it and can end up pinned against it). The route is
 re-planned from the robot's position when the robot has not progressed by
 ``progress`` metres for ``patience`` seconds or has been pushed more than
 ``deviation`` metres off it, and dropped once the straight way to the goal
-is free. A robot pressed against a wall (within ``pressed`` of what the rows
-keep), facing it, stopped with no neighbour
+is free. A robot pressed against a wall, facing it, stopped with no neighbour
 near and far from its goal for a few samples backs away from it first (facing a wall, a unicycle's
 linearization has no way out). Safety is the collision rows' business, as for every rule: the
 route only chooses where the robot heads.
@@ -173,8 +164,7 @@ class _RouteInstance(RuleInstance):
         grid = np.union1d(np.arange(start, float(s[-1]), _STEP),
                           cum[(cum > start) & (cum < s[-1])])
         grid = np.append(grid[grid < s[-1]], s[-1])
-        reach = np.flatnonzero(road.sees(p, track.route.position_at(grid), self.keep)
-                               & (grid > track.progress + 1e-6))
+        reach = np.flatnonzero(road.sees(p, track.route.position_at(grid), self.keep))
         if not reach.size:
             return None
         far = float(grid[reach[-1]])
@@ -247,8 +237,7 @@ class RouteFollowing(Rule):
     Parameters
     ----------
     margin
-        Clearance kept beyond the robot's radius by the route, m (at least 5 cm more
-        than the rows against the walls keep).
+        Clearance kept beyond the robot's radius by the route, m.
     speed
         The route's speed as a fraction of the robot's top speed.
     lead
@@ -262,8 +251,7 @@ class RouteFollowing(Rule):
     check_every
         Samples between the checks of a robot without a route (is its way blocked?).
     pressed, stopped_speed, pinned_samples, facing, neighbour
-        A robot nearer than ``pressed`` m beyond what the rows keep (its radius plus
-        :attr:`~sqpmpc.rules.base.RuleContext.obstacle_margin`) to a wall, heading into it
+        A robot nearer than ``pressed`` m beyond its radius to a wall, heading into it
         (the cosine between its heading and the wall's direction above ``facing``),
         no other robot within ``neighbour`` m, whose applied speed stayed below
         ``stopped_speed`` m/s for ``pinned_samples`` samples, is pinned (facing the
