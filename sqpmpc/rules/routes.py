@@ -42,8 +42,6 @@ from sqpmpc.rules.base import (
 
 __all__ = ["RouteFollowing", "road_map"]
 
-_STEP = 0.05  # arc length between the route points tried for the farthest one in reach, m
-
 
 @functools.lru_cache(maxsize=16)
 def _road_map(polygons: tuple, circles: tuple, radius: float, margin: float,
@@ -82,10 +80,6 @@ class _RouteInstance(RuleInstance):
         self.goals: list[np.ndarray | None] = []
         self.tracking: list[_Tracking | None] = []
         self.speed = rule.speed * context.max_speed
-        #: what a straight way keeps off the walls beyond the radius: what the rows keep
-        self.keep = float(context.obstacle_margin)
-        #: what the routes keep: the rule's margin, 5 cm more than the rows keep at least
-        self.margin = max(rule.margin, self.keep + 0.05)
         m = context.own.size
         self.pinned = np.zeros(m, dtype=np.int64)  # samples pressed against a wall
         self.escape = np.zeros(m, dtype=np.int64)  # samples of escape left
@@ -103,7 +97,7 @@ class _RouteInstance(RuleInstance):
                 self.maps.append(None)
                 self.goals.append(None)
             else:
-                self.maps.append(road_map(sc, 0.5 * robot.diameter, self.margin))
+                self.maps.append(road_map(sc, 0.5 * robot.diameter, self.rule.margin))
                 self.goals.append(np.asarray(ref.goal, dtype=float))
             self.tracking.append(None)
         #: whether some own robot has a map and a goal (else the hook has nothing to do)
@@ -138,7 +132,7 @@ class _RouteInstance(RuleInstance):
         others = np.delete(view.positions, self.context.own[k], axis=0)
         crowded = others.size and float(np.hypot(*(others - p).T).min()) < rule.neighbour
         self.pinned[k] = (self.pinned[k] + 1 if stopped and facing and not crowded
-                          and gap < self.keep + rule.pressed else 0)
+                          and gap < rule.pressed else 0)
         if self.pinned[k] < rule.pinned_samples:
             return False
         self.pinned[k] = 0
@@ -147,30 +141,6 @@ class _RouteInstance(RuleInstance):
         self.tracking[k] = None  # re-planned from where the escape ends
         self.counts["wall_escapes"] += 1
         return True
-
-    def _held(self, road: RoadMap, track: _Tracking, p: np.ndarray,
-              s: np.ndarray) -> np.ndarray | None:
-        """The route's points at arc lengths ``s``, those the robot at ``p`` cannot reach
-        in a straight line keeping what the obstacle rows keep (past a corner not yet in
-        sight) held at the farthest route point up to ``s[-1]`` it can reach so; ``None``
-        when it reaches none ahead of its progress (a point behind a wall corner pins it
-        against the corner: the rows hold it off, the cost pulls it on)."""
-        pts = track.route.position_at(s)
-        seen = road.sees(p, pts, self.keep)
-        if seen.all():
-            return pts
-        cum = track.route.cumulative
-        start = min(track.progress, float(s[0]))
-        grid = np.union1d(np.arange(start, float(s[-1]), _STEP),
-                          cum[(cum > start) & (cum < s[-1])])
-        grid = np.append(grid[grid < s[-1]], s[-1])
-        reach = np.flatnonzero(road.sees(p, track.route.position_at(grid), self.keep))
-        if not reach.size:
-            return None
-        far = float(grid[reach[-1]])
-        hold = ~seen | (s > far)
-        pts[hold] = track.route.position_at(far)
-        return pts
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         if not self.routed:  # no map or no goal: nothing to route
@@ -215,16 +185,16 @@ class _RouteInstance(RuleInstance):
             base = min(self.speed * (view.t - track.t0), track.progress + rule.lead)
             if out is None:
                 out = view.references.copy()
-            pts = self._held(road, track, p, base + stage_s)
-            if pts is None:  # out of reach from here: a route from here, its first leg in reach
-                self.counts["route_replans"] += 1
-                self._plan(k, p, view.t)
-                track = self.tracking[k]
-                if track is None:
-                    continue
-                pts = self._held(road, track, p, stage_s)
-                if pts is None:  # (the entry leg grazes a wall nearer than the rows keep)
-                    pts = np.broadcast_to(track.route.points[1], (N, 2))
+            pts = track.route.position_at(base + stage_s)
+            seen = road.sees(p, pts)
+            if not seen.all():  # never past a corner not yet in sight: the next vertex
+                first = int(np.argmin(seen))
+                if first == 0:
+                    cum = track.route.cumulative
+                    ahead = cum[cum > track.progress + 1e-6]
+                    pts[:] = track.route.position_at(ahead[0] if ahead.size else cum[-1])
+                else:
+                    pts[first:] = pts[first - 1]
             out[k] = pts
             self.counts["route_samples"] += 1
         return None if out is None else Contribution(references=out)
