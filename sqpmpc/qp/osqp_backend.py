@@ -8,18 +8,9 @@ about 30 us less per QP (measured: paper-s2 decentralized, 0.30 -> 0.275 ms
 per robot and sample). The results are bitwise the same (tested). Setting
 ``use_osqp_wrapper = True``, or an OSQP build whose wrapper lacks that object,
 uses the public ``osqp.OSQP`` methods instead.
-
-Ctrl-C during a solve: OSQP installs its own SIGINT handler for the length of
-a solve and looks at it between iterations, so a SIGINT arriving after its last
-look was lost (seen: ``sqpmpc run`` went on after a Ctrl-C, once in a test
-suite). The calling thread therefore holds SIGINT blocked during the solve
-(``pthread_sigmask``, where the platform has it): the signal stays pending
-and reaches Python's handler the moment the solve returns.
 """
 
 from __future__ import annotations
-
-import signal
 
 import numpy as np
 import osqp
@@ -38,8 +29,6 @@ _TIME_LIMIT = osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED
 _OSQP_INFINITY = float(osqp.constant("OSQP_INFTY"))
 # what the backend calls on OSQP's compiled solver object (the calls osqp.OSQP makes itself)
 _CORE_METHODS = ("update_data_vec", "update_data_mat", "warm_start", "solve", "info", "solution")
-_MASK = signal.pthread_sigmask if hasattr(signal, "pthread_sigmask") else None
-_INTERRUPT = {signal.SIGINT}
 
 
 class OSQPBackend:
@@ -115,21 +104,16 @@ class OSQPBackend:
                     core.update_data_mat(
                         P_x=P_values[L.P_order_inverse] if changed.P else None, P_i=None,
                         A_x=A_values[L.A_order_inverse] if changed.A else None, A_i=None)
-            held = _MASK(signal.SIG_BLOCK, _INTERRUPT) if _MASK is not None else None
-            try:  # a Ctrl-C now waits for the solve to return (module notes)
-                if core is not None:
-                    if warm_x is not None or warm_y is not None:
-                        core.warm_start(warm_x, warm_y)
-                    core.solve()
-                    info, solution = core.info, core.solution
-                else:
-                    if warm_x is not None or warm_y is not None:
-                        self.solver.warm_start(x=warm_x, y=warm_y)
-                    solution = self.solver.solve(raise_error=False)
-                    info = solution.info
-            finally:
-                if held is not None:
-                    _MASK(signal.SIG_SETMASK, held)
+            if core is not None:
+                if warm_x is not None or warm_y is not None:
+                    core.warm_start(warm_x, warm_y)
+                core.solve()
+                info, solution = core.info, core.solution
+            else:
+                if warm_x is not None or warm_y is not None:
+                    self.solver.warm_start(x=warm_x, y=warm_y)
+                solution = self.solver.solve(raise_error=False)
+                info = solution.info
         except (ValueError, RuntimeError) as exc:  # OSQP setup/update errors
             raise SolverError(f"OSQP rejected the QP data: {exc}") from exc
         status = info.status_val
