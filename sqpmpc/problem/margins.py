@@ -61,7 +61,7 @@ import numpy as np
 
 from sqpmpc.problem.plant import (
     PlantSpec,
-    acceleration_path_deviation,
+    corner_deviations,
     largest_deviation,
     model_margin,
 )
@@ -85,13 +85,8 @@ def row_deviation(input_lower: np.ndarray, input_upper: np.ndarray, sample_time:
     >>> row_deviation(lo, hi, 0.5, "euler", PlantSpec(), acc)
     (0.0, 0.25)
     """
-    lo, hi = np.asarray(input_lower, dtype=float), np.asarray(input_upper, dtype=float)
-    alo, ahi = (np.asarray(b, dtype=float) for b in acceleration_bounds)
-    vel = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
-    acc = np.array([[a, b] for a in (alo[0], ahi[0]) for b in (alo[1], ahi[1])])
-    alpha, beta = acceleration_path_deviation(
-        np.repeat(vel, 4, axis=0), np.tile(acc, (4, 1)), sample_time, prediction,
-        plant.model, plant.noise_bound, (lo, hi))
+    alpha, beta = corner_deviations(input_lower, input_upper, sample_time, prediction, plant,
+                                    acceleration_bounds)
     return float(alpha.max()), float(np.maximum(beta, 0.0).max())
 
 

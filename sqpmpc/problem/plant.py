@@ -115,6 +115,7 @@ from sqpmpc.models.unicycle import DISCRETIZATIONS, discrete_dynamics
 __all__ = [
     "NOISE_TRUNCATION",
     "acceleration_path_deviation",
+    "corner_deviations",
     "largest_deviation",
     "PLANT_MODELS",
     "Plant",
@@ -366,17 +367,29 @@ def model_margin(input_lower: np.ndarray, input_upper: np.ndarray, sample_time: 
     """
     lo, hi = np.asarray(input_lower, dtype=float), np.asarray(input_upper, dtype=float)
     if acceleration_bounds is not None:
-        alo, ahi = (np.asarray(b, dtype=float) for b in acceleration_bounds)
-        vel = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
-        acc = np.array([[a, b] for a in (alo[0], ahi[0]) for b in (alo[1], ahi[1])])
-        alpha, beta = acceleration_path_deviation(
-            np.repeat(vel, 4, axis=0), np.tile(acc, (4, 1)), sample_time, prediction,
-            plant.model, plant.noise_bound, (lo, hi))
+        alpha, beta = corner_deviations(lo, hi, sample_time, prediction, plant,
+                                        acceleration_bounds)
         return float(2.0 * linear_growth(alpha, beta).max())
     corners = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
     alpha, beta = path_deviation(corners, sample_time, prediction, plant.model,
                                  plant.noise_bound)
     return float(2.0 * linear_growth(alpha, beta).max())
+
+
+def corner_deviations(input_lower: np.ndarray, input_upper: np.ndarray, sample_time: float,
+                      prediction: str, plant: PlantSpec,
+                      acceleration_bounds: tuple[np.ndarray, np.ndarray]
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    r""":math:`(\alpha, \beta)` of :func:`acceleration_path_deviation`, ``(16,)`` each, at
+    every corner of the velocity box paired with every corner of the acceleration box
+    (the bound grows with each magnitude, so its largest values lie at the corners)."""
+    lo, hi = np.asarray(input_lower, dtype=float), np.asarray(input_upper, dtype=float)
+    alo, ahi = (np.asarray(b, dtype=float) for b in acceleration_bounds)
+    vel = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
+    acc = np.array([[a, b] for a in (alo[0], ahi[0]) for b in (alo[1], ahi[1])])
+    return acceleration_path_deviation(
+        np.repeat(vel, 4, axis=0), np.tile(acc, (4, 1)), sample_time, prediction,
+        plant.model, plant.noise_bound, (lo, hi))
 
 
 def acceleration_path_deviation(velocities: np.ndarray, accelerations: np.ndarray,
