@@ -69,22 +69,22 @@ def ring_zones(positions: np.ndarray, goals: np.ndarray, travelling: np.ndarray,
     points = np.zeros((n * (n - 1) // 2, 2))
     pairs = np.zeros((n * (n - 1) // 2, 2), dtype=np.int64)
     m = 0
+    # each travelling robot's straight way: unit direction and length, once
+    ux, uy, length = np.zeros(n), np.zeros(n), np.zeros(n)
     for i in range(n):
         zone_of[i] = -1
+        if travelling[i]:
+            dx, dy = goals[i, 0] - positions[i, 0], goals[i, 1] - positions[i, 1]
+            length[i] = math.hypot(dx, dy)
+            ux[i], uy[i] = dx / length[i], dy / length[i]
     for i in range(n):
         if not travelling[i]:
             continue
-        pix, piy = positions[i, 0], positions[i, 1]
-        dix, diy = goals[i, 0] - pix, goals[i, 1] - piy
-        li = math.hypot(dix, diy)
-        uix, uiy = dix / li, diy / li
+        pix, piy, uix, uiy, li = positions[i, 0], positions[i, 1], ux[i], uy[i], length[i]
         for j in range(i + 1, n):
             if not travelling[j]:
                 continue
-            pjx, pjy = positions[j, 0], positions[j, 1]
-            djx, djy = goals[j, 0] - pjx, goals[j, 1] - pjy
-            lj = math.hypot(djx, djy)
-            ujx, ujy = djx / lj, djy / lj
+            pjx, pjy, ujx, ujy, lj = positions[j, 0], positions[j, 1], ux[j], uy[j], length[j]
             cos = uix * ujx + uiy * ujy
             if cos > cos_along:
                 continue
