@@ -373,7 +373,9 @@ class PhysicalSimulation(ClosedLoopSimulation):
 
     The controllers, plan exchange and record are the in-process loop's; only the
     plant differs. The scenario's ``[plant]`` section is the controller's model
-    of the robot (its margins); the robots move by the physics.
+    of the robot (its margins); the robots move by the physics, on arcs: declare
+    ``model = "exact"`` (module notes; :meth:`tube_excursion` measures what the
+    checks missed).
 
     Parameters
     ----------
