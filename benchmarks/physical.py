@@ -363,7 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{response['first_sample']:.3f} m of a commanded 0.25 m in its first sample.", "",
         f"Declared by every scenario below: `acceleration = [-{bounds[0]:g}, {bounds[0]:g}]`, "
         f"`angular_acceleration = [-{bounds[1]:g}, {bounds[1]:g}]` (half of each measured "
-        "value: any combination of the two is then within the wheels' torque). "
+        "value: any combination of the two is then within the wheels' torque) and "
+        "`[plant] model = \"exact\"` (the robots move on arcs). "
         + ("" if HAS_ACCELERATION else "**This build's controller has no acceleration "
            "bounds (`[bounds] acceleration` is not in its scenario format): they are not "
            "declared and the controller assumes velocities change at once.**"), "",
