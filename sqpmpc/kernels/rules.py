@@ -13,7 +13,7 @@ import numba
 import numpy as np
 
 __all__ = [
-    "detour_step", "hold_touching_rows", "inside_pairs", "limit_turning", "parking_mask",
+    "detour_step", "hold_touching_rows", "idle", "inside_pairs", "limit_turning", "parking_mask",
     "repair_guess", "repair_speeds", "reversing", "roundabout_directions",
     "stall_repair", "standing_still",
     "warm_up_roundabout", "warm_up_rules",
@@ -22,6 +22,17 @@ __all__ = [
 
 _jit = numba.njit(cache=True, nogil=True)
 
+
+@_jit
+def idle(last: float, before: float, speed: float) -> bool:
+    """Whether a robot that applied the speeds ``before`` then ``last`` (samples ``k-2``,
+    ``k-1``) makes no headway: ``|last| < speed``, or a gear reversal (opposite signs)
+    whose two samples net less than ``speed`` on average. A robot cycling its gear at a
+    neighbour or a turn it cannot linearize (RTI: ``+0.3, -0.3, +0.3`` m/s) stays where
+    it is as surely as a stopped one (the stall and detour rules' "standing")."""
+    if abs(last) < speed:
+        return True
+    return last * before < 0.0 and abs(last + before) < 2.0 * speed
 
 
 @_jit
@@ -131,15 +142,16 @@ def repair_guess(guess: np.ndarray, references: np.ndarray, states: np.ndarray,
 
 @_jit
 def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
-                 states: np.ndarray, params: np.ndarray, still_for: np.ndarray,
-                 stuck: np.ndarray, out: np.ndarray) -> int:
+                 applied_before: np.ndarray, states: np.ndarray, params: np.ndarray,
+                 still_for: np.ndarray, stuck: np.ndarray, out: np.ndarray) -> int:
     """The stall repair in one call: :func:`standing_still`, then the guess speeds
     ``(m, N)`` into ``out`` with the robots repaired (a stuck one at any speed, the
     others when every ``|v| < slow``, as :func:`repair_speeds`); returns how many.
 
     ``params``: ``(speed, patience, distance, slow, ahead_speed, back_speed)``.
     """
-    standing_still(references, applied, params[0], np.int64(params[1]), still_for, stuck)
+    standing_still(references, applied, applied_before, params[0], np.int64(params[1]),
+                   still_for, stuck)
     out[:, :] = guess
     repaired = 0
     for r in range(out.shape[0]):
@@ -150,10 +162,12 @@ def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
 
 
 @_jit
-def standing_still(references: np.ndarray, applied: np.ndarray, speed: float, patience: int,
-              still_for: np.ndarray, stuck: np.ndarray) -> bool:
-    """Count the samples each robot has applied ``|v| < speed`` with its references
-    ``(m, N, 2)`` at rest (``still_for``, in place); ``stuck`` those at ``patience``."""
+def standing_still(references: np.ndarray, applied: np.ndarray, applied_before: np.ndarray,
+                   speed: float, patience: int, still_for: np.ndarray,
+                   stuck: np.ndarray) -> bool:
+    """Count the samples each robot has been :func:`idle` (the speeds ``[:, 0]`` of the
+    inputs ``(m, nu)`` applied at ``k-1`` and ``k-2``) with its references ``(m, N, 2)`` at
+    rest (``still_for``, in place); ``stuck`` those at ``patience``."""
     any_stuck = False
     for r in range(references.shape[0]):
         rest = True
@@ -162,7 +176,8 @@ def standing_still(references: np.ndarray, applied: np.ndarray, speed: float, pa
                     or abs(references[r, i, 1] - references[r, 0, 1]) > 1e-9):
                 rest = False
                 break
-        still_for[r] = still_for[r] + 1 if rest and abs(applied[r, 0]) < speed else 0
+        still = rest and idle(applied[r, 0], applied_before[r, 0], speed)
+        still_for[r] = still_for[r] + 1 if still else 0
         stuck[r] = still_for[r] >= patience
         any_stuck = any_stuck or stuck[r]
     return any_stuck
@@ -228,13 +243,13 @@ def warm_up_rules() -> None:
     repair_speeds(speeds, np.ones((2, 2)), poses, np.ones(2, dtype=np.bool_), 0.05, 0.1,
                   0.05, -0.05)
     parking_mask(references, poses, 1.0, np.zeros(2, dtype=np.bool_))
-    standing_still(references, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
+    standing_still(references, applied, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
                    np.zeros(2, dtype=np.bool_))
     # the guess speeds as the engine shows them: a read-only strided view of the iterate
     guess = _read_only(np.zeros(2 * 13)).reshape(2, 13)[:, 3:13:5]
     mask = np.zeros(2, dtype=np.bool_)
     for own in (states, poses):
-        stall_repair(guess, references, applied, own, np.array([0.05, 10, 0.1, 0.05, 0.05,
+        stall_repair(guess, references, applied, applied, own, np.array([0.05, 10, 0.1, 0.05, 0.05,
                                                                 -0.05]),
                      np.zeros(2, dtype=np.int64), mask, np.empty((2, 2)))
         repair_guess(guess, references, own, mask, 0.05, 0.01, 0.05, -0.05, np.empty((2, 2)))
@@ -243,20 +258,22 @@ def warm_up_rules() -> None:
         hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
                            np.zeros((1, 2)))
     reversing(_read_only(np.zeros(2)), applied, applied, 0.005, np.zeros(2, dtype=np.bool_))
-    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, references,
+    detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, applied, references,
                 np.ones((2, 3)), np.array([0.05, 0.3, 0.2, 2, 6]),
                 np.zeros((3, 2), dtype=np.int64))
 
 
 @_jit
 def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
-                references: np.ndarray, required: np.ndarray, params: np.ndarray,
-                state: np.ndarray) -> int:
+                applied_before: np.ndarray, references: np.ndarray, required: np.ndarray,
+                params: np.ndarray, state: np.ndarray) -> int:
     """Advance the detour state of the own robots by one sample; returns the new
     activations, or ``-1`` when no robot detours after the step.
 
     ``required (m, n)`` are the own robots' required distances to everyone, their goals
-    the stage-N references ``references[:, -1]``; ``params`` are ``(speed, reach, cos_cone,
+    the stage-N references ``references[:, -1]``; a robot is blocked while :func:`idle`
+    (the speeds of ``applied`` and ``applied_before``, samples ``k-1`` and ``k-2``);
+    ``params`` are ``(speed, reach, cos_cone,
     patience, hold)``; the rows of ``state (3, m)`` (samples blocked, samples of detour
     left, blocker) are updated in place (see :class:`Detour`).
     """
@@ -274,7 +291,7 @@ def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
         blocked = False
         closest = -1
         best = np.inf
-        if abs(applied[r, 0]) < speed and goal_dist > reach:
+        if idle(applied[r, 0], applied_before[r, 0], speed) and goal_dist > reach:
             for j in range(positions.shape[0]):
                 if j == i:
                     continue

@@ -175,8 +175,8 @@ class _StallInstance(RuleInstance):
         # plans; else every guess |v| < the repair speed (one kernel, the new speeds into
         # this rule's buffer: no contribution when it repaired nothing)
         repaired = stall_repair(view.guess_speeds, view.references, view.applied,
-                                view.own_states, self._params, self._still_for, self._stuck,
-                                self._speeds)
+                                view.applied_before, view.own_states, self._params,
+                                self._still_for, self._stuck, self._speeds)
         if not repaired:
             return None
         self.counts["stall_repairs"] += repaired
@@ -341,8 +341,9 @@ class _DetourInstance(RuleInstance):
         positions = view.positions
         if positions.shape[0] < 2:
             return None
-        activations = detour_step(positions, self.context.own, view.applied, view.references,
-                                  self.kept, self._params, self._state)
+        activations = detour_step(positions, self.context.own, view.applied,
+                                  view.applied_before, view.references, self.kept,
+                                  self._params, self._state)
         if activations < 0:  # nobody detours
             return None
         self.counts["detour_activations"] += activations
