@@ -13,7 +13,8 @@ import numba
 import numpy as np
 
 __all__ = [
-    "detour_step", "hold_touching_rows", "idle", "inside_pairs", "limit_turning", "parking_mask",
+    "detour_step", "gear_streak", "hold_touching_rows", "idle", "inside_pairs",
+    "limit_turning", "parking_mask",
     "repair_guess", "repair_speeds", "reversing", "roundabout_directions",
     "stall_repair", "standing_still",
     "warm_up_roundabout", "warm_up_rules",
@@ -24,15 +25,24 @@ _jit = numba.njit(cache=True, nogil=True)
 
 
 @_jit
-def idle(last: float, before: float, speed: float) -> bool:
-    """Whether a robot that applied the speeds ``before`` then ``last`` (samples ``k-2``,
-    ``k-1``) makes no headway: ``|last| < speed``, or a gear reversal (opposite signs)
-    whose two samples net less than ``speed`` on average. A robot cycling its gear at a
-    neighbour or a turn it cannot linearize (RTI: ``+0.3, -0.3, +0.3`` m/s) stays where
-    it is as surely as a stopped one (the stall and detour rules' "standing")."""
-    if abs(last) < speed:
-        return True
-    return last * before < 0.0 and abs(last + before) < 2.0 * speed
+def gear_streak(last: float, before: float, speed: float, streak: int) -> int:
+    """The robot's count of gear reversals in a row that make no headway, after a
+    sample: ``streak + 1`` when the speeds applied at ``k-2`` (``before``) and ``k-1``
+    (``last``) have opposite signs and net less than ``speed`` on average, else 0."""
+    if last * before < 0.0 and abs(last + before) < 2.0 * speed:
+        return streak + 1
+    return 0
+
+
+@_jit
+def idle(last: float, streak: int, speed: float, cycle: int) -> bool:
+    """Whether a robot makes no headway: its last applied speed ``|last| < speed``, or
+    it has reversed gear ``cycle`` samples in a row with no net motion (``streak``,
+    :func:`gear_streak`). Plain RTI at a neighbour can command ``+0.3, -0.3, +0.3, ...``
+    m/s for ever (the pair at the distance its rows keep, the robots needing to turn
+    round): such a robot stays where it is as surely as a stopped one (the stall-repair
+    and detour rules' "standing")."""
+    return abs(last) < speed or streak >= cycle
 
 
 @_jit
@@ -143,15 +153,16 @@ def repair_guess(guess: np.ndarray, references: np.ndarray, states: np.ndarray,
 @_jit
 def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
                  applied_before: np.ndarray, states: np.ndarray, params: np.ndarray,
-                 still_for: np.ndarray, stuck: np.ndarray, out: np.ndarray) -> int:
+                 still_for: np.ndarray, cycling: np.ndarray, stuck: np.ndarray,
+                 out: np.ndarray) -> int:
     """The stall repair in one call: :func:`standing_still`, then the guess speeds
     ``(m, N)`` into ``out`` with the robots repaired (a stuck one at any speed, the
     others when every ``|v| < slow``, as :func:`repair_speeds`); returns how many.
 
-    ``params``: ``(speed, patience, distance, slow, ahead_speed, back_speed)``.
+    ``params``: ``(speed, patience, distance, slow, ahead_speed, back_speed, cycle)``.
     """
     standing_still(references, applied, applied_before, params[0], np.int64(params[1]),
-                   still_for, stuck)
+                   np.int64(params[6]), still_for, cycling, stuck)
     out[:, :] = guess
     repaired = 0
     for r in range(out.shape[0]):
@@ -163,11 +174,12 @@ def stall_repair(guess: np.ndarray, references: np.ndarray, applied: np.ndarray,
 
 @_jit
 def standing_still(references: np.ndarray, applied: np.ndarray, applied_before: np.ndarray,
-                   speed: float, patience: int, still_for: np.ndarray,
-                   stuck: np.ndarray) -> bool:
+                   speed: float, patience: int, cycle: int, still_for: np.ndarray,
+                   cycling: np.ndarray, stuck: np.ndarray) -> bool:
     """Count the samples each robot has been :func:`idle` (the speeds ``[:, 0]`` of the
-    inputs ``(m, nu)`` applied at ``k-1`` and ``k-2``) with its references ``(m, N, 2)`` at
-    rest (``still_for``, in place); ``stuck`` those at ``patience``."""
+    inputs ``(m, nu)`` applied at ``k-1`` and ``k-2``; ``cycling`` its
+    :func:`gear_streak`, in place) with its references ``(m, N, 2)`` at rest
+    (``still_for``, in place); ``stuck`` those at ``patience``."""
     any_stuck = False
     for r in range(references.shape[0]):
         rest = True
@@ -176,7 +188,8 @@ def standing_still(references: np.ndarray, applied: np.ndarray, applied_before: 
                     or abs(references[r, i, 1] - references[r, 0, 1]) > 1e-9):
                 rest = False
                 break
-        still = rest and idle(applied[r, 0], applied_before[r, 0], speed)
+        cycling[r] = gear_streak(applied[r, 0], applied_before[r, 0], speed, cycling[r])
+        still = rest and idle(applied[r, 0], cycling[r], speed, cycle)
         still_for[r] = still_for[r] + 1 if still else 0
         stuck[r] = still_for[r] >= patience
         any_stuck = any_stuck or stuck[r]
@@ -243,15 +256,16 @@ def warm_up_rules() -> None:
     repair_speeds(speeds, np.ones((2, 2)), poses, np.ones(2, dtype=np.bool_), 0.05, 0.1,
                   0.05, -0.05)
     parking_mask(references, poses, 1.0, np.zeros(2, dtype=np.bool_))
-    standing_still(references, applied, applied, 0.05, 10, np.zeros(2, dtype=np.int64),
-                   np.zeros(2, dtype=np.bool_))
+    standing_still(references, applied, applied, 0.05, 10, 4, np.zeros(2, dtype=np.int64),
+                   np.zeros(2, dtype=np.int64), np.zeros(2, dtype=np.bool_))
     # the guess speeds as the engine shows them: a read-only strided view of the iterate
     guess = _read_only(np.zeros(2 * 13)).reshape(2, 13)[:, 3:13:5]
     mask = np.zeros(2, dtype=np.bool_)
     for own in (states, poses):
-        stall_repair(guess, references, applied, applied, own, np.array([0.05, 10, 0.1, 0.05, 0.05,
-                                                                -0.05]),
-                     np.zeros(2, dtype=np.int64), mask, np.empty((2, 2)))
+        stall_repair(guess, references, applied, applied, own,
+                     np.array([0.05, 10, 0.1, 0.05, 0.05, -0.05, 4]),
+                     np.zeros(2, dtype=np.int64), np.zeros(2, dtype=np.int64), mask,
+                     np.empty((2, 2)))
         repair_guess(guess, references, own, mask, 0.05, 0.01, 0.05, -0.05, np.empty((2, 2)))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
     for me in (np.zeros(2), _read_only(np.zeros(2))):
@@ -259,8 +273,8 @@ def warm_up_rules() -> None:
                            np.zeros((1, 2)))
     reversing(_read_only(np.zeros(2)), applied, applied, 0.005, np.zeros(2, dtype=np.bool_))
     detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, applied, references,
-                np.ones((2, 3)), np.array([0.05, 0.3, 0.2, 2, 6]),
-                np.zeros((3, 2), dtype=np.int64))
+                np.ones((2, 3)), np.array([0.05, 0.3, 0.2, 2, 6, 4]),
+                np.zeros((4, 2), dtype=np.int64))
 
 
 @_jit
@@ -273,13 +287,13 @@ def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
     ``required (m, n)`` are the own robots' required distances to everyone, their goals
     the stage-N references ``references[:, -1]``; a robot is blocked while :func:`idle`
     (the speeds of ``applied`` and ``applied_before``, samples ``k-1`` and ``k-2``);
-    ``params`` are ``(speed, reach, cos_cone,
-    patience, hold)``; the rows of ``state (3, m)`` (samples blocked, samples of detour
-    left, blocker) are updated in place (see :class:`Detour`).
+    ``params`` are ``(speed, reach, cos_cone, patience, hold, cycle)``; the rows of
+    ``state (4, m)`` (samples blocked, samples of detour left, blocker, gear streak) are
+    updated in place (see :class:`Detour`).
     """
     speed, reach, cos_cone = params[0], params[1], params[2]
-    patience, hold = np.int64(params[3]), np.int64(params[4])
-    blocked_for, active_for, blocker = state[0], state[1], state[2]
+    patience, hold, cycle = np.int64(params[3]), np.int64(params[4]), np.int64(params[5])
+    blocked_for, active_for, blocker, cycling = state[0], state[1], state[2], state[3]
     last = references.shape[1] - 1
     activations = 0
     detouring = False
@@ -291,7 +305,8 @@ def detour_step(positions: np.ndarray, own: np.ndarray, applied: np.ndarray,
         blocked = False
         closest = -1
         best = np.inf
-        if idle(applied[r, 0], applied_before[r, 0], speed) and goal_dist > reach:
+        cycling[r] = gear_streak(applied[r, 0], applied_before[r, 0], speed, cycling[r])
+        if idle(applied[r, 0], cycling[r], speed, cycle) and goal_dist > reach:
             for j in range(positions.shape[0]):
                 if j == i:
                     continue

@@ -165,10 +165,11 @@ class _StallInstance(RuleInstance):
         self._ahead, self._back, self._slow = _repair_speeds_within_bounds(context, rule.speed)
         self._all = np.ones(context.own.size, dtype=np.bool_)
         self._still_for = np.zeros(context.own.size, dtype=np.int64)
+        self._cycling = np.zeros(context.own.size, dtype=np.int64)  # gear reversals in a row
         self._stuck = np.zeros(context.own.size, dtype=np.bool_)
         self._speeds = np.zeros((context.own.size, context.horizon))  # the repaired guess
         self._params = np.array([rule.speed, rule.patience, rule.distance, self._slow,
-                                 self._ahead, self._back], dtype=float)  # the kernel's
+                                 self._ahead, self._back, rule.cycle], dtype=float)  # kernel's
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
         # standing for `patience` samples with the reference at rest: whatever the guess
@@ -176,7 +177,7 @@ class _StallInstance(RuleInstance):
         # this rule's buffer: no contribution when it repaired nothing)
         repaired = stall_repair(view.guess_speeds, view.references, view.applied,
                                 view.applied_before, view.own_states, self._params,
-                                self._still_for, self._stuck, self._speeds)
+                                self._still_for, self._cycling, self._stuck, self._speeds)
         if not repaired:
             return None
         self.counts["stall_repairs"] += repaired
@@ -186,9 +187,13 @@ class _StallInstance(RuleInstance):
 @dataclass(frozen=True)
 class StallRepair(Rule):
     """Linearize a stalled robot (every guess ``|v| < speed``; or, with a reference at
-    rest over the horizon, applied ``|v| < speed`` for ``patience`` samples in a row,
-    whatever the guess plans; goal farther than ``distance``) at ``v = +-speed``
-    towards its goal."""
+    rest over the horizon, standing for ``patience`` samples in a row, whatever the guess
+    plans; goal farther than ``distance``) at ``v = +-speed`` towards its goal.
+
+    *Standing*: applied ``|v| < speed``, or reversing gear ``cycle`` samples in a row
+    with no net motion (:func:`sqpmpc.kernels.rules.idle`: RTI can cycle ``+v, -v``
+    at a neighbour for ever, where the linearization at either gear cannot turn it).
+    """
 
     name = "stall-repair"
     summary = "linearize a stopped robot far from its goal at a small speed (v = 0 cannot steer)"
@@ -196,12 +201,14 @@ class StallRepair(Rule):
     speed: float = 0.05
     distance: float = 0.1
     patience: int = 10
+    cycle: int = 1
 
     def __post_init__(self) -> None:
-        check_positive(self, "speed", "distance", "patience")
-        if not isinstance(self.patience, numbers.Integral):
-            raise ProblemError(f"rule 'stall-repair': patience must be an integer, "
-                               f"got {self.patience!r}")
+        check_positive(self, "speed", "distance", "patience", "cycle")
+        for name in ("patience", "cycle"):
+            if not isinstance(getattr(self, name), numbers.Integral):
+                raise ProblemError(f"rule 'stall-repair': {name} must be an integer, "
+                                   f"got {getattr(self, name)!r}")
 
 
 class _ParkingInstance(RuleInstance):
@@ -327,12 +334,12 @@ class _DetourInstance(RuleInstance):
         self.patience = rule.patience_centralized if context.scheme == "centralized" \
             else rule.patience
         self.kept = context.kept_distances()  # near: within what the rows keep + reach
-        self._state = np.zeros((3, m), dtype=np.int64)  # the kernel's, by row:
-        self.blocked_for, self.active_for, self.blocker = self._state
+        self._state = np.zeros((4, m), dtype=np.int64)  # the kernel's, by row:
+        self.blocked_for, self.active_for, self.blocker, self.cycling = self._state
         self.blocker[:] = -1
         self._cos_cone = np.cos(rule.cone)
         self._params = np.array([rule.speed, rule.reach, self._cos_cone, self.patience,
-                                 rule.hold], dtype=float)  # the kernel's numbers
+                                 rule.hold, rule.cycle], dtype=float)  # the kernel's numbers
         self._turn = np.array([[np.cos(rule.angle), -np.sin(rule.angle)],
                                [np.sin(rule.angle), np.cos(rule.angle)]])
 
@@ -365,7 +372,9 @@ class _DetourInstance(RuleInstance):
 class Detour(Rule):
     r"""Right-hand detour around a blocking neighbour.
 
-    A robot is *blocked* when its last applied speed is below ``speed`` and a
+    A robot is *blocked* when it stands (its last applied speed below ``speed``, or
+    ``cycle`` gear reversals in a row with no net motion:
+    :func:`sqpmpc.kernels.rules.idle`) and a
     neighbour closer than the kept distance plus ``reach`` lies within
     ``cone`` of the direction to its stage-N reference, which is farther than
     ``reach`` (the *kept* distance is the required one plus the rows' margin
@@ -396,15 +405,16 @@ class Detour(Rule):
     angle: float = float(np.deg2rad(60.0))
     escalation: float = 0.5
     max_factor: float = 4.0
+    cycle: int = 4
 
     def __post_init__(self) -> None:
         check_positive(self, "speed", "reach", "cone", "patience", "patience_centralized",
-                       "hold", "radius_factor", "angle", "max_factor")
+                       "hold", "radius_factor", "angle", "max_factor", "cycle")
         check_positive(self, "escalation", allow_zero=True)
         if self.max_factor < self.radius_factor:
             raise ProblemError(f"rule 'detour': max_factor ({self.max_factor}) must be at "
                                f"least radius_factor ({self.radius_factor})")
-        for name in ("patience", "patience_centralized", "hold"):
+        for name in ("patience", "patience_centralized", "hold", "cycle"):
             if not isinstance(getattr(self, name), numbers.Integral):
                 raise ProblemError(f"rule 'detour': {name} must be an integer, "
                                    f"got {getattr(self, name)!r}")
