@@ -22,13 +22,16 @@ rule               what it does
 ``stall-repair``   a robot whose guess has every ``|v| < speed`` while its goal is
                    farther than ``distance`` is linearized at ``v = +-speed``:
                    at ``v = 0`` the linearized unicycle cannot move sideways
+                   (standing, or cycling its gear with no net motion, for
+                   ``patience`` samples: whatever the guess)
 ``parking``        a robot near a reference at rest gets ``gain`` times its
                    position weight and a small linearization speed, so it does
                    not stop short of a goal beside it
 ``gear-cycle``     RTI: a robot no collision row holds that would reverse gear a
                    second sample in a row has that sample iterated to convergence
-``detour``         a robot blocked by a neighbour for ``patience`` samples heads
-                   for a point to the right of it for ``hold`` samples
+``detour``         a robot blocked by a neighbour (standing or cycling its gear)
+                   for ``patience`` samples heads for a point to the right of it
+                   for ``hold`` samples
 ``roundabout``     (:mod:`sqpmpc.rules.roundabout`) a crowd of robots ahead is passed
                    counter-clockwise along its right tangent: dense fleets
 =================  ==============================================================
