@@ -3,7 +3,8 @@
 Robot 5 of room-door, decentralized on the exact plant with acceleration limits
 (``benchmarks.acceleration``), ended 4.70 m from its goal: pressed against the outer
 face of the upper jamb, facing away from the room, tracking a route point it saw by its
-radius only, while the rows against the wall keep half the model margin more.
+radius only, while the rows against the wall keep half the model margin more
+(``RuleContext.obstacle_margin``, 0.125 m here).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.routes import RoadMap
 from sqpmpc.problem.scenario_file import load_scenario
-from sqpmpc.sim.simulation import simulate
+from sqpmpc.sim.simulation import ClosedLoopSimulation, simulate
 
 
 def _entering() -> object:
@@ -44,4 +45,14 @@ def test_sees_keeps_the_asked_room_off_the_walls() -> None:
     p = np.array([3.45, 0.49])  # 0.273 m from the jamb's corner (3.2, 0.6)
     inside = np.array([[1.21, -0.39], [3.55, 0.25]])  # grazes the corner; moves off it
     assert road.sees(p, inside).all()  # by the radius alone
-    assert road.sees(p, inside, keep=0.126).tolist() == [False, True]
+    assert road.sees(p, inside, keep=0.125).tolist() == [False, True]
+
+
+def test_the_route_rule_keeps_what_the_rows_keep_for_the_plant_only() -> None:
+    # the paper's robot on the Euler plant: nothing beyond the radius (routes, reach and
+    # the wall escape as before: the maps benchmark's closed loops are unchanged)
+    plain = ClosedLoopSimulation(load_scenario("room-door"), "decentralized")
+    assert plain.controllers[0].context.obstacle_margin == 0.0
+    limited = ClosedLoopSimulation(_entering(), "decentralized")
+    assert limited.controllers[0].context.obstacle_margin == 0.5 * limited.controllers[
+        0].model_margin > 0.1

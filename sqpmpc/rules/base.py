@@ -88,9 +88,12 @@ class RuleContext:
         ways, e.g. crossing-4 centralized -29 %, swap-6 decentralized +14 %).
     obstacle_margin
         Distance, m, the rows against static obstacles and walls keep beyond the
-        robot's radius (the solver's margin plus half the pipeline's model margin):
-        a straight way nearer a wall than this is one the QP will not take (the
-        ``route`` rule only heads for points reachable with it).
+        robot's radius for the plant's deviation from the prediction: half the
+        pipeline's model margin (0.125 m with acceleration limits [-1, 1] m/s^2 and [-3, 3] rad/s^2,
+        Ts 0.5 s; 0 for the paper's robot on the Euler plant). The rows add
+        the solver's ``collision_margin`` (1 mm) on top. A straight way nearer a wall
+        than this is one the QP will not take (the ``route`` rule only heads for
+        points reachable with it).
     """
 
     scenario: Scenario

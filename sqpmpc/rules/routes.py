@@ -11,12 +11,12 @@ robot's progress (its projection on the route), so a robot held up by others
 is not pulled across a corner; stages 1..N of the reference are the route's
 points at that arc length plus ``speed`` times the stage's time, each held at
 the last one the robot can reach in a straight line keeping what the rows
-against the static map keep: its radius plus
+against the static map keep for the plant: its radius plus
 :attr:`~sqpmpc.rules.base.RuleContext.obstacle_margin`, or its clearance now if
 it stands nearer (when stage 1 is out of reach already: the route's next vertex).
 A unicycle tracking a point beyond a corner cuts it and can end up pinned
 against it: the rows hold it off the corner while the cost pulls it on (with
-acceleration limits the rows keep 0.126 m more than the radius; room-door
+acceleration limits the rows keep 0.125 m more than the radius; room-door
 decentralized on the exact plant left robot 5 4.70 m from its goal against the
 door jamb when reach was judged by the radius alone). The routes keep
 ``margin`` beyond the radius, and at least 5 cm more than the rows keep (a route
