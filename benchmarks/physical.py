@@ -14,7 +14,9 @@ physics step. It runs
    reachable: the two wheels share their torque) as ``[bounds] acceleration`` and
    ``angular_acceleration`` when this build's controller has them;
 2. the **nominal robot** on paper-s2, swap-6, swap-16, corridor and head-on, both
-   schemes, against the same run on the ideal plant (the scenario's own model);
+   schemes, against the same run on the ideal plant (the scenario's own model),
+   each from five starts (:mod:`benchmarks.physical_starts`: the first robot moved by
+   up to 2 mm; the counts below on every start, the cost ratio's median);
 3. a **sweep** of wheel torque, chassis mass, wheel friction and actuator time
    constant, one at a time from the nominal, on swap-6 and head-on, both schemes,
    the scenarios still declaring the nominal robot's acceleration.
@@ -53,6 +55,7 @@ from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, simulate
 
 from .compare_ipopt import machine_line
+from .physical_starts import MOVES, over_starts
 from .report import publish
 from .rows import GOAL_TOLERANCE
 
@@ -129,7 +132,12 @@ def declared_bounds(response: dict[str, float]) -> tuple[float, float]:
 
 
 def with_bounds(scenario: Scenario, bounds: tuple[float, float]) -> Scenario:
-    """The scenario declaring ``bounds`` (when this build's :class:`Bounds` has them)."""
+    r"""The scenario declaring ``bounds`` (when this build's :class:`Bounds` has them) and
+    ``[plant] model = "exact"``: a physical robot moves continuously, on arcs when it
+    turns (with the default ``"euler"`` the controller would take it to move on the
+    Euler step's straight segment and its checks would miss up to :math:`v\omega T_s^2/2`,
+    0.059 m at these bounds)."""
+    scenario = scenario.with_changes(plant=dataclasses.replace(scenario.plant, model="exact"))
     if not HAS_ACCELERATION:
         return scenario
     a, b = bounds
@@ -218,7 +226,9 @@ def run_physical(scenario: Scenario, scheme: str, robot: PhysicalRobot, ideal: R
         "tolerance": tol, "max_error": max(errors),
         "frozen": frozen_robots(record, clear, _kept_distance(sim.controllers[0])),
         "brakes": sim.counters()["brake_fallbacks"],
+        "excursion": record.extra["tube_excursion"],
         "cost_ratio": m["closed_loop_cost"] / ref["closed_loop_cost"],
+        "cost": m["closed_loop_cost"],
         "arrival_s": (last_arrival(ideal, tol), last_arrival(record, tol)),
         "wall_s": time.perf_counter() - started,
     }
@@ -233,19 +243,28 @@ def _cells(r: dict[str, Any]) -> str:
                  else f"{r['obstacle_overlaps']} ({_mm(r['min_obstacle_clearance'])})")
     return (f"{r['overlaps']} ({_mm(r['min_clearance'])}) | {obstacles} | "
             f"{r['arrived']}/{r['robots']} | {r['max_error']:.3f} | {r['frozen']} | "
-            f"{r['brakes']} | {r['cost_ratio']:.3f} | {_when(r['arrival_s'][0])} / "
-            f"{_when(r['arrival_s'][1])} | {r['wall_s']:.0f}")
+            f"{r['brakes']} | {_mm(r['excursion'])} | {r['cost_ratio']:.3f} | "
+            f"{_when(r['arrival_s'][0])} / {_when(r['arrival_s'][1])} | {r['wall_s']:.0f}")
 
 
 HEADER = ("overlaps (min clearance mm) | obstacle overlaps (min mm) | arrived | largest final "
-          "error m | frozen | brake fallbacks | cost ratio | all arrived at s (ideal / "
-          "physics) | wall s")
+          "error m | frozen | brake fallbacks | outside the tube mm | cost ratio | all arrived "
+          "at s (ideal / physics) | wall s")
 
 
 def _kept_distance(controller: Any) -> float:
     """Margin the controller's rows keep between two robots at rest beyond the required
     distance: the solver's margin plus :attr:`sqpmpc.problem.margins.RowMargins.kept`."""
     return controller.settings.collision_margin + controller.margins.kept
+
+
+def _margins(bounds: tuple[float, float]) -> tuple[float, float]:
+    """What the centralized rows and the decentralized shared rows (clear of their check
+    line) keep between two robots beyond the required distance, m (corridor)."""
+    sc = with_bounds(load_scenario("corridor"), bounds)
+    old = ClosedLoopSimulation(sc, "centralized").controllers[0]
+    new = ClosedLoopSimulation(sc, "decentralized").controllers[0]
+    return old.pair_margin, _kept_distance(new)
 
 
 def _kept_note(bounds: tuple[float, float]) -> str:
@@ -327,18 +346,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{response['first_sample']:.3f} m of a commanded 0.25 m in its first sample.", "",
         f"Declared by every scenario below: `acceleration = [-{bounds[0]:g}, {bounds[0]:g}]`, "
         f"`angular_acceleration = [-{bounds[1]:g}, {bounds[1]:g}]` (half of each measured "
-        "value: any combination of the two is then within the wheels' torque). "
+        "value: any combination of the two is then within the wheels' torque) and "
+        "`[plant] model = \"exact\"` (the robots move on arcs). "
         + ("" if HAS_ACCELERATION else "**This build's controller has no acceleration "
            "bounds (`[bounds] acceleration` is not in its scenario format): they are not "
            "declared and the controller assumes velocities change at once.**"), "",
         "## Nominal robot, built-in scenarios", "",
-        f"| scenario | scheme | {HEADER} |", "|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| scenario | scheme | {HEADER} |", "|---" * 12 + "|",
     ]
     print("\n".join(lines), file=sys.stderr, flush=True)
+    central, shared = _margins(bounds)
     failures: list[str] = []
     costly: list[str] = []
     cheaper: list[str] = []
     ideal_never: list[str] = []
+    chances: list[str] = []
     for name in args.scenarios:
         sc = with_bounds(load_scenario(name), bounds)
         for scheme in SCHEMES:
@@ -346,19 +368,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             r = run_physical(sc, scheme, nominal, ideal)
             lines.append(f"| {name} | {scheme} | {_cells(r)} |")
             print(lines[-1], file=sys.stderr, flush=True)
-            why = _failed(r)
-            timing = (f"{name} {scheme}: {r['cost_ratio']:.2f}, every robot in at "
-                      f"{_when(r['arrival_s'][0])} (s) ideal, {_when(r['arrival_s'][1])} "
-                      "physics")
+            starts = over_starts(sc, scheme, nominal, (ideal, r), run_physical)
+            chances.append(f"| {name} | {scheme} | {starts.cells()} |")
+            print(chances[-1], file=sys.stderr, flush=True)
+            why = starts.failures(_failed)
+            median = starts.median_ratio
+            timing = (f"{name} {scheme}: median {median:.2f} (this start {r['cost_ratio']:.2f}, "
+                      f"every robot in at {_when(r['arrival_s'][0])} s ideal, "
+                      f"{_when(r['arrival_s'][1])} s physics)")
             if r["arrival_s"][0] is None:
                 ideal_never.append(f"{name} {scheme}")
-            if r["cost_ratio"] > 1.2:
-                why.append(f"cost ratio {r['cost_ratio']:.2f}")
+            if median > 1.2:
+                why.append(f"median cost ratio {median:.2f}")
                 costly.append(timing)
-            elif r["cost_ratio"] < 1.0 / 1.2:
+            elif median < 1.0 / 1.2:
                 cheaper.append(timing)
             if why:
-                failures.append(f"{name} {scheme} ({', '.join(why)})")
+                failures.append(f"{name} {scheme} ({'; '.join(why)})")
     lines += [
         "", "### The cost against the ideal plant", "",
         "The ideal-plant run is the same scenario (with the same declared acceleration "
@@ -366,8 +392,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         "model, poses and velocities measured exactly); the cost is the closed-loop cost of "
         "`metrics.json` (the tracking error of the true positions and the commanded "
         "velocities). It depends mostly on when the robots get past each other: every "
-        "sample a robot waits adds its whole squared distance to the goal. Runs outside "
-        "1/1.2 to 1.2:", "",
+        "sample a robot waits adds its whole squared distance to the goal, and when that "
+        "happens turns on millimetres (below). So every case runs from five starts, the "
+        "scenario's own and the first robot moved by "
+        + ", ".join(f"{1000 * dx:+g}" for dx in MOVES) + " mm along x, on both plants "
+        "from the same start: overlaps, arrivals and frozen robots are counted on every "
+        "start (the table above is the scenario's own start), and the cost verdict is the "
+        "median over the starts of the physics cost against the ideal cost from the same "
+        "start. Cases whose median is outside 1/1.2 to 1.2:", "",
         "- costlier on the physics plant: " + ("; ".join(costly) or "none") + ".",
         "- cheaper on the physics plant (the ideal run was worse): "
         + ("; ".join(cheaper) or "none") + ".", "",
@@ -375,22 +407,43 @@ def main(argv: Sequence[str] | None = None) -> int:
         "ideal plant keeps a symmetric scenario exactly symmetric, so its robots wait for "
         "the liveness rules (detour, roundabout) to break the symmetry, which the physics "
         "robots' small differences break sooner. With acceleration bounds the rows keep "
-        "the required distance plus a margin for the plant (0.5 m between two robots at "
-        "these bounds, the decentralized shared rows 0.125 m when clear of their check "
-        "line); the rules measure 'near' from the larger (before they used the required "
+        "the required distance plus a margin for the plant "
+        f"({central:.3f} m between two robots at these bounds, the decentralized shared "
+        f"rows {shared:.3f} m when clear of their check line); the rules measure 'near' "
+        "from the larger (before they used the required "
         "distance alone, and swap-6 and crossing-4 decentralized stood still in a ring to "
-        "the end of the run on the ideal plant). The cost ratio of the four-robot crossings "
-        "is sensitive: variants of the decentralized margin measured while developing it "
-        "gave corridor decentralized 0.82 to 1.23, and one (twice the shared rows' margin "
-        "at rest) left all four robots in the corridor on the physics plant. paper-s2 "
-        "(moving "
-        "references): the references pass closer than the kept distance, and the robots "
-        "leave them where they meet. Where the physics run is costlier the "
-        "robots got past each other later: a robot covers less of its plan than predicted "
-        "in a sample ("
-        f"{response['first_sample']:.2f} of a commanded 0.25 m in the first) and is "
-        "measured outside the predicted tube, so the checks fall back more often while the "
-        "neighbours re-plan around it.",
+        "the end of the run on the ideal plant). paper-s2 (moving references): the "
+        "references pass closer than the kept distance, and the robots leave them where "
+        "they meet.", "",
+        "**The checked tube.** The first-input and braking checks hold when the robot's "
+        "true path over a sample stays within the deviation bound around the predicted "
+        "segment. Column *outside the tube*: how far the true paths went beyond it, after "
+        "every physics step (`PhysicalSimulation.tube_excursion`). The driver ramps the "
+        "wheel set points from the measured velocities to the command over the sample (what "
+        "a command means to the acceleration model) and the scenarios declare `[plant] "
+        "model = \"exact\"` (the robots move on arcs). Before, with the wheel speeds "
+        "stepped to the commands and the Euler plant declared, the nominal robot reached a "
+        f"command in about 0.1 s ({response['first_sample']:.3f} m of a commanded 0.25 m "
+        "in its first sample, the model's ramp 0.125 m): it ran up to |dv| Ts / 2 ahead of "
+        "the prediction when speeding up and behind it when braking, and on arcs off the "
+        "Euler segment; corridor decentralized left the tube by up to 126 mm, in 53 of its "
+        "100 samples by more than 5 mm, with 11 brake fallbacks and a cost ratio of 1.20.",
+        "",
+        "**What is left is chance.** The brake fallbacks left happen on the ideal plant too: "
+        "a first input whose braking path would leave the robot below a later stage's shared "
+        "hyperplane (the rows of stages 2..N are soft and the QP does not see the braking "
+        "check). When they fall in a four-robot crossing decides when the robots get past "
+        "each other, and with it the cost. Measured while developing this (corridor "
+        "decentralized, physics, the scenario's own start): the driver's lead of 0, 0.01 and "
+        "0.02 s gave cost ratios 1.03, 0.94 and 1.33.",
+        "", "### The cost over five starts", "",
+        "Per start (the scenario's own first, then "
+        + ", ".join(f"{1000 * dx:+g}" for dx in MOVES) + " mm), the physics run's cost "
+        "against the ideal-plant run from the same start; their median; and the ideal "
+        "plant's own costs over the starts against its cost from the scenario's start (how "
+        "much of a ratio is chance):", "",
+        "| scenario | scheme | physics / ideal, per start | median | ideal plant's spread |",
+        "|---" * 5 + "|", *chances,
         "", "### Goals side by side", "", _kept_note(bounds),
         "", "## Sweep: one parameter at a time from the nominal robot", "",
               "*demand*: the share of the robot's torque a corner of the declared bounds "
@@ -398,7 +451,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               "Measured accelerations from the same step responses.", "",
               f"| parameter | value | speeding up / braking m/s^2 | turning rad/s^2 | demand | "
               f"scenario | scheme | {HEADER} |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---" * 18 + "|"]
     holds: list[str] = []
     fails: list[str] = []
     ideals = {}
@@ -423,9 +476,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     (holds if demand <= 1.0 else fails).append(label if why else "")
     nominal_runs = 2 * len(args.scenarios)
     lines += ["", "## Verdict", "",
-              f"- Nominal robot: {nominal_runs - len(failures)} of {nominal_runs} runs with 0 "
-              "overlaps beyond 1 mm, every robot arrived, none frozen and the cost within "
-              "1.2x of the ideal plant" + (f"; not: {'; '.join(failures)}." if failures else "."),
+              f"- Nominal robot: {nominal_runs - len(failures)} of {nominal_runs} cases with 0 "
+              f"overlaps beyond 1 mm, every robot arrived and none frozen from all "
+              f"{len(MOVES) + 1} starts, and the median cost ratio within 1.2x of the ideal "
+              "plant" + (f"; not: {'; '.join(failures)}." if failures else "."),
               "- The same runs on the ideal plant (sqpmpc's own, same bounds) where some robot "
               "is not within tolerance at the end: " + (", ".join(ideal_never) or "none") + ".",
               _verdict("hold (demand <= 1)", holds), _verdict("do not hold (demand > 1)", fails),

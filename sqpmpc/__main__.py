@@ -2,6 +2,6 @@
 
 import sys
 
-from sqpmpc.cli.main import main
+from sqpmpc.cli import console
 
-sys.exit(main())
+sys.exit(console())

@@ -11,6 +11,8 @@ import pytest
 
 from sqpmpc.errors import DependencyError, ProblemError
 from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.models.acceleration import acceleration_dynamics
+from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.physics import (
     OVERLAP_TOLERANCE,
@@ -19,6 +21,7 @@ from sqpmpc.sim.physics import (
     PhysicsFleet,
     load_mujoco,
 )
+from sqpmpc.sim.tube import tube_excursion
 
 
 def test_a_missing_mujoco_is_one_error_naming_the_extra(monkeypatch: pytest.MonkeyPatch
@@ -30,7 +33,7 @@ def test_a_missing_mujoco_is_one_error_naming_the_extra(monkeypatch: pytest.Monk
 
 @pytest.mark.parametrize("field, value", [("mass", 0.0), ("wheel_torque", -1.0),
                                           ("friction", float("nan")), ("track_fraction", 1.2),
-                                          ("physics_step", True)])
+                                          ("physics_step", True), ("feed_forward", -0.01)])
 def test_robot_model_refuses_bad_values(field: str, value: object) -> None:
     with pytest.raises(ProblemError, match=field):
         PhysicalRobot(**{field: value})
@@ -66,6 +69,31 @@ def test_driver_and_measurements_follow_a_held_command() -> None:
     assert len(fleet.pair_clearance) == 4 * fleet.substeps
 
 
+def test_with_acceleration_bounds_the_driver_ramps_as_the_model_predicts() -> None:
+    pytest.importorskip("mujoco")
+    sc = _one_robot().with_changes(plant=PlantSpec(model="exact"))
+    bounded = sc.with_changes(bounds=dataclasses.replace(
+        sc.bounds, acceleration=(-2.0, 2.0), angular_acceleration=(-7.0, 7.0)))
+    u, h = np.array([[0.5, 0.4]]), sc.sample_time
+    model = np.concatenate((bounded.initial_states(), np.zeros((1, 2))), axis=1)
+    for fleet_scenario, ramped in ((sc, False), (bounded, True)):
+        fleet = PhysicsFleet(fleet_scenario)
+        start = fleet.poses()
+        predicted = model
+        for _ in range(3):  # speeding up at 1 m/s^2, then holding the speed
+            accel = (u - predicted[:, 3:5]) / h
+            predicted = acceleration_dynamics(predicted, accel, h, "exact")
+            poses, _ = fleet.step(start, u)
+        miss = float(np.linalg.norm(poses[0, :2] - predicted[0, :2]))
+        if ramped:
+            # the model's ramp, not a step: within a centimetre after 1.5 s, the velocities
+            # the command's
+            assert miss < 0.01  # measured 0.004 m
+            assert fleet.velocities()[0] == pytest.approx(u[0], abs=0.03)
+        else:  # the paper's robot: the wheels step to the command and run ahead of a ramp
+            assert miss > 0.05  # measured 0.091 m
+
+
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
 @pytest.mark.parametrize("accelerations", [False, True], ids=["paper-robot", "accelerations"])
 def test_short_closed_loop_on_the_physics_plant(scheme: str, accelerations: bool) -> None:
@@ -73,7 +101,8 @@ def test_short_closed_loop_on_the_physics_plant(scheme: str, accelerations: bool
     sc = load_scenario("head-on")
     if accelerations:  # what the nominal robot reaches, halved (docs/physical-robots.md)
         sc = sc.with_changes(bounds=dataclasses.replace(
-            sc.bounds, acceleration=(-2.0, 2.0), angular_acceleration=(-7.0, 7.0)))
+            sc.bounds, acceleration=(-2.0, 2.0), angular_acceleration=(-7.0, 7.0)),
+            plant=PlantSpec(model="exact"))  # a physical robot moves on arcs
     sim = PhysicalSimulation(sc, scheme)
     # the controllers get the measured velocities exactly when the robots have them
     assert sim.fleet.measure(sim.states[0]).shape == (2, 5 if accelerations else 3)
@@ -86,6 +115,9 @@ def test_short_closed_loop_on_the_physics_plant(scheme: str, accelerations: bool
         # every physics step: no overlap beyond the QP's 1 mm margin
         assert rec.extra["overlap_steps"] == 0
         assert rec.extra["physics_min_clearance"] >= -OVERLAP_TOLERANCE
+        # the driver's ramp keeps the true paths within a few mm of the checked tubes
+        # (measured 2.0 mm; with the wheels stepped to the commands: 0.12 m on corridor)
+        assert 0.0 <= rec.extra["tube_excursion"] < 0.005
     else:
         # the paper's robot is assumed to stop at once; the physical one coasts (about
         # 4 cm from full speed), so head-on it may overlap: then it separates and goes on
@@ -95,3 +127,16 @@ def test_short_closed_loop_on_the_physics_plant(scheme: str, accelerations: bool
     # measured velocities: within the input bounds (a little overshoot of the servos)
     lo, hi = sc.bounds.input_lower(), sc.bounds.input_upper()
     assert (sim.velocities >= lo - 0.05).all() and (sim.velocities <= hi + 0.05).all()
+
+
+def test_tube_excursion_is_the_distance_beyond_the_deviation_bound() -> None:
+    states = np.array([[[0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]]])
+    plan = np.array([[[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]]])
+    u = np.array([[[2.0, 0.0]]])
+    mid = np.array([[[[0.5, 0.03]], [[1.0, 0.0]]]])   # 3 cm off the segment half-way
+    assert tube_excursion(mid, states, plan, u, None, 0.5, "euler", PlantSpec()) == \
+        pytest.approx(0.03)
+    # with velocity states from rest the bound lets the robot lag a ramp: |a| Ts^2 s(1-s)/2
+    # of 4 m/s^2 = 0.125 m half-way, more than the 3 cm
+    v0 = np.zeros((1, 1, 2))
+    assert tube_excursion(mid, states, plan, u, v0, 0.5, "euler", PlantSpec()) == 0.0

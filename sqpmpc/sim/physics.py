@@ -18,10 +18,32 @@ footprints (the scenario's circles) are checked after every physics step and
 the clearances recorded, so an overlap is measured, not hidden by a contact.
 
 The driver is a robot's: at every sample the controller's :math:`(v, \omega)`
-become wheel speeds :math:`w_{R,L} = (v \pm \omega b/2)/r` held over the
-sample; the true pose :math:`(x, y, \psi)` of the axle's midpoint and the
-measured velocities :math:`(v, \omega)` (the chassis' forward and yaw rates)
-are read back at the next sample (:class:`PhysicalSimulation`).
+become wheel speeds :math:`w_{R,L} = (v \pm \omega b/2)/r`; the true pose
+:math:`(x, y, \psi)` of the axle's midpoint and the measured velocities
+:math:`(v, \omega)` (the chassis' forward and yaw rates) are read back at the
+next sample (:class:`PhysicalSimulation`). For the paper's robot (no
+acceleration bounds) the wheel speeds are held over the sample. With
+``[bounds] acceleration`` (CONTRACT 1c) a command is the velocity to reach at
+the end of the sample at constant acceleration, within the bounds
+(:class:`~sqpmpc.problem.plant.Plant`, :mod:`sqpmpc.models.acceleration`), and
+the driver gives the servos that ramp (:meth:`PhysicsFleet.ramp`): from the
+measured velocities to the command, updated every physics step, led by
+``feed_forward`` (the servos' set-point filter delays a ramp by its time
+constant; the nominal robot's driver makes up for it).
+
+Why the ramp: the controller checks each first input against the path its
+model predicts, within the deviation bound of
+:func:`~sqpmpc.problem.plant.acceleration_path_deviation`. Wheel speeds held at
+the command (a step) make the nominal robot reach it in about 0.1 s instead of
+over the sample: it runs up to :math:`|\Delta v| T_s/2` ahead of the
+prediction when speeding up and behind it when braking (0.12 m measured on
+corridor), outside the checked tube in half the samples, and the checks then
+fell back to braking (corridor decentralized: 11 brake fallbacks, cost 1.20x the
+ideal plant). A physical robot also moves on arcs: declare ``[plant] model =
+"exact"`` (``benchmarks/physical.py`` does), else the Euler plant's straight
+segment misses up to :math:`v\omega T_s^2/2` (0.059 m at the paper's bounds).
+With both the nominal robot stays within 1.2 mm of the tube
+(``tube_excursion`` of :meth:`PhysicalSimulation.physics_metrics`).
 """
 
 from __future__ import annotations
@@ -38,6 +60,7 @@ from sqpmpc.problem.obstacles import obstacle_positions
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, Scheme, SimulationOptions
+from sqpmpc.sim.tube import tube_excursion
 
 __all__ = ["OVERLAP_TOLERANCE", "PhysicalRobot", "PhysicalSimulation", "PhysicsFleet",
            "fleet_xml", "load_mujoco", "simulate_physical"]
@@ -90,6 +113,11 @@ class PhysicalRobot:
         Reflected rotor inertia of each wheel's motor and gear, kg m^2.
     physics_step
         MuJoCo's time step, s (the sample time must be a multiple of it).
+    feed_forward
+        How far ahead the driver's set-point ramp runs, s (>= 0; robots with
+        acceleration bounds): the nominal set-point filter's time constant, which
+        delays a ramp by as much. A driver is tuned once: sweeping
+        ``actuator_time_constant`` leaves it at the nominal 0.02 s.
     """
 
     mass: float = 3.0
@@ -102,6 +130,7 @@ class PhysicalRobot:
     wheel_mass: float = 0.1
     wheel_armature: float = 0.002
     physics_step: float = 0.002
+    feed_forward: float = 0.02
 
     def __post_init__(self) -> None:
         for name, unit in (("mass", "kg"), ("wheel_torque", "N m"), ("friction", "-"),
@@ -110,6 +139,12 @@ class PhysicalRobot:
                            ("wheel_mass", "kg"), ("wheel_armature", "kg m^2"),
                            ("physics_step", "s")):
             object.__setattr__(self, name, _positive(name, getattr(self, name), unit))
+        lead = self.feed_forward
+        if (isinstance(lead, bool) or not isinstance(lead, int | float | np.floating)
+                or not math.isfinite(lead) or lead < 0):
+            raise ProblemError(f"PhysicalRobot.feed_forward: expected a finite number >= 0 "
+                               f"(s), got {lead!r}")
+        object.__setattr__(self, "feed_forward", float(lead))
         if self.track_fraction >= 1.0:
             raise ProblemError(f"PhysicalRobot.track_fraction: expected a number in (0, 1) (the "
                                f"wheels inside the footprint), got {self.track_fraction!r}")
@@ -190,6 +225,8 @@ class PhysicsFleet:
         Per physics step so far: the smallest footprint clearance between two
         robots, and between a robot and an obstacle, m (``inf`` when there is
         none); lists of floats.
+    path
+        Per physics step so far: the robots' positions ``(n, 2)``.
     """
 
     def __init__(self, scenario: Scenario, robot: PhysicalRobot | None = None) -> None:
@@ -216,6 +253,8 @@ class PhysicsFleet:
             [o.diameter for o in scenario.obstacles]).reshape(1, -1))
         self.pair_clearance: list[float] = []
         self.obstacle_clearance: list[float] = []
+        #: ``(n, 2)`` the robots' positions after every physics step so far
+        self.path: list[np.ndarray] = []
         mj.mj_forward(self.model, self.data)
         self._settle()
 
@@ -278,6 +317,7 @@ class PhysicsFleet:
 
     def _clearances(self) -> None:
         p = self.data.qpos[self._qpos[:, None] + np.arange(2)]
+        self.path.append(p)
         if self._required.size:
             i, j = self._pairs
             gap = np.hypot(p[i, 0] - p[j, 0], p[i, 1] - p[j, 1]) - self._required
@@ -298,11 +338,34 @@ class PhysicsFleet:
         true state. The footprint clearances are recorded after every physics step.
         """
         u = np.asarray(inputs, dtype=float)
-        self.data.ctrl[:] = self.wheel_speeds(u).ravel()
-        for _ in range(self.substeps):
+        if not self.has_velocities:  # the paper's robot: its velocities change at once
+            self.data.ctrl[:] = self.wheel_speeds(u).ravel()
+            for _ in range(self.substeps):
+                self._mj.mj_step(self.model, self.data)
+                self._clearances()
+            return self.poses(), u.copy()
+        start, accel = self.ramp(u)
+        dt, lead = self.robot.physics_step, self.robot.feed_forward
+        for j in range(1, self.substeps + 1):
+            self.data.ctrl[:] = self.wheel_speeds(start + (j * dt + lead) * accel).ravel()
             self._mj.mj_step(self.model, self.data)
             self._clearances()
         return self.poses(), u.copy()
+
+    def ramp(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""The driver's set-point ramp of a sample (robots with acceleration bounds): from
+        the measured velocities :math:`(v_0, \omega_0)` at constant accelerations
+        :math:`\mathrm{clip}((u - v_0)/T_s, a_{\min}, a_{\max})` (the declared bounds), so
+        the set point reaches the command ``inputs (n, 2)`` at the end of the sample when
+        the bounds allow: what a command means to the controller's model
+        (:class:`~sqpmpc.problem.plant.Plant`, CONTRACT 1c); :meth:`step` sets the
+        servos to the ramp ``feed_forward`` seconds ahead. Returns the start ``(n, 2)``
+        and the accelerations ``(n, 2)``."""
+        b = self.scenario.bounds
+        start = self.velocities()
+        accel = np.clip((np.asarray(inputs, dtype=float) - start) / self.scenario.sample_time,
+                        b.acceleration_lower(), b.acceleration_upper())
+        return start, accel
 
 
 class PhysicalSimulation(ClosedLoopSimulation):
@@ -310,7 +373,9 @@ class PhysicalSimulation(ClosedLoopSimulation):
 
     The controllers, plan exchange and record are the in-process loop's; only the
     plant differs. The scenario's ``[plant]`` section is the controller's model
-    of the robot (its margins); the robots move by the physics.
+    of the robot (its margins); the robots move by the physics, on arcs: declare
+    ``model = "exact"`` (module notes; :meth:`tube_excursion` measures what the
+    checks missed).
 
     Parameters
     ----------
@@ -344,10 +409,11 @@ class PhysicalSimulation(ClosedLoopSimulation):
 
     def physics_metrics(self) -> dict[str, Any]:
         """Clearances at every physics step so far: the smallest robot-robot and
-        robot-obstacle clearances (m, ``None`` when there is no pair / obstacle) and the
+        robot-obstacle clearances (m, ``None`` when there is no pair / obstacle), the
         physics steps below :data:`OVERLAP_TOLERANCE` (``overlap_steps``,
-        ``obstacle_overlap_steps``)."""
-        out: dict[str, Any] = {"physics_steps": len(self.fleet.pair_clearance)}
+        ``obstacle_overlap_steps``) and :meth:`tube_excursion`."""
+        out: dict[str, Any] = {"physics_steps": len(self.fleet.pair_clearance),
+                               "tube_excursion": self.tube_excursion()}
         for key, values in (("", self.fleet.pair_clearance),
                             ("obstacle_", self.fleet.obstacle_clearance)):
             arr = np.asarray(values)
@@ -355,6 +421,18 @@ class PhysicalSimulation(ClosedLoopSimulation):
             out[f"physics_min_{key}clearance"] = float(finite.min()) if finite.size else None
             out[f"{key}overlap_steps"] = int(np.count_nonzero(finite < -OVERLAP_TOLERANCE))
         return out
+
+    def tube_excursion(self) -> float:
+        """How far the robots' true paths left the tubes the controllers checked, m
+        (:func:`~sqpmpc.sim.tube.tube_excursion` of the samples so far)."""
+        if self.k == 0:
+            return 0.0
+        k, steps = self.k, self.fleet.substeps
+        path = np.asarray(self.fleet.path[:k * steps]).reshape(k, steps, -1, 2)
+        return tube_excursion(path, self.states[:k + 1], self.horizons[:k], self.inputs[:k],
+                              self.velocities[:k] if self.fleet.has_velocities else None,
+                              self.scenario.sample_time, self.settings.discretization,
+                              self.scenario.plant)
 
     def record(self) -> RunRecord:
         """The loop's record with :meth:`physics_metrics` in ``extra``."""
