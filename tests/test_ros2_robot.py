@@ -1,6 +1,5 @@
 """The ROS 2 robot's pieces without processes: bad options, committed motion of plans, the
-controller's check, the neighbours' headings, the plans awaited and the planner's view of a
-neighbour (its committed arc, then the rest of its plan)."""
+controller's check, the neighbours' headings and the plans awaited."""
 
 from __future__ import annotations
 
@@ -124,28 +123,3 @@ def test_the_controller_checks_as_the_robot_and_waits_for_plans_in_flight():
     nb.add(PlanMsg(other, 1, 0.0, now + 0.4, standing, np.zeros((scenario.horizon, 2))),
            now + 0.27)
     assert not nb.awaited(own, now + 0.45, now + 0.27)  # it came
-
-
-def test_the_planner_sees_a_neighbour_follow_its_plan_after_the_committed_arc():
-    import time
-
-    from services.messages import PlanMsg
-    from services.ros2.neighbours import Neighbours
-
-    now = time.time()
-    Ts, N = 0.5, 8
-    nb = Neighbours([1, 2], 1, np.array([0.0, 0.3]), Ts, N, 0.6, lead=0.15, guard=0.02,
-                    margin=0.02)
-    states = np.zeros((N + 1, 3))
-    states[:, 0] = 0.3 * np.minimum(np.arange(N + 1), 4)  # 0.6 m/s along x, stop at 4
-    inputs = np.tile([0.6, 0.0], (N, 1))
-    inputs[4:] = 0.0
-    stamp = now - 0.1
-    nb.add(PlanMsg(2, 0, 0.0, stamp, states, inputs), now)
-    t = now + 0.1
-    _, plans = nb.for_controller(t, 3)
-    stage = plans[2].states  # at t + (i - 1) Ts, i = 0..N (a plan of sample 2)
-    assert plans[2].sample == 2 and stage.shape == (N + 1, 3)
-    tau = t + Ts * np.arange(-1, N) - stamp
-    expected = 0.6 * np.clip(tau, 0.0, 4 * Ts)  # its arc, then its plan: on, then standing
-    assert np.allclose(stage[:, 0], expected) and np.allclose(stage[:, 1], 0.0)

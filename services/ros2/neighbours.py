@@ -5,10 +5,7 @@ stamp for one sample, so that arc is exact (:func:`services.ros2.timing.committe
 :class:`Neighbours` keeps the newest plans of each neighbour and gives
 
 - the controller its view (:meth:`Neighbours.for_controller`): every
-  neighbour a moving obstacle on its exact arcs, then along the rest of its
-  newest plan (what it means to do: a neighbour taken to stand where its arcs
-  end is met where it no longer is, and a head-on pair planning so meets side
-  by side, too close to pass, and stalls);
+  neighbour a moving obstacle on its exact arcs, then standing where they end;
 - the check of an input (:meth:`Neighbours.path_is_safe`): along the exact arc
   of the whole sample, every required distance plus the margin from all of a
   neighbour's arc since the start of its current sample (a robot may stop at
@@ -34,14 +31,7 @@ import numpy as np
 from sqpmpc.control.plans import PlanMessage
 
 from ..messages import PlanMsg
-from .timing import (
-    Estimate,
-    TimedPlan,
-    arcs,
-    committed,
-    neighbour_estimate,
-    plan_position,
-)
+from .timing import Estimate, TimedPlan, arcs, committed, neighbour_estimate
 
 __all__ = ["CHECK_STEPS", "FAR", "KEPT_PLANS", "Neighbours"]
 
@@ -134,14 +124,7 @@ class Neighbours:
         """Every robot's state at wall time ``t`` (own row left zero; robots never heard
         from far away) and, per neighbour heard from, its motion at the own stage times
         ``t + i Ts`` as a plan of ``sample - 1`` (which the controller shifts to stages
-        1..N): exact arcs, then the rest of its newest plan (:func:`plan_position`).
-
-        This is the planner's prediction only (the paper's: the neighbour follows its
-        plan); the check (:meth:`path_is_safe`) still keeps out of all it may do. Standing
-        where the arcs end instead, both robots of a head-on pair plan against a point the
-        other has left and meet side by side inside the controller's distance, where
-        neither may move closer: the ROS 2 fleet test's pair stalled so for up to 20 s.
-        """
+        1..N): exact arcs, then standing where the last one ends."""
         N = self.N
         states = np.zeros((len(self.ids), 3))
         plans: dict[int, PlanMessage] = {}
@@ -154,11 +137,7 @@ class Neighbours:
                 states[j] = left.state
                 pos = np.repeat(left.state[None, :2], N + 1, axis=0)
             elif self.plans[rid]:
-                kept = self.plans[rid]
-                pos, _ = committed(kept, times, self.Ts, self.v_max, True)
-                newest = kept[-1]
-                for i in np.flatnonzero(times > newest.stamp + self.Ts):
-                    pos[i] = plan_position(newest, float(times[i]), self.Ts)[:2]
+                pos, _ = committed(self.plans[rid], times, self.Ts, self.v_max, True)
                 states[j, :2] = pos[1]
                 states[j, 2] = self._heading(self.plans[rid], t)
             else:

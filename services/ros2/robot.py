@@ -21,7 +21,7 @@ references):
    applies a plan's first input from its stamp for one sample, exactly, and
    then decides again knowing this robot's new plan or is bounded by its reach;
 2. the step of :class:`services.ros2.controller.Ros2Controller`, every
-   neighbour a moving obstacle (its exact arcs, then the rest of its newest plan);
+   neighbour a moving obstacle (its exact arcs, then standing where they end);
 3. inside it, the check of the first input
    (:meth:`services.ros2.neighbours.Neighbours.path_is_safe`) along the exact
    arc of the whole sample; if it fails, the shifted plan if that passes, else
