@@ -39,9 +39,10 @@ decided last knew the other's motion up to then and kept the distance from it.
 
 The command is zero when the odometry is older than ``--odom-timeout``
 (checked continuously), at the end and on SIGINT/SIGTERM; while the odometry is
-stale the robot publishes a plan standing where odometry and commands put it. A
-neighbour without a plan yet is unknown (not running); one whose token disappears
-(it stopped, commanding zero) is held where its last plan put it, standing still.
+stale it publishes at each instant a plan standing where odometry and commands put
+it, stamped at that instant. A neighbour without a plan yet is unknown (not running);
+one whose token disappears (it stopped, commanding zero) is held where its last plan
+put it, standing still.
 Before moving, the robot waits up to ``--timeout`` for every alive neighbour's plan.
 """
 
@@ -134,10 +135,8 @@ class Ros2Robot(Node):
         self.epoch_file: Path | None = args.epoch_file
         self._cmd_lock = threading.RLock()
         self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
-                       "late_samples": 0, "plan_waits": 0,
-                       "stopped_late": 0,
-                       "stale_odometry": 0,
-                       "zero_commands": 0}
+                       "late_samples": 0, "plan_waits": 0, "stopped_late": 0,
+                       "stale_odometry": 0, "zero_commands": 0}
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
@@ -263,14 +262,14 @@ class Ros2Robot(Node):
         self.path_pub.publish(msgs.Path(msgs.Header(msgs.Time.from_seconds(stamp), frame),
                                         poses))
 
-    def brake(self, now: float, sample: int) -> None:
-        """Zero on cmd_vel; a plan standing where the robot is."""
+    def brake(self, now: float, sample: int, stamp: float | None = None) -> None:
+        """Zero on cmd_vel now; a plan standing where it is, stamped ``stamp`` (or now)."""
         self.command(0.0, 0.0, now)
         state = self.own_state(now)
         if state is not None:
             N = self.scenario.horizon
-            self.publish_plan(sample, now, np.repeat(state[None], N + 1, axis=0),
-                              np.zeros((N, 2)))
+            self.publish_plan(sample, now if stamp is None else max(stamp, now),
+                              np.repeat(state[None], N + 1, axis=0), np.zeros((N, 2)))
 
     def _stop_if_stale(self) -> bool:
         """Command zero at once if the odometry is stale and the robot is not braked yet
@@ -424,7 +423,8 @@ class Ros2Robot(Node):
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
         now = time.time()
         if self.odometry_age(now) > self.odom_timeout:
-            self.brake(now, k)  # stays braked while the odometry is stale
+            # braked while stale; its plan stamped at Tk as every plan, not a lead early
+            self.brake(now, k, Tk)
             return
         self._braked = False
         # the previous plan commits its input until Tk only: if this sample's command is

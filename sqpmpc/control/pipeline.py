@@ -139,9 +139,10 @@ class ControllerPipeline:
                                   settings.discretization, plant, limits,
                                   self.scheme == "decentralized")
         self.model_margin = self.margins.model_margin
+        obstacle_margin = settings.collision_margin + 0.5 * self.model_margin  # walls, pillars
         # the rules measure "near" beyond RowMargins.rules (problem.margins)
-        self.context = RuleContext(scenario, self.indices, self.scheme,
-                                   settings.iteration_scheme, self.counts, self.margins.rules)
+        self.context = RuleContext(scenario, self.indices, self.scheme, settings.iteration_scheme,
+                                   self.counts, self.margins.rules, 0.5 * self.model_margin)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):
@@ -176,13 +177,12 @@ class ControllerPipeline:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
                 self.sample_time, self.geometry,
-                settings.collision_margin + 0.5 * self.model_margin,
-                (float(self.input_lower[0]), float(self.input_upper[0])),
+                obstacle_margin, (float(self.input_lower[0]), float(self.input_upper[0])),
                 self.recovery_tolerance)
         if scenario.polygons:  # circles first, then every polygon's convex pieces
             self.obstacle_rows = MapRows(self.obstacle_rows, PolygonRows(
                 scenario.polygons, scenario.diameters()[self.indices], self.horizon,
-                self.geometry, settings.collision_margin + 0.5 * self.model_margin))
+                self.geometry, obstacle_margin))
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,

@@ -160,14 +160,22 @@ class RoadMap:
             return not self._inner.contains(Point(a))
         return not self._inner.intersects(LineString([tuple(a), tuple(b)]))
 
-    def sees(self, p: np.ndarray, points: np.ndarray) -> np.ndarray:
+    def sees(self, p: np.ndarray, points: np.ndarray, keep: float = 0.0) -> np.ndarray:
         """Whether the robot's centre at ``p`` can go straight to each of ``points (K, 2)``
-        without coming nearer an obstacle than its radius, ``(K,)`` bool."""
+        without coming nearer an obstacle than its radius plus ``keep`` (the room the
+        collision rows keep; a robot standing nearer than that: than it stands now),
+        ``(K,)`` bool. A robot whose rows hold it farther off a corner than a line grazes
+        it stays pinned against the corner, tracking a point it sees only by its radius."""
         if self.empty:
             return np.ones(len(points), dtype=bool)
         lines = shapely.linestrings(np.stack((np.broadcast_to(p, points.shape), points),
                                              axis=1))
-        return ~shapely.intersects(self._hard, lines)
+        seen = ~shapely.intersects(self._hard, lines)
+        if keep > 0.0 and not self.bare.is_empty:
+            now = float(self.bare.distance(Point(p)))
+            need = min(self.radius + float(keep), now) - _EPS
+            seen &= shapely.distance(self.bare, lines) >= need
+        return seen
 
     def away_from_walls(self, p: np.ndarray) -> tuple[float, np.ndarray]:
         """Clearance of a robot centred at ``p`` (distance to the static map minus the

@@ -86,6 +86,14 @@ class RuleContext:
         plant), within ``reach``: its rules measure from the required distance
         as tuned (measured with the margin added there: costs changed both
         ways, e.g. crossing-4 centralized -29 %, swap-6 decentralized +14 %).
+    obstacle_margin
+        Distance, m, the rows against static obstacles and walls keep beyond the
+        robot's radius for the plant's deviation from the prediction: half the
+        pipeline's model margin (0.125 m with acceleration limits [-1, 1] m/s^2 and [-3, 3] rad/s^2,
+        Ts 0.5 s; 0 for the paper's robot on the Euler plant). The rows add
+        the solver's ``collision_margin`` (1 mm) on top. A straight way nearer a wall
+        than this is one the QP will not take (the ``route`` rule only heads for
+        points reachable with it).
     """
 
     scenario: Scenario
@@ -94,6 +102,7 @@ class RuleContext:
     iteration_scheme: str
     counts: dict[str, int] = field(default_factory=dict)
     model_margin: float = 0.0
+    obstacle_margin: float = 0.0
 
     def kept_distances(self) -> np.ndarray:
         """``(m, n)`` distances the rows keep from the own robots to everyone, m: the

@@ -10,13 +10,24 @@ is planned, but never runs more than ``lead`` metres of arc ahead of the
 robot's progress (its projection on the route), so a robot held up by others
 is not pulled across a corner; stages 1..N of the reference are the route's
 points at that arc length plus ``speed`` times the stage's time, each held at
-the last one the robot can reach in a straight line without coming nearer an
-obstacle than its radius (a unicycle tracking a point beyond a corner cuts
-it and can end up pinned against it). The route is
+the last one the robot can reach in a straight line keeping what the rows
+against the static map keep for the plant: its radius plus
+:attr:`~sqpmpc.rules.base.RuleContext.obstacle_margin`, or its clearance now if
+it stands nearer (when stage 1 is out of reach already: the route's next vertex).
+A unicycle tracking a point beyond a corner cuts it and can end up pinned
+against it: the rows hold it off the corner while the cost pulls it on (with
+acceleration limits the rows keep 0.125 m more than the radius; room-door
+decentralized on the exact plant left robot 5 4.70 m from its goal against the
+door jamb when reach was judged by the radius alone). The routes keep
+``margin`` beyond the radius whatever the rows keep: widening them to 5 cm beyond
+what the rows keep (0.30 m with acceleration bounds [-2, 2] m/s^2) had routes
+planned where the straight way is free, and a robot of corridor centralized
+(``benchmarks.physical``'s bounds, exact plant) ended 3.34 m short. The route is
 re-planned from the robot's position when the robot has not progressed by
 ``progress`` metres for ``patience`` seconds or has been pushed more than
 ``deviation`` metres off it, and dropped once the straight way to the goal
-is free. A robot pressed against a wall, facing it, stopped with no neighbour
+is free. A robot pressed against a wall (within ``pressed`` of what the rows
+keep), facing it, stopped with no neighbour
 near and far from its goal for a few samples backs away from it first (facing a wall, a unicycle's
 linearization has no way out). Safety is the collision rows' business, as for every rule: the
 route only chooses where the robot heads.
@@ -80,6 +91,8 @@ class _RouteInstance(RuleInstance):
         self.goals: list[np.ndarray | None] = []
         self.tracking: list[_Tracking | None] = []
         self.speed = rule.speed * context.max_speed
+        #: what the rows against the static map keep beyond the radius, m
+        self.keep = float(context.obstacle_margin)
         m = context.own.size
         self.pinned = np.zeros(m, dtype=np.int64)  # samples pressed against a wall
         self.escape = np.zeros(m, dtype=np.int64)  # samples of escape left
@@ -132,7 +145,7 @@ class _RouteInstance(RuleInstance):
         others = np.delete(view.positions, self.context.own[k], axis=0)
         crowded = others.size and float(np.hypot(*(others - p).T).min()) < rule.neighbour
         self.pinned[k] = (self.pinned[k] + 1 if stopped and facing and not crowded
-                          and gap < rule.pressed else 0)
+                          and gap < self.keep + rule.pressed else 0)
         if self.pinned[k] < rule.pinned_samples:
             return False
         self.pinned[k] = 0
@@ -186,7 +199,7 @@ class _RouteInstance(RuleInstance):
             if out is None:
                 out = view.references.copy()
             pts = track.route.position_at(base + stage_s)
-            seen = road.sees(p, pts)
+            seen = road.sees(p, pts, self.keep)
             if not seen.all():  # never past a corner not yet in sight: the next vertex
                 first = int(np.argmin(seen))
                 if first == 0:
@@ -221,7 +234,8 @@ class RouteFollowing(Rule):
     check_every
         Samples between the checks of a robot without a route (is its way blocked?).
     pressed, stopped_speed, pinned_samples, facing, neighbour
-        A robot nearer than ``pressed`` m beyond its radius to a wall, heading into it
+        A robot nearer than ``pressed`` m beyond what the rows keep (its radius plus
+        :attr:`~sqpmpc.rules.base.RuleContext.obstacle_margin`) to a wall, heading into it
         (the cosine between its heading and the wall's direction above ``facing``),
         no other robot within ``neighbour`` m, whose applied speed stayed below
         ``stopped_speed`` m/s for ``pinned_samples`` samples, is pinned (facing the
