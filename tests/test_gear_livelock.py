@@ -57,7 +57,7 @@ def test_a_robot_cycling_its_gear_is_stuck_after_its_patience() -> None:
         "bounds": {"v": [-0.6, 0.6], "omega": [-0.785, 0.785]},
         "robots": [{"id": 1, "initial_state": [0.0, 0.0, np.pi], "diameter": 0.3,
                     "reference": {"type": "point", "position": [2.0, 0.5]}}]})
-    ctrl = CentralizedController(sc, only().with_rule(StallRepair(patience=3)))  # cycle 1
+    ctrl = CentralizedController(sc, only().with_rule(StallRepair(patience=3, cycle=1)))
     inst = ctrl.rule("stall-repair")
     plan = np.full((1, 8), 0.3)  # a guess far above the repair speed
     outs = []

@@ -204,7 +204,7 @@ class StallRepair(Rule):
     speed: float = 0.05
     distance: float = 0.1
     patience: int = 10
-    cycle: int = 1
+    cycle: int = 2
 
     def __post_init__(self) -> None:
         check_positive(self, "speed", "distance", "patience", "cycle")
