@@ -112,7 +112,10 @@ def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "sqpmpc", "run", str(long), "--scheme", "decentralized",
          "--out", str(out), "--no-plots", "--status-every", "0.2"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # SIGINT at its default, as from a terminal: a background job of a shell (CI's,
+        # perhaps) starts with it ignored, and an ignored Ctrl-C stays ignored
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     # the first status line says the loop runs (however long the imports took)
     line = proc.stderr.readline()
     while line and not line.startswith("paper-s2 decentralized: sample"):

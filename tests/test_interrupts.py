@@ -37,11 +37,17 @@ except KeyboardInterrupt:
 """
 
 
+def _sigint_default() -> None:
+    """In the child: SIGINT at its default, as from a terminal (a background job of a
+    shell, CI's perhaps, starts with it ignored, and an ignored Ctrl-C stays ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize(("handler", "status"), [("python", 130), ("default", 128 + signal.SIGINT)])
 def test_every_ctrl_c_during_solves_reaches_the_main_thread(handler: str, status: int) -> None:
     for _ in range(3):
         proc = subprocess.Popen([sys.executable, "-c", LOOP, handler], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+                                stderr=subprocess.PIPE, text=True, preexec_fn=_sigint_default)
         assert proc.stdout is not None and proc.stdout.readline() == "solving\n"
         proc.send_signal(signal.SIGINT)
         try:
