@@ -44,6 +44,7 @@ import numpy as np
 from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.io.atomic import atomic_path
+from sqpmpc.problem.plant import ramp_accelerations
 from sqpmpc.problem.scenario_file import load_scenario
 
 from ..node import install_signal_handlers, setup_logging
@@ -139,7 +140,8 @@ class SimRobot:
                 self.segments.append([self._t, *self._state.tolist(), *self._vel.tolist()])
                 return
             self._tick = math.floor(self._t / self.tick)
-            self._rate = np.clip((self._cmd - self._vel) / self.sample_time, *self.limits)
+            self._rate = ramp_accelerations(self._cmd, self._vel, self.sample_time,
+                                            *self.limits)
 
 
 def _odom_message(pub, classes: dict, robot: SimRobot, t: float) -> None:

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sqpmpc.problem.plant import ramp_accelerations
+
 RAMP_STEP = 0.01
 """Longest stretch :func:`own_motion` takes on one arc while the velocities ramp, s."""
 
@@ -163,7 +165,7 @@ def ramp(v0: np.ndarray, target: np.ndarray, dt: float, within: float,
     v0, target = np.asarray(v0, dtype=float), np.asarray(target, dtype=float)
     if dt <= 0.0:
         return v0.copy(), v0.copy()
-    rate = np.clip((target - v0) / within, limits[0], limits[1])
+    rate = ramp_accelerations(target, v0, within, limits[0], limits[1])
     moving = rate != 0.0
     reach = np.full(v0.shape, np.inf)
     reach[moving] = (target - v0)[moving] / rate[moving]  # time to the target

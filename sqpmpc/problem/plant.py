@@ -116,6 +116,7 @@ __all__ = [
     "NOISE_TRUNCATION",
     "acceleration_path_deviation",
     "corner_deviations",
+    "ramp_accelerations",
     "largest_deviation",
     "PLANT_MODELS",
     "Plant",
@@ -268,11 +269,20 @@ class Plant:
             return discrete_dynamics(states, applied, self.sample_time, self.spec.model), applied
         lower, upper = self.acceleration_bounds
         h = self.sample_time
-        accel = np.clip((applied - self.velocities) / h, lower, upper)
+        accel = ramp_accelerations(applied, self.velocities, h, lower, upper)
         full = np.concatenate((np.asarray(states, dtype=float)[:, :3], self.velocities), axis=1)
         nxt = acceleration_dynamics(full, accel, h, self.spec.model)
         self.velocities = nxt[:, 3:5].copy()
         return nxt[:, :3], self.velocities.copy()
+
+
+def ramp_accelerations(target: np.ndarray, start: np.ndarray, duration: float,
+                       lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    r"""The constant accelerations that take velocities ``start`` to ``target`` in
+    ``duration`` s within the bounds: :math:`\mathrm{clip}((v_{cmd} - v)/T, a_{\min},
+    a_{\max})` (CONTRACT 1c; :class:`Plant`, the physics plant's driver and the ROS 2
+    robots ramp so), same shape as ``target``."""
+    return np.clip((np.asarray(target, dtype=float) - start) / duration, lower, upper)
 
 
 def _simpson_error(speed: np.ndarray, rate: np.ndarray, h: float) -> np.ndarray:

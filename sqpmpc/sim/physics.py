@@ -57,6 +57,7 @@ import numpy as np
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import DependencyError, ProblemError
 from sqpmpc.problem.obstacles import obstacle_positions
+from sqpmpc.problem.plant import ramp_accelerations
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, Scheme, SimulationOptions
@@ -363,8 +364,8 @@ class PhysicsFleet:
         and the accelerations ``(n, 2)``."""
         b = self.scenario.bounds
         start = self.velocities()
-        accel = np.clip((np.asarray(inputs, dtype=float) - start) / self.scenario.sample_time,
-                        b.acceleration_lower(), b.acceleration_upper())
+        accel = ramp_accelerations(inputs, start, self.scenario.sample_time,
+                                   b.acceleration_lower(), b.acceleration_upper())
         return start, accel
 
 
