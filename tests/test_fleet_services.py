@@ -28,15 +28,17 @@ from sqpmpc.kernels.collision import nearest_within
 from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.sim.simulation import simulate
 
-pytestmark = pytest.mark.timeout(120)
+# a guard against a hang only (no budget on how long a right run takes on a busy machine)
+pytestmark = pytest.mark.timeout(900)
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _launch(*args: str, timeout: float = 100.0) -> subprocess.CompletedProcess:
+def _launch(*args: str) -> subprocess.CompletedProcess:
+    """The launcher to its end (no wall budget: the module's timeout guards a hang)."""
     cmd = [sys.executable, "-m", "services.launch", "--no-plots", "--scheme", "decentralized",
            *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
 
 
 def _plan_counts(stderr: str) -> dict[int, tuple[int, int, int]]:
@@ -100,15 +102,14 @@ def test_sigterm_stops_hosted_robots_and_the_plant_writes(tmp_path):
     launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 cwd=ROOT)
     try:
-        deadline = time.monotonic() + 30
         children: list[int] = []
-        while time.monotonic() < deadline and len(children) < 3:
+        while launcher.poll() is None and len(children) < 3:  # however long they take
             children = child_pids(launcher.pid)
             time.sleep(0.1)
         assert len(children) == 3, "plant and 2 processes of 2 robots should be running"
         time.sleep(3.0)
         launcher.send_signal(signal.SIGTERM)
-        _, err = launcher.communicate(timeout=60)
+        _, err = launcher.communicate()
     finally:
         if launcher.poll() is None:
             launcher.kill()

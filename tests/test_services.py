@@ -32,16 +32,17 @@ from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 
-pytestmark = pytest.mark.timeout(120)
+# a guard against a hang only (no budget on how long a right run takes on a busy machine)
+pytestmark = pytest.mark.timeout(900)
 
 SCENARIO = "paper-s2"
 T_END = 100.0  # 200 samples, through the first close approaches
 
 
-def _launch(out: Path, *extra: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
+def _launch(out: Path, *extra: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--out", str(out),
            "--no-plots", *extra]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+    return subprocess.run(cmd, capture_output=True, text=True,
                           cwd=Path(__file__).resolve().parent.parent)
 
 
@@ -96,19 +97,17 @@ def test_sigterm_to_the_launcher_leaves_no_child(tmp_path):
     launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 cwd=Path(__file__).resolve().parent.parent)
     try:
-        deadline = time.monotonic() + 30
         children: list[int] = []
-        while time.monotonic() < deadline and len(children) < 5:
+        while launcher.poll() is None and len(children) < 5:  # however long they take
             children = child_pids(launcher.pid)
             time.sleep(0.1)
         assert len(children) == 5, "plant and 4 robots should be running"
         record = out / "record.msgpack"  # the plant appends one entry per sample
-        while time.monotonic() < deadline + 60 and not (
-                record.exists() and record.stat().st_size > 0):
+        while launcher.poll() is None and not (record.exists() and record.stat().st_size > 0):
             time.sleep(0.1)
         time.sleep(1.0)  # the realtime loop is running (Ts = 0.5 s)
         launcher.send_signal(signal.SIGTERM)
-        _, err = launcher.communicate(timeout=60)
+        _, err = launcher.communicate()
     finally:
         if launcher.poll() is None:
             launcher.kill()
