@@ -10,25 +10,38 @@ CHECKED := NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(VENV)/numba-cache-checked
 
 .PHONY: demo test docs lint bench clean
 
+EXTRAS := test,bench,video,physics
+# every set-up step says what it does, then a line every 8 s while it runs (pip adds its own
+# lines, one per package), then how long it took: nothing waits silently
+STEP = @echo "== $(1)"; start=$$(date +%s); \
+	( while sleep 8; do echo "   ... $(1): $$(( $$(date +%s) - start )) s"; done ) & tick=$$!; \
+	$(2); status=$$?; kill $$tick 2>/dev/null; \
+	if [ $$status -eq 0 ]; then echo "== $(1): done in $$(( $$(date +%s) - start )) s"; \
+	else echo "== $(1): failed (status $$status)"; exit $$status; fi
+
 $(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e ".[test,bench,video,physics]"
+	$(call STEP,creating $(VENV),$(PYTHON) -m venv $(VENV))
+	$(call STEP,upgrading pip,$(BIN)/pip install --progress-bar off --upgrade pip)
+	$(call STEP,installing sqpmpc and its dependencies (a minute or two on a fresh machine),\
+		$(BIN)/pip install --progress-bar off -e ".[$(EXTRAS)]")
 	touch $(STAMP)
 
+# a new run folder each time: runs/paper-s2-decentralized-lockstep-<time>
 demo: $(STAMP)
-	$(BIN)/python -m sqpmpc.kernels
-	$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized --out runs/demo
+	$(call STEP,compiling the kernels (once; later loaded from the cache),\
+		$(BIN)/python -m sqpmpc.kernels)
+	$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized
 
 test: $(STAMP)
 	$(BIN)/ruff check sqpmpc services tests benchmarks examples docs
-	$(BIN)/mkdocs build --strict --quiet --site-dir site
-	$(CHECKED) $(BIN)/python -m sqpmpc.kernels
+	$(BIN)/python docs/build.py --quiet --site-dir site
+	$(call STEP,compiling the bounds-checked kernels,$(CHECKED) $(BIN)/python -m sqpmpc.kernels)
 	$(CHECKED) $(BIN)/pytest -q
 
-# the API reference (from the docstrings) and the reports, into site/ (mkdocs.yml)
+# the site (tutorial, how-to guides, reference, explanation and reports) into site/;
+# docs/build.py fails on any warning, also with --quiet
 docs: $(STAMP)
-	$(BIN)/mkdocs build --strict --site-dir site
+	$(BIN)/python docs/build.py --site-dir site
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.compare_ipopt

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -64,6 +65,7 @@ __all__ = [
     "combination_problem",
     "option_words",
     "flag_type",
+    "plain_text",
     "nonnegative_float",
     "nonnegative_int",
     "port_number",
@@ -75,9 +77,23 @@ __all__ = [
 ]
 
 
+_RST_ROLE = re.compile(r":(?:py:)?[a-z]+:`~?([^`]+)`")
+
+
+def plain_text(text: str) -> str:
+    """``text`` without reStructuredText markup (roles, double backticks): the help the
+    user reads is taken from docstrings written for the API reference."""
+    return _RST_ROLE.sub(r"\1", text).replace("``", "")
+
+
 class Parser(argparse.ArgumentParser):
     """An :class:`argparse.ArgumentParser` whose errors are one line naming the flag:
-    ``sqpmpc run: error: --message-drop: expected a probability in [0, 1], got 2``."""
+    ``sqpmpc run: error: --message-drop: expected a probability in [0, 1], got 2``, and
+    whose help holds no reStructuredText markup (:func:`plain_text`)."""
+
+    def format_help(self) -> str:
+        """The help, as plain text."""
+        return plain_text(super().format_help())
 
     def error(self, message: str) -> NoReturn:
         message = message.removeprefix("argument ")
