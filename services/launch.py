@@ -76,7 +76,11 @@ from sqpmpc.cli.options import (
     positive_int,
 )
 from sqpmpc.errors import ProblemError
+from sqpmpc.io.files import write_plots
+from sqpmpc.io.recorder import owner_hint, prepare_output
 from sqpmpc.io.reporting import STATUS_PERIOD
+from sqpmpc.io.runlog import RECORD_FILE, RecordError, read_record
+from sqpmpc.problem.goals import unreachable_goals
 
 from .children import Child, free_ports, stop_children, wait_all
 from .credentials import config_for, identities, issue, read_meta
@@ -94,6 +98,8 @@ PLANT_GRACE = 30.0
 MAX_RATE_PER_SAMPLE = 20.0
 """Real time: messages per sample period a robot may publish on one of its keys."""
 """Longest wait for a child to handle signals before one is sent to it anyway, s."""
+START_EVERY = 5.0
+"""Seconds between two lines while the run's processes start."""
 CONTROLLER_GRACE = 5.0
 """Seconds the controllers may take to exit after the plant finished."""
 
@@ -106,6 +112,10 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--scheme", required=True, choices=("centralized", "decentralized"))
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default runs/<scenario>-<scheme>-<mode>-<time>)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="use an --out folder that holds a previous run (its files are "
+                             "replaced); without it a non-empty --out is refused before the "
+                             "run, as by sqpmpc run")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--run", default=None, help="run namespace (default: a fresh name)")
     parser.add_argument("--timeout", type=positive_float, default=None,
@@ -184,8 +194,7 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
                  "--quiet", *run_options]
     if args.timeout is not None:
         plant += ["--timeout", repr(args.timeout)]
-    if args.no_plots:
-        plant.append("--no-plots")
+    plant.append("--no-plots")  # the launcher draws them after printing the summary
     if args.status_every is not None:
         plant += ["--status-every", repr(args.status_every)]
     cmds = [("plant", plant)]
@@ -251,6 +260,45 @@ def _credential_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
+class StartProgress:
+    """Lines on stderr while the run starts: the processes compile nothing, but importing,
+    loading the kernels and joining take seconds on a busy machine. Every
+    :data:`START_EVERY` seconds until the plant records its first sample, one line with
+    the elapsed time; then the plant's own status lines take over."""
+
+    def __init__(self, record: Path, processes: int) -> None:
+        self.record = record
+        self.processes = processes
+        self.t0 = self.shown = time.monotonic()
+        self.started = False
+        log.info("started %d processes; waiting for them to join (a line every %.0f s)",
+                 processes, START_EVERY)
+
+    def tick(self) -> None:
+        """Call often: prints a line when one is due, until the first sample."""
+        if self.started:
+            return
+        if self.record.exists() and self.record.stat().st_size > 0:
+            self.started = True
+            log.info("the run started after %.1f s", time.monotonic() - self.t0)
+            return
+        now = time.monotonic()
+        if now - self.shown >= START_EVERY:
+            self.shown = now
+            log.info("still starting: %.0f s (the processes import, load the kernels and "
+                     "join)", now - self.t0)
+
+
+def _plots(out: Path) -> None:
+    """The run's plots from its record, after the summary (a failure says so, once)."""
+    try:
+        record = read_record(out)
+    except RecordError as exc:
+        log.warning("no plots: %s", exc)
+        return
+    write_plots(out, record)
+
+
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -271,11 +319,20 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     if args.scheme == "centralized" and args.robots_per_process is not None:
         problem = "--robots-per-process does nothing with --scheme centralized"
     problem = problem or _credential_problem(args)
+    unreachable = unreachable_goals(scenario)
+    if unreachable and not problem:
+        problem = f"{scenario.source}: {unreachable[0]}" + (
+            f" (and {len(unreachable) - 1} more robot(s))" if len(unreachable) > 1 else "")
     if problem:
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return 2
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
+    try:  # the output contract of every runner: a non-empty --out only with --overwrite
+        prepare_output(out, args.overwrite)
+    except ProblemError as exc:
+        print(f"{prog}: error: --out: {exc}{owner_hint(out)}", file=sys.stderr)
+        return 2
     stop = threading.Event()
     received = install_signal_handlers(stop)
     env = dict(os.environ)
@@ -310,7 +367,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                 handover.started()
         plant = next((c for c in children if c.name == "plant"), None)
         services = [c for c in children if c.name != "router"]
+        progress = StartProgress(out / RECORD_FILE, len(children))
         while plant is not None and not stop.is_set():
+            progress.tick()
             code = plant.poll()
             if code is not None:
                 status = code
@@ -338,7 +397,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                       PLANT_GRACE)
         stop_children([c for c in children if c.name == "router"], {}, PLANT_GRACE)
     if metrics_file.exists() and metrics_file.stat().st_mtime_ns != before:
-        print(summarize(json.loads(metrics_file.read_text())))
+        print(summarize(json.loads(metrics_file.read_text())), flush=True)
+        if not args.no_plots:
+            _plots(out)
         print(f"wrote {out}")
     else:
         log.error("no metrics were written (plant status %s)", status)

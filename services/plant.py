@@ -91,7 +91,9 @@ from sqpmpc.cli.options import (
     positive_float,
 )
 from sqpmpc.control.pipeline import braking_input
-from sqpmpc.io.files import write_run
+from sqpmpc.errors import ProblemError
+from sqpmpc.io.files import write_plots, write_run
+from sqpmpc.io.recorder import owner_hint, prepare_output
 from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines
 from sqpmpc.io.reporting import summarize as summary_of
 from sqpmpc.io.runlog import RECORD_FILE, RecordWriter
@@ -402,6 +404,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "come back (restarted) before braking its robots; any mode: stop "
                              "when every controller has been gone this long, s (default "
                              f"{REJOIN_TIMEOUT:g})")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="use an --out folder that holds a previous run (its files are "
+                             "replaced); without it a non-empty --out is refused")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
     parser.add_argument("--timed-start", action="store_true",
@@ -447,6 +452,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         fail(prog, problem)
     out = args.out or Path("runs") / (f"{scenario.name}-{args.scheme}-{args.mode}-"
                                       f"{time.strftime('%Y%m%d-%H%M%S')}")
+    try:  # the output contract of every runner: a non-empty --out only with --overwrite
+        prepare_output(out, args.overwrite)
+    except ProblemError as exc:
+        fail(prog, f"--out: {exc}{owner_hint(out)}")
     node = open_node(prog, lambda: PlantNode(scenario, args))
     failed = False
     try:
@@ -463,9 +472,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         record = node.record()
         if node.writer is not None:
             node.writer.end(record.completed, record.extra)
-        metrics = write_run(out, record, plots=not args.no_plots)
+        metrics = write_run(out, record, plots=False)
         if not args.quiet:
             print(summarize(metrics))
+        if not args.no_plots:  # after the summary
+            write_plots(out, record, quiet=args.quiet)
+        if not args.quiet:
             print(f"wrote {out}")
     sig = node.signals.get("signal")
     if sig and record.t.size == 1:

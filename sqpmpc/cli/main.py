@@ -39,10 +39,11 @@ from sqpmpc.cli.options import (
     with_overrides,
 )
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.io.files import write_run
+from sqpmpc.io.files import write_plots, write_run
 from sqpmpc.io.recorder import prepare_output
 from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, missed_goal, summarize
 from sqpmpc.problem.fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
+from sqpmpc.problem.goals import unreachable_goals
 from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario
 from sqpmpc.rules.registry import describe_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
@@ -212,6 +213,10 @@ def main(argv: list[str] | None = None) -> int:
         problem = combination_problem(options, args.scheme, scenario.n_robots)
         if args.scheme == "centralized" and args.message_drop is not None:
             problem = "--message-drop does nothing with --scheme centralized"
+        unreachable = unreachable_goals(scenario)
+        if unreachable and not problem:
+            problem = f"{scenario.source}: {unreachable[0]}" + (
+                f" (and {len(unreachable) - 1} more robot(s))" if len(unreachable) > 1 else "")
         if problem:
             raise ProblemError(problem)
         sim_options = SimulationOptions(decentralized_mode=options.decentralized_mode,
@@ -248,13 +253,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sqpmpc: the run stopped at sample {sim.k}: {exc!r}; writing what was simulated",
               file=sys.stderr)
         status = 1
-    metrics = write_run(out, sim.record(), plots=not args.no_plots)
+    record = sim.record()
+    metrics = write_run(out, record, plots=False)  # the plots after the summary
     if not args.quiet:
         print(summarize(metrics))
         if metrics.get("no_route"):
             print("no route through the map for robot(s) "
                   f"{', '.join(map(str, metrics['no_route']))}: their goals are walled off "
                   "or nearer an obstacle than their radius")
+    if not args.no_plots:
+        write_plots(out, record, quiet=args.quiet)
+    if not args.quiet:
         print(f"wrote {out}")
     else:
         print(json.dumps({"out": str(out)}))

@@ -16,7 +16,7 @@ from sqpmpc.io.atomic import atomic_path
 from sqpmpc.io.metrics import _jsonable, compute_metrics
 from sqpmpc.sim.record import RunRecord
 
-__all__ = ["load_trajectory", "write_metrics", "write_run", "write_trajectory"]
+__all__ = ["load_trajectory", "write_metrics", "write_plots", "write_run", "write_trajectory"]
 
 
 def _atomic_write(path: Path, write: Callable[[Any], None], mode: str) -> None:
@@ -147,3 +147,35 @@ def write_run(
             plotter = plot_run
         plotter(record, out)
     return metrics
+
+
+def write_plots(out_dir: str | os.PathLike[str], record: RunRecord, quiet: bool = False,
+                plotter: Callable[[RunRecord, Path], Any] | None = None) -> None:
+    """Draw a run's PNG figures into ``out_dir`` after its summary was printed.
+
+    A line says that the plots are being written and, once done, how long they took
+    (unless ``quiet``), so the wait after the summary is not silent.
+
+    Parameters
+    ----------
+    out_dir
+        The run folder.
+    record
+        The run record.
+    quiet
+        No progress lines.
+    plotter
+        ``plotter(record, out_dir)``; default :func:`sqpmpc.io.plots.plot_run`.
+    """
+    import time
+
+    if plotter is None:
+        from sqpmpc.io.plots import plot_run
+
+        plotter = plot_run
+    start = time.perf_counter()
+    if not quiet:
+        print("writing the plots ...", end="", flush=True)
+    plotter(record, Path(out_dir))
+    if not quiet:
+        print(f" done in {time.perf_counter() - start:.1f} s", flush=True)

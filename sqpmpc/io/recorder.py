@@ -35,11 +35,22 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.io.files import write_run
 from sqpmpc.sim.record import RunRecord
 
-__all__ = ["RUN_FILES", "RunRecorder", "prepare_output"]
+__all__ = ["RUN_FILES", "RunRecorder", "owner_hint", "prepare_output"]
 
 RUN_FILES = ("metrics.json", "trajectory.npz", "record.msgpack", "recording.mcap",
              "animation.gif", "animation.mp4", "*.png")
 """The files a run writes into its folder (glob patterns), removed by ``overwrite``."""
+
+
+def owner_hint(out: str | os.PathLike[str]) -> str:
+    """A hint for an output folder this process may not write: ``""`` when it may (or
+    when the folder's nearest existing parent is writable)."""
+    path = Path(out).absolute()
+    parent = next((p for p in (path, *path.parents) if p.exists()), None)
+    if parent is None or os.access(parent, os.W_OK):
+        return ""
+    return (f" ({parent} is not writable by uid {os.getuid()}: create it as this user, "
+            f"or 'chmod a+w {parent}')")
 
 
 def prepare_output(out: str | os.PathLike[str], overwrite: bool = False) -> Path:
