@@ -11,15 +11,25 @@
 # container turns unhealthy.
 "$@" &
 child=$!
-# a stop while the command runs is passed on to it (init forwards signals to this shell only)
-trap 'kill -TERM "$child" 2>/dev/null' TERM INT
+# a stop while the command runs is passed on to it (init forwards signals to this shell
+# only), and once the command has ended this script ends too: a stopped stack does not wait
+# for its grace period on a container that went back to holding
+stopped=0
+trap 'stopped=1; kill -TERM "$child" 2>/dev/null' TERM INT
 wait "$child"
 status=$?
+if [ "$stopped" = 1 ]; then  # that wait was cut short by the signal: the command's own status
+    wait "$child"
+    status=$?
+fi
 while kill -0 "$child" 2>/dev/null; do  # woken by a signal: wait for the command itself
     wait "$child"
     status=$?
 done
 echo "$status" > "${SQPMPC_HOLD_STATUS:-/tmp/sqpmpc-status}"
+if [ "$stopped" = 1 ]; then
+    exit "$status"
+fi
 trap 'exit "$status"' TERM INT
 echo "$1 $2 $3 exited with status $status; holding until the stack stops"
 while :; do
