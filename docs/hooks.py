@@ -50,7 +50,7 @@ API_GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 #: The commands of ``sqpmpc`` whose parser lives in a service module (``services.NAME``).
-_SERVICE_COMMANDS = ("launch", "plant", "robot", "central", "router", "viewer")
+_SERVICE_COMMANDS = ("launch", "plant", "robot", "central", "router", "viewer", "docker")
 
 
 def api_groups() -> dict[str, list[str]]:

@@ -404,9 +404,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "come back (restarted) before braking its robots; any mode: stop "
                              "when every controller has been gone this long, s (default "
                              f"{REJOIN_TIMEOUT:g})")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="use an --out folder that holds a previous run (its files are "
-                             "replaced); without it a non-empty --out is refused")
+    parser.add_argument("--overwrite", action="store_true", help="replace a run in --out")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
     parser.add_argument("--timed-start", action="store_true",

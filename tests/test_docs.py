@@ -194,7 +194,7 @@ def _parse_only(words: list[str]) -> None:
     """Parse the command line with its own parser (SystemExit: a bad flag)."""
     if words[0] == "sqpmpc":
         name = words[1]
-        if name in ("launch", "plant", "robot", "central", "router", "viewer"):
+        if name in ("launch", "plant", "robot", "central", "router", "viewer", "docker"):
             if "--ros2-demo" in words:
                 return  # services.ros2.demo's own options
             importlib.import_module(f"services.{name}").build_parser().parse_args(words[2:])

@@ -61,6 +61,7 @@ SERVICES = {
     "central": "the centralized controller service",
     "router": "a Zenoh router for the services",
     "viewer": "live view of a distributed run for Foxglove",
+    "docker": "write a Docker Compose file for a distributed run of any scenario",
 }
 
 
