@@ -18,7 +18,8 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["API_GROUPS", "REPORTS", "api_groups", "cli_reference", "on_page_markdown"]
+__all__ = ["API_GROUPS", "REPORTS", "api_groups", "cli_reference", "commands",
+           "on_page_markdown"]
 
 #: Report page -> the command that regenerates it (the benchmarks write these pages).
 REPORTS: dict[str, str] = {
@@ -102,7 +103,7 @@ def _api_page(group: str) -> str:
     return "\n\n".join(f"::: sqpmpc.{name}" for name in names)
 
 
-def _parsers() -> Iterator[tuple[str, argparse.ArgumentParser]]:
+def commands() -> Iterator[tuple[str, argparse.ArgumentParser]]:
     """``(command, parser)`` of ``sqpmpc`` and of every subcommand, as the user runs them."""
     from sqpmpc.cli.main import build_parser
 
@@ -127,7 +128,7 @@ def cli_reference() -> str:
     os.environ["COLUMNS"] = "88"
     try:
         parts = []
-        for command, parser in _parsers():
+        for command, parser in commands():
             parser.prog = command
             text = parser.format_help().rstrip()
             anchor = command.replace(" ", "-")

@@ -123,7 +123,7 @@ def test_the_kernels_report_each_compilation_every_few_seconds(capsys, monkeypat
     from sqpmpc.kernels import __main__ as kernels_main
 
     monkeypatch.setattr(kernels_main, "EVERY", 0.0)
-    lines = kernels_main._CompileLines()
+    lines = kernels_main.CompileLines()
 
     def event(name: str) -> SimpleNamespace:
         return SimpleNamespace(data={"dispatcher": SimpleNamespace(

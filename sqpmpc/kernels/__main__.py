@@ -17,11 +17,13 @@ from numba.core import event
 
 from sqpmpc.kernels.warmup import warm_up
 
+__all__ = ["EVERY", "CompileLines", "main"]
+
 EVERY = 2.0
 """Seconds between two progress lines while kernels compile."""
 
 
-class _CompileLines(event.Listener):
+class CompileLines(event.Listener):
     """Counts the numba compilations that end (the kernels' callees included) and prints
     ``N kernels compiled (last: NAME), S s`` once :data:`EVERY` seconds have passed since
     the last line."""
@@ -50,7 +52,7 @@ def main() -> int:
     """Compile or load the kernels, with progress lines while compiling; returns 0."""
     print("sqpmpc kernels: loading from the cache, or compiling them once (a line every "
           "few seconds while compiling)", flush=True)
-    lines = _CompileLines()
+    lines = CompileLines()
     event.register("numba:compile", lines)
     try:
         took = warm_up()
