@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from sqpmpc.cli.main import main
-from sqpmpc.io.animate import frame_size, load_run
+from sqpmpc.io.animate import animate, frame_count, frame_size, load_run
 from sqpmpc.io.files import write_run
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import simulate
@@ -53,10 +53,25 @@ def test_gif_has_one_frame_per_sample(run_dir: Path, capsys: pytest.CaptureFixtu
     assert (first != last).any()  # the robots moved
 
 
-def test_step_and_default_name(run_dir: Path) -> None:
+def test_step_and_default_name(run_dir: Path, capsys: pytest.CaptureFixture) -> None:
     assert main(["animate", str(run_dir), "--step", "5"]) == 0
     with Image.open(run_dir / "animation.gif") as im:
         assert im.n_frames == 4  # samples 0, 5, 10 and the last, 12
+    # progress: the first frame's line and the last one's, then the file
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("drawn 1/4 frames")
+    assert lines[-2].startswith("drawn 4/4 frames") and lines[-2].endswith("writing the file")
+
+
+def test_progress_is_called_after_every_frame(run_dir: Path, tmp_path: Path) -> None:
+    calls: list[tuple[int, int]] = []
+    run = load_run(run_dir)
+    for step in (1, 4, 12, 13):
+        calls.clear()
+        _, frames = animate(run, tmp_path / f"s{step}.gif", step=step,
+                            progress=lambda done, total: calls.append((done, total)))
+        assert frames == frame_count(run, step)
+        assert calls == [(i, frames) for i in range(1, frames + 1)]
 
 
 def test_single_frame_png(run_dir: Path) -> None:

@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from sqpmpc.cli.options import nonnegative_int, positive_float, positive_int
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.io.animate import MAX_FRAMES, animate, load_run, write_frame
 
-__all__ = ["add_parser", "main"]
+__all__ = ["EVERY", "Progress", "add_parser", "main"]
 
+EVERY = 2.0
+"""Seconds between two progress lines while the frames are drawn."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -36,6 +39,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     return p
 
 
+class Progress:
+    """Prints ``drawn N/M frames, S s`` at most every :data:`EVERY` seconds, and the first
+    frame's line (drawing a long run's frames takes minutes)."""
+
+    def __init__(self) -> None:
+        self.t0 = time.perf_counter()
+        self.shown: float | None = None
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if self.shown is None or now - self.shown >= EVERY or done == total:
+            self.shown = now
+            tail = "; writing the file" if done == total else ""
+            print(f"drawn {done}/{total} frames, {now - self.t0:.0f} s{tail}", flush=True)
+
+
 def main(args: argparse.Namespace) -> int:
     """Handle ``sqpmpc animate``; returns the exit status (2: bad input)."""
     try:
@@ -45,7 +64,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"wrote {write_frame(run, args.frame, out)}")
             return 0
         out = args.out if args.out is not None else Path(args.run_dir) / "animation.gif"
-        path, frames = animate(run, out, args.fps, args.step)
+        path, frames = animate(run, out, args.fps, args.step, progress=Progress())
     except (ProblemError, ScenarioError) as exc:
         print(f"sqpmpc animate: error: {exc}", file=sys.stderr)
         return 2

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,8 +36,8 @@ from sqpmpc.io.recording import robot_rgba
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["MAX_FRAMES", "RunData", "animate", "frame_size", "load_run", "render_frames",
-           "write_frame"]
+__all__ = ["MAX_FRAMES", "RunData", "animate", "frame_count", "frame_size", "load_run",
+           "render_frames", "write_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -269,9 +269,19 @@ def render_frames(run: RunData, step: int, size: tuple[float, float] | None = No
         yield np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
+def frame_count(run: RunData, step: int) -> int:
+    """How many frames :func:`render_frames` draws with ``step``: samples ``0, step, ...``
+    and the last one."""
+    return len(range(0, run.k + 1, step)) + (run.k % step != 0)
+
+
 def animate(run: RunData, out: str | os.PathLike[str], fps: float = 10.0,
-            step: int | None = None) -> tuple[Path, int]:
+            step: int | None = None,
+            progress: Callable[[int, int], None] | None = None) -> tuple[Path, int]:
     """Write the animation of ``run`` to ``out`` (``.gif`` or ``.mp4``).
+
+    ``progress(done, total)``, if given, is called after each frame drawn (the command
+    prints a line every few seconds from it).
 
     Returns
     -------
@@ -295,6 +305,9 @@ def animate(run: RunData, out: str | os.PathLike[str], fps: float = 10.0,
         raise ProblemError(f"--step: expected an integer >= 1, got {step!r}")
     out.parent.mkdir(parents=True, exist_ok=True)
     frames = render_frames(run, step)
+    if progress is not None:
+        total = frame_count(run, step)
+        frames = _reporting(frames, total, progress)
     if suffix == ".mp4":
         try:
             import imageio_ffmpeg
@@ -320,6 +333,13 @@ def animate(run: RunData, out: str | os.PathLike[str], fps: float = 10.0,
     images[0].save(out, save_all=True, append_images=images[1:],
                    duration=max(20, round(1000.0 / fps)), loop=0)
     return out, len(images)
+
+
+def _reporting(frames: Iterator[np.ndarray], total: int,
+               progress: Callable[[int, int], None]) -> Iterator[np.ndarray]:
+    for done, frame in enumerate(frames, 1):
+        yield frame
+        progress(done, total)
 
 
 def write_frame(run: RunData, sample: int, out: str | os.PathLike[str]) -> Path:
