@@ -2,7 +2,8 @@
 ``sqpmpc.write_run``) writes them, a summary per robot and a clearance plot.
 
 Run ``sqpmpc run paper-s2 --scheme decentralized --out runs/s2`` first, then
-``python examples/read_run.py runs/s2`` (writes ``runs/s2/clearance.png``).
+``python examples/read_run.py runs/s2`` (writes ``runs/s2/read_run_clearance.png``, beside
+the run's own ``clearance.png``, which it leaves alone).
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="folder holding metrics.json and trajectory.npz")
     parser.add_argument("--plot", type=Path, default=None,
-                        help="clearance plot to write (default: RUN/clearance.png)")
+                        help="clearance plot to write (default: RUN/read_run_clearance.png; "
+                             "the run's own clearance.png is left alone)")
     args = parser.parse_args()
 
     metrics = json.loads((args.run / "metrics.json").read_text())
@@ -58,7 +60,7 @@ def main() -> None:
     ax.set_ylabel("smallest centre distance [m]")
     ax.set_title(f"{metrics['scenario']} / {metrics['scheme']}")
     ax.grid(True, alpha=0.3)
-    out = args.plot or args.run / "clearance.png"
+    out = args.plot or args.run / "read_run_clearance.png"
     fig.savefig(out, dpi=100, bbox_inches="tight")
     plt.close(fig)
     print(f"wrote {out}")

@@ -55,11 +55,13 @@ def test_decentralized_fleet(drop: str) -> None:
 def test_read_run(tmp_path: Path) -> None:
     sc = sqpmpc.load_scenario("head-on").with_changes(t_end=3.0)
     metrics = sqpmpc.write_run(tmp_path, sqpmpc.simulate(sc, "decentralized"), plots=False)
+    (tmp_path / "clearance.png").write_bytes(b"the run's own plot")
     out = _run("read_run.py", str(tmp_path))
+    assert (tmp_path / "clearance.png").read_bytes() == b"the run's own plot"  # left alone
     assert out.startswith("head-on / decentralized: 6 steps of 0.5 s, horizon")
     assert f"min clearance {metrics['min_clearance']:.4f} m" in out
     assert len(re.findall(r"^  robot \d+: path [0-9.]+ m, RMS tracking error", out, re.M)) == 2
-    png = tmp_path / "clearance.png"
+    png = tmp_path / "read_run_clearance.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
