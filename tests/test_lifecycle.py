@@ -22,6 +22,7 @@ import pytest
 
 from services.priority import Priority, parse_priority, raise_priority
 from services.testing import REPO, child_pids, free_ports, start_service, stop_processes
+from sqpmpc.cli.main import main as sqpmpc_main
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -159,13 +160,12 @@ def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):
                          env={**os.environ, "TMPDIR": str(tmp)})
     seen: list[list[str]] = []
     try:
-        deadline = time.monotonic() + 120
-        while demo.proc.poll() is None and time.monotonic() < deadline:
+        while demo.proc.poll() is None:  # however long the start takes (no wall budget)
             seen += _cmdlines(demo.pid)
             if any("services.robot" in c for c in seen):
                 break
             time.sleep(0.2)
-        assert demo.wait(150) in (0, 1), demo.output()
+        assert demo.proc.wait() in (0, 1), demo.output()
     finally:
         stop_processes([demo])
     controllers = [c for c in seen if "services.robot" in c or
@@ -181,6 +181,13 @@ def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):
     assert "Traceback" not in demo.output() + logs
     check = json.loads((out / "check.json").read_text())
     assert check["collisions"] == 0
+    # the run folder of every runner, read back like any other
+    for name in ("metrics.json", "trajectory.npz", "record.msgpack", "recording.mcap",
+                 "trajectories.png"):
+        assert (out / name).exists(), name
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["scenario"] == "head-on" and metrics["steps"] == 6
+    assert sqpmpc_main(["metrics", str(out)]) == 0
 
 
 def test_priority_values_are_checked():

@@ -155,3 +155,42 @@ def test_the_launcher_says_it_is_starting_until_the_first_sample(tmp_path, caplo
     assert messages[0].startswith("started 5 processes")
     assert sum(m.startswith("still starting") for m in messages) == 2
     assert messages[-1].startswith("the run started after")
+
+
+def test_a_ros2_fleet_log_becomes_the_run_folder_of_every_runner(tmp_path, capsys):
+    """``poses.json`` (exact segments in wall time) sampled every Ts from the epoch: the
+    folder reads back with ``sqpmpc metrics`` like any run's."""
+    import json
+
+    import numpy as np
+
+    from services.ros2.record import fleet_record
+    from sqpmpc.io.files import write_run
+
+    scenario = sqpmpc.load_scenario("head-on")  # two robots, Ts 0.5 s
+    epoch = 1000.0
+    x0 = scenario.initial_states()
+    robots = {}
+    for j, rid in enumerate(scenario.ids):
+        v = 0.2 if j == 0 else -0.2  # towards each other along x, from 0.25 s before t = 0
+        start = [epoch - 0.25, *x0[j], 0.0, 0.0]
+        moving = [epoch + 0.1, *(x0[j] + [0.0, 0.0, 0.0]), abs(v), 0.0]
+        robots[str(int(rid))] = {"diameter": 0.3, "segments": [start, moving]}
+    data = {"epoch": epoch, "start": epoch - 0.25, "end": epoch + 2.2, "robots": robots}
+    record = fleet_record(data, scenario, t_end=3.0)
+    assert record.t.tolist() == [0.0, 0.5, 1.0, 1.5, 2.0]  # the log ends at 2.2 s
+    assert not record.completed  # t_end 3 s was not reached
+    assert np.allclose(record.states[0], x0)
+    heading = x0[:, 2]
+    travelled = np.hypot(*(record.states[4, :, :2] - x0[:, :2]).T)
+    assert np.allclose(travelled, 0.2 * (2.0 - 0.1)) and np.allclose(
+        record.states[4, :, 2], heading)
+    assert np.allclose(record.inputs[0], 0.0) and np.allclose(record.inputs[1:, :, 0], 0.2)
+    out = tmp_path / "run"
+    write_run(out, record, plots=False)
+    assert sqpmpc_main(["metrics", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == 4 and metrics["completed"] is False
+    text = capsys.readouterr().out
+    assert "head-on" in text
+    assert "controller time per sample: not measured here (each controller" in text

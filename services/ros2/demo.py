@@ -23,7 +23,10 @@ Starts, as processes on loopback (multicast scouting off):
 Options it does not know are given to every controller (e.g.
 ``--collision-margin 0.02``). When every controller has reached ``t_end`` the
 fleet writes the true poses and :mod:`services.ros2.check` measures them
-(``DIR/poses.json``, ``DIR/check.json``, the processes' logs in ``DIR/logs``).
+(``DIR/poses.json``, ``DIR/check.json``, the processes' logs in ``DIR/logs``); the folder
+also holds what every runner writes (``metrics.json``, ``trajectory.npz``,
+``record.msgpack``, ``recording.mcap``, the plots after the summary:
+:mod:`services.ros2.record`). A non-empty ``--out`` is refused unless ``--overwrite``.
 Exit status 0 when no robot collided and every one arrived, 1 otherwise, 2 for
 bad input.
 """
@@ -46,6 +49,9 @@ from pathlib import Path
 
 from sqpmpc.cli.options import Parser, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.io.files import write_plots, write_run
+from sqpmpc.io.recorder import owner_hint, prepare_output
+from sqpmpc.io.reporting import summarize
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario
 
@@ -54,6 +60,7 @@ from ..credentials import issue
 from ..handover import Handover, make_private
 from ..node import install_signal_handlers
 from .check import check_fleet
+from .record import fleet_record
 
 __all__ = ["Credentials", "LoggedChild", "add_fleet_arguments", "build_parser", "main",
            "start_clock"]
@@ -151,6 +158,9 @@ def add_fleet_arguments(p: argparse.ArgumentParser, kind: str) -> None:
     odometry rate, security, start-up wait and arrival tolerance."""
     p.add_argument("--out", type=Path, default=None,
                    help=f"output folder (default runs/{kind}-<scenario>-<time>)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="use an --out folder that holds a previous run (its files are "
+                        "replaced); without it a non-empty --out is refused")
     p.add_argument("--t-end", type=positive_float, default=None, help="override t_end, s")
     p.add_argument("--rate", type=positive_float, default=50.0, help="odometry rate, Hz")
     p.add_argument("--insecure", action="store_true",
@@ -174,7 +184,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     t_end = args.t_end or scenario.t_end
     ids = [int(i) for i in scenario.ids]
     out = args.out or Path("runs") / f"ros2-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    out.mkdir(parents=True, exist_ok=True)
+    try:  # the output contract of every runner: a non-empty --out only with --overwrite
+        prepare_output(out, args.overwrite)
+    except ProblemError as exc:
+        print(f"{prog}: error: --out: {exc}{owner_hint(out)}", file=sys.stderr)
+        return 2
+    for old in ("poses.json", "check.json", "epoch"):  # --overwrite: this run's only
+        (out / old).unlink(missing_ok=True)
     logs = out / "logs"
     run = f"ros2-{os.getpid()}-{secrets.token_hex(3)}"
     py = [sys.executable, "-m"]
@@ -241,8 +257,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     if not poses.exists():
         log.error("the fleet wrote no poses (see %s)", logs)
         return status or 1
-    result = check_fleet(json.loads(poses.read_text()), scenario, args.tolerance)
+    data = json.loads(poses.read_text())
+    result = check_fleet(data, scenario, args.tolerance)
     (out / "check.json").write_text(json.dumps(asdict(result), indent=1))
+    record = fleet_record(data, scenario, t_end)  # the run folder of every runner
+    print(summarize(write_run(out, record, plots=False)), flush=True)
+    write_plots(out, record)
     print(f"{result.robots} robots: {result.collisions} collisions (certified clearance "
           f"{result.certified_clearance:.4f} m), {result.arrived}/{result.robots} within "
           f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m)"

@@ -49,6 +49,7 @@ from pathlib import Path
 
 from sqpmpc.cli.options import Parser, nonnegative_float
 from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.io.recorder import prepare_output
 from sqpmpc.problem.scenario_file import load_scenario
 
 from ..children import Child, stop_children
@@ -150,7 +151,11 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     t_end = args.t_end or scenario.t_end
     ids = [int(i) for i in scenario.ids]
     out = args.out or Path("runs") / f"ros2-hosts-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    out.mkdir(parents=True, exist_ok=True)
+    try:  # the output contract of every runner: a non-empty --out only with --overwrite
+        prepare_output(out, args.overwrite)
+    except ProblemError as exc:
+        print(f"{prog}: error: --out: {exc}", file=sys.stderr)
+        return 2
     logs = out / "logs"
     run = f"ros2h-{os.getpid()}-{secrets.token_hex(3)}"
     py = [sys.executable, "-m"]

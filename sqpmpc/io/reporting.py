@@ -106,10 +106,13 @@ def describe_solve_time(metrics: dict[str, Any]) -> str:
     Decentralized (one controller per robot): ``controller time per sample summed over
     the 4 robots: median 3.4 ms (max 9.1 ms); per robot: median of the robots'
     medians 0.85 ms, slowest robot 0.9 ms``. Centralized: ``controller time per
-    sample (one central controller): median 2.1 ms (max 5.0 ms)``.
+    sample (one central controller): median 2.1 ms (max 5.0 ms)``. A run whose metrics
+    say where its controller time is instead (``solve_time_source``): that.
     """
     st = metrics.get("solve_time") or {}
     controllers = int(st.get("controllers", 1) or 1)
+    if metrics.get("solve_time_source"):  # a runner that does not see the controllers' time
+        return f"controller time per sample: not measured here ({metrics['solve_time_source']})"
 
     def ms(value: Any) -> str:
         return quantity(value, "ms")
@@ -207,7 +210,9 @@ def summarize(metrics: dict[str, Any]) -> str:
              f"{metrics.get('planned_steps', metrics.get('steps'))}, {done}",
              _safety(metrics), _arrival(metrics), _tracking(metrics)]
     st = metrics.get("solve_time") or {}
-    lines.append(f"{describe_solve_time(metrics)}, total {quantity(st.get('total_s'), 's')}")
+    total = ("" if metrics.get("solve_time_source")
+             else f", total {quantity(st.get('total_s'), 's')}")
+    lines.append(f"{describe_solve_time(metrics)}{total}")
     if metrics.get("distributed"):
         missed = metrics.get("missed_deadlines_by_robot") or {}
         late = {k: v for k, v in missed.items() if v}
