@@ -97,6 +97,8 @@ def test_the_image_is_built_once_in_cached_layers_and_runs_unprivileged() -> Non
     source = dockerfile.index("COPY --chown=sqpmpc:sqpmpc sqpmpc /src/sqpmpc")
     assert dockerfile.index("COPY --chown=sqpmpc:sqpmpc pyproject.toml") < deps < kernels
     assert kernels < compiled < source < dockerfile.index("pip install --no-deps")
+    # compiled for a generic CPU (set before they are compiled): valid on another host
+    assert dockerfile.index("NUMBA_CPU_NAME=generic") < compiled
     assert "USER sqpmpc" in steps and steps.index("USER sqpmpc") < steps.index("RUN pip")
     ignored = (ROOT / ".dockerignore").read_text().splitlines()
     assert ignored[ignored.index("*") + 1:] and "*" in ignored  # only what is listed goes in
