@@ -1,31 +1,32 @@
-"""Write a Docker Compose file for a distributed run of any scenario: ``sqpmpc docker``.
+"""Write a Docker Compose file for a distributed run of any scenario, and run it.
 
 ``sqpmpc docker --scenario S [--scheme decentralized|centralized] [--out DIR]
-[--python-router] [--t-end T] [--overwrite]`` writes ``DIR/compose.yml`` (default
-``docker/<scenario>``): a one-shot ``credentials`` service (built from the repository's
-``docker/Dockerfile``), the Zenoh router, the plant and one service per robot (or the
-central controller), every service a client of the router over mutual TLS.
+[--python-router] [--t-end T] [--overwrite] [--up]`` writes ``DIR/compose.yml``
+(default ``docker/<scenario>``): a one-shot ``credentials`` service (built from the
+repository's ``docker/Dockerfile``), the Zenoh router, the plant and one service per
+robot (or the central controller), every service a client of the router over mutual TLS.
+With ``--up`` it runs the stack to its end (:func:`supervise`).
 
 - **A volume per identity.** The credentials service issues the run's credentials for
   the scenario's identities (so the router's access-control rules are generated for this
   scenario: every robot of it, no other) and copies each identity's certificate, key and
   Zenoh config into that identity's own volume; each service mounts only its own, so
   from robot 1's container no other identity's key is readable. The router's config is
-  its identity's (``router.json5``).
-- **A run folder per run**: the plant writes into ``${SQPMPC_RUNS:-./runs}`` (created by
-  the user who runs compose, writable by uid 1000), in a new folder named after the
-  scenario and the time; no plots (``--no-plots``: ``sqpmpc metrics`` and ``sqpmpc
-  animate`` read the folder).
+  its identity's (``router.json5``). The others start once it has ended successfully.
+- **A run folder per run**: the plant writes into ``${SQPMPC_RUNS:-./runs}`` a new folder
+  named after the scenario and the time, as ``${SQPMPC_UID}:${SQPMPC_GID}`` (``--up``
+  passes the user's), so the files are the user's; no plots (``sqpmpc metrics`` and
+  ``sqpmpc animate`` read the folder).
 - **Host port** ``${SQPMPC_PORT:-17447}`` on the loopback (not 7447, the port of a ROS 2
   user's own rmw_zenoh router).
-- **A killed robot rejoins**: the robots restart on failure and the plant waits for
-  them (``--rejoin-timeout``); the controllers and the credentials step run under
-  ``sqpmpc-hold`` so that their normal end does not stop the stack.
+- **A killed robot rejoins**: ``--up`` starts again a controller container that ended
+  with a non-zero status while the plant runs (Docker's restart policy, ``on-failure``
+  here, does not restart a container stopped by ``docker kill``), and the plant waits for
+  it (``--rejoin-timeout``).
 - **Stops** within 10 s (``stop_grace_period``).
 
-Start it with ``docker compose -f DIR/compose.yml up --build --exit-code-from plant``;
 ``docker compose -f DIR/compose.yml down -v`` removes the containers and the credential
-volumes.
+volumes. ``docker/paper-s2/compose.yml`` is this command's file for paper-s2.
 """
 
 from __future__ import annotations
