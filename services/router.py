@@ -7,7 +7,8 @@
 It opens a session in ``router`` mode with multicast scouting off and routes
 until SIGINT or SIGTERM, then closes the session. With credentials
 (:mod:`services.credentials`: the ``router`` identity, or a ``zenohd`` config
-such as the ``router.json5`` of ``sqpmpc credentials``) it accepts mutual-TLS links only and enforces
+such as ``router.json5`` of ``sqpmpc credentials``) it accepts mutual-TLS links only;
+it enforces
 the run's access-control rules on what every client sends; without, it routes
 plain TCP from anyone who reaches the endpoint. ``zenohd`` is not on PyPI;
 this lets docker-compose and the tests use one image and one interpreter.
