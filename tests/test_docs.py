@@ -21,6 +21,7 @@ import importlib
 import importlib.util
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -267,3 +268,26 @@ def test_every_code_block_has_a_known_kind():
                 f"{_id(page)}: a code block of kind {kind!r} is neither run nor checked "
                 f"({code[:60]!r})")
 
+
+
+# --------------------------------------------------------------- in a headless browser
+sys.path.insert(0, str(DOCS))
+screenshot = importlib.import_module("screenshot")
+sys.path.remove(str(DOCS))
+
+
+def test_the_navigation_is_read_from_the_rendered_navbar_only():
+    dom = ('<div class="navbar"><a>Home</a><a class="dropdown-toggle">Tutorial</a>'
+           '<ul><li><a>Getting started</a></li></ul></div>'
+           '<div class="content"><a>Reference</a></div>')
+    assert screenshot.nav_of(dom) == ["Home", "Tutorial", "Getting started"]
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None,
+                    reason="no headless browser here (Debian: apt-get install chromium)")
+def test_the_site_shows_the_four_parts_in_a_headless_browser(tmp_path):
+    shot = tmp_path / "home.png"
+    res = subprocess.run([sys.executable, str(DOCS / "screenshot.py"), "--out", str(shot)],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
