@@ -22,7 +22,7 @@ STEP = @echo "== $(1)"; start=$$(date +%s); \
 $(STAMP): pyproject.toml
 	$(call STEP,creating $(VENV),$(PYTHON) -m venv $(VENV))
 	$(call STEP,upgrading pip,$(BIN)/pip install --progress-bar off --upgrade pip)
-	$(call STEP,installing sqpmpc and its dependencies (a minute or two on a fresh machine),\
+	$(call STEP,installing sqpmpc and its dependencies,\
 		$(BIN)/pip install --progress-bar off -e ".[$(EXTRAS)]")
 	touch $(STAMP)
 
