@@ -67,6 +67,8 @@ __all__ = ["Credentials", "LoggedChild", "add_fleet_arguments", "build_parser", 
 
 log = logging.getLogger("services.ros2.demo")
 PROG = "services.ros2.demo"
+PROGRESS_EVERY = 5.0
+"""Seconds between two progress lines while the controllers start and the fleet runs."""
 
 
 class LoggedChild(Child):
@@ -125,12 +127,18 @@ def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
                 seen.add(parts[8])
 
     deadline = time.time() + timeout
+    t0 = shown = time.monotonic()
     with zenoh.open(make_config((), [endpoint], "client")) as session:
         sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)
         while not stop.is_set() and time.time() < deadline:
             with lock:
                 if wanted <= seen:
                     break
+                up = len(wanted & seen)
+            if time.monotonic() - shown >= PROGRESS_EVERY:  # a line while they start
+                shown = time.monotonic()
+                log.info("waiting for the controllers: %d/%d up after %.0f s", up,
+                         len(wanted), shown - t0)
             time.sleep(0.2)
         sub.undeclare()
     ok = wanted <= seen
@@ -242,7 +250,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         if not start_clock(ros_ep, ids, epoch_file, args.startup, stop):
             log.error("the controllers were not all up within %g s (see %s)", args.startup,
                       logs)
+        t0 = shown = time.monotonic()
         while not stop.is_set() and any(r.poll() is None for r in robots):
+            if time.monotonic() - shown >= PROGRESS_EVERY:  # a line while the fleet runs
+                shown = time.monotonic()
+                log.info("running: %.0f s (t_end %g s), %d/%d "
+                         "controllers on", shown - t0, t_end,
+                         sum(r.poll() is None for r in robots), len(robots))
             time.sleep(0.2)
         failed = [r.name for r in robots if r.poll() not in (None, 0)]
         if failed:
