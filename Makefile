@@ -30,7 +30,8 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(call STEP,compiling the kernels (once; later loaded from the cache),\
 		$(BIN)/python -m sqpmpc.kernels)
-	$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized
+	$(call STEP,the demo: paper-s2 as a plant and 4 robot processes over Zenoh,\
+		$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized)
 
 test: $(STAMP)
 	$(BIN)/ruff check sqpmpc services tests benchmarks examples docs

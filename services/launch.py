@@ -123,7 +123,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--status-every", type=nonnegative_float, default=None, metavar="S",
                         help="the plant's status lines on stderr every S seconds (default "
-                             f"{STATUS_PERIOD:g}; 0: none)")
+                             f"{START_EVERY:g} here, {STATUS_PERIOD:g} for the plant alone; "
+                             "0: none)")
     parser.add_argument("--pin-cpus", action="store_true",
                         help="pin each controller to one CPU (round robin)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
@@ -195,8 +196,8 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
     if args.timeout is not None:
         plant += ["--timeout", repr(args.timeout)]
     plant.append("--no-plots")  # the launcher draws them after printing the summary
-    if args.status_every is not None:
-        plant += ["--status-every", repr(args.status_every)]
+    status_every = START_EVERY if args.status_every is None else args.status_every
+    plant += ["--status-every", repr(status_every)]
     cmds = [("plant", plant)]
     controller_extra: list[str] = list(run_options)
     if args.mode == "realtime":  # a QP that cannot finish in time becomes a counted fallback

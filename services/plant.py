@@ -375,13 +375,14 @@ class PlantNode(Presence, FaultyInputs, Node):
                          horizons=self.horizons[:k].copy())
 
     def finish(self) -> None:
-        """Tell the controllers the run is over."""
+        """Tell the controllers the run is over, and the user that the outputs come next."""
         self.bus.put(encode(DoneMsg(self.k, self.k == self.scenario.steps)), "plant", "done")
+        if self.status.period > 0:
+            self.status.note(f"sample {self.k}/{self.scenario.steps}: writing the outputs")
 
 
 def summarize(metrics: dict[str, Any]) -> str:
-    """A distributed run's summary: :func:`sqpmpc.io.reporting.summarize` (the same as
-    ``sqpmpc run``'s, plus deadlines and messages)."""
+    """A distributed run's summary: :func:`sqpmpc.io.reporting.summarize` (as sqpmpc run's)."""
     return summary_of(metrics)
 
 
@@ -422,7 +423,6 @@ def check_combinations(args: argparse.Namespace, scenario: Scenario) -> str | No
     if args.timed_start and args.mode != "realtime":
         return "--timed-start applies to --mode realtime only"
     return combination_problem(options_of(args), args.scheme, scenario.n_robots)
-
 
 
 def _relayed(cmds: Iterable[CmdMsg]) -> dict[int, dict[int, int]]:

@@ -114,8 +114,8 @@ def test_sqpmpc_run_prints_the_summary_before_writing_the_plots(tmp_path, capsys
     assert sqpmpc_main(["run", "head-on", "--scheme", "centralized", "--t-end", "1",
                         "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert text.index("head-on / centralized") < text.index("writing the plots ...") \
-        < text.index(f"wrote {out}")
+    assert text.index("head-on / centralized") < text.index("plots: trajectories.png (1/7") \
+        < text.index("plots: paths_by_robot.png (7/7") < text.index(f"wrote {out}")
     assert (out / "trajectories.png").exists()
 
 

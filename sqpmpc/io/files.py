@@ -153,8 +153,8 @@ def write_plots(out_dir: str | os.PathLike[str], record: RunRecord, quiet: bool 
                 plotter: Callable[[RunRecord, Path], Any] | None = None) -> None:
     """Draw a run's PNG figures into ``out_dir`` after its summary was printed.
 
-    A line says that the plots are being written and, once done, how long they took
-    (unless ``quiet``), so the wait after the summary is not silent.
+    Unless ``quiet``, a line per figure as it is written (its name, how many, the time so
+    far), so the wait after the summary is not silent.
 
     Parameters
     ----------
@@ -165,17 +165,20 @@ def write_plots(out_dir: str | os.PathLike[str], record: RunRecord, quiet: bool 
     quiet
         No progress lines.
     plotter
-        ``plotter(record, out_dir)``; default :func:`sqpmpc.io.plots.plot_run`.
+        ``plotter(record, out_dir)``; default :func:`sqpmpc.io.plots.plot_run` (the only
+        one whose figures are reported one by one).
     """
     import time
 
-    if plotter is None:
-        from sqpmpc.io.plots import plot_run
-
-        plotter = plot_run
     start = time.perf_counter()
-    if not quiet:
-        print("writing the plots ...", end="", flush=True)
-    plotter(record, Path(out_dir))
-    if not quiet:
-        print(f" done in {time.perf_counter() - start:.1f} s", flush=True)
+    if plotter is not None:
+        plotter(record, Path(out_dir))
+        return
+    from sqpmpc.io.plots import plot_run
+
+    def line(path: Path, done: int, total: int) -> None:
+        if not quiet:
+            print(f"plots: {path.name} ({done}/{total}, {time.perf_counter() - start:.1f} s)",
+                  flush=True)
+
+    plot_run(record, Path(out_dir), progress=line)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -418,12 +419,14 @@ def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     return _save(fig, path)
 
 
-def plot_run(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
+def plot_run(record: RunRecord, out_dir: str | os.PathLike[str],
+             progress: Callable[[Path, int, int], None] | None = None) -> list[Path]:
     """Write the figures of a run into ``out_dir``.
 
     ``trajectories.png``, ``distances.png`` and ``inputs.png`` (the paper's
     figures), ``tracking.png``, ``solve_time.png``, and for fleets
     ``clearance.png`` and ``paths_by_robot.png`` (:mod:`sqpmpc.io.fleetplots`).
+    ``progress(path, done, total)``, if given, is called after each figure.
 
     Returns
     -------
@@ -432,14 +435,14 @@ def plot_run(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = [
-        plot_trajectories(record, out / "trajectories.png"),
-        plot_distances(record, out / "distances.png"),
-        plot_inputs(record, out / "inputs.png"),
-        plot_tracking(record, out / "tracking.png"),
-        plot_solve_times(record, out / "solve_time.png"),
-        plot_clearance(record, out / "clearance.png"),
-        plot_paths_by_robot(record, out / "paths_by_robot.png"),
-    ]
+    figures = [(plot_trajectories, "trajectories.png"), (plot_distances, "distances.png"),
+               (plot_inputs, "inputs.png"), (plot_tracking, "tracking.png"),
+               (plot_solve_times, "solve_time.png"), (plot_clearance, "clearance.png"),
+               (plot_paths_by_robot, "paths_by_robot.png")]
+    written = []
+    for draw, name in figures:
+        written.append(draw(record, out / name))
+        if progress is not None:
+            progress(written[-1], len(written), len(figures))
     log.debug("wrote plots %s", [str(p) for p in written])
     return written
