@@ -127,20 +127,31 @@ def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
                 seen.add(parts[8])
 
     deadline = time.time() + timeout
-    t0 = shown = time.monotonic()
-    with zenoh.open(make_config((), [endpoint], "client")) as session:
-        sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token, history=True)
-        while not stop.is_set() and time.time() < deadline:
+    done = threading.Event()
+
+    def lines() -> None:  # a line every few seconds, also while the session connects
+        t0 = time.monotonic()
+        while not done.wait(PROGRESS_EVERY):
             with lock:
-                if wanted <= seen:
-                    break
                 up = len(wanted & seen)
-            if time.monotonic() - shown >= PROGRESS_EVERY:  # a line while they start
-                shown = time.monotonic()
-                log.info("waiting for the controllers: %d/%d up after %.0f s", up,
-                         len(wanted), shown - t0)
-            time.sleep(0.2)
-        sub.undeclare()
+            log.info("waiting for the controllers' ROS 2 nodes: %d/%d up after %.0f s", up,
+                     len(wanted), time.monotonic() - t0)
+
+    heartbeat = threading.Thread(target=lines, daemon=True)
+    heartbeat.start()
+    try:
+        with zenoh.open(make_config((), [endpoint], "client")) as session:
+            sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token,
+                                                          history=True)
+            while not stop.is_set() and time.time() < deadline:
+                with lock:
+                    if wanted <= seen:
+                        break
+                time.sleep(0.2)
+            sub.undeclare()
+    finally:
+        done.set()
+        heartbeat.join()
     ok = wanted <= seen
     tmp = epoch_file.with_suffix(".tmp")
     tmp.write_text(repr(time.time() + 2.0))
