@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 
 import numpy as np
@@ -162,6 +163,8 @@ class CentralizedController(ControllerPipeline):
             ``inputs (n, 2)`` to apply (scenario order) and the plan behind them.
         """
         k = self._sample if sample is None else int(sample)
+        cpu = time.thread_time()
         out = self.run_sample(k, t, states)
+        out.cpu_time = time.thread_time() - cpu
         self._sample = k + 1
         return out

@@ -22,6 +22,7 @@ How plans, their ages and the pair's common sample work is explained in
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Literal
@@ -481,7 +482,10 @@ class DecentralizedController(ControllerPipeline):
         """
         if plans is None:
             plans = self._received
-        return self.run_sample(sample, t, states, plans, previous_states, plan_ages)
+        cpu = time.thread_time()
+        out = self.run_sample(sample, t, states, plans, previous_states, plan_ages)
+        out.cpu_time = time.thread_time() - cpu
+        return out
 
 
 def _warn_paper_mode() -> None:

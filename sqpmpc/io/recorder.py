@@ -117,6 +117,7 @@ class RunRecorder:
         self.inputs: list[np.ndarray] = []
         self.plant_inputs: list[np.ndarray | None] = []
         self.solve_times: list[np.ndarray] = []
+        self.cpu_times: list[np.ndarray | None] = []
         self.horizons: list[np.ndarray | None] = []
         self.solver_failures = 0
         self.extra: dict[str, Any] = {}
@@ -146,8 +147,8 @@ class RunRecorder:
         inputs
             ``(n, 2)`` inputs :math:`(v, \\omega)` applied on :math:`[t_k, t_{k+1})`; or the
             :class:`~sqpmpc.ControlOutput` of a centralized controller, or the list of the
-            decentralized controllers' outputs (their inputs, compute times and
-            fallbacks are taken); ``None`` for the final states.
+            decentralized controllers' outputs (their inputs, compute times, CPU
+            times and fallbacks are taken); ``None`` for the final states.
         solve_time
             Controller time of the sample, s: one number, or one per robot
             (decentralized). Default: the outputs' times, else 0.
@@ -180,10 +181,11 @@ class RunRecorder:
             return
         outputs = _outputs(inputs)
         u = self.inputs_of(inputs)
-        times = failed = None
+        times = failed = cpu = None
         horizon = None
         if outputs is not None:
             times = [float(o.compute_time) for o in outputs]
+            cpu = np.array([float(getattr(o, "cpu_time", np.nan)) for o in outputs])
             failed = sum(o.fallback is not None for o in outputs)
             try:
                 horizon = np.concatenate([np.asarray(o.predicted_states, dtype=float)
@@ -209,6 +211,9 @@ class RunRecorder:
                                f"sample had {self.solve_times[0].size}")
         self.inputs.append(u.copy())
         self.solve_times.append(st)
+        # the outputs' CPU times, when they are the sample's times and all measured
+        self.cpu_times.append(cpu if solve_time is None and cpu is not None
+                              and cpu.shape == st.shape and np.all(np.isfinite(cpu)) else None)
         self.plant_inputs.append(None if plant_inputs is None
                                  else np.asarray(plant_inputs, dtype=float).reshape(self.n, 2))
         self.horizons.append(horizon)
@@ -238,7 +243,9 @@ class RunRecorder:
             plant_inputs=(np.asarray(applied) if k and all(a is not None for a in applied)
                           else None),
             horizons=(np.asarray(plans) if k and all(h is not None and h.shape == shape
-                                                     for h in plans) else None))
+                                                     for h in plans) else None),
+            cpu_times=(np.asarray(self.cpu_times[:k]).reshape(k, columns)
+                       if k and all(c is not None for c in self.cpu_times[:k]) else None))
 
     def write(self, out: str | os.PathLike[str], plots: bool = True, recording: bool = True,
               overwrite: bool = False) -> dict[str, Any]:
