@@ -45,14 +45,8 @@ from sqpmpc.control.plans import (
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.collision import halfplanes_hold_path
-from sqpmpc.ocp.collision_rows import (
-    MISSING,
-    OBSTACLE,
-    OFF,
-    SHARED,
-    ExternalCollisionModel,
-)
-from sqpmpc.ocp.obstacle_rows import StackedRows
+from sqpmpc.ocp.collision_rows import MISSING, OBSTACLE, OFF, SHARED, ExternalCollisionModel
+from sqpmpc.ocp.obstacle_rows import StackedRows, scenario_map_slots
 from sqpmpc.problem.plant import acceleration_path_deviation, largest_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
@@ -118,7 +112,7 @@ class DecentralizedController(ControllerPipeline):
         slots = others if settings.neighbour_slots is None else min(
             others, settings.neighbour_slots)
         layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64),
-                          slots + scenario.obstacle_slots, has_position_bounds(scenario),
+                          slots + sum(scenario_map_slots(scenario)), has_position_bounds(scenario),
                           scenario.robot_model())
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
