@@ -59,7 +59,8 @@ from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
 
-__all__ = ["CASES", "AcadosPeer", "CaseResult", "build_parser", "main", "run_case"]
+__all__ = ["CASES", "AcadosPeer", "CaseResult", "build_parser", "import_acados", "load_case",
+           "main", "render", "run_case"]
 
 DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "acados-peer.md"
 
@@ -75,7 +76,7 @@ CASES: tuple[tuple[str, str, int | None, float | None], ...] = (
 _FIRST_SAMPLE_ITERATIONS = 30
 
 
-def _import_acados(extra_path: str | None) -> tuple[object, object]:
+def import_acados(extra_path: str | None) -> tuple[object, object]:
     """``(acados, acados_template)`` from the ``comma-deps-acados`` wheel."""
     if extra_path:
         sys.path.append(str(Path(extra_path).resolve()))
@@ -343,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the cases and write :data:`DOC_PATH`."""
     args = build_parser().parse_args(argv)
-    _, template = _import_acados(args.acados_path)
+    _, template = import_acados(args.acados_path)
     settings = SolverSettings(qp_solver=args.qp_solver)
     started = time.perf_counter()
     results = []
