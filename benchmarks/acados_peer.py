@@ -204,10 +204,10 @@ class AcadosPeer:
         self._yref = np.zeros((N, ny))
         self.started = False
 
-    def step(self, t: float, states: np.ndarray) -> tuple[np.ndarray, float, float, int]:
-        """First inputs ``(n, 2)`` from ``states (n, 3)`` at ``t``, acados's ``time_tot``,
-        ``time_qp`` (s) and QP iterations (summed over the RTI iterations of a first
-        sample)."""
+    def step(self, t: float, states: np.ndarray) -> tuple[np.ndarray, float, float, float, int]:
+        """First inputs ``(n, 2)`` from ``states (n, 3)`` at ``t``; the thread CPU time of
+        ``solve`` (acados's C code, s); acados's own ``time_tot`` and ``time_qp`` (wall
+        clocks, s); QP iterations (summed over the RTI iterations of a first sample)."""
         sc, n, N, s = self.scenario, self.n, self.N, self.solver
         x0 = np.asarray(states, float).ravel()
         s.set(0, "lbx", x0)
@@ -217,18 +217,20 @@ class AcadosPeer:
             self._yref[i, :2 * n] = ref[i - 1].ravel()
             s.set(i, "yref", self._yref[i])
         s.set(N, "yref", ref[N - 1].ravel())
-        total = qp = 0.0
+        total = qp = cpu = 0.0
         qp_iter = 0
         for _ in range(1 if self.started else _FIRST_SAMPLE_ITERATIONS):
             if not self.started:  # the resting rollout, as sqpmpc starts
                 for i in range(N + 1):
                     s.set(i, "x", x0)
+            t0 = time.thread_time()
             s.solve()
+            cpu += time.thread_time() - t0
             total += float(np.ravel(s.get_stats("time_tot"))[0])
             qp += float(np.ravel(s.get_stats("time_qp"))[0])
             qp_iter += int(np.sum(s.get_stats("qp_iter")))
             self.started = True
-        return s.get(0, "u").reshape(n, 2), total, qp, qp_iter
+        return s.get(0, "u").reshape(n, 2), cpu, total, qp, qp_iter
 
 
 @dataclass
@@ -242,6 +244,7 @@ class CaseResult:
     acados_total: np.ndarray
     acados_c: np.ndarray
     acados_qp: np.ndarray
+    acados_wall: np.ndarray
     first: tuple[float, float]
     input_difference: tuple[float, float]
     qp_solver: str
@@ -268,25 +271,26 @@ def run_case(label: str, scenario: Scenario, settings: SolverSettings, template:
     ctrl.step = timed  # this benchmark's timing only
     with tempfile.TemporaryDirectory(prefix="acados-peer-") as tmp:
         peer = AcadosPeer(scenario, settings, Path(tmp), template)
-        totals, cs, qps, diffs = [], [], [], []
+        totals, cs, walls, qps, diffs = [], [], [], [], []
         for k in range(scenario.steps):
             x = sim.states[k].copy()
             t = float(sim.t[k])
             if k % 2:
                 sim.step()
             t0 = time.thread_time()
-            u_ac, c_time, qp_time, _ = peer.step(t, x)
+            u_ac, c_time, wall_time, qp_time, _ = peer.step(t, x)
             totals.append(time.thread_time() - t0)
             if not k % 2:
                 sim.step()
             cs.append(c_time)
+            walls.append(wall_time)
             qps.append(qp_time)
             diffs.append(float(np.max(np.abs(u_ac - sim.inputs[k]))))
         del peer
     sq, tot = np.array(cpu), np.array(totals)
     d = np.array(diffs[1:])
     return CaseResult(label, scenario.n_robots, scenario.horizon, sq[1:], tot[1:],
-                      np.array(cs[1:]), np.array(qps[1:]), (sq[0], tot[0]),
+                      np.array(cs[1:]), np.array(qps[1:]), np.array(walls[1:]), (sq[0], tot[0]),
                       (float(np.median(d)), float(d.max())),
                       settings.qp_solver_for(scenario.n_robots, "centralized"))
 
@@ -302,22 +306,25 @@ def render(results: list[CaseResult], info: dict[str, str], command: str, wall: 
         f"load average at the end {os.getloadavg()[0]:.2f}.",
         "",
         "CPU time per sample (thread time), ms, medians and p99 over the samples after the "
-        "first; *ratio* = sqpmpc / acados (< 1: sqpmpc faster). *acados C* is acados's own "
-        "`time_tot` (no Python), *QP* its `time_qp`.",
+        "first; *ratio* = sqpmpc / acados (< 1: sqpmpc faster). *acados C* is the thread "
+        "CPU time of acados's `solve()` (its C code, no Python); acados's own `time_tot` "
+        "and `time_qp` are wall clocks (they grow with the machine's load), given beside.",
         "",
         "| case | robots | N | sqpmpc QP | sqpmpc median / p99 | acados total median / p99 "
-        "| acados C median / p99 (QP) | median ratio to total / to C | p99 ratio to total / "
-        "to C | first sample sqpmpc / acados | first-input difference median / max |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| acados C median / p99 | acados time_tot median (time_qp), wall | median ratio "
+        "to total / to C | p99 ratio to total / to C | first sample sqpmpc / acados | "
+        "first-input difference median / max |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         sm, sp = _stats(r.sqpmpc)
         tm, tp = _stats(r.acados_total)
         cm, cp = _stats(r.acados_c)
         qm, _ = _stats(r.acados_qp)
+        wm, _ = _stats(r.acados_wall)
         lines.append(
             f"| {r.label} | {r.n_robots} | {r.horizon} | {r.qp_solver} | {sm:.3f} / {sp:.3f} | "
-            f"{tm:.3f} / {tp:.3f} | {cm:.3f} / {cp:.3f} ({qm:.3f}) | {sm / tm:.2f} / "
+            f"{tm:.3f} / {tp:.3f} | {cm:.3f} / {cp:.3f} | {wm:.3f} ({qm:.3f}) | {sm / tm:.2f} / "
             f"{sm / cm:.2f} | {sp / tp:.2f} / {sp / cp:.2f} | {r.first[0] * 1e3:.1f} / "
             f"{r.first[1] * 1e3:.1f} | {r.input_difference[0]:.1e} / "
             f"{r.input_difference[1]:.1e} |")
