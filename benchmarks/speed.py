@@ -25,7 +25,10 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    the first), the first sample, and the process's peak RSS after each size.
 4. **Profile** -- cProfile of a paper-s2 decentralized closed loop: where a
    sample's CPU goes (the QP solver against the Python pipeline).
-5. **acados** (with ``--acados-path`` or an installed ``comma-deps-acados``):
+5. **Paper scenarios** -- paper-s1 and paper-s2, both schemes, with
+   ``qp_solver="osqp"`` (the former default) and ``"auto"`` (OSQP capped at the
+   hand-over, PIQP for the rest): closed-loop cost, collisions, final errors.
+6. **acados** (with ``--acados-path`` or an installed ``comma-deps-acados``):
    :mod:`benchmarks.acados_peer`'s table.
 
 Nothing is hard-coded: every figure and verdict is computed from this run.
@@ -59,7 +62,7 @@ from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
 
-__all__ = ["fleets", "main", "maze", "maze_scenario", "profile", "qp_tail"]
+__all__ = ["fleets", "main", "maze", "maze_scenario", "paper", "profile", "qp_tail"]
 
 DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "speed.md"
 
@@ -190,9 +193,24 @@ def profile(t_end: float = 100.0) -> tuple[float, list[tuple[str, float]]]:
     return _ms(total / calls), [(name, t / total) for name, t in top]
 
 
+# ---------------------------------------------------------------------------- paper
+def paper() -> list[tuple[str, str, str, dict]]:
+    """``(scenario, scheme, qp_solver, metrics)`` of the paper scenarios (module docstring)."""
+    from sqpmpc.sim.simulation import simulate
+
+    rows = []
+    for name in ("paper-s1", "paper-s2"):
+        for scheme in ("centralized", "decentralized"):
+            for solver in ("osqp", "auto"):
+                record = simulate(load_scenario(name), scheme, SolverSettings(qp_solver=solver))
+                rows.append((name, scheme, solver, compute_metrics(record)))
+    return rows
+
+
 # ---------------------------------------------------------------------------- report
 def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
-           prof: tuple | None, acados: str | None, command: str, wall: float) -> str:
+           prof: tuple | None, acados: str | None, command: str, wall: float,
+           paper_rows: list | None = None) -> str:
     """The markdown page."""
     info = machine_info()
     lines = ["# Speed and scale", "", f"Reproduce: `{command}` (module docstring of "
@@ -249,6 +267,20 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
                   "", "| function | share |", "|---|---|"]
         lines += [f"| `{name}` | {share * 100:.1f} % |" for name, share in top]
         lines.append("")
+    if paper_rows:
+        lines += ["## Paper scenarios: the former default (OSQP) against auto", "",
+                  "| scenario | scheme | qp_solver | closed-loop cost | cost / OSQP's | "
+                  "collisions | largest final error m | CPU per sample median / p99 / max ms |",
+                  "|---|---|---|---|---|---|---|---|"]
+        base = 1.0
+        for name, scheme, solver, m in paper_rows:
+            cost = m["closed_loop_cost"]
+            base = cost if solver == "osqp" else base
+            cpu = m["solve_time"]["cpu"]
+            lines.append(f"| {name} | {scheme} | {solver} | {cost:.4f} | {cost / base:.5f} | "
+                         f"{m['collisions']} | {m['max_final_position_error']:.3f} | "
+                         f"{cpu['median_ms']:.3f} / {cpu['p99_ms']:.3f} / {cpu['max_ms']:.3f} |")
+        lines.append("")
     if acados:
         lines += ["## acados (SQP-RTI, HPIPM) on the same OCPs", "", acados, ""]
     return "\n".join(lines)
@@ -259,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.speed", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="shorter runs")
-    p.add_argument("--parts", default="tail,maze,fleets,profile,acados")
+    p.add_argument("--parts", default="tail,maze,fleets,profile,paper,acados")
     p.add_argument("--acados-path", default=os.environ.get("SQPMPC_ACADOS_PATH"))
     p.add_argument("--no-write", action="store_true")
     args = p.parse_args(argv)
@@ -270,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     maze_rows = maze(40.0 if q else 80.0) if "maze" in parts else None
     fleet_rows = fleets((16, 64, 256), 8 if q else 20) if "fleets" in parts else None
     prof = profile(30.0 if q else 100.0) if "profile" in parts else None
+    paper_rows = paper() if "paper" in parts else None
     acados = None
     if "acados" in parts:
         from . import acados_peer
@@ -289,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.speed " + " ".join(argv if argv is not None
                                                         else sys.argv[1:])
     text = render(tail, maze_rows, fleet_rows, prof, acados, command.strip(),
-                  time.perf_counter() - started)
+                  time.perf_counter() - started, paper_rows)
     print(text)
     if not args.no_write:
         DOC_PATH.write_text(text)
