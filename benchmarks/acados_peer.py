@@ -3,15 +3,16 @@ by sample in one process, timed in CPU time.
 
 Usage (from the repository root)::
 
-    pip install comma-deps-acados      # acados + its Python template, from the registry
-    python -m benchmarks.acados_peer   # writes docs/acados-peer.md
-    python -m benchmarks.acados_peer --quick --no-write
+    pip install --target /tmp/acados-deps comma-deps-acados   # acados, from the registry
+    python -m benchmarks.acados_peer --acados-path /tmp/acados-deps   # docs/acados-peer.md
+    python -m benchmarks.acados_peer --acados-path /tmp/acados-deps --quick --no-write
 
-``--acados-path DIR`` appends ``DIR`` to ``sys.path`` (where ``pip install
---target DIR comma-deps-acados`` put the ``acados`` package) when it is not
-installed in the environment. Nothing of acados is kept in this repository:
-every solver is generated and compiled at benchmark time into a temporary
-folder, removed at the end.
+The wheel (acados 0.2 with HPIPM, BLASFEO, its Python template and ``t_renderer``)
+also carries a CasADi of its own: installed into its own folder and appended to
+``sys.path`` (``--acados-path``, or ``SQPMPC_ACADOS_PATH``), it leaves the
+environment's CasADi first. Nothing of acados is kept in this repository: every
+solver is generated and compiled (gcc) at benchmark time into a temporary folder,
+removed at the end.
 
 What is compared. The OCP of paper eq. 7 (centralized): unicycles with Euler
 dynamics, :math:`\sum_{i=1}^N \|p_i - r_i\|_Q^2 + \sum_{i=0}^{N-1}\|u_i\|_R^2`,
