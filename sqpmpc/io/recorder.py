@@ -134,7 +134,8 @@ class RunRecorder:
 
     def append(self, t: float, states: np.ndarray, inputs: Any = None,
                solve_time: float | Sequence[float] | None = None,
-               plant_inputs: np.ndarray | None = None, fallbacks: int = 0) -> None:
+               plant_inputs: np.ndarray | None = None, fallbacks: int = 0,
+               cpu_time: float | Sequence[float] | None = None) -> None:
         """Add sample ``k``: the time, the states then and what was applied from then.
 
         Parameters
@@ -156,6 +157,9 @@ class RunRecorder:
             ``(n, 2)`` the inputs the robots really applied, when they differ.
         fallbacks
             Fallback inputs applied at this sample (added to the outputs' fallbacks).
+        cpu_time
+            The controllers' CPU time of the sample, s, shaped as ``solve_time``.
+            Default: the outputs' CPU times when ``solve_time`` is not given.
 
         Raises
         ------
@@ -211,9 +215,13 @@ class RunRecorder:
                                f"sample had {self.solve_times[0].size}")
         self.inputs.append(u.copy())
         self.solve_times.append(st)
-        # the outputs' CPU times, when they are the sample's times and all measured
-        self.cpu_times.append(cpu if solve_time is None and cpu is not None
-                              and cpu.shape == st.shape and np.all(np.isfinite(cpu)) else None)
+        # the given CPU times, or the outputs' when they are the sample's times; all measured
+        if cpu_time is not None:
+            cpu = np.atleast_1d(np.asarray(cpu_time, dtype=float))
+        elif solve_time is not None:
+            cpu = None
+        self.cpu_times.append(cpu if cpu is not None and cpu.shape == st.shape
+                              and np.all(np.isfinite(cpu)) else None)
         self.plant_inputs.append(None if plant_inputs is None
                                  else np.asarray(plant_inputs, dtype=float).reshape(self.n, 2))
         self.horizons.append(horizon)
@@ -235,11 +243,15 @@ class RunRecorder:
         plans = self.horizons[:k]
         shape = (self.n, int(self.scenario.horizon) + 1, 3)
         steps = int(self.scenario.steps)
+        extra = dict(self.extra)
+        # the machine's load when the record is taken (wall times grow with it)
+        extra.setdefault("load_average", [float(v) for v in os.getloadavg()])
+        extra.setdefault("cpus", os.cpu_count())
         return RunRecord(
             self.scenario, self.scheme, np.asarray(self.t), np.asarray(self.states),
             np.asarray(self.inputs[:k]).reshape(k, self.n, 2),
             np.asarray(self.solve_times[:k]).reshape(k, columns), self.solver_failures,
-            completed=k >= steps, extra=dict(self.extra),
+            completed=k >= steps, extra=extra,
             plant_inputs=(np.asarray(applied) if k and all(a is not None for a in applied)
                           else None),
             horizons=(np.asarray(plans) if k and all(h is not None and h.shape == shape
