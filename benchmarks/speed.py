@@ -208,16 +208,53 @@ def paper() -> list[tuple[str, str, str, dict]]:
 
 
 # ---------------------------------------------------------------------------- report
+def _verdicts(acados: list, paper_rows: list | None) -> list[str]:
+    """The issue's acados and per-robot targets, computed from the results."""
+    by = {r.label: r for r in acados}
+    out = []
+
+    def line(text: str, ok: bool) -> None:
+        out.append(f"- {text}: {'met' if ok else 'NOT met'}")
+
+    for label in ("paper-s2 N 8", "paper-s2 N 40"):
+        if label in by:
+            r = by[label]
+            a, b = np.median(r.sqpmpc), np.median(r.acados_c)
+            line(f"{label}: sqpmpc median {_ms(a):.3f} ms <= acados C median {_ms(b):.3f} ms",
+                 a <= b)
+    for label in ("paper-s2 N 40", "swap-16"):
+        if label in by:
+            r = by[label]
+            a, b = np.percentile(r.sqpmpc, 99), np.percentile(r.acados_total, 99)
+            line(f"{label}: sqpmpc p99 {_ms(a):.3f} ms <= acados p99 {_ms(b):.3f} ms", a <= b)
+    for name, scheme, solver, m in paper_rows or []:
+        if (name, scheme, solver) == ("paper-s2", "decentralized", "auto"):
+            per = float(np.median([v for v in m["solve_time"]["cpu"][
+                "per_robot_median_ms"].values()]))
+            line(f"paper-s2 decentralized: per-robot CPU median {per:.3f} ms <= 0.1 ms",
+                 per <= 0.1)
+    return out
+
+
 def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
            prof: tuple | None, acados: str | None, command: str, wall: float,
-           paper_rows: list | None = None) -> str:
+           paper_rows: list | None = None, verdicts: list[str] | None = None) -> str:
     """The markdown page."""
     info = machine_info()
     lines = ["# Speed and scale", "", f"Reproduce: `{command}` (module docstring of "
              "`benchmarks/speed.py`: what is measured and how).", "",
              "Machine: " + ", ".join(f"{k} {v}" for k, v in info.items())
              + f"; run {wall:.0f} s; load average at the end {os.getloadavg()[0]:.2f}. "
-             "All times are thread CPU time.", ""]
+             "All times are thread CPU time (a loaded machine still slows them: shared caches "
+             "and cores).", "",
+             "What the parts measure (issue 34): the QP backends' tail (`qp_solver=\"auto\"` "
+             "is OSQP capped at the hand-over with PIQP for the rest outside decentralized "
+             "fleets; `piqp-multistage` is PIQP's multistage KKT solver on the QP in stage "
+             "order), obstacle rows by reach (`sqpmpc.ocp.obstacle_rows`: at most "
+             "`OBSTACLE_SLOTS` rows per robot for circles and for polygon pieces, the first "
+             "input still checked against every obstacle), the per-robot cost of large "
+             "fleets, where a sample's CPU goes, the paper scenarios under the new default "
+             "and acados on the same OCPs.", ""]
     if tail:
         base = np.median(tail[0][1])
         lines += ["## QP tail: paper-s2 centralized, N = 40, every QP replayed", "",
@@ -282,7 +319,11 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
                          f"{cpu['median_ms']:.3f} / {cpu['p99_ms']:.3f} / {cpu['max_ms']:.3f} |")
         lines.append("")
     if acados:
-        lines += ["## acados (SQP-RTI, HPIPM) on the same OCPs", "", acados, ""]
+        lines += ["## acados (SQP-RTI, HPIPM) on the same OCPs", "",
+                  acados.replace("\n| case", "\n\n| case").replace("\nThe OCPs", "\n\nThe OCPs"),
+                  ""]
+    if verdicts:
+        lines += ["## Targets of issue 34 against acados and per robot", "", *verdicts, ""]
     return "\n".join(lines)
 
 
@@ -303,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     fleet_rows = fleets((16, 64, 256), 8 if q else 20) if "fleets" in parts else None
     prof = profile(30.0 if q else 100.0) if "profile" in parts else None
     paper_rows = paper() if "paper" in parts else None
-    acados = None
+    acados, verdicts = None, None
     if "acados" in parts:
         from . import acados_peer
 
@@ -319,10 +360,11 @@ def main(argv: list[str] | None = None) -> int:
             table = acados_peer.render(results, {}, "", 0.0).split("\n")
             acados = "\n".join(line for line in table if line.startswith("|") or (
                 line.startswith("CPU") or line.startswith("The OCPs")))
+            verdicts = _verdicts(results, paper_rows)
     command = "python -m benchmarks.speed " + " ".join(argv if argv is not None
                                                         else sys.argv[1:])
     text = render(tail, maze_rows, fleet_rows, prof, acados, command.strip(),
-                  time.perf_counter() - started, paper_rows)
+                  time.perf_counter() - started, paper_rows, verdicts)
     print(text)
     if not args.no_write:
         DOC_PATH.write_text(text)
