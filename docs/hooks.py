@@ -37,6 +37,7 @@ REPORTS: dict[str, str] = {
     "reliability.md": "python -m benchmarks.faults && python -m benchmarks.lifecycle",
     "ros2.md": "python -m benchmarks.ros2 && python -m benchmarks.ros2_hosts",
     "physical-robots.md": "python -m benchmarks.physical",
+    "speed.md": "python -m benchmarks.speed --acados-path DIR",
     "security.md": "python -m benchmarks.security",
 }
 

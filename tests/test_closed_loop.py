@@ -60,7 +60,8 @@ def _assert_counters_consistent(m: dict, sc, scheme: str) -> None:
 
 def test_failed_qp_applies_a_safe_fallback_and_counts_it() -> None:
     sc = load_scenario("paper-s2").with_changes(t_end=20.0)
-    settings = SolverSettings(osqp=OSQPSettings(max_iter=1, accept_inaccurate=False,
+    settings = SolverSettings(qp_solver="osqp",  # no hand-over: OSQP alone fails
+                              osqp=OSQPSettings(max_iter=1, accept_inaccurate=False,
                                                 rescue_solver=None))
     sim = ClosedLoopSimulation(sc, "centralized", settings)
     record = sim.run()

@@ -86,9 +86,16 @@ import json, os, sys, time
 import pytest
 import yaml
 state_file = os.path.join(os.environ["FAKE_DOCKER_DIR"], "state.json")
-with open(os.path.join(os.environ["FAKE_DOCKER_DIR"], "calls.log"), "a") as log:
-    log.write(" ".join(sys.argv[4:]) + "\\n")
+
+
+def logged():  # after the command took effect: a test reading the log sees its effect
+    with open(os.path.join(os.environ["FAKE_DOCKER_DIR"], "calls.log"), "a") as log:
+        log.write(" ".join(sys.argv[4:]) + "\\n")
+
+
 cmd = sys.argv[4]
+if cmd == "logs":
+    logged()
 if cmd == "up":
     services = yaml.safe_load(open(sys.argv[3]))["services"]
     states = {{n: ["running", 0] for n in services}}
@@ -104,9 +111,11 @@ elif cmd == "start":
     states[sys.argv[5]] = ["running", 0]
     json.dump(states, open(state_file + ".tmp", "w"))
     os.replace(state_file + ".tmp", state_file)
-elif cmd == "logs":
+if cmd == "logs":
     print("plant: status line", flush=True)
     time.sleep(3600)
+else:
+    logged()
 '''
 
 

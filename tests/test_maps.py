@@ -290,3 +290,44 @@ def test_an_arrived_robot_steps_aside_for_a_traveller_and_returns() -> None:
         refs = _shaped(rule, view(ctrl, far))
     np.testing.assert_allclose(refs[0], [[2.0, 0.05]] * sc.horizon)
     assert rule.counters()["yield_starts"] == 1
+
+
+def test_assign_slots_keeps_chosen_obstacles_in_their_slots_nearest_first() -> None:
+    from sqpmpc.ocp.obstacle_rows import assign_slots
+
+    gaps = np.array([0.5, -0.1, -0.3, -0.2, -0.05])  # 1..4 within reach
+    first = assign_slots(gaps, np.full(3, -1))
+    np.testing.assert_array_equal(first, [2, 3, 1])  # the 3 nearest, nearest first
+    gaps = np.array([-0.4, -0.1, 0.2, -0.2, -0.05])  # 2 out of reach, 0 the nearest now
+    again = assign_slots(gaps, first)
+    np.testing.assert_array_equal(again, [0, 3, 1])  # 3 and 1 keep their slots
+    np.testing.assert_array_equal(assign_slots(np.ones(5), again), [-1, -1, -1])
+
+
+def test_rows_by_reach_equal_every_row_when_the_nearby_pieces_fit(monkeypatch) -> None:
+    """A robot among 36 boxes, 8 slots: the same first input as with a row per box (the
+    far boxes' rows are never active), and the QP has 8 obstacle slots instead of 36."""
+    import sqpmpc.ocp.obstacle_rows as rows
+    from sqpmpc.qp.backend import OSQPSettings
+    from sqpmpc.sim.simulation import ClosedLoopSimulation
+
+    boxes = [[[x - 0.2, y - 0.2], [x + 0.2, y - 0.2], [x + 0.2, y + 0.2], [x - 0.2, y + 0.2]]
+             for x in np.arange(6) * 1.5 + 0.75 for y in np.arange(6) * 1.5 + 0.75]
+    sc = parse_scenario({
+        "name": "boxes", "t_end": 0.5, "sample_time": 0.5, "horizon": 6,
+        "weights": {"Q": [1.0, 1.0], "R": [0.5, 0.5]}, "bounds": {"v": [-0.6, 0.6],
+                                                               "omega": [-0.785, 0.785]},
+        "robots": [{"id": 1, "initial_state": [0.0, 1.3, 0.0], "diameter": 0.3,
+                    "reference": {"type": "point", "position": [9.0, 1.5]}}],
+        "obstacles": [{"points": b} for b in boxes]}, "boxes.toml")
+    runs = {}
+    tight = SolverSettings(qp_solver="piqp", osqp=OSQPSettings(eps_abs=1e-9, eps_rel=1e-9))
+    for slots in (8, None):
+        monkeypatch.setattr(rows, "OBSTACLE_SLOTS", slots)
+        sim = ClosedLoopSimulation(sc, "centralized", tight)
+        runs[slots] = (sim.run(), sim.controllers[0].engine.qp.layout.n_external)
+        if slots:  # the premise: every box within reach had a slot (some stayed empty)
+            assert np.any(sim.controllers[0].obstacle_rows.polygons.slot_pieces < 0)
+    assert runs[8][1] == 8 and runs[None][1] == 36
+    # the first sample's converged SQP (30 iterations at most) to the QPs' tolerance
+    np.testing.assert_allclose(runs[8][0].inputs, runs[None][0].inputs, atol=1e-5)

@@ -282,3 +282,30 @@ def test_write_run_without_plots(tmp_path: Path) -> None:
     assert sorted(os.listdir(tmp_path)) == ["metrics.json", "record.msgpack", "recording.mcap",
                                             "trajectory.npz"]
     assert json.loads((tmp_path / "metrics.json").read_text()) == m
+
+
+def test_cpu_times_are_measured_reported_and_kept(tmp_path: Path) -> None:
+    """A closed loop records each controller's thread CPU time beside its wall time; the
+    metrics, the summary line, the trajectory file and the record file keep them, with
+    the load average at the run's end."""
+    from sqpmpc.io.reporting import describe_solve_time
+    from sqpmpc.io.runlog import read_record, write_record
+    from sqpmpc.problem.scenario_file import load_scenario
+    from sqpmpc.sim.simulation import simulate
+
+    sc = load_scenario("paper-s2").with_changes(t_end=2.0)
+    record = simulate(sc, "decentralized")
+    assert record.cpu_times is not None and record.cpu_times.shape == record.solve_times.shape
+    assert np.all(record.cpu_times > 0) and np.all(np.isfinite(record.cpu_times))
+    st = compute_metrics(record)["solve_time"]
+    assert st["clock"] == "wall" and st["cpu"]["clock"] == "thread CPU time"
+    assert st["cpu"]["total_s"] == pytest.approx(float(record.cpu_times.sum()))
+    assert len(st["load_average"]) == 3 and st["cpus"] == os.cpu_count()
+    line = describe_solve_time({"solve_time": st})
+    assert line.startswith("controller CPU time per sample") and "wall time median" in line
+    assert "load average" in line
+    np.testing.assert_array_equal(
+        load_trajectory(write_trajectory(tmp_path / "t.npz", record))["cpu_times"],
+        record.cpu_times)
+    again = read_record(write_record(tmp_path / "record.msgpack", record))
+    np.testing.assert_array_equal(again.cpu_times, record.cpu_times)

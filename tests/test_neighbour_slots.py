@@ -117,16 +117,22 @@ def test_bad_slot_budget_is_refused(value: object) -> None:
 
 
 def test_auto_settings_pick_the_fleet_path_above_the_fleet_size() -> None:
-    from sqpmpc.control.settings import FLEET_NEIGHBOUR_SLOTS, FLEET_QP_SOLVER, FLEET_ROBOTS
+    from sqpmpc.control.settings import (
+        BOUNDED_QP_SOLVER,
+        FLEET_NEIGHBOUR_SLOTS,
+        FLEET_QP_SOLVER,
+        FLEET_ROBOTS,
+    )
 
     auto = SolverSettings()
     small = auto.resolved(FLEET_ROBOTS)
     large = auto.resolved(FLEET_ROBOTS + 1)
-    assert (small.qp_solver, small.neighbour_slots) == ("osqp", None)
+    assert (small.qp_solver, small.neighbour_slots) == (BOUNDED_QP_SOLVER, None)
     assert (large.qp_solver, large.neighbour_slots) == (FLEET_QP_SOLVER, FLEET_NEIGHBOUR_SLOTS)
     explicit = SolverSettings(qp_solver="daqp", neighbour_slots=None).resolved(64)
     assert (explicit.qp_solver, explicit.neighbour_slots) == ("daqp", None)
     ctrl = DecentralizedController(antipodal_swap(16), 1)
     assert ctrl.slots == FLEET_NEIGHBOUR_SLOTS and ctrl.settings.qp_solver == FLEET_QP_SOLVER
     central = CentralizedController(antipodal_swap(16))
-    assert central.slots == FLEET_NEIGHBOUR_SLOTS and central.settings.qp_solver == "osqp"
+    assert central.slots == FLEET_NEIGHBOUR_SLOTS
+    assert central.settings.qp_solver == BOUNDED_QP_SOLVER

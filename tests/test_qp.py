@@ -327,3 +327,25 @@ def test_unknown_rescue_solver_is_refused() -> None:
 
     with pytest.raises(ProblemError, match="rescue_solver"):
         OSQPSettings(rescue_solver="gurobi-that-is-not-installed")
+
+
+def test_stage_order_makes_the_qp_block_tridiagonal() -> None:
+    """In the multistage backend's order every row spans at most two consecutive stages
+    (dynamics) and every other row one stage; the permutation is a bijection."""
+    from sqpmpc.qp.piqp import stage_order
+
+    layout = QPLayout(3, N, np.array([(0, 1), (0, 2), (1, 2)]), 2, True)
+    order, row_stage = stage_order(layout)
+    np.testing.assert_array_equal(np.sort(order), np.arange(layout.n_var))
+    stage = np.empty(layout.n_var, dtype=np.int64)
+    stage[layout.state_index] = np.arange(N + 1)[None, :, None]
+    stage[layout.input_index] = np.arange(N)[None, :, None]
+    stage[layout.slack_internal_index] = np.arange(2, N + 1)
+    stage[layout.slack_external_index] = np.arange(2, N + 1)
+    assert np.all(np.diff(stage[order]) >= 0)  # stages in order
+    span = np.zeros(layout.n_con, dtype=np.int64)
+    np.maximum.at(span, layout.A_rows, stage[layout.A_cols])
+    span -= row_stage
+    assert np.all(span[layout.dyn_rows.ravel()] == 1)
+    others = np.setdiff1d(np.arange(layout.n_con), layout.dyn_rows.ravel())
+    assert np.all(span[others] == 0)

@@ -145,9 +145,11 @@ def test_a_recorded_loop_has_the_metrics_of_the_same_simulated_run() -> None:
     recorder = sqpmpc.RunRecorder(scenario, "decentralized")
     for k in range(simulated.k):
         recorder.append(simulated.t[k], simulated.states[k], simulated.inputs[k],
-                        solve_time=simulated.solve_times[k])
+                        solve_time=simulated.solve_times[k], cpu_time=simulated.cpu_times[k])
     recorder.append(simulated.t[-1], simulated.states[-1])
     mine, theirs = (sqpmpc.compute_metrics(r) for r in (recorder.record(), simulated))
+    for m in (mine, theirs):  # the machine's load when each record was taken
+        assert len(m["solve_time"].pop("load_average")) == 3
     for key in ("steps", "completed", "min_clearance", "collisions", "rms_tracking_error",
                 "closed_loop_cost", "final_position_error", "arrived", "solve_time"):
         assert mine[key] == theirs[key], key

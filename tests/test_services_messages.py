@@ -354,7 +354,7 @@ def test_the_settings_digest_names_what_differs():
         return agreed_settings(with_overrides(load_scenario("head-on"), options),
                                "decentralized", options)
 
-    plant, same = agreed(), agreed("--collision-margin", "0.001", "--qp-solver", "osqp")
+    plant, same = agreed(), agreed("--collision-margin", "0.001", "--qp-solver", "osqp+piqp")
     assert settings_digest(plant) == settings_digest(same)  # the defaults, resolved
     robot = agreed("--collision-margin", "0.05", "--t-end", "4")
     assert settings_digest(robot) != settings_digest(plant)

@@ -260,7 +260,8 @@ def add_controller_options(parser: argparse.ArgumentParser, *, decentralized: bo
                        metavar="|".join(QP_SOLVER_CHOICES),
                        help=f"QP backend; 'auto' (default): {FLEET_QP_SOLVER} for the "
                             f"decentralized robots of fleets of more than {FLEET_ROBOTS}, "
-                            "else osqp (docs/qp-backends.md)")
+                            "else osqp+piqp: OSQP capped at the hand-over, PIQP for the "
+                            "rest (docs/qp-backends.md, docs/speed.md)")
     group.add_argument("--collision-margin", type=nonnegative_float, metavar="M",
                        help="added to every required distance in the QP, m (default "
                             f"{SolverSettings.collision_margin:g}); raise it to cover a plant "

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 
 import numpy as np
@@ -12,6 +13,7 @@ from sqpmpc.control.plans import PlanAges
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.kernels.pair_paths import pairs_keep_ramp_distance, ramp_vectors
 from sqpmpc.ocp.collision_rows import PairwiseCollisionModel
+from sqpmpc.ocp.obstacle_rows import scenario_map_slots
 from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
@@ -42,8 +44,9 @@ class CentralizedController(ControllerPipeline):
         settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
-        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs, scenario.obstacle_slots,
-                          has_position_bounds(scenario), scenario.robot_model())
+        layout = QPLayout(scenario.n_robots, scenario.horizon, pairs,
+                          sum(scenario_map_slots(scenario)), has_position_bounds(scenario),
+                          scenario.robot_model())
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
@@ -162,6 +165,8 @@ class CentralizedController(ControllerPipeline):
             ``inputs (n, 2)`` to apply (scenario order) and the plan behind them.
         """
         k = self._sample if sample is None else int(sample)
+        cpu = time.thread_time()
         out = self.run_sample(k, t, states)
+        out.cpu_time = time.thread_time() - cpu
         self._sample = k + 1
         return out

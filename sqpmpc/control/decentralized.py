@@ -22,6 +22,7 @@ How plans, their ages and the pair's common sample work is explained in
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Literal
@@ -44,14 +45,8 @@ from sqpmpc.control.plans import (
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.collision import halfplanes_hold_path
-from sqpmpc.ocp.collision_rows import (
-    MISSING,
-    OBSTACLE,
-    OFF,
-    SHARED,
-    ExternalCollisionModel,
-)
-from sqpmpc.ocp.obstacle_rows import StackedRows
+from sqpmpc.ocp.collision_rows import MISSING, OBSTACLE, OFF, SHARED, ExternalCollisionModel
+from sqpmpc.ocp.obstacle_rows import StackedRows, scenario_map_slots
 from sqpmpc.problem.plant import acceleration_path_deviation, largest_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
@@ -117,7 +112,7 @@ class DecentralizedController(ControllerPipeline):
         slots = others if settings.neighbour_slots is None else min(
             others, settings.neighbour_slots)
         layout = QPLayout(1, scenario.horizon, np.zeros((0, 2), dtype=np.int64),
-                          slots + scenario.obstacle_slots, has_position_bounds(scenario),
+                          slots + sum(scenario_map_slots(scenario)), has_position_bounds(scenario),
                           scenario.robot_model())
         super().__init__(scenario, np.array([index]), layout, settings)
         self.robot_id = int(robot_id)
@@ -481,7 +476,10 @@ class DecentralizedController(ControllerPipeline):
         """
         if plans is None:
             plans = self._received
-        return self.run_sample(sample, t, states, plans, previous_states, plan_ages)
+        cpu = time.thread_time()
+        out = self.run_sample(sample, t, states, plans, previous_states, plan_ages)
+        out.cpu_time = time.thread_time() - cpu
+        return out
 
 
 def _warn_paper_mode() -> None:

@@ -35,6 +35,10 @@ class ControlOutput:
         What the iteration did.
     compute_time
         Wall time of the whole sample, s.
+    cpu_time
+        CPU time of the calling thread over the whole sample
+        (``time.thread_time``), s; unlike ``compute_time`` it does not grow with
+        the machine's load (NaN where no controller step measured it).
     counters
         Cumulative counts of the controller after this sample: the engine's
         (``samples``, ``fallbacks``, ``qp_rescues``, ``stage_one_overrides``,
@@ -59,6 +63,7 @@ class ControlOutput:
     plan_ages: Mapping[int, int] = field(default_factory=dict)
     model_states: np.ndarray | None = None
     model_inputs: np.ndarray | None = None
+    cpu_time: float = float("nan")
 
 
 def braking_input(lower: np.ndarray, upper: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

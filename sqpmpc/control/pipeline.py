@@ -60,7 +60,7 @@ from sqpmpc.kernels.warmup import warm_up
 from sqpmpc.models.base import RobotModel, continuous_headings
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.ocp.iteration import MultipleShootingSQP, engaged_robots
-from sqpmpc.ocp.obstacle_rows import ObstacleRows
+from sqpmpc.ocp.obstacle_rows import ObstacleRows, scenario_map_slots
 from sqpmpc.ocp.polygon_rows import MapRows, PolygonRows
 from sqpmpc.ocp.report import CollisionRows, IterationReport
 from sqpmpc.problem.margins import RowMargins
@@ -107,8 +107,7 @@ class ControllerPipeline:
     def __init__(self, scenario: Scenario, indices: np.ndarray, layout: QPLayout,
                  settings: SolverSettings) -> None:
         kernel_warm_up_seconds()
-        self.scenario = scenario
-        self.settings = settings
+        self.scenario, self.settings = scenario, settings
         self.indices = np.asarray(indices, dtype=np.int64)
         b = scenario.bounds
         self.input_lower, self.input_upper = b.input_lower(), b.input_upper()
@@ -142,7 +141,9 @@ class ControllerPipeline:
         obstacle_margin = settings.collision_margin + 0.5 * self.model_margin  # walls, pillars
         # the rules measure "near" beyond RowMargins.rules (problem.margins)
         self.context = RuleContext(scenario, self.indices, self.scheme, settings.iteration_scheme,
-                                   self.counts, self.margins.rules, 0.5 * self.model_margin)
+                                   self.counts, self.margins.rules, 0.5 * self.model_margin,
+                                   settings.collision_margin + self.model_margin,
+                                   obstacle_margin)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):
@@ -173,16 +174,17 @@ class ControllerPipeline:
         #: tolerance of the ``overlap-recovery`` rule (:mod:`sqpmpc.ocp.collision_rows`), m
         self.recovery_tolerance = max(settings.collision_margin, RECOVERY_TOLERANCE)
         self.obstacle_rows: ObstacleRows | MapRows | None = None
+        slots, speed = scenario_map_slots(scenario), self.context.max_speed  # rows by reach
         if scenario.obstacles:
             self.obstacle_rows = ObstacleRows(
                 scenario.obstacles, scenario.diameters()[self.indices], self.horizon,
-                self.sample_time, self.geometry,
-                obstacle_margin, (float(self.input_lower[0]), float(self.input_upper[0])),
-                self.recovery_tolerance)
+                self.sample_time, self.geometry, obstacle_margin,
+                (float(self.input_lower[0]), float(self.input_upper[0])),
+                self.recovery_tolerance, slots[0], speed)
         if scenario.polygons:  # circles first, then every polygon's convex pieces
             self.obstacle_rows = MapRows(self.obstacle_rows, PolygonRows(
                 scenario.polygons, scenario.diameters()[self.indices], self.horizon,
-                self.geometry, obstacle_margin))
+                self.geometry, obstacle_margin, slots[1], speed * self.sample_time))
 
     # ------------------------------------------------------------------ pipeline
     def run_sample(self, sample: int, t: float, states: np.ndarray,

@@ -29,15 +29,20 @@ from sqpmpc.qp.backend import QP_SOLVERS, OSQPSettings
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.registry import check_rules, default_rules
 
-__all__ = ["FLEET_NEIGHBOUR_SLOTS", "FLEET_QP_SOLVER", "FLEET_ROBOTS", "QP_SOLVER_CHOICES",
+__all__ = ["BOUNDED_QP_SOLVER", "FLEET_NEIGHBOUR_SLOTS", "FLEET_QP_SOLVER", "FLEET_ROBOTS",
+           "QP_SOLVER_CHOICES",
            "SolverSettings", "neighbour_slots_argument"]
 
 #: Scenarios with more robots than this are *fleets* for the ``"auto"`` settings.
 FLEET_ROBOTS = 8
 #: ``neighbour_slots="auto"`` on a fleet.
 FLEET_NEIGHBOUR_SLOTS = 8
-#: ``qp_solver="auto"`` on a fleet (OSQP on smaller problems).
+#: ``qp_solver="auto"`` on a fleet (:data:`BOUNDED_QP_SOLVER` on the other problems).
 FLEET_QP_SOLVER = "piqp"
+#: ``qp_solver="auto"`` where OSQP is fastest at the median: OSQP, warm-started, capped at
+#: :data:`~sqpmpc.qp.backend.HANDOVER_ITERATIONS` iterations, PIQP for the QPs it leaves;
+#: no QP then takes more than about 5 times OSQP's median work (``docs/speed.md``).
+BOUNDED_QP_SOLVER = "osqp+piqp"
 #: What ``qp_solver`` accepts.
 QP_SOLVER_CHOICES = ("auto", *QP_SOLVERS)
 
@@ -96,7 +101,8 @@ class SolverSettings:
         :data:`FLEET_QP_SOLVER` for the decentralized robots of a fleet of more
         than :data:`FLEET_ROBOTS` robots (an interior-point method's time per
         QP is nearly constant, where OSQP's tail grows with the crowding:
-        ``docs/fleet.md``), OSQP otherwise.
+        ``docs/fleet.md``), :data:`BOUNDED_QP_SOLVER` otherwise (OSQP's median,
+        its tail cut at the hand-over: ``docs/speed.md``).
     osqp
         OSQP settings (its tolerances and rescue apply to PIQP too).
     """
@@ -155,12 +161,13 @@ class SolverSettings:
         The fleet solver serves the decentralized robots' small QPs; the
         centralized QP of a fleet (thousands of rows) stays with OSQP, whose
         sparse ADMM iterations were 4 times faster there than PIQP's
-        factorizations (swap-32: median 46 against 186 ms per sample).
+        factorizations (swap-32: median 46 against 186 ms per sample), capped
+        at the hand-over like every QP outside a decentralized fleet.
         """
         if self.qp_solver != "auto":
             return self.qp_solver
         fleet = n_robots > FLEET_ROBOTS and scheme == "decentralized"
-        return FLEET_QP_SOLVER if fleet else "osqp"
+        return FLEET_QP_SOLVER if fleet else BOUNDED_QP_SOLVER
 
     def neighbour_slots_for(self, n_robots: int) -> int | None:
         """The neighbour slots for a scenario of ``n_robots`` (``"auto"`` resolved)."""

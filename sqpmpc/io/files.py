@@ -30,7 +30,8 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
 
     Arrays: ``t`` ``(k+1,)``, ``states`` ``(k+1, n, 3)``, ``inputs``
     ``(k, n, 2)``, ``ids`` ``(n,)`` (int64), ``solve_times`` ``(k, c)``
-    seconds and ``references`` ``(k+1, n, 2)``; when recorded, also
+    seconds (wall time) and ``references`` ``(k+1, n, 2)``; when recorded, also
+    ``cpu_times`` ``(k, c)`` seconds (the controllers' thread CPU time),
     ``plant_inputs`` ``(k, n, 2)`` and ``horizons`` ``(k, n, N+1, 3)``
     (float32, the plans of :attr:`RunRecord.horizons`); ``diameters`` ``(n,)``;
     with polygon obstacles ``polygon_points`` ``(V, 2)`` and ``polygon_sizes`` ``(P,)``,
@@ -51,6 +52,8 @@ def write_trajectory(path: str | os.PathLike[str], record: RunRecord) -> Path:
         "solve_times": record.solve_times,
         "references": record.references(),
     }
+    if record.cpu_times is not None:
+        arrays["cpu_times"] = record.cpu_times
     if record.plant_inputs is not None:
         arrays["plant_inputs"] = record.plant_inputs
     if record.horizons is not None:

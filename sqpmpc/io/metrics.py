@@ -34,6 +34,12 @@ sample is the sum over the columns (the paper's Table 3 convention for the
 decentralized scheme). ``per_robot_median_ms`` is the median of each robot's
 column; with a single (central) controller every id maps to the median of
 that one column, and ``controllers`` says how many columns there were.
+These are wall times (``solve_times``): on a loaded machine they grow with the
+load. When the record has the controllers' CPU times (``cpu_times``, thread
+time), ``solve_time["cpu"]`` holds the same figures from them (``total_s``,
+``median_ms``, ``p99_ms``, ``max_ms``, ``per_robot_median_ms``), and
+``solve_time["load_average"]`` the 1/5/15-minute load averages at the run's
+end with ``cpus`` the machine's logical CPUs (``None`` where not recorded).
 
 Every value in the metrics dict is JSON-serializable: Python ``int``,
 ``float``, ``str``, ``bool``, ``None``, lists and dicts; non-finite floats
@@ -166,7 +172,19 @@ def _jsonable(obj: Any) -> Any:
 
 
 def _solve_time_metrics(record: RunRecord, ids: np.ndarray) -> dict[str, Any]:
-    st = record.solve_times
+    out = _time_metrics(record.solve_times, ids)
+    out["clock"] = "wall"
+    if record.cpu_times is not None:
+        out["cpu"] = _time_metrics(record.cpu_times, ids)
+        out["cpu"]["clock"] = "thread CPU time"
+    load = record.extra.get("load_average")
+    out["load_average"] = None if load is None else [_float(v) for v in load]
+    out["cpus"] = record.extra.get("cpus")
+    return out
+
+
+def _time_metrics(st: np.ndarray, ids: np.ndarray) -> dict[str, Any]:
+    """Sum, median, p99 and maximum per sample (ms) and per-robot medians of ``st (k, c)``."""
     per_sample = st.sum(axis=1)
     if per_sample.size == 0:
         median = p99 = peak = None

@@ -374,13 +374,18 @@ def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     arrow points at the largest value of the curve the metrics report (the
     sum, or the central controller's time). Log axis in ms.
 
+    With the record's CPU times (:attr:`RunRecord.cpu_times`) the curves are CPU
+    time (thread time) and the wall time of the first curve is drawn dashed
+    beside them; the title gives the load average at the run's end.
+
     Returns
     -------
     Path
         The PNG written.
     """
     ts_ms = float(record.scenario.sample_time) * 1e3
-    st = record.solve_times * 1e3  # (k, c)
+    cpu = record.cpu_times is not None
+    st = (record.cpu_times if cpu else record.solve_times) * 1e3  # (k, c)
     fig, (ax,) = _new_figure(9.5, 5.0)
     if record.k == 0:
         ax.text(0.5, 0.5, "no controller step yet", ha="center", va="center",
@@ -403,6 +408,11 @@ def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
             ax.plot(t, values, color=color, lw=lw, alpha=0.9,
                     label=f"{name}: median {med:.3g} ms, max {values.max():.3g} ms")
             ax.axhline(med, color=color, ls=":", lw=1.0)
+        if cpu:
+            wall = record.solve_times * 1e3
+            wall = wall[:, 0] if wall.shape[1] == 1 else wall.sum(axis=1)
+            ax.plot(t, wall, color="0.5", lw=0.8, ls="--", alpha=0.8,
+                    label=f"wall time of the {curves[0][0]}: median {np.median(wall):.3g} ms")
         ax.axhline(ts_ms, color="tab:red", lw=1.6, label=f"budget $T_s$ = {ts_ms:.3g} ms")
         name, values = curves[0][0], curves[0][1]
         k = int(np.argmax(values))
@@ -411,11 +421,15 @@ def plot_solve_times(record: RunRecord, path: str | os.PathLike[str]) -> Path:
                     (t[k], values[k]), xytext=(0.02, 0.9), textcoords="axes fraction",
                     fontsize="small", arrowprops={"arrowstyle": "->", "color": "0.3"})
         ax.set_yscale("log")
-        _legend(ax, len(curves) + 1, outside=True)
+        _legend(ax, len(curves) + 1 + cpu, outside=True)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("computation per sample [ms]")
+    ax.set_ylabel(f"{'CPU time' if cpu else 'computation'} per sample [ms]")
     ax.grid(True, alpha=0.3, which="both")
-    ax.set_title(_title(record, "controller time against the sample time"))
+    load = record.extra.get("load_average")
+    what = "controller CPU time (thread time)" if cpu else "controller time"
+    if load:
+        what += f", load {load[0]:.2f} at the end"
+    ax.set_title(_title(record, f"{what} against the sample time"))
     return _save(fig, path)
 
 

@@ -128,6 +128,7 @@ class RunRecorder:
         self.inputs: list[np.ndarray] = []
         self.plant_inputs: list[np.ndarray | None] = []
         self.solve_times: list[np.ndarray] = []
+        self.cpu_times: list[np.ndarray | None] = []
         self.horizons: list[np.ndarray | None] = []
         self.solver_failures = 0
         self.extra: dict[str, Any] = {}
@@ -144,7 +145,8 @@ class RunRecorder:
 
     def append(self, t: float, states: np.ndarray, inputs: Any = None,
                solve_time: float | Sequence[float] | None = None,
-               plant_inputs: np.ndarray | None = None, fallbacks: int = 0) -> None:
+               plant_inputs: np.ndarray | None = None, fallbacks: int = 0,
+               cpu_time: float | Sequence[float] | None = None) -> None:
         """Add sample ``k``: the time, the states then and what was applied from then.
 
         Parameters
@@ -157,8 +159,8 @@ class RunRecorder:
         inputs
             ``(n, 2)`` inputs :math:`(v, \\omega)` applied on :math:`[t_k, t_{k+1})`; or the
             :class:`~sqpmpc.ControlOutput` of a centralized controller, or the list of the
-            decentralized controllers' outputs (their inputs, compute times and
-            fallbacks are taken); ``None`` for the final states.
+            decentralized controllers' outputs (their inputs, compute times, CPU
+            times and fallbacks are taken); ``None`` for the final states.
         solve_time
             Controller time of the sample, s: one number, or one per robot
             (decentralized). Default: the outputs' times, else 0.
@@ -166,6 +168,9 @@ class RunRecorder:
             ``(n, 2)`` the inputs the robots really applied, when they differ.
         fallbacks
             Fallback inputs applied at this sample (added to the outputs' fallbacks).
+        cpu_time
+            The controllers' CPU time of the sample, s, shaped as ``solve_time``.
+            Default: the outputs' CPU times when ``solve_time`` is not given.
 
         Raises
         ------
@@ -191,10 +196,11 @@ class RunRecorder:
             return
         outputs = _outputs(inputs)
         u = self.inputs_of(inputs)
-        times = failed = None
+        times = failed = cpu = None
         horizon = None
         if outputs is not None:
             times = [float(o.compute_time) for o in outputs]
+            cpu = np.array([float(getattr(o, "cpu_time", np.nan)) for o in outputs])
             failed = sum(o.fallback is not None for o in outputs)
             try:
                 horizon = np.concatenate([np.asarray(o.predicted_states, dtype=float)
@@ -220,6 +226,13 @@ class RunRecorder:
                                f"sample had {self.solve_times[0].size}")
         self.inputs.append(u.copy())
         self.solve_times.append(st)
+        # the given CPU times, or the outputs' when they are the sample's times; all measured
+        if cpu_time is not None:
+            cpu = np.atleast_1d(np.asarray(cpu_time, dtype=float))
+        elif solve_time is not None:
+            cpu = None
+        self.cpu_times.append(cpu if cpu is not None and cpu.shape == st.shape
+                              and np.all(np.isfinite(cpu)) else None)
         self.plant_inputs.append(None if plant_inputs is None
                                  else np.asarray(plant_inputs, dtype=float).reshape(self.n, 2))
         self.horizons.append(horizon)
@@ -241,15 +254,21 @@ class RunRecorder:
         plans = self.horizons[:k]
         shape = (self.n, int(self.scenario.horizon) + 1, 3)
         steps = int(self.scenario.steps)
+        extra = dict(self.extra)
+        # the machine's load when the record is taken (wall times grow with it)
+        extra.setdefault("load_average", [float(v) for v in os.getloadavg()])
+        extra.setdefault("cpus", os.cpu_count())
         return RunRecord(
             self.scenario, self.scheme, np.asarray(self.t), np.asarray(self.states),
             np.asarray(self.inputs[:k]).reshape(k, self.n, 2),
             np.asarray(self.solve_times[:k]).reshape(k, columns), self.solver_failures,
-            completed=k >= steps, extra=dict(self.extra),
+            completed=k >= steps, extra=extra,
             plant_inputs=(np.asarray(applied) if k and all(a is not None for a in applied)
                           else None),
             horizons=(np.asarray(plans) if k and all(h is not None and h.shape == shape
-                                                     for h in plans) else None))
+                                                     for h in plans) else None),
+            cpu_times=(np.asarray(self.cpu_times[:k]).reshape(k, columns)
+                       if k and all(c is not None for c in self.cpu_times[:k]) else None))
 
     def write(self, out: str | os.PathLike[str], plots: bool = True, recording: bool = True,
               overwrite: bool = False) -> dict[str, Any]:

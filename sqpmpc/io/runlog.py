@@ -100,14 +100,18 @@ class RecordWriter:
         self._fh.flush()  # whole frames reach the OS: a kill -9 loses nothing written
 
     def sample(self, k: int, inputs: np.ndarray, states: np.ndarray, solve_times: np.ndarray,
-               failures: int, missed: list[int], plant_inputs: np.ndarray | None = None) -> None:
+               failures: int, missed: list[int], plant_inputs: np.ndarray | None = None,
+               cpu_times: np.ndarray | None = None) -> None:
         """Append sample ``k``: inputs applied at ``k``, states at ``k + 1`` (and the inputs
-        the plant really applied, when they differ: input noise)."""
+        the plant really applied, when they differ: input noise; the controllers' CPU
+        times, when measured)."""
         frame = {"type": "sample", "k": int(k), "u": _bin(inputs), "x": _bin(states),
                  "st": _bin(solve_times), "failures": int(failures),
                  "missed": [int(i) for i in missed]}
         if plant_inputs is not None:
             frame["pu"] = _bin(plant_inputs)
+        if cpu_times is not None:
+            frame["ct"] = _bin(cpu_times)
         self._write(frame)
 
     def end(self, completed: bool, extra: dict[str, Any]) -> None:
@@ -175,6 +179,7 @@ def read_record(path: str | os.PathLike[str]) -> RunRecord:
     states = [scenario.initial_states() if x0 is None else x0]
     inputs, times, failures, missed = [], [], 0, dict.fromkeys(scenario.ids.tolist(), 0)
     applied: list[np.ndarray | None] = []
+    cpu: list[np.ndarray | None] = []
     end: dict[str, Any] | None = None
     for frame in frames[1:]:
         kind = frame.get("type")
@@ -189,6 +194,7 @@ def read_record(path: str | os.PathLike[str]) -> RunRecord:
             break
         inputs.append(u)
         applied.append(_array(frame, "pu", (n, 2)))
+        cpu.append(_array(frame, "ct", (columns,)) if "ct" in frame else None)
         states.append(x)
         times.append(st)
         failures += int(frame.get("failures", 0))
@@ -215,7 +221,9 @@ def read_record(path: str | os.PathLike[str]) -> RunRecord:
                      scenario.sample_time * np.arange(k + 1), np.asarray(states),
                      np.asarray(inputs).reshape(k, n, 2),
                      np.asarray(times).reshape(k, columns), failures, completed, extra,
-                     plant_inputs=plant_inputs)
+                     plant_inputs=plant_inputs,
+                     cpu_times=(np.asarray(cpu).reshape(k, columns)
+                                if k and all(c is not None for c in cpu) else None))
 
 
 def write_record(path: str | os.PathLike[str], record: RunRecord,
@@ -252,7 +260,8 @@ def write_record(path: str | os.PathLike[str], record: RunRecord,
                 writer.sample(k, record.inputs[k], record.states[k + 1],
                               record.solve_times[k],
                               int(record.solver_failures) if k == record.k - 1 else 0, [],
-                              None if record.plant_inputs is None else record.plant_inputs[k])
+                              None if record.plant_inputs is None else record.plant_inputs[k],
+                              None if record.cpu_times is None else record.cpu_times[k])
             writer.end(record.completed, extra)
         finally:
             writer.close()

@@ -15,7 +15,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["closest_point", "path_keeps_pieces", "polygon_rows", "support"]
+__all__ = ["closest_point", "path_keeps_pieces", "piece_distances", "polygon_rows", "support"]
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -156,14 +156,20 @@ def path_keeps_pieces(x0: float, y0: float, x1: float, y1: float, vertices: np.n
     The distance to an edge is the smaller of the distances to its end points and,
     where the projection falls inside the edge, to its line; each is minimized
     exactly over the path (the path starts outside, so it cannot enter a piece
-    without crossing an edge).
+    without crossing an edge). A piece at least ``keep[e]`` plus the path's reach
+    (:math:`|p_1 - p_0| +` ``growth``) from :math:`p_0` is kept by every point of
+    the path (triangle inequality) and needs no edge test.
     """
     dx, dy = x1 - x0, y1 - y0
+    reach = math.hypot(dx, dy) + max(growth, 0.0)
     for e in range(counts.shape[0]):
         count = counts[e]
         need = keep[e]
-        if closest_point(x0, y0, vertices[e], count)[2] < need:
+        start = closest_point(x0, y0, vertices[e], count)[2]
+        if start < need:
             return False
+        if start >= need + reach:
+            continue
         for k in range(count):
             ax, ay = vertices[e, k, 0], vertices[e, k, 1]
             b = (k + 1) % count
@@ -198,3 +204,12 @@ def path_keeps_pieces(x0: float, y0: float, x1: float, y1: float, vertices: np.n
                 if s_lo <= root <= s_hi and -growth * root < need:
                     return False
     return True
+
+
+@_jit
+def piece_distances(px: float, py: float, vertices: np.ndarray, counts: np.ndarray,
+                    out: np.ndarray) -> None:
+    """Signed distance of ``(px, py)`` to every piece's boundary into ``out (P,)`` (negative
+    inside)."""
+    for p in range(counts.shape[0]):
+        out[p] = closest_point(px, py, vertices[p], counts[p])[2]

@@ -30,7 +30,7 @@ from sqpmpc.kernels.ocp import (
     write_reference,
 )
 from sqpmpc.kernels.pair_paths import warm_up_pair_paths
-from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
+from sqpmpc.kernels.polygons import path_keeps_pieces, piece_distances, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
 from sqpmpc.kernels.rings import warm_up_rings
 from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
@@ -129,4 +129,5 @@ def warm_up() -> float:
     polygon_rows(np.zeros(2), np.zeros((2, 3)), square, four, np.ones(1), rot,
                  np.empty((1, 2, 2)), np.empty((1, 2)))
     path_keeps_pieces(0.0, 0.0, 0.1, 0.0, square, four, np.ones(1), 0.0)
+    piece_distances(0.0, 0.0, square, four, np.empty(1))
     return time.perf_counter() - t0

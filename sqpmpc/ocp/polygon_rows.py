@@ -10,7 +10,9 @@ feasible (capped at the measured position's value: standing still satisfies
 it), and the first input is verified along the whole sample against the true
 distance to every piece (:func:`sqpmpc.kernels.polygons.path_keeps_pieces`), as
 for circles (:mod:`sqpmpc.ocp.obstacle_rows`). A static polygon can therefore
-never be hit.
+never be hit. A map of more pieces than the slots gets rows for the pieces
+within reach only, as circles do (:mod:`sqpmpc.ocp.obstacle_rows`, *rows by
+reach*).
 """
 
 from __future__ import annotations
@@ -19,9 +21,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sqpmpc.kernels.polygons import path_keeps_pieces, polygon_rows
+from sqpmpc.kernels.polygons import path_keeps_pieces, piece_distances, polygon_rows
 from sqpmpc.ocp.geometry import RowGeometry
-from sqpmpc.ocp.obstacle_rows import ObstacleRows
+from sqpmpc.ocp.obstacle_rows import ObstacleRows, assign_slots
 from sqpmpc.problem.polygons import PolygonObstacle, pack_pieces
 
 __all__ = ["MapRows", "PolygonRows"]
@@ -44,18 +46,32 @@ class PolygonRows:
         along it).
     margin
         Added to the radius in the QP rows, m.
+    slots
+        Rows per robot: fewer than the pieces fills them every sample with the pieces
+        within reach; ``None``: one per piece.
+    reach
+        How far a robot can travel in one sample, m (the selection's: a piece is
+        within reach over the horizon and one sample more; only used with ``slots``).
     """
 
     needs_states = True
 
     def __init__(self, polygons: Sequence[PolygonObstacle], diameters: np.ndarray,
-                 horizon: int, geometry: RowGeometry, margin: float) -> None:
+                 horizon: int, geometry: RowGeometry, margin: float,
+                 slots: int | None = None, reach: float = np.inf) -> None:
         self.vertices, self.counts, self.owner = pack_pieces(polygons)
-        self.n_obstacles = int(self.counts.size)
+        self.n_all = int(self.counts.size)
+        #: rows per robot (slots)
+        self.n_obstacles = self.n_all if slots is None else min(int(slots), self.n_all)
+        self.selecting = self.n_obstacles < self.n_all
+        self._select_reach = float(reach) * (int(horizon) + 1)
+        #: ``(m, K)`` the piece in each robot's slot (-1: empty)
+        self.slot_pieces = np.tile(np.arange(self.n_obstacles), (np.size(diameters), 1))
+        self._distances = np.zeros(self.n_all)
         radius = 0.5 * np.asarray(diameters, dtype=float)
         #: ``(m, P)`` true required distances (the radius)
         self.safe_distance = np.ascontiguousarray(
-            np.broadcast_to(radius[:, None], (radius.size, self.n_obstacles)))
+            np.broadcast_to(radius[:, None], (radius.size, self.n_all)))
         self.required = self.safe_distance + float(margin)
         self.horizon = int(horizon)
         self.geometry = geometry
@@ -67,16 +83,38 @@ class PolygonRows:
         self.stage_one_overrides = 0
 
     def set_sample(self, t: float, current_states: np.ndarray) -> None:
-        """The own robots' measured states ``(m, 3)`` (the polygons do not move)."""
+        """The own robots' measured states ``(m, 3)`` (the polygons do not move); with
+        slots, the pieces within reach of each robot into them."""
         self.current = np.ascontiguousarray(current_states[:, :2], dtype=float)
+        if self.selecting:
+            for r in range(self.current.shape[0]):
+                piece_distances(float(self.current[r, 0]), float(self.current[r, 1]),
+                                self.vertices, self.counts, self._distances)
+                gap = self._distances - self.required[r] - self._select_reach
+                self.slot_pieces[r] = assign_slots(gap, self.slot_pieces[r])
 
     def write_rows(self, states: np.ndarray, A_out: np.ndarray, lower_out: np.ndarray) -> None:
-        """Rows at the iterate ``states (m, N+1, 3)`` into ``(m, P, N, 2)``, ``(m, P, N)``."""
+        """Rows at the iterate ``states (m, N+1, 3)`` into ``(m, K, N, 2)``, ``(m, K, N)``
+        (``K`` slots; an empty slot's row is off: zero, lower bound ``-inf``)."""
         overrides = 0
         for r in range(self.current.shape[0]):
-            overrides += polygon_rows(self.current[r], states[r, 1:], self.vertices,
-                                      self.counts, self.required[r], self._plain,
-                                      A_out[r], lower_out[r])
+            if not self.selecting:
+                overrides += polygon_rows(self.current[r], states[r, 1:], self.vertices,
+                                          self.counts, self.required[r], self._plain,
+                                          A_out[r], lower_out[r])
+                continue
+            slot = self.slot_pieces[r]
+            full = np.flatnonzero(slot >= 0)
+            idx = slot[full]
+            A = np.empty((full.size,) + A_out.shape[2:])
+            lower = np.empty((full.size, lower_out.shape[2]))
+            overrides += polygon_rows(self.current[r], states[r, 1:], self.vertices[idx],
+                                      self.counts[idx], self.required[r, idx], self._plain,
+                                      A, lower)
+            A_out[r] = 0.0
+            lower_out[r] = -np.inf
+            A_out[r, full] = A
+            lower_out[r, full] = lower
         self.stage_one_overrides = overrides
 
     def first_input_safe(self, now: np.ndarray, nxt: np.ndarray, growth: np.ndarray,

@@ -34,6 +34,7 @@ import numpy as np
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.models.base import RobotModel
 from sqpmpc.problem.bounds import Bounds
+from sqpmpc.problem.grid import GridSpec
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.polygons import PolygonObstacle
@@ -192,6 +193,9 @@ class Scenario:
     polygons
         Static polygon obstacles (walls, shelves: the file's ``[[obstacles]]``
         with ``points``), none overlapping a robot at :math:`t = 0`.
+    roadmap
+        The grid the map was drawn on (the file's ``[roadmap]``), or ``None``: the
+        coordination layer then lays its own (:mod:`sqpmpc.coordination.roadmap`).
 
     Raises
     ------
@@ -210,6 +214,7 @@ class Scenario:
     plant: PlantSpec = field(default_factory=PlantSpec)
     source: str = field(default="<memory>", compare=False)
     polygons: tuple[PolygonObstacle, ...] = ()
+    roadmap: GridSpec | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.source, str):
@@ -258,6 +263,9 @@ class Scenario:
                 raise ScenarioError(self.source, f"polygons[{i}]",
                                     f"expected a PolygonObstacle, found {_describe(polygon)}")
         self._check_obstacles()
+        if self.roadmap is not None and not isinstance(self.roadmap, GridSpec):
+            raise ScenarioError(self.source, "roadmap", "expected a GridSpec ([roadmap] table), "
+                                f"found {_describe(self.roadmap)}")
 
     def _check_obstacles(self) -> None:
         xy = self.initial_states()[:, :2]
@@ -409,6 +417,9 @@ class Scenario:
         for obstacle in (*self.obstacles, *self.polygons):
             lines += ["", "[[obstacles]]"]
             lines += [f"{k} = {_toml_value(v)}" for k, v in obstacle.to_dict().items()]
+        if self.roadmap is not None:
+            lines += ["", "[roadmap]"]
+            lines += [f"{k} = {_toml_value(v)}" for k, v in self.roadmap.to_dict().items()]
         if self.plant != PlantSpec():
             lines += ["", "[plant]"]
             lines += [f"{k} = {_toml_value(v)}" for k, v in self.plant.to_dict().items()]

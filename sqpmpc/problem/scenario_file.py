@@ -14,6 +14,7 @@ from typing import Any
 
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.obstacles import Obstacle
+from sqpmpc.problem.grid import ROADMAP_KEYS, GridSpec
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.references import _describe, _FieldError, reference_from_dict
@@ -37,7 +38,7 @@ TOP_KEYS = ("name", "t_end", "sample_time", "horizon", "weights", "bounds", "rob
 """The keys every scenario file has at its top level."""
 
 
-OPTIONAL_TOP_KEYS = ("obstacles", "plant")
+OPTIONAL_TOP_KEYS = ("obstacles", "plant", "roadmap")
 """The top-level keys a scenario file may have."""
 
 
@@ -175,12 +176,17 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     if "plant" in data:
         plant = _build_checked(PlantSpec, source, "plant",
                                **_table(data["plant"], source, "plant", PLANT_KEYS, ()))
+    roadmap = None
+    if "roadmap" in data:
+        roadmap = _build_checked(GridSpec, source, "roadmap",
+                                 **_table(data["roadmap"], source, "roadmap", ROADMAP_KEYS,
+                                          ("cell",)))
     try:
         return Scenario(name=data["name"], t_end=data["t_end"],
                         sample_time=data["sample_time"], horizon=data["horizon"],
                         weights=weights, bounds=bounds, robots=tuple(robots),
                         obstacles=tuple(obstacles), plant=plant, source=source,
-                        polygons=tuple(polygons))
+                        polygons=tuple(polygons), roadmap=roadmap)
     except ScenarioError as exc:
         if not exc.key.startswith("polygons["):
             raise

@@ -33,7 +33,7 @@ __all__ = [
 
 
 #: QP backends of :class:`SparseQP`.
-QP_SOLVERS = ("osqp", "piqp", "daqp", "osqp+piqp")
+QP_SOLVERS = ("osqp", "piqp", "piqp-multistage", "daqp", "osqp+piqp")
 
 
 #: ``"osqp+piqp"``: OSQP iterations before a QP is handed to PIQP.
@@ -190,21 +190,24 @@ class QPBackend(Protocol):
 BACKENDS: dict[str, tuple[str, str]] = {
     "osqp": ("sqpmpc.qp.osqp_backend", "OSQPBackend"),
     "piqp": ("sqpmpc.qp.piqp", "PIQPBackend"),
+    "piqp-multistage": ("sqpmpc.qp.piqp", "PIQPBackend"),
     "daqp": ("sqpmpc.qp.daqp", "DAQPBackend"),
 }
 
 
 def make_backend(name: str, layout: QPLayout, settings: OSQPSettings) -> QPBackend:
     """The backend ``name`` (:data:`BACKENDS`) for ``layout``: OSQP with ``settings``,
-    PIQP with its tolerances and :data:`PIQP_MAX_ITER`, DAQP as is."""
+    PIQP with its tolerances and :data:`PIQP_MAX_ITER` (``"piqp-multistage"``: in stage
+    order, with PIQP's multistage KKT solver), DAQP as is."""
     if name not in BACKENDS:
         raise ProblemError(f"QP backend must be one of {tuple(BACKENDS)}, got {name!r}")
     module, cls = BACKENDS[name]
     backend = getattr(importlib.import_module(module), cls)
     if name == "osqp":
         return backend(layout, settings)
-    if name == "piqp":
-        return backend(layout, settings.eps_abs, settings.eps_rel, PIQP_MAX_ITER)
+    if name in ("piqp", "piqp-multistage"):
+        return backend(layout, settings.eps_abs, settings.eps_rel, PIQP_MAX_ITER,
+                       multistage=name == "piqp-multistage")
     return backend(layout)
 
 

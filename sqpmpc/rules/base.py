@@ -94,6 +94,13 @@ class RuleContext:
         the solver's ``collision_margin`` (1 mm) on top. A straight way nearer a wall
         than this is one the QP will not take (the ``route`` rule only heads for
         points reachable with it).
+    pair_margin
+        Largest distance, m, the collision rows between two robots keep beyond the
+        required distance (the solver's ``collision_margin`` plus the plant's model
+        margin, the centralized value whatever the scheme: one roadmap for both).
+    wall_margin
+        Distance, m, the rows against the static map keep beyond the robot's radius
+        (the solver's ``collision_margin`` plus :attr:`obstacle_margin`).
     """
 
     scenario: Scenario
@@ -103,6 +110,8 @@ class RuleContext:
     counts: dict[str, int] = field(default_factory=dict)
     model_margin: float = 0.0
     obstacle_margin: float = 0.0
+    pair_margin: float = 0.0
+    wall_margin: float = 0.0
 
     def kept_distances(self) -> np.ndarray:
         """``(m, n)`` distances the rows keep from the own robots to everyone, m: the

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.rules.base import Rule
+from sqpmpc.rules.coordination import Coordination
 from sqpmpc.rules.formations import Yield
 from sqpmpc.rules.liveness import (
     Detour,
@@ -43,7 +44,7 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, TouchingPairs, RouteFollowing, Yield, Roundabout,
+    for cls in (TurnLimit, KeepRight, TouchingPairs, Coordination, RouteFollowing, Yield, Roundabout,
                 Detour, Parking, StallRepair, GearCycle)
 }
 

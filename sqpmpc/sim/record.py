@@ -39,7 +39,7 @@ class RunRecord:
         Controller computation time per sample and controller, seconds,
         shape ``(k, c)`` with ``c = 1`` (centralized) or ``c = n``
         (decentralized, one column per robot in scenario order). A 1-D array
-        is taken as one column.
+        is taken as one column. Wall time: it grows with the machine's load.
     solver_failures
         Controller steps in which a fallback input was applied.
     completed
@@ -54,6 +54,10 @@ class RunRecord:
         ``(k, n, N+1, 3)`` states :math:`(x, y, \\psi)` at :math:`t_i .. t_{i+N}`;
         NaN where a plan is unknown (a distributed plant that did not receive
         it); ``None``: not recorded.
+    cpu_times
+        The controllers' CPU time (thread time) per sample, shape of
+        ``solve_times``, seconds; ``None``: not measured (a distributed plant
+        records the controllers' wall times only).
 
     Raises
     ------
@@ -73,6 +77,7 @@ class RunRecord:
     extra: dict[str, Any] = field(default_factory=dict)
     plant_inputs: np.ndarray | None = None
     horizons: np.ndarray | None = None
+    cpu_times: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = int(self.scenario.n_robots)
@@ -96,6 +101,12 @@ class RunRecord:
             raise ProblemError(
                 f"solve_times must have shape ({k}, 1) or ({k}, {n}), got {st.shape}")
         self.solve_times = st
+        if self.cpu_times is not None:
+            cpu = np.asarray(self.cpu_times, dtype=float).reshape(st.shape[0], -1)
+            if cpu.shape != st.shape:
+                raise ProblemError(f"cpu_times must have the shape of solve_times {st.shape}, "
+                                   f"got {np.shape(self.cpu_times)}")
+            self.cpu_times = cpu
         if self.plant_inputs is not None:
             self.plant_inputs = np.asarray(self.plant_inputs, dtype=float)
             if self.plant_inputs.shape != self.inputs.shape:

@@ -18,6 +18,7 @@ A run that stops midway (exception, Ctrl-C) keeps what it had:
 from __future__ import annotations
 
 import logging
+import os
 from collections import deque
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -130,6 +131,7 @@ class ClosedLoopSimulation:
         self.plant_inputs = np.zeros((K, n, 2))
         self.horizons = np.full((K, n, scenario.horizon + 1, 3), np.nan)  # the plans
         self.solve_times = np.zeros((K, len(self.controllers)))
+        self.cpu_times = np.zeros((K, len(self.controllers)))
         self.k = 0
         self.fallbacks = 0
         self.kkt_failures = 0
@@ -174,6 +176,7 @@ class ClosedLoopSimulation:
         self.horizons[k] = np.concatenate([o.predicted_states for o in outs], axis=0)
         for j, o in enumerate(outs):
             self.solve_times[k, j] = o.compute_time
+            self.cpu_times[k, j] = o.cpu_time
             self.fallbacks += o.fallback is not None
             self.qp_iterations += o.report.qp_iterations
             self.sqp_iterations[k] += o.report.iterations
@@ -224,6 +227,10 @@ class ClosedLoopSimulation:
             "sqp_iterations_total": int(self.sqp_iterations[:k].sum()),
             "dropped_messages": int(self.dropped_messages),
             "timing_breakdown_s": {key: float(v) for key, v in self.timing.items()},
+            # the machine's load when the record is taken (the run's end): wall times
+            # (solve_times) grow with it, CPU times (cpu_times) do not
+            "load_average": [float(v) for v in os.getloadavg()],
+            "cpus": os.cpu_count(),
         }
         return RunRecord(
             scenario=self.scenario,
@@ -238,6 +245,7 @@ class ClosedLoopSimulation:
             plant_inputs=self.plant_inputs[:k].copy() if self.plant.spec.noisy
             or self.plant.has_velocities else None,
             horizons=self.horizons[:k].copy(),
+            cpu_times=self.cpu_times[:k].copy(),
         )
 
 

@@ -1,0 +1,148 @@
+r"""The fleet's plan: the roadmap, the conflict-free plan and its schedule, for a scenario.
+
+:func:`fleet_plan` is what every controller of a run calls with the same
+scenario and margins, and gets the same plan (a function of its inputs: the
+planner's tie-breaking is seeded); in one process the plan is computed once and
+shared. The robots planned are those with a goal at rest (``point``
+references); robots that follow a trajectory in time are left to their
+references and to the collision rows.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sqpmpc.coordination.mapf import plan_paths
+from sqpmpc.coordination.roadmap import Roadmap, box_of, build_roadmap
+from sqpmpc.coordination.schedule import Schedule
+from sqpmpc.problem.references import PointReference
+from sqpmpc.problem.scenario import Scenario
+
+__all__ = ["FleetPlan", "fleet_plan", "replan"]
+
+
+@dataclass(frozen=True, eq=False)
+class FleetPlan:
+    """A scenario's roadmap, plan and schedule.
+
+    Attributes
+    ----------
+    roadmap
+        The graph.
+    robots
+        ``(n,)`` scenario indices of the planned robots (schedule order).
+    goals
+        ``(n, 2)`` their goal points.
+    configs
+        ``(T + 1, n)`` the plan.
+    schedule
+        The plan's schedule.
+    seconds
+        CPU time spent planning (roadmap, plan and schedule), s.
+    """
+
+    roadmap: Roadmap
+    robots: np.ndarray
+    goals: np.ndarray
+    configs: np.ndarray
+    schedule: Schedule
+    seconds: float
+
+    @property
+    def makespan_steps(self) -> int:
+        """``T``: steps of the plan."""
+        return int(self.configs.shape[0] - 1)
+
+    def path_length(self, robot: int) -> float:
+        """Length of robot ``robot``'s (schedule order) path on the roadmap, m."""
+        s = self.schedule
+        pts = self.roadmap.positions[s.paths[robot, :s.lengths[robot]]]
+        return float(np.hypot(*np.diff(pts, axis=0).T).sum()) if pts.shape[0] > 1 else 0.0
+
+
+def planned_robots(scenario: Scenario) -> np.ndarray:
+    """Scenario indices of the robots with a goal at rest."""
+    return np.array([i for i, r in enumerate(scenario.robots)
+                     if isinstance(r.reference, PointReference)], dtype=np.int64)
+
+
+def fleet_plan(scenario: Scenario, clearance: float, separation: float) -> FleetPlan | None:
+    """The plan of ``scenario``'s robots with goals at rest (cached per process), or
+    ``None`` when no robot has one.
+
+    Parameters
+    ----------
+    scenario
+        The problem (its static map, ``[bounds]``, ``[roadmap]``, robots).
+    clearance
+        Distance the robots' centres keep from the static map, m (largest radius plus
+        the obstacle rows' margin).
+    separation
+        Largest distance the collision rows keep between two robots, m.
+
+    Raises
+    ------
+    sqpmpc.coordination.mapf.PlanningError
+        No plan (a goal cut off, two goals on one vertex, the search's budget).
+    sqpmpc.errors.ProblemError
+        A declared grid too fine for the robots.
+    """
+    return _cached(scenario, round(float(clearance), 12), round(float(separation), 12))
+
+
+@functools.lru_cache(maxsize=8)
+def _cached(scenario: Scenario, clearance: float, separation: float) -> FleetPlan | None:
+    robots = planned_robots(scenario)
+    if robots.size == 0:
+        return None
+    n = scenario.n_robots
+    starts = scenario.initial_states()[:, :2]
+    goals = scenario.reference_positions(0.0)
+    has_goal = np.zeros(n, dtype=bool)
+    has_goal[robots] = True
+    return _plan(scenario, robots, starts, goals, has_goal, clearance, separation, None)
+
+
+def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.ndarray,
+          has_goal: np.ndarray, clearance: float, separation: float,
+          start_vertices: np.ndarray | None, roadmap: Roadmap | None = None) -> FleetPlan:
+    t0 = time.process_time()
+    if roadmap is None:
+        roadmap = build_roadmap(
+            scenario.polygons, scenario.obstacles, box_of(scenario.bounds), starts, goals,
+            has_goal, clearance, separation, float(scenario.diameters().max()),
+            scenario.roadmap)
+    s = roadmap.starts[robots] if start_vertices is None else start_vertices
+    g = roadmap.goals[robots]
+    names = [f"robot {scenario.robots[i].id}" for i in robots]
+    configs = plan_paths(roadmap, s, g, seed=0, names=names)
+    schedule = Schedule.from_plan(configs)
+    return FleetPlan(roadmap, robots, goals[robots], configs, schedule,
+                     time.process_time() - t0)
+
+
+def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,
+           goals: Sequence[np.ndarray]) -> FleetPlan:
+    """A new plan on ``previous``'s roadmap from the robots' progress vertices
+    ``configuration (n,)`` to ``goals`` (``(2,)`` each, schedule order): each goal's
+    vertex is the free vertex nearest to it (the robot ends on its own point)."""
+    roadmap = previous.roadmap
+    points = np.asarray(goals, dtype=float).reshape(-1, 2)
+    vertex = np.argmin(np.hypot(roadmap.positions[None, :, 0] - points[:, None, 0],
+                                roadmap.positions[None, :, 1] - points[:, None, 1]), axis=1)
+    goal_v = roadmap.goals.copy()
+    goal_v[previous.robots] = vertex
+    moved = Roadmap(roadmap.positions, roadmap.indptr, roadmap.indices, roadmap.spacing,
+                    roadmap.reach, roadmap.starts, goal_v)
+    n = scenario.n_robots
+    has_goal = np.zeros(n, dtype=bool)
+    has_goal[previous.robots] = True
+    all_goals = scenario.reference_positions(0.0)
+    all_goals[previous.robots] = points
+    return _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
+                 has_goal, 0.0, 0.0, np.asarray(configuration), roadmap=moved)

@@ -1,0 +1,261 @@
+r"""Conflict-free multi-robot plans on a roadmap: LaCAM with PIBT.
+
+A *configuration* gives every robot a vertex, no two the same. A plan is a
+sequence of configurations :math:`Q_0, Q_1, \dots, Q_T` from the starts to the
+goals in which every robot stays or moves to a neighbour from one to the next,
+never onto a vertex another robot holds in the next configuration (vertex
+conflict) and never along an edge another robot takes the other way (swap
+conflict). Robots that reach their goals stay in the plan: moving off a goal to
+let another robot by and back is part of it, so a robot that has finished is
+never in another's way in the final configuration.
+
+The planner is LaCAM (Okumura, *LaCAM: Search-Based Algorithm for Quick
+Multi-Agent Pathfinding*, AAAI 2023): a depth-first search over configurations
+whose successors are generated lazily. Every search node keeps a queue of
+*constraints* (some robots told where to go next, built up one robot at a time
+over all of its neighbours and itself), and each time the node is visited the
+next constraint is handed to PIBT (Okumura et al., *Priority Inheritance with
+Backtracking*, AIJ 2022), which completes it to a successor configuration: each
+robot in priority order takes its best free neighbour by distance to its goal,
+asking a robot standing there to move first (priority inheritance) and trying its
+next choice when that one cannot. A configuration met before is not expanded
+again (its node goes back on the stack).
+
+**Completeness** (LaCAM's theorem 1): the constraints of a node enumerate, over
+the visits, every assignment of next vertices to the robots, so every
+configuration reachable in one step is eventually generated from every visited
+node; the search is a depth-first search of the finite graph of configurations,
+which therefore reaches the goal configuration whenever it is reachable and ends
+otherwise. ``max_nodes`` bounds the work; a search stopped by it raises
+:class:`PlanningError` (never a partial plan). In practice PIBT alone finds the
+plan on the first descent (it reaches every goal on biconnected graphs), and the
+search only backtracks in narrow places.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse.csgraph import shortest_path
+
+from sqpmpc.coordination.roadmap import Roadmap
+from sqpmpc.errors import ProblemError
+
+__all__ = ["PlanningError", "distance_tables", "plan_paths"]
+
+
+class PlanningError(ProblemError):
+    """No conflict-free plan: a goal that cannot be reached, or the search's budget spent."""
+
+
+def distance_tables(roadmap: Roadmap, goals: np.ndarray) -> np.ndarray:
+    """``(n, V)`` hop distances from every vertex to each robot's goal (``inf`` where the goal
+    cannot be reached)."""
+    unique, inverse = np.unique(goals, return_inverse=True)
+    table = shortest_path(roadmap.adjacency(), directed=False, unweighted=True,
+                          indices=unique)
+    return np.asarray(table)[inverse]
+
+
+@dataclass
+class _Low:
+    """A constraint: robots ``who`` told to go to ``where`` next."""
+
+    who: tuple[int, ...] = ()
+    where: tuple[int, ...] = ()
+
+
+@dataclass
+class _High:
+    """A search node: a configuration, its parent, the robots' order and its constraints."""
+
+    config: tuple[int, ...]
+    parent: _High | None
+    order: list[int]
+    priorities: list[float]
+    tree: deque[_Low] = field(default_factory=deque)
+
+
+class _PIBT:
+    """PIBT's one-step configuration generator over a fixed roadmap."""
+
+    def __init__(self, neighbours: list[list[int]], dist: list[list[float]],
+                 rng: np.random.Generator, size: int) -> None:
+        self.neighbours = neighbours
+        self.dist = dist
+        self.rng = rng
+        self.occupied_now: list[int] = [-1] * size
+        self.occupied_next: list[int] = [-1] * size
+
+    def step(self, config: tuple[int, ...], order: list[int], low: _Low) -> list[int] | None:
+        n = len(config)
+        nxt = [-1] * n
+        now, after = self.occupied_now, self.occupied_next
+        for i, v in enumerate(config):
+            now[v] = i
+        touched: list[int] = []
+        ok = True
+        for i, v in zip(low.who, low.where, strict=True):
+            if after[v] >= 0:  # vertex conflict among the constraints
+                ok = False
+                break
+            j = now[v]
+            if j >= 0 and j != i and nxt[j] == config[i]:  # swap conflict
+                ok = False
+                break
+            after[v] = i
+            touched.append(v)
+            nxt[i] = v
+        if ok:
+            for i in order:
+                if nxt[i] < 0 and not self._pibt(i, config, nxt, touched):
+                    ok = False
+                    break
+        for v in touched:
+            after[v] = -1
+        for v in config:
+            now[v] = -1
+        return nxt if ok else None
+
+    def _pibt(self, i: int, config: tuple[int, ...], nxt: list[int], touched: list[int]
+              ) -> bool:
+        here = config[i]
+        d = self.dist[i]
+        candidates = [*self.neighbours[here], here]
+        # best first by distance to the goal; ties broken by a fixed per-robot shuffle
+        self.rng.shuffle(candidates)
+        candidates.sort(key=d.__getitem__)
+        now, after = self.occupied_now, self.occupied_next
+        for u in candidates:
+            if after[u] >= 0:
+                continue
+            k = now[u]
+            if k >= 0 and k != i and nxt[k] == here:  # k comes here: no swap
+                continue
+            after[u] = i
+            touched.append(u)
+            nxt[i] = u
+            if k < 0 or k == i:
+                return True
+            if nxt[k] < 0 and not self._pibt(k, config, nxt, touched):
+                continue
+            return True
+        after[here] = i
+        touched.append(here)
+        nxt[i] = here
+        return False
+
+
+def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed: int = 0,
+               max_nodes: int = 200_000, names: list[str] | None = None) -> np.ndarray:
+    """A conflict-free plan from ``starts`` to ``goals`` (module docstring).
+
+    Parameters
+    ----------
+    roadmap
+        The graph.
+    starts, goals
+        ``(n,)`` distinct vertices each.
+    seed
+        Seed of PIBT's tie-breaking (the plan is a function of the inputs and the seed).
+    max_nodes
+        Largest number of search nodes.
+    names
+        How to name robot ``i`` in errors (default ``robot index i``).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(T + 1, n)`` vertices of every robot at steps ``0..T``; row 0 the starts, row T
+        the goals.
+
+    Raises
+    ------
+    PlanningError
+        Starts or goals not distinct, a goal unreachable from its start, or no plan within
+        ``max_nodes`` nodes.
+    """
+    starts = np.asarray(starts, dtype=np.int64)
+    goals = np.asarray(goals, dtype=np.int64)
+    n = starts.size
+    label = names or [f"robot index {i}" for i in range(n)]
+    for what, vs in (("start", starts), ("goal", goals)):
+        values, counts = np.unique(vs, return_counts=True)
+        if (counts > 1).any():
+            v = int(values[np.argmax(counts > 1)])
+            who = [label[i] for i in np.flatnonzero(vs == v)]
+            raise PlanningError(f"roadmap: {' and '.join(who)} share the {what} vertex {v} "
+                                f"at {roadmap.positions[v].round(3).tolist()}: their {what}s "
+                                "are nearer than the roadmap spacing")
+    if n == 0:
+        return np.zeros((1, 0), dtype=np.int64)
+    table = distance_tables(roadmap, goals)
+    far = ~np.isfinite(table[np.arange(n), starts])
+    if far.any():
+        i = int(np.argmax(far))
+        raise PlanningError(f"roadmap: {label[i]} cannot reach its goal "
+                            f"{roadmap.positions[goals[i]].round(3).tolist()} from "
+                            f"{roadmap.positions[starts[i]].round(3).tolist()}: no path of free "
+                            "roadmap vertices joins them at the robots' footprint")
+    dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
+    neighbours = roadmap.neighbour_lists()
+    rng = np.random.default_rng(seed)
+    pibt = _PIBT(neighbours, dist, rng, roadmap.size)
+    goal = tuple(goals.tolist())
+    start = tuple(starts.tolist())
+    priorities = [dist[i][start[i]] / (roadmap.size + 1.0) for i in range(n)]
+    root = _High(start, None, _order(priorities), priorities)
+    root.tree.append(_Low())
+    stack: list[_High] = [root]
+    explored: dict[tuple[int, ...], _High] = {start: root}
+    nodes = 0
+    while stack:
+        node = stack[-1]
+        if node.config == goal:
+            return _backtrack(node)
+        if not node.tree:
+            stack.pop()
+            continue
+        low = node.tree.popleft()
+        depth = len(low.who)
+        if depth < n:  # the next robot's choices extend this constraint
+            i = node.order[depth]
+            here = node.config[i]
+            choices = [*neighbours[here], here]
+            rng.shuffle(choices)
+            for v in choices:
+                node.tree.append(_Low((*low.who, i), (*low.where, v)))
+        nxt = pibt.step(node.config, node.order, low)
+        if nxt is None:
+            continue
+        config = tuple(nxt)
+        if config in explored:
+            stack.append(explored[config])
+            continue
+        nodes += 1
+        if nodes > max_nodes:
+            raise PlanningError(f"roadmap: no conflict-free plan for {n} robots within "
+                                f"{max_nodes} search nodes")
+        prio = [p + 1.0 if c != g else p - int(p) for p, c, g in
+                zip(node.priorities, config, goal, strict=True)]
+        child = _High(config, node, _order(prio), prio)
+        child.tree.append(_Low())
+        explored[config] = child
+        stack.append(child)
+    raise PlanningError(f"roadmap: the goals of the {n} robots cannot be reached together "
+                        "(every configuration reachable from the starts was explored)")
+
+
+def _order(priorities: list[float]) -> list[int]:
+    return sorted(range(len(priorities)), key=lambda i: -priorities[i])
+
+
+def _backtrack(node: _High) -> np.ndarray:
+    configs = []
+    walk: _High | None = node
+    while walk is not None:
+        configs.append(walk.config)
+        walk = walk.parent
+    return np.asarray(configs[::-1], dtype=np.int64)

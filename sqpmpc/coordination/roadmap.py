@@ -1,0 +1,343 @@
+r"""The roadmap: a grid graph of the free space at the robots' own footprint.
+
+Vertices are the points of a square grid of spacing :math:`h` that lie farther
+than the robots' *clearance* :math:`c` (the largest radius plus the margin the
+obstacle rows keep) from every static obstacle (polygons, circles at rest) and
+inside the scenario's ``[bounds]`` box; two vertices are joined when they are grid
+neighbours (4-connected) and the segment between them keeps the same clearance.
+The robots' own starts and goals are vertices too: a start or goal point within
+:math:`\rho` of a grid vertex *is* that vertex (its robot still ends on its own
+point), any other one replaces the grid vertices nearer than :math:`h` and joins
+every vertex within :math:`1.5 h` that it sees with clearance; points nearer
+than :math:`h` to each other are one vertex.
+
+Why this graph
+--------------
+Let :math:`s` be the largest distance the collision rows keep between two robots
+(the required distance plus the solver's and the plant's margins). The grid is
+built with
+
+.. math::
+
+    h \ge s + 2 \rho, \qquad \rho > 0,
+
+so that **two robots each within** :math:`\rho` **of distinct vertices keep**
+:math:`s`: the plans on the graph (:mod:`sqpmpc.coordination.mapf`) never put
+two robots on one vertex, and the execution (:mod:`sqpmpc.coordination.schedule`)
+lets a robot head for a vertex only when the robot that held it before is within
+:math:`\rho` of its next one. :math:`\rho` is also how close a robot must come
+to a vertex to have *reached* it. A scenario written from a grid map
+(``sqpmpc generate mapf``) declares its cell size and origin (``[roadmap]``),
+which are then the grid's: :math:`\rho = (h - s) / 2` must be positive, i.e. a
+cell wider than the robots' kept distance. Without a declared grid,
+:math:`\rho = d_{\max}/4` and :math:`h = s + 2\rho`; of the nine grid origins
+offset by :math:`0, h/3, 2h/3` in each axis the one that joins the most robots'
+starts to their goals is taken.
+
+Completeness assumption (stated, not checked beyond the graph): a corridor is
+passable when the grid has a line of vertices in it, i.e. when it is at least
+:math:`2c` wide and holds a grid row or column; for maps drawn on the grid
+(MovingAI maps at cell :math:`h`, free cells whose centres keep :math:`c`)
+every free cell is a vertex, so every corridor of free cells is passable.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+from shapely.geometry import Point
+from shapely.ops import unary_union
+
+from sqpmpc.errors import ProblemError
+from sqpmpc.problem.grid import GridSpec
+from sqpmpc.problem.obstacles import Obstacle
+from sqpmpc.problem.polygons import PolygonObstacle
+
+__all__ = ["Roadmap", "box_of", "build_roadmap"]
+
+_OFFSETS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Roadmap:
+    """An undirected graph of free positions.
+
+    Attributes
+    ----------
+    positions
+        ``(V, 2)`` vertex positions, m.
+    indptr, indices
+        The adjacency in CSR form: the neighbours of ``v`` are
+        ``indices[indptr[v]:indptr[v + 1]]``.
+    spacing
+        :math:`h`, m: distinct vertices are at least this far apart.
+    reach
+        :math:`\\rho`, m: a robot within this of a vertex has reached it.
+    starts, goals
+        ``(n,)`` the vertex of each robot's start and goal (scenario order;
+        -1 for a robot without a goal at rest).
+    """
+
+    positions: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    spacing: float
+    reach: float
+    starts: np.ndarray
+    goals: np.ndarray
+
+    @property
+    def size(self) -> int:
+        """Number of vertices."""
+        return int(self.positions.shape[0])
+
+    def neighbours(self, vertex: int) -> np.ndarray:
+        """The vertices joined to ``vertex``."""
+        return self.indices[self.indptr[vertex]:self.indptr[vertex + 1]]
+
+    def adjacency(self) -> csr_matrix:
+        """The ``(V, V)`` adjacency matrix (ones)."""
+        data = np.ones(self.indices.size)
+        return csr_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
+
+    def neighbour_lists(self) -> list[list[int]]:
+        """The neighbours of every vertex as Python lists (for the planners' inner loops)."""
+        ptr, idx = self.indptr.tolist(), self.indices.tolist()
+        return [idx[ptr[v]:ptr[v + 1]] for v in range(self.size)]
+
+
+def _inflated(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacle],
+              clearance: float) -> shapely.Geometry | None:
+    shapes = [p.shape.buffer(clearance, join_style="mitre") for p in polygons]
+    shapes += [Point(o.position).buffer(0.5 * o.diameter + clearance, quad_segs=8)
+               for o in circles if not any(o.velocity)]
+    if not shapes:
+        return None
+    merged = unary_union(shapes)
+    shapely.prepare(merged)
+    return merged
+
+
+def _free_points(points: np.ndarray, inflated: shapely.Geometry | None,
+                 low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    inside = np.all((points >= low - 1e-9) & (points <= high + 1e-9), axis=1)
+    if inflated is None or not inside.any():
+        return inside
+    blocked = shapely.intersects_xy(inflated, points[:, 0], points[:, 1])
+    return inside & ~blocked
+
+
+def _free_segments(a: np.ndarray, b: np.ndarray, inflated: shapely.Geometry | None
+                   ) -> np.ndarray:
+    if inflated is None or a.shape[0] == 0:
+        return np.ones(a.shape[0], dtype=bool)
+    lines = shapely.linestrings(np.stack((a, b), axis=1))
+    return ~shapely.intersects(inflated, lines)
+
+
+def _grid(low: np.ndarray, high: np.ndarray, h: float, origin: np.ndarray
+          ) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
+    """Grid points covering ``[low, high]`` through ``origin``: points ``(V, 2)``, the shape
+    ``(rows, cols)`` and the ``(2,)`` first point."""
+    first = origin + np.ceil((low - origin) / h - 1e-9) * h
+    counts = np.floor((high - first) / h + 1e-9).astype(int) + 1
+    counts = np.maximum(counts, 0)
+    if counts.prod() > 4_000_000:
+        raise ProblemError(f"roadmap: a grid of {counts[0]} x {counts[1]} vertices at spacing "
+                           f"{h:.3g} m is larger than 4,000,000; bound the scenario "
+                           "([bounds] x, y) or declare a coarser [roadmap] cell")
+    xs = first[0] + h * np.arange(counts[0])
+    ys = first[1] + h * np.arange(counts[1])
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    return np.column_stack((gx.ravel(), gy.ravel())), (int(counts[0]), int(counts[1])), first
+
+
+def _grid_edges(shape: tuple[int, int]) -> np.ndarray:
+    rows, cols = shape
+    index = np.arange(rows * cols).reshape(rows, cols)
+    right = np.column_stack((index[:-1, :].ravel(), index[1:, :].ravel()))
+    up = np.column_stack((index[:, :-1].ravel(), index[:, 1:].ravel()))
+    return np.concatenate((right, up))
+
+
+def _attach(points: np.ndarray, reach: float, h: float, grid: np.ndarray,
+            keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Where each start/goal point goes: ``(P,)`` a grid vertex (>= 0) within ``reach`` or a
+    new vertex ``-(1 + k)`` (points nearer than ``h`` to a new vertex join it); ``keep``
+    with the grid vertices nearer than ``h`` to a new vertex removed; the new vertices'
+    points (indices into ``points``). Repeated until no point needs a new vertex (a
+    removal can take a grid vertex an earlier point was given)."""
+    where = np.zeros(points.shape[0], dtype=np.int64)
+    new: list[int] = []
+    tree = shapely.STRtree(shapely.points(grid))
+    added = True
+    while added:
+        added = False
+        for p, point in enumerate(points):
+            if new:
+                gaps = np.hypot(*(points[new] - point).T)
+                k = int(np.argmin(gaps))
+                if gaps[k] < h - 1e-9:
+                    where[p] = -(1 + k)
+                    continue
+            near = [v for v in tree.query(Point(point), predicate="dwithin", distance=reach)
+                    if keep[v]]
+            if near:
+                where[p] = min(near, key=lambda v: math.hypot(*(grid[v] - point)))
+                continue
+            new.append(p)
+            where[p] = -len(new)
+            keep[tree.query(Point(point), predicate="dwithin", distance=h - 1e-9)] = False
+            added = True
+    return where, keep, new
+
+
+def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacle],
+                  bounds: tuple[np.ndarray, np.ndarray] | None, starts: np.ndarray,
+                  goals: np.ndarray, has_goal: np.ndarray, clearance: float,
+                  separation: float, diameter: float, grid: GridSpec | None = None
+                  ) -> Roadmap:
+    """The roadmap of a static map for robots keeping ``clearance`` from obstacles and
+    ``separation`` between them (module docstring).
+
+    Parameters
+    ----------
+    polygons, circles
+        The static map (moving circles are ignored: they are the NMPC's business).
+    bounds
+        ``(low (2,), high (2,))`` box of the robots' centres, or ``None``.
+    starts, goals
+        ``(n, 2)`` each robot's start and goal point.
+    has_goal
+        ``(n,)`` bool: the robots that have a goal at rest (only they are planned).
+    clearance
+        :math:`c`, m.
+    separation
+        :math:`s`, m.
+    diameter
+        The largest robot diameter, m (:math:`\\rho = d/4` without a declared grid).
+    grid
+        A declared grid, or ``None``.
+
+    Raises
+    ------
+    ProblemError
+        A declared cell no wider than ``separation``, or a grid too large.
+    """
+    starts = np.asarray(starts, dtype=float).reshape(-1, 2)
+    goals = np.asarray(goals, dtype=float).reshape(-1, 2)
+    has_goal = np.asarray(has_goal, dtype=bool)
+    inflated = _inflated(polygons, circles, clearance)
+    footprint = _inflated(polygons, circles, 0.5 * diameter)
+    if grid is not None:
+        h = grid.cell
+        reach = 0.5 * (h - separation)
+        if reach <= 0.0:
+            raise ProblemError(
+                f"roadmap: the declared cell {h:.6g} m is not wider than the distance the "
+                f"robots keep, {separation:.6g} m (their diameter plus the margins): robots on "
+                "neighbouring cells would touch; use a larger cell or smaller robots")
+        origins = [np.asarray(grid.origin)]
+    else:
+        reach = 0.25 * diameter
+        h = separation + 2.0 * reach
+        base = starts[has_goal][0] if has_goal.any() else np.zeros(2)
+        origins = [base + h * np.array([a, b]) for a in _OFFSETS for b in _OFFSETS]
+    ends = np.concatenate((starts[has_goal], goals[has_goal]))
+    if bounds is not None and np.all(np.isfinite(bounds[0])) and np.all(np.isfinite(bounds[1])):
+        low, high = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
+    else:
+        parts = [ends] if ends.size else [np.zeros((1, 2))]
+        if inflated is not None:
+            x0, y0, x1, y1 = inflated.bounds
+            parts.append(np.array([[x0, y0], [x1, y1]]))
+        every = np.concatenate(parts)
+        low, high = every.min(axis=0) - 2.0 * h, every.max(axis=0) + 2.0 * h
+        if bounds is not None:
+            low = np.where(np.isfinite(bounds[0]), bounds[0], low)
+            high = np.where(np.isfinite(bounds[1]), bounds[1], high)
+    best: Roadmap | None = None
+    best_score = -1
+    for origin in origins:
+        candidate = _roadmap_at(inflated, footprint, low, high, h, origin, reach, starts,
+                                goals, has_goal)
+        score = _joined(candidate, has_goal)
+        if score > best_score:
+            best, best_score = candidate, score
+        if score == int(has_goal.sum()):
+            break
+    assert best is not None  # at least one origin
+    return best
+
+
+def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry | None,
+                low: np.ndarray, high: np.ndarray, h: float, origin: np.ndarray,
+                reach: float, starts: np.ndarray, goals: np.ndarray, has_goal: np.ndarray
+                ) -> Roadmap:
+    points, shape, _ = _grid(low, high, h, origin)
+    keep = _free_points(points, inflated, low, high)
+    planned = np.flatnonzero(has_goal)
+    ends = np.concatenate((starts[planned], goals[planned]))
+    where, keep, new = _attach(ends, reach, h, points, keep)
+    edges = _grid_edges(shape)
+    edges = edges[keep[edges[:, 0]] & keep[edges[:, 1]]]
+    edges = edges[_free_segments(points[edges[:, 0]], points[edges[:, 1]], inflated)]
+    # renumber: kept grid vertices, then the new ones
+    number = np.full(points.shape[0], -1, dtype=np.int64)
+    number[keep] = np.arange(int(keep.sum()))
+    positions = np.concatenate((points[keep], ends[new].reshape(-1, 2)))
+    base = int(keep.sum())
+    pairs = [number[edges]]
+    if new:
+        tree = shapely.STRtree(shapely.points(positions))
+        extra: list[tuple[int, int]] = []
+        for k, p in enumerate(new):
+            v = base + k
+            near = tree.query(Point(ends[p]), predicate="dwithin", distance=1.5 * h + 1e-9)
+            near = np.asarray([u for u in near if u != v], dtype=np.int64)
+            if near.size == 0:
+                continue
+            ok = _free_segments(np.repeat(positions[v][None], near.size, axis=0),
+                                positions[near], footprint)
+            extra += [(v, int(u)) for u in near[ok]]
+        if extra:
+            pairs.append(np.asarray(extra, dtype=np.int64))
+    edges = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
+    edges = np.unique(np.sort(edges, axis=1), axis=0) if edges.size else edges
+    size = positions.shape[0]
+    adjacency = csr_matrix((np.ones(2 * edges.shape[0]),
+                            (np.concatenate((edges[:, 0], edges[:, 1])),
+                             np.concatenate((edges[:, 1], edges[:, 0])))), shape=(size, size))
+    adjacency.sort_indices()
+    vertex = np.where(where >= 0, number[np.maximum(where, 0)], base - 1 - where)
+    n = has_goal.size
+    start_v = np.full(n, -1, dtype=np.int64)
+    goal_v = np.full(n, -1, dtype=np.int64)
+    start_v[planned] = vertex[:planned.size]
+    goal_v[planned] = vertex[planned.size:]
+    return Roadmap(positions, adjacency.indptr.astype(np.int64),
+                   adjacency.indices.astype(np.int64), h, reach, start_v, goal_v)
+
+
+def _joined(roadmap: Roadmap, has_goal: np.ndarray) -> int:
+    """How many planned robots have their start and goal on free, connected vertices."""
+    if roadmap.size == 0:
+        return 0
+    _, label = connected_components(roadmap.adjacency(), directed=False)
+    s, g = roadmap.starts[has_goal], roadmap.goals[has_goal]
+    return int(np.sum((s >= 0) & (g >= 0) & (label[np.maximum(s, 0)] == label[np.maximum(g, 0)])))
+
+
+def box_of(bounds: object) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ``(low, high)`` position box of a scenario's :class:`~sqpmpc.problem.bounds.Bounds`."""
+    low, high = bounds.position_lower(), bounds.position_upper()  # type: ignore[attr-defined]
+    if not (np.isfinite(low).any() or np.isfinite(high).any()):
+        return None
+    return np.asarray(low, float), np.asarray(high, float)
+
