@@ -203,7 +203,8 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
             cmds.append((name, [*py, "services.central", *common, *net]))
         else:
             id_args = [a for rid in rids for a in ("--id", rid)]
-            cmds.append((name, [*py, "services.robot", *id_args, *common, *net]))
+            insecure = ["--insecure"] if proto == "tcp" else []  # named, as it must be
+            cmds.append((name, [*py, "services.robot", *id_args, *common, *net, *insecure]))
     extra = [a for ep in args.also_connect for a in ("--connect", ep)]
     if args.router:
         cmds.insert(0, ("router", [*py, "services.router", "--listen", plant_ep,

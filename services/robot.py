@@ -70,7 +70,7 @@ from .plans import PlanStore, StepPlans, slotted
 from .ros2.options import add_ros2_arguments
 from .ros2.robot import main_ros2
 
-__all__ = ["RobotNode", "build_parser", "host", "main"]
+__all__ = ["RobotNode", "build_parser", "credentials_problem", "host", "main"]
 
 log = logging.getLogger(__name__)
 PROG = "services.robot"
@@ -281,9 +281,32 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "process (one thread and one Zenoh session each, every session "
                              "listening on a free loopback port)")
     add_common_arguments(parser)
+    parser.add_argument("--insecure", action="store_true",
+                        help="run the plan exchange without credentials, on plain TCP (any "
+                             "process that reaches the endpoints can then publish plans and "
+                             "inputs as this robot); without it, a robot given no "
+                             "--credentials, --credentials-fd or --zenoh-config refuses to "
+                             "start")
     add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
     add_ros2_arguments(parser)
     return parser
+
+
+def credentials_problem(args: argparse.Namespace) -> str | None:
+    """Why the plan exchange may not start as asked, if so: secure by default, a robot
+    needs ``--credentials``, ``--credentials-fd`` or ``--zenoh-config``, or ``--insecure``
+    explicitly (not both)."""
+    given = [flag for flag, value in (("--credentials", args.credentials),
+                                      ("--credentials-fd", args.credentials_fd),
+                                      ("--zenoh-config", args.zenoh_config))
+             if value is not None]
+    if args.insecure and given:
+        return f"give {given[0]} or --insecure, not both"
+    if not args.insecure and not given:
+        return ("no credentials: the plan exchange needs --credentials DIR (sqpmpc "
+                "credentials), --credentials-fd FD (sqpmpc launch) or --zenoh-config FILE; "
+                "--insecure runs it on plain TCP without them (debugging only)")
+    return None
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:
@@ -300,6 +323,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     problem = combination_problem(options_of(args), "decentralized", scenario.n_robots)
     if problem:
         fail(prog, problem)
+    problem = credentials_problem(args)
+    if problem:
+        fail(prog, problem)
+    if args.insecure:
+        log.warning("INSECURE (--insecure): the plan exchange runs without credentials on "
+                    "plain TCP; any process that reaches its endpoints can publish as any "
+                    "robot")
     if args.ros2:  # a ROS 2 robot on its own clock, no plant (services.ros2.robot)
         return main_ros2(args, scenario, prog)
     if len(ids) > 1 and args.listen:

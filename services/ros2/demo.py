@@ -44,7 +44,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from sqpmpc.cli.options import Parser, positive_float
+from sqpmpc.cli.options import Parser, nonnegative_float, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario
@@ -141,6 +141,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     p.add_argument("--odom-stop", action="append", default=[], metavar="ID:T",
                    help="robot ID's odometry stops at t = T s (repeatable)")
     p.add_argument("--twist-stamped", action="store_true", help="cmd_vel as TwistStamped")
+    p.add_argument("--cmd-timeout", type=nonnegative_float, default=0.5, metavar="S",
+                   help="the simulated robots stop when no command came for S s (default "
+                        "0.5, diff_drive_controller's; 0: never)")
     p.add_argument("--log-level", default="INFO", help="log level of the processes")
     return p
 
@@ -206,7 +209,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         epoch_file.unlink(missing_ok=True)
         sim = [*py, "services.ros2.simfleet", "--scenario", args.scenario, "--router",
                f"127.0.0.1:{ros_port}", "--out", str(out), "--rate", repr(args.rate),
-               "--epoch-file", str(epoch_file), "--log-level", args.log_level]
+               "--epoch-file", str(epoch_file), "--log-level", args.log_level,
+               "--cmd-timeout", repr(args.cmd_timeout)]
         sim += [a for s in args.odom_stop for a in ("--odom-stop", s)]
         if args.twist_stamped:
             sim.append("--twist-stamped")
@@ -219,6 +223,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                    str(epoch_file), "--log-level", args.log_level, *extra]
             if args.twist_stamped:
                 cmd.append("--twist-stamped")
+            if credentials is None:
+                cmd.append("--insecure")
             robots.append(start(f"robot/{rid}", cmd, logs / f"robot-{rid}.log",
                                 f"robot-{rid}"))
         children.extend(robots)
@@ -245,7 +251,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     (out / "check.json").write_text(json.dumps(asdict(result), indent=1))
     print(f"{result.robots} robots: {result.collisions} collisions (certified clearance "
           f"{result.certified_clearance:.4f} m), {result.arrived}/{result.robots} within "
-          f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m)"
+          f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m), "
+          f"{sum(result.command_timeouts.values())} command timeouts"
           + "".join(f"; robot {r}: zero {d:.3f} s after its odometry stopped"
                     if d is not None else f"; robot {r}: no zero after its odometry stopped"
                     for r, d in result.stop_to_zero.items()))

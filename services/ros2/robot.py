@@ -37,8 +37,15 @@ Every robot of a fleet uses the same ``--lead`` (it tells when a neighbour
 decides). The safety argument is per pair: at every instant the robot that
 decided last knew the other's motion up to then and kept the distance from it.
 
-The command is zero when the odometry is older than ``--odom-timeout``
-(checked continuously), at the end and on SIGINT/SIGTERM; while the odometry is
+The command is republished at ``--cmd-rate`` Hz (default 20: well inside the
+0.5 s ``cmd_vel_timeout`` of ROS 2 Jazzy's diff_drive_controller) holding the
+sample's input, so a base's command timeout never fires in a normal run. It is
+zero when the odometry is older than ``--odom-timeout`` (checked continuously),
+when the plan exchange is lost (the sqpmpc session has no link left after it had
+one: neighbours can no longer see this robot's plans), at the end and on
+SIGINT/SIGTERM; an odometry stamped more than ``--odom-future`` s after its
+arrival is refused and counted (``odometry_future``): one such message would
+otherwise be taken as the newest until its stamp; while the odometry is
 stale it publishes at each instant a plan standing where odometry and commands put
 it, stamped at that instant. A neighbour without a plan yet is unknown (not running);
 one whose token disappears (it stopped, commanding zero) is held where its last plan
@@ -66,12 +73,11 @@ from sqpmpc.problem.scenario import Scenario
 from ..control import controller_settings
 from ..messages import Message, PlanMsg, encode
 from ..node import POLL, Node
-from ..transport import make_config
 from . import msgs
 from .controller import Ros2Controller
 from .graph import Received, Ros2Node
 from .neighbours import Neighbours
-from .options import check_margin, ros2_problem
+from .options import check_margin, ros2_config, ros2_problem
 from .timing import own_motion
 
 __all__ = ["Ros2Robot", "main_ros2"]
@@ -87,6 +93,8 @@ STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
 PUBLISH_SLACK = 0.005
 """A plan not ready this long before its instant is dropped: the robot stands still."""
+LINK_PERIOD = 0.1
+"""How often the watchdog thread looks whether the plan exchange still has a link, s."""
 
 
 class Ros2Robot(Node):
@@ -102,6 +110,7 @@ class Ros2Robot(Node):
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
+        ros_config = ros2_config(args)  # a bad file: one error before any session opens
         self.robot_id = int(args.id[0])
         settings = controller_settings(args)
         # the QP keeps more room than the check asks for (the check is continuous, the
@@ -136,7 +145,15 @@ class Ros2Robot(Node):
         self._cmd_lock = threading.RLock()
         self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
                        "late_samples": 0, "plan_waits": 0, "stopped_late": 0,
-                       "stale_odometry": 0, "zero_commands": 0}
+                       "stale_odometry": 0, "zero_commands": 0, "odometry_future": 0,
+                       "plan_network_lost": 0, "republished": 0}
+        self.cmd_period = 1.0 / args.cmd_rate if args.cmd_rate > 0.0 else None
+        """Period of the command stream (``--cmd-rate``), s; ``None``: once per sample."""
+        self.odom_future = float(args.odom_future)
+        self._held = (0.0, 0.0)  # the command in force, republished every cmd_period
+        self._held_at = -math.inf  # when it was last published
+        self._linked = False  # the plan exchange had a link
+        self._lost = False  # ... and has none now
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
@@ -147,9 +164,7 @@ class Ros2Robot(Node):
         self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
-        connect = args.ros2_connect if args.ros2_connect is not None else [
-            "tcp/127.0.0.1:7447"]
-        self.ros_session = zenoh.open(make_config((), connect, args.ros2_zenoh_mode))
+        self.ros_session = zenoh.open(ros_config)
         try:
             self.ros = Ros2Node(self.ros_session, f"sqpmpc_robot{self.robot_id}", ns,
                                 args.ros2_domain)
@@ -172,8 +187,17 @@ class Ros2Robot(Node):
         if not (np.isfinite(pose).all() and math.isfinite(v) and math.isfinite(w)):
             return
         stamp = o.header.stamp.seconds()
+        if stamp > rec.arrival + self.odom_future:  # it would be the newest until then
+            with self._lock:
+                self.counts["odometry_future"] += 1
+                first = self.counts["odometry_future"] == 1
+            if first:
+                log.warning("%s: refused an odometry stamped %.3f s in the future (more than "
+                            "--odom-future %g s; counted as odometry_future)", self.name,
+                            stamp - rec.arrival, self.odom_future)
+            return
         # the stamp if it is plausible (same clock), else the arrival
-        t = stamp if abs(stamp - rec.arrival) < 1.0 else rec.arrival
+        t = stamp if stamp > rec.arrival - 1.0 else rec.arrival
         with self._lock:
             if self._odom is None or t > self._odom[0]:
                 self._odom = (t, pose, v, w)
@@ -231,15 +255,22 @@ class Ros2Robot(Node):
             return math.inf if self._odom is None else now - self._odom[0]
 
     # ------------------------------------------------------------------ outputs
-    def command(self, v: float, omega: float, at: float) -> None:
-        """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state)."""
+    def _publish_twist(self, v: float, omega: float, at: float) -> None:
+        """``(v, omega)`` on cmd_vel (the caller holds ``_cmd_lock``)."""
         twist = msgs.Twist(msgs.Vector3(float(v)), msgs.Vector3(0.0, 0.0, float(omega)))
-        with self._cmd_lock:  # the main thread and the stop timer
-            if self.twist_stamped:
-                self.cmd_pub.publish(msgs.TwistStamped(
-                    msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
-            else:
-                self.cmd_pub.publish(twist)
+        if self.twist_stamped:
+            self.cmd_pub.publish(msgs.TwistStamped(
+                msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
+        else:
+            self.cmd_pub.publish(twist)
+        self._held_at = at
+
+    def command(self, v: float, omega: float, at: float) -> None:
+        """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state); it is
+        republished every ``--cmd-rate`` period until the next command."""
+        with self._cmd_lock:  # the main thread, the stop timer and the watchdog
+            self._publish_twist(v, omega, at)
+            self._held = (float(v), float(omega))
             self._sent.append((at, float(v), float(omega)))
             with self._lock:  # the commands since the newest odometry (own_state needs all)
                 t0 = -math.inf if self._odom is None else self._odom[0]
@@ -285,11 +316,54 @@ class Ros2Robot(Node):
                     self.odometry_age(now))
         return True
 
+    def _republish(self, now: float) -> None:
+        """The command in force on cmd_vel again if it was last sent a ``--cmd-rate`` period
+        ago (a base's command timeout never fires while the controller runs)."""
+        if self.cmd_period is None:
+            return
+        with self._cmd_lock:
+            if self._done or now - self._held_at < self.cmd_period:
+                return
+            self._publish_twist(*self._held, now)
+            self.counts["republished"] += 1
+
+    def plan_network_lost(self) -> bool:
+        """Whether the plan exchange's session had a link (a router or a peer) and has none
+        now: the neighbours no longer see this robot's plans, nor it theirs."""
+        info = self.bus.session.info
+        linked = bool(info.routers_zid()) or bool(info.peers_zid())
+        if linked:
+            self._linked = True
+        return self._linked and not linked
+
+    def _stop_if_lost(self) -> bool:
+        """Command zero at once when the plan exchange is lost (once per loss); ``True``
+        while it is lost."""
+        lost = self.plan_network_lost()
+        if lost and not self._lost:
+            with self._cmd_lock:
+                self.counts["plan_network_lost"] += 1
+                if not self._done:
+                    self.command(0.0, 0.0, time.time())
+            log.warning("%s: the plan exchange has no link left: commanding zero", self.name)
+        elif not lost and self._lost:
+            log.info("%s: the plan exchange has a link again", self.name)
+        self._lost = lost
+        return lost
+
     def _watchdog(self) -> None:
-        """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale,
-        whatever the main loop is doing (a long step, a stalled process)."""
+        """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale
+        and within :data:`LINK_PERIOD` of its plan exchange losing its last link, whatever
+        the main loop is doing (a long step, a stalled process); republish the command in
+        force every ``--cmd-rate`` period."""
+        looked = 0.0
         while not self.stop.wait(WATCH_PERIOD) and not self._done:
+            now = time.time()
             self._stop_if_stale()
+            if now - looked >= LINK_PERIOD:
+                looked = now
+                self._stop_if_lost()
+            self._republish(time.time())
 
     def _watch(self, until: float, sample: int) -> None:
         """Handle events until wall time ``until``; when the odometry has gone stale,
@@ -349,8 +423,9 @@ class Ros2Robot(Node):
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
         finally:
-            self._done = True
-            self.command(0.0, 0.0, time.time())
+            with self._cmd_lock:
+                self._done = True  # no republishing after the zero
+                self.command(0.0, 0.0, time.time())
         counts = {**self.counts, "plans_received": self.neighbours.received,
                   "plans_refused": self.neighbours.refused}
         log.info("%s: %s, %d invalid messages dropped", self.name,
@@ -422,8 +497,9 @@ class Ros2Robot(Node):
     def _step(self, k: int, Tk: float) -> None:
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
         now = time.time()
-        if self.odometry_age(now) > self.odom_timeout:
-            # braked while stale; its plan stamped at Tk as every plan, not a lead early
+        if self.odometry_age(now) > self.odom_timeout or self._lost:
+            # braked while stale or cut off; its plan stamped at Tk as every plan, not a
+            # lead early
             self.brake(now, k, Tk)
             return
         self._braked = False
@@ -467,8 +543,8 @@ class Ros2Robot(Node):
                                   np.zeros((N, 2)))
             self._watch(Tk, k)
             with self._cmd_lock:  # the watchdog cannot stop it in between
-                if self._braked:  # the odometry went stale meanwhile: the zero stands
-                    return
+                if self._braked or self._lost:  # the odometry went stale or the plan
+                    return  # exchange was lost meanwhile: the zero stands
                 sent.set()
                 self.command(float(u[0]), float(u[1]), time.time())
             self.counts["samples"] += 1
