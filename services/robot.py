@@ -67,7 +67,7 @@ from .node import (
     setup_logging,
 )
 from .plans import PlanStore, StepPlans, slotted
-from .ros2.options import add_ros2_arguments
+from .ros2.options import add_ros2_arguments, ros2_problem
 from .ros2.robot import main_ros2
 
 __all__ = ["RobotNode", "build_parser", "credentials_problem", "host", "main"]
@@ -323,6 +323,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     problem = combination_problem(options_of(args), "decentralized", scenario.n_robots)
     if problem:
         fail(prog, problem)
+    if args.ros2:  # its own options first: one error for the first thing wrong
+        problem = ros2_problem(args, scenario)
+        if problem:
+            fail(prog, problem)
     problem = credentials_problem(args)
     if problem:
         fail(prog, problem)

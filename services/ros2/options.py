@@ -63,6 +63,10 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
                    help="added to every required distance in the check of each input: "
                         "odometry and timing errors, m (default 0.02)")
+    g.add_argument("--plan-tolerance", type=nonnegative_float, default=0.05, metavar="M",
+                   help="a neighbour's plan must start within this (plus the check's margin) "
+                        "of where its past plans put it, else it is refused and the "
+                        "neighbour untrusted, m (default 0.05)")
     g.add_argument("--ros2-guard", type=nonnegative_float, default=0.02, metavar="S",
                    help="bound on the clock offset between robots, s (default 0.02): a "
                         "neighbour deciding less than this after this robot's check is held "

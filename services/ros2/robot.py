@@ -131,7 +131,10 @@ class Ros2Robot(Node):
                                      scenario.required_distances()[self.index], self.Ts,
                                      scenario.horizon, float(self.controller.context.max_speed),
                                      self.lead, args.ros2_guard, self.check_margin,
-                                     keep_current=scenario.bounds.dynamic_limits)
+                                     keep_current=scenario.bounds.dynamic_limits,
+                                     input_bounds=(scenario.bounds.input_lower(),
+                                                   scenario.bounds.input_upper()),
+                                     tolerance=args.plan_tolerance)
         self.controller.neighbours = self.neighbours  # its first-input check is the robot's
         self.limits = (scenario.bounds.acceleration_lower(),
                        scenario.bounds.acceleration_upper()) \
@@ -152,6 +155,7 @@ class Ros2Robot(Node):
         self.odom_future = float(args.odom_future)
         self._held = (0.0, 0.0)  # the command in force, republished every cmd_period
         self._held_at = -math.inf  # when it was last published
+        self._last_stamp = -math.inf  # of the last plan sent
         self._linked = False  # the plan exchange had a link
         self._lost = False  # ... and has none now
         self._lock = threading.Lock()
@@ -205,7 +209,12 @@ class Ros2Robot(Node):
 
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, PlanMsg):
-            self.neighbours.add(msg, time.time())
+            first = msg.id not in self.neighbours.untrusted
+            why = self.neighbours.add(msg, time.time())
+            if why is not None and first:
+                log.warning("%s: robot %d is untrusted from now on: its plan is %s (kept "
+                            "at a sample's reach more, its false plans refused)", self.name,
+                            msg.id, why)
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         if alive or not name.startswith("robot/"):
@@ -281,7 +290,12 @@ class Ros2Robot(Node):
 
     def publish_plan(self, sample: int, stamp: float, states: np.ndarray,
                      inputs: np.ndarray) -> None:
-        """The plan to the neighbours (sqpmpc keys) and as a Path on ``NS/plan``."""
+        """The plan to the neighbours (sqpmpc keys) and as a Path on ``NS/plan``; a plan
+        stamped before the last one sent (a stop announced inside a sample already
+        planned) is stamped with the last one's instead: the stamps never go back
+        (:meth:`services.ros2.neighbours.Neighbours.add`)."""
+        stamp = max(stamp, self._last_stamp)
+        self._last_stamp = stamp
         t = stamp - (self.epoch or 0.0)
         self.bus.put(encode(PlanMsg(self.robot_id, sample, t, stamp, states, inputs)),
                      "robot", self.robot_id, "plan")
@@ -427,7 +441,11 @@ class Ros2Robot(Node):
                 self._done = True  # no republishing after the zero
                 self.command(0.0, 0.0, time.time())
         counts = {**self.counts, "plans_received": self.neighbours.received,
-                  "plans_refused": self.neighbours.refused}
+                  "plans_refused": self.neighbours.refused,
+                  "false_plans": sum(self.neighbours.untrusted.values())}
+        for rid, n in sorted(self.neighbours.untrusted.items()):
+            log.warning("%s: untrusted robot %d: %d false plans refused (first: %s)",
+                        self.name, rid, n, self.neighbours.reasons[rid])
         log.info("%s: %s, %d invalid messages dropped", self.name,
                  ", ".join(f"{v} {k}" for k, v in counts.items()), self.validator.invalid)
         return 0

@@ -21,7 +21,8 @@ Hz (:class:`SimRobot`), and its odometry reports the velocities it has.
 
 Each robot stops by itself when no command came for ``--cmd-timeout`` s (default
 0.5, the ``cmd_vel_timeout`` of ROS 2 Jazzy's diff_drive_controller; checked at
-every odometry instant), as such a base does, and counts it (a *command timeout*,
+every odometry instant and when the next command comes: a gap longer than the
+timeout stopped the robot at its end), as such a base does, and counts it (a *command timeout*,
 counted when the command it held was not zero) and how long it stood on it, until
 the next command. A command equal to the one in force changes nothing (under
 acceleration limits its ramp goes on).
@@ -155,6 +156,7 @@ class SimRobot:
         """The command ``(v, omega)`` from wall time ``t`` on (one equal to the command in
         force changes nothing but the time of the last command)."""
         with self._lock:
+            self._expire(t)  # it may have timed out since the last (checked at odometry)
             self._advance(t)
             self._last_command = t
             if self._expired_at is not None:
@@ -171,17 +173,21 @@ class SimRobot:
         from its last move of the state if later) when no command came for ``timeout`` s,
         as a base's command timeout; ``True`` if it did now."""
         with self._lock:
-            if (self.timeout <= 0.0 or self._last_command is None
-                    or self._expired_at is not None or t - self._last_command <= self.timeout):
-                return False
-            when = max(self._last_command + self.timeout, self._t)
-            self._advance(when)
-            self._expired_at = when
-            if not self._cmd.any():
-                return False
-            self.timeouts += 1
-            self._set(np.zeros(2))
-            return True
+            return self._expire(t)
+
+    def _expire(self, t: float) -> bool:
+        """:meth:`expire` (the caller holds the lock)."""
+        if (self.timeout <= 0.0 or self._last_command is None
+                or self._expired_at is not None or t - self._last_command <= self.timeout):
+            return False
+        when = max(self._last_command + self.timeout, self._t)
+        self._advance(when)
+        self._expired_at = when
+        if not self._cmd.any():
+            return False
+        self.timeouts += 1
+        self._set(np.zeros(2))
+        return True
 
     def _set(self, cmd: np.ndarray) -> None:
         """The command in force from ``self._t`` on (the caller holds the lock)."""

@@ -1,0 +1,116 @@
+"""The ROS 2 mode's protections without processes: plans are claims checked against the
+neighbour's past plans and bounds, a departed neighbour's disc may be left, a robot
+without credentials refuses to start, a simulated base stops on its command timeout."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from services.messages import PlanMsg
+from services.robot import main as robot_main
+from services.ros2.neighbours import Neighbours
+from services.ros2.simfleet import SimRobot
+from services.ros2.timing import Estimate, arc
+
+TS, N, V = 0.5, 8, 0.6
+
+
+def _neighbours() -> Neighbours:
+    return Neighbours([1, 2], 1, np.array([0.0, 0.3]), TS, N, V, lead=0.15, guard=0.02,
+                      margin=0.02, input_bounds=(np.array([-V, -0.8]), np.array([V, 0.8])))
+
+
+def _plan(start: np.ndarray, u: tuple[float, float], stamp: float) -> PlanMsg:
+    """An honest plan: ``u`` held, its stages on the exact arcs."""
+    states = [np.asarray(start, dtype=float)]
+    for _ in range(N):
+        states.append(arc(states[-1], u[0], u[1], TS))
+    return PlanMsg(2, 0, 0.0, stamp, np.array(states), np.tile(u, (N, 1)))
+
+
+def test_false_plans_are_refused_and_their_robot_kept_at_a_samples_reach():
+    now = time.time()
+    near = _neighbours()
+    go = (0.4, 0.2)
+    first = _plan(np.zeros(3), go, now - 0.6)
+    assert near.add(first, now) is None
+    # its next plan starts where the first put it one sample later: kept
+    second = _plan(arc(np.zeros(3), *go, TS), go, now - 0.1)
+    assert near.add(second, now) is None and near.untrusted == {}
+    where = arc(second.states[0], *go, TS)
+    false = {
+        "starts": _plan(np.array([3.0, 0.0, 0.0]), (0.0, 0.0), now + 0.4),  # the freeze
+        "second moving plan": _plan(where, go, now + 0.2),
+        "outside the velocity bounds": _plan(where, (0.9, 0.0), now + 0.4),
+        "before its previous plan": _plan(where, (0.0, 0.0), now - 0.3),
+        "ahead of this robot's clock": _plan(where, (0.0, 0.0), now + 5.0),
+    }
+    for reason, msg in false.items():
+        why = near.add(msg, now)
+        assert why is not None and reason in why, (reason, why)
+    assert near.untrusted == {2: len(false)} and near.received == 2
+    assert "starts" in near.reasons[2]
+    # the refused plans are never used; its honest next plan is still kept
+    assert near.add(_plan(where, go, now + 0.4), now + 0.45) is None
+    assert near.received == 3 and near.plans[2][-1].stamp == now + 0.4
+    # untrusted: a sample's reach more room (0.3 m), so a path that passed beside it now fails
+    beside = np.array([where[0], where[1] + 0.3 + 0.02 + 0.1, 0.0])
+    assert near.reach(2) == pytest.approx(V * TS)
+    trusted = _neighbours()
+    for msg in (first, second, _plan(where, go, now + 0.4)):
+        assert trusted.add(msg, now + 0.45) is None
+    assert trusted.path_is_safe(beside, np.zeros(2), now + 0.45)
+    assert not near.path_is_safe(beside, np.zeros(2), now + 0.45)
+
+
+def test_a_robot_inside_a_departed_neighbours_disc_may_leave_it_but_not_approach():
+    now = time.time()
+    near = _neighbours()
+    near.plans[2].append(_plan(np.zeros(3), (0.0, 0.0), now - 1.0))  # as add() keeps it
+    near.departed[2] = Estimate(np.zeros(3), V * TS)  # left: a sample's reach, 0.3 m
+    inside = np.array([0.5, 0.0, 0.0])  # 0.2 m from the disc, 0.3 m + margin needed
+    assert near.path_is_safe(inside, np.array([0.4, 0.0]), now)  # straight away
+    assert near.path_is_safe(inside, np.zeros(2), now)
+    assert not near.path_is_safe(inside, np.array([-0.2, 0.0]), now)  # towards it
+    sideways = np.array([0.5, 0.0, np.pi / 2])
+    assert not near.path_is_safe(sideways, np.array([0.4, 0.0]), now)  # round it: closer
+    # far enough, the usual check: passing by is fine
+    assert near.path_is_safe(np.array([1.5, 0.0, np.pi / 2]), np.array([0.4, 0.0]), now)
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    ([], "no credentials: the plan exchange needs --credentials DIR"),
+    (["--insecure", "--zenoh-config", "x.json5"], "give --zenoh-config or --insecure"),
+    (["--ros2", "--insecure", "--ros2-zenoh-config", "no-such.json5"],
+     "--ros2-zenoh-config no-such.json5: no such file"),
+    (["--ros2", "--insecure", "--cmd-rate", "1"], "--cmd-rate: must be above 1/Ts"),
+])
+def test_a_robot_without_credentials_refuses_to_start(capsys, extra, message):
+    with pytest.raises(SystemExit) as exc:
+        robot_main(["--id", "1", "--scenario", "paper-s2", *extra])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_a_simulated_base_stops_on_its_command_timeout_and_counts_it():
+    robot = SimRobot(1, 0.3, np.zeros(3), 100.0, timeout=0.5)
+    robot.command(0.4, 0.0, 100.0)
+    assert not robot.expire(100.45)
+    robot.command(0.4, 0.0, 100.45)  # the same command again: held, the timeout restarts
+    assert not robot.expire(100.9)
+    assert robot.expire(101.0) and robot.timeouts == 1
+    state, vel = robot.at(102.0)
+    assert vel == (0.0, 0.0)
+    assert state[0] == pytest.approx(0.4 * 0.95)  # moved until 100.95, then stood
+    robot.command(0.4, 0.0, 102.0)
+    assert robot.timed_out == pytest.approx(102.0 - 100.95)
+    # a gap seen only when the next command comes counts too
+    robot.command(0.2, 0.0, 103.0)
+    assert robot.timeouts == 2 and robot.at(103.0)[0][0] == pytest.approx(0.38 + 0.2)
+    # standing still (zero held), a timeout does not count
+    robot.command(0.0, 0.0, 103.1)
+    assert not robot.expire(104.0) and robot.timeouts == 2
