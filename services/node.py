@@ -98,16 +98,17 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="peer (default) or client of a router")
     parser.add_argument("--max-rate", type=positive_float, default=None, metavar="HZ",
                         help="drop what a robot publishes on one of its keys faster than this "
-                             "(services.limits; services.launch passes 20/Ts in real time; "
-                             "default: no rate limit, payloads above 64 KiB are always dropped)")
+                             "(services.limits; services.launch passes 20/Ts in real time, "
+                             "sqpmpc robot --ros2 takes 20/Ts by default; otherwise default: "
+                             "no rate limit, payloads above 64 KiB are always dropped)")
     parser.add_argument("--no-flood-limits", action="store_true",
-                        help="benchmarks only: neither the rate nor the size limit")
-    parser.add_argument("--priority", type=parse_priority, default=Priority("off"),
+                        help="neither the rate nor the size limit (the opt-out; benchmarks)")
+    parser.add_argument("--priority", type=parse_priority, default=None,
                         metavar="off|auto|N",
                         help="scheduling priority of the sample loop (services.priority): "
-                             "off (default), auto (SCHED_RR where permitted, else a negative "
-                             "nice; services.launch passes it in real time) or a SCHED_RR "
-                             "priority 1-99")
+                             "off (default, but auto for sqpmpc robot --ros2), auto "
+                             "(SCHED_RR where permitted, else a negative nice; services.launch "
+                             "passes it in real time) or a SCHED_RR priority 1-99")
     add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
 
@@ -217,7 +218,7 @@ class Node:
         self.alive: set[str] = set()
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
-        self.priority: Priority = getattr(args, "priority", Priority("off"))
+        self.priority: Priority = getattr(args, "priority", None) or Priority("off")
         try:
             check_priority(self.priority)
         except PermissionError as exc:

@@ -73,11 +73,14 @@ from sqpmpc.problem.scenario import Scenario
 from ..control import controller_settings
 from ..messages import Message, PlanMsg, encode
 from ..node import POLL, Node
+from ..priority import Priority
 from . import msgs
 from .controller import Ros2Controller
 from .graph import Received, Ros2Node
 from .neighbours import Neighbours
 from .options import check_margin, ros2_config, ros2_problem
+from .startup import PUBLISH_SLACK, StartUp
+from .stream import CommandStream
 from .timing import own_motion
 
 __all__ = ["Ros2Robot", "main_ros2"]
@@ -91,13 +94,14 @@ WATCH_PERIOD = 0.01
 """How often the watchdog thread looks at the odometry's age, s."""
 STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
-PUBLISH_SLACK = 0.005
-"""A plan not ready this long before its instant is dropped: the robot stands still."""
+MAX_RATE_PER_SAMPLE = 20.0
+"""Default ``--max-rate``: messages per sample period a robot may publish on one of its keys
+(:mod:`services.limits`, as :mod:`services.launch` passes in real time)."""
 LINK_PERIOD = 0.1
 """How often the watchdog thread looks whether the plan exchange still has a link, s."""
 
 
-class Ros2Robot(Node):
+class Ros2Robot(StartUp, Node):
     """The controller of one ROS 2 robot (see the module notes).
 
     Parameters
@@ -123,6 +127,12 @@ class Ros2Robot(Node):
         # stage-one-override on the obstacle rows too: a stage-1 row the current positions
         # violate is capped at the current gap, so standing still stays feasible
         self.controller.collisions.stage_one_rule_for_obstacles = True
+        # the same protections as a launched real-time run, by default (services.limits,
+        # services.priority); --no-flood-limits and --priority off opt out
+        if getattr(args, "max_rate", None) is None:
+            args.max_rate = MAX_RATE_PER_SAMPLE / scenario.sample_time
+        if getattr(args, "priority", None) is None:
+            args.priority = Priority("auto")
         super().__init__(scenario, args, f"robot/{self.robot_id}", "decentralized")
         self.index = scenario.index_of(self.robot_id)
         self.Ts = scenario.sample_time
@@ -145,23 +155,19 @@ class Ros2Robot(Node):
         self.startup_timeout = args.startup_timeout
         self.epoch = args.epoch
         self.epoch_file: Path | None = args.epoch_file
-        self._cmd_lock = threading.RLock()
         self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
                        "late_samples": 0, "plan_waits": 0, "stopped_late": 0,
-                       "stale_odometry": 0, "zero_commands": 0, "odometry_future": 0,
+                       "stale_odometry": 0, "odometry_future": 0,
                        "plan_network_lost": 0, "republished": 0}
         self.cmd_period = 1.0 / args.cmd_rate if args.cmd_rate > 0.0 else None
         """Period of the command stream (``--cmd-rate``), s; ``None``: once per sample."""
         self.odom_future = float(args.odom_future)
-        self._held = (0.0, 0.0)  # the command in force, republished every cmd_period
-        self._held_at = -math.inf  # when it was last published
         self._last_stamp = -math.inf  # of the last plan sent
         self._linked = False  # the plan exchange had a link
         self._lost = False  # ... and has none now
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
-        self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
         self._step_seconds: deque[float] = deque(maxlen=10)  # the recent steps' durations
         self._braked = False
         self._standing: np.ndarray | None = None
@@ -173,9 +179,11 @@ class Ros2Robot(Node):
             self.ros = Ros2Node(self.ros_session, f"sqpmpc_robot{self.robot_id}", ns,
                                 args.ros2_domain)
             self.ros.subscribe("odom", "nav_msgs/msg/Odometry", self._on_odom)
-            self.cmd_pub = self.ros.publisher(
+            self.stream = CommandStream(self.ros.publisher(
                 "cmd_vel", "geometry_msgs/msg/TwistStamped" if self.twist_stamped
-                else "geometry_msgs/msg/Twist")
+                else "geometry_msgs/msg/Twist"), self.twist_stamped, self.cmd_period,
+                lambda: self._frame[1])
+            self._cmd_lock = self.stream.lock  # the main thread, stop timer and watchdog
             self.path_pub = self.ros.publisher("plan", "nav_msgs/msg/Path")
         except Exception:
             self.ros_session.close()
@@ -240,7 +248,7 @@ class Ros2Robot(Node):
             if self._odom is None:
                 return None
             odom = self._odom
-        return own_motion(odom, list(self._sent), t, self.Ts, self.limits)
+        return own_motion(odom, list(self.stream.sent), t, self.Ts, self.limits)
 
     def controller_states(self, others: np.ndarray, t: float) -> np.ndarray:
         """The controller's measured states at wall time ``t``: the neighbours' poses
@@ -264,29 +272,11 @@ class Ros2Robot(Node):
             return math.inf if self._odom is None else now - self._odom[0]
 
     # ------------------------------------------------------------------ outputs
-    def _publish_twist(self, v: float, omega: float, at: float) -> None:
-        """``(v, omega)`` on cmd_vel (the caller holds ``_cmd_lock``)."""
-        twist = msgs.Twist(msgs.Vector3(float(v)), msgs.Vector3(0.0, 0.0, float(omega)))
-        if self.twist_stamped:
-            self.cmd_pub.publish(msgs.TwistStamped(
-                msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
-        else:
-            self.cmd_pub.publish(twist)
-        self._held_at = at
-
     def command(self, v: float, omega: float, at: float) -> None:
-        """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state); it is
-        republished every ``--cmd-rate`` period until the next command."""
-        with self._cmd_lock:  # the main thread, the stop timer and the watchdog
-            self._publish_twist(v, omega, at)
-            self._held = (float(v), float(omega))
-            self._sent.append((at, float(v), float(omega)))
-            with self._lock:  # the commands since the newest odometry (own_state needs all)
-                t0 = -math.inf if self._odom is None else self._odom[0]
-            if len(self._sent) > 16 and self._sent[0][0] < t0:
-                self._sent = [c for c in self._sent if c[0] >= t0] or self._sent[-1:]
-            if v == 0.0 and omega == 0.0:
-                self.counts["zero_commands"] += 1
+        """Send ``(v, omega)`` on cmd_vel now and hold it (:mod:`services.ros2.stream`)."""
+        with self._lock:  # the commands since the newest odometry (own_state needs all)
+            since = -math.inf if self._odom is None else self._odom[0]
+        self.stream.command(v, omega, at, since)
 
     def publish_plan(self, sample: int, stamp: float, states: np.ndarray,
                      inputs: np.ndarray) -> None:
@@ -330,41 +320,6 @@ class Ros2Robot(Node):
                     self.odometry_age(now))
         return True
 
-    def _republish(self, now: float) -> None:
-        """The command in force on cmd_vel again if it was last sent a ``--cmd-rate`` period
-        ago (a base's command timeout never fires while the controller runs)."""
-        if self.cmd_period is None:
-            return
-        with self._cmd_lock:
-            if self._done or now - self._held_at < self.cmd_period:
-                return
-            self._publish_twist(*self._held, now)
-            self.counts["republished"] += 1
-
-    def plan_network_lost(self) -> bool:
-        """Whether the plan exchange's session had a link (a router or a peer) and has none
-        now: the neighbours no longer see this robot's plans, nor it theirs."""
-        info = self.bus.session.info
-        linked = bool(info.routers_zid()) or bool(info.peers_zid())
-        if linked:
-            self._linked = True
-        return self._linked and not linked
-
-    def _stop_if_lost(self) -> bool:
-        """Command zero at once when the plan exchange is lost (once per loss); ``True``
-        while it is lost."""
-        lost = self.plan_network_lost()
-        if lost and not self._lost:
-            with self._cmd_lock:
-                self.counts["plan_network_lost"] += 1
-                if not self._done:
-                    self.command(0.0, 0.0, time.time())
-            log.warning("%s: the plan exchange has no link left: commanding zero", self.name)
-        elif not lost and self._lost:
-            log.info("%s: the plan exchange has a link again", self.name)
-        self._lost = lost
-        return lost
-
     def _watchdog(self) -> None:
         """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale
         and within :data:`LINK_PERIOD` of its plan exchange losing its last link, whatever
@@ -377,7 +332,8 @@ class Ros2Robot(Node):
             if now - looked >= LINK_PERIOD:
                 looked = now
                 self._stop_if_lost()
-            self._republish(time.time())
+            if self.stream.republish(time.time()):
+                self.counts["republished"] += 1
 
     def _watch(self, until: float, sample: int) -> None:
         """Handle events until wall time ``until``; when the odometry has gone stale,
@@ -414,6 +370,7 @@ class Ros2Robot(Node):
         watchdog = threading.Thread(target=self._watchdog, name="odometry-watchdog",
                                     daemon=True)
         watchdog.start()
+        self.raise_priority()  # every thread, the watchdog's too (services.priority)
         try:
             while not self.stop.is_set():
                 Tk = T0 + k * self.Ts
@@ -437,10 +394,10 @@ class Ros2Robot(Node):
                 if behind > 0.0:  # overran: skip to the next instant still ahead
                     k += math.ceil(behind / self.Ts)
         finally:
-            with self._cmd_lock:
-                self._done = True  # no republishing after the zero
-                self.command(0.0, 0.0, time.time())
-        counts = {**self.counts, "plans_received": self.neighbours.received,
+            self._done = True
+            self.stream.finish(time.time())  # zero, no repeat after it
+        counts = {**self.counts, "zero_commands": self.stream.zero_commands,
+                  "plans_received": self.neighbours.received,
                   "plans_refused": self.neighbours.refused,
                   "false_plans": sum(self.neighbours.untrusted.values())}
         for rid, n in sorted(self.neighbours.untrusted.items()):
@@ -449,68 +406,6 @@ class Ros2Robot(Node):
         log.info("%s: %s, %d invalid messages dropped", self.name,
                  ", ".join(f"{v} {k}" for k, v in counts.items()), self.validator.invalid)
         return 0
-
-    def _wait_for_epoch(self) -> float | None:
-        """Publish standing plans until ``--epoch-file`` holds a number (``None``: stopped,
-        or a file that is not a number)."""
-        while not self.stop.is_set():
-            if self.epoch_file.exists():
-                text = self.epoch_file.read_text().strip()
-                try:
-                    return float(text)
-                except ValueError:
-                    log.error("%s: --epoch-file %s holds %r, not a time in Unix s",
-                              self.name, self.epoch_file, text[:40])
-                    return None
-            self.brake(time.time(), 0)
-            self.wait_until(lambda: False, min(self.Ts, 0.2))
-        return None
-
-    def _announce(self, start: float) -> None:
-        """Publish standing plans until the epoch and until a plan of every neighbour seen
-        alive has come (at most ``--timeout``): a robot that moves knows where every
-        running neighbour is."""
-        deadline = start + self.timeout
-        while not self.stop.is_set():
-            now = time.time()
-            self.brake(now, 0)
-            plans = self.neighbours.plans
-            alive = [i for i in plans if f"robot/{i}" in self.alive]
-            if now >= self.epoch - self.Ts and (all(plans[i] for i in alive)
-                                                or now >= deadline):
-                break
-            self.wait_until(lambda: False, min(self.Ts, 0.2))
-        missing = [i for i, kept in self.neighbours.plans.items() if not kept]
-        if missing:
-            log.warning("%s starts without plans from %s", self.name, missing)
-
-    def _announce_shift(self, sample: int, stamp: float) -> None:
-        """A plan standing where the robot stands, stamped a sample before its new instant
-        (true: zero until then): the neighbours see when it decides next, instead of a
-        plan in flight that holds them by its reach (and shifts them in turn)."""
-        N = self.scenario.horizon
-        self.publish_plan(sample, stamp, np.repeat(self._standing[None], N + 1, axis=0),
-                          np.zeros((N, 2)))
-
-    def _await_plans(self, Tk: float) -> None:
-        """Handle events while a plan of a neighbour that decided before this robot is in
-        flight (:meth:`services.ros2.neighbours.Neighbours.awaited`), at most until the
-        sample's computation must start (``Tk`` less :data:`PUBLISH_SLACK` and twice the
-        longest of the recent steps)."""
-        self.drain()
-        budget = 2.0 * max(self._step_seconds, default=0.05) + PUBLISH_SLACK
-        deadline = Tk - budget
-        own = self.own_state(Tk)
-        if own is None or time.time() >= deadline:
-            return
-        waited = False
-        while not self.stop.is_set() and self.neighbours.awaited(own, Tk, time.time()):
-            now = time.time()
-            if now >= deadline:
-                break
-            waited = True
-            self.pump(deadline - now)
-        self.counts["plan_waits"] += waited
 
     def _step(self, k: int, Tk: float) -> None:
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
