@@ -58,7 +58,8 @@ def test_false_plans_are_refused_and_their_robot_kept_at_a_samples_reach():
     assert near.received == 3 and near.plans[2][-1].stamp == now + 0.4
     # untrusted: a sample's reach more room (0.3 m), so a path that passed beside it now fails
     beside = np.array([where[0], where[1] + 0.3 + 0.02 + 0.1, 0.0])
-    assert near.reach(2) == pytest.approx(V * TS)
+    assert near.reach(2, now + 0.45) == pytest.approx(V * TS)
+    assert near.reach(2, now + 10 * TS + 0.1) == 0.0  # ten samples without a false plan
     trusted = _neighbours()
     for msg in (first, second, _plan(where, go, now + 0.4)):
         assert trusted.add(msg, now + 0.45) is None

@@ -24,8 +24,9 @@ starts where the neighbour's own past plans put it: within the tolerance of
 its committed motion at some moment of the sample before its stamp (a robot
 may stop at any moment). A neighbour whose plan breaks one of these is
 *untrusted* from then on, named in the log: its kept (consistent) plans still
-place it, with a sample's reach ``v_max Ts`` added to everywhere it may be;
-its refused plans are never used. So a process holding a robot's key can make
+place it, with a sample's reach ``v_max Ts`` added to everywhere it may be
+(for :data:`UNTRUSTED_SAMPLES` samples after its last false plan); its refused
+plans are never used. So a process holding a robot's key can make
 its neighbours keep more room from it, but cannot put it where it is not.
 
 A neighbour that left (its token disappeared) stands within a sample's reach of
@@ -51,7 +52,8 @@ from sqpmpc.control.plans import PlanMessage
 from ..messages import PlanMsg
 from .timing import Estimate, TimedPlan, arcs, committed, neighbour_estimate
 
-__all__ = ["CHECK_STEPS", "FAR", "KEPT_PLANS", "PLAN_TOLERANCE", "Neighbours"]
+__all__ = ["BOUND_SLACK", "CHECK_STEPS", "FAR", "KEPT_PLANS", "PLAN_TOLERANCE",
+           "UNTRUSTED_SAMPLES", "Neighbours"]
 
 FAR = 1.0e4
 """Where a neighbour never heard from is put (m): beyond every interaction radius."""
@@ -62,6 +64,11 @@ CHECK_STEPS = 100
 PLAN_TOLERANCE = 0.05
 """How far a plan's stage 0 may be from where its robot's past plans put it, m (besides
 the check's margin): odometry and command latency."""
+BOUND_SLACK = 0.01
+"""An input may exceed its bounds by this fraction of their range (the QP's tolerance)."""
+UNTRUSTED_SAMPLES = 10
+"""An untrusted neighbour is kept at a sample's reach more for this many samples after its
+last false plan (named in the log for good)."""
 CONTINUITY_STEPS = 25
 """Points of the sample before a plan's stamp at which its start is compared."""
 
@@ -125,6 +132,7 @@ class Neighbours:
         self.received = self.refused = 0
         self.untrusted: dict[int, int] = {}
         self.reasons: dict[int, str] = {}
+        self.last_false: dict[int, float] = {}
         self.tolerance = float(tolerance)
         if input_bounds is None:
             input_bounds = (np.array([-self.v_max, -np.inf]), np.array([self.v_max, np.inf]))
@@ -152,6 +160,7 @@ class Neighbours:
         if why is not None:
             self.untrusted[msg.id] = self.untrusted.get(msg.id, 0) + 1
             self.reasons.setdefault(msg.id, why)
+            self.last_false[msg.id] = now
             return why
         kept.append(TimedPlan(msg.stamp, msg.states, msg.inputs))
         del kept[:-KEPT_PLANS]
@@ -164,8 +173,10 @@ class Neighbours:
         if msg.stamp > now + self.Ts + self.guard:
             return f"stamped {msg.stamp - now:.3f} s ahead of this robot's clock"
         u, x = np.asarray(msg.inputs, dtype=float), np.asarray(msg.states, dtype=float)
-        if (u < self.input_lower - 1e-6).any() or (u > self.input_upper + 1e-6).any():
-            return "an input outside the velocity bounds"
+        slack = BOUND_SLACK * np.where(np.isfinite(self.input_upper - self.input_lower),
+                                       self.input_upper - self.input_lower, 0.0)
+        if (u < self.input_lower - slack).any() or (u > self.input_upper + slack).any():
+            return "an input outside the velocity bounds"  # beyond the QP's tolerance
         step = float(np.hypot(*np.diff(x[:, :2], axis=0).T).max(initial=0.0))
         if step > self.v_max * self.Ts + self.tolerance:
             return f"a stage {step:.3f} m from the one before (beyond v_max Ts)"
@@ -186,10 +197,13 @@ class Neighbours:
             return f"starts {off:.3f} m from where its past plans put it"
         return None
 
-    def reach(self, robot_id: int) -> float:
-        """Added to everywhere neighbour ``robot_id`` may be, m: a sample's reach for an
-        untrusted one, else 0."""
-        return self.v_max * self.Ts if robot_id in self.untrusted else 0.0
+    def reach(self, robot_id: int, now: float) -> float:
+        """Added to everywhere neighbour ``robot_id`` may be at wall time ``now``, m: a
+        sample's reach while it is untrusted (a false plan within the last
+        :data:`UNTRUSTED_SAMPLES` samples), else 0."""
+        last = self.last_false.get(robot_id)
+        held = last is not None and now - last < UNTRUSTED_SAMPLES * self.Ts
+        return self.v_max * self.Ts if held else 0.0
 
     def left(self, robot_id: int, now: float) -> None:
         """Neighbour ``robot_id`` stopped (zero on shutdown): it stands where its plan had
@@ -247,7 +261,7 @@ class Neighbours:
             if not (t - self.Ts <= nxt < t and nxt - self.lead <= now + self.guard):
                 continue
             at, r = committed(kept, np.array([t]), self.Ts, self.v_max, False)
-            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - self.reach(rid) \
+            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - self.reach(rid, now) \
                     <= self.required[j] + reach:
                 return True
         return False
@@ -294,7 +308,7 @@ class Neighbours:
                 later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
                 concurrent = not later
                 at, r = committed(kept, times[:1], self.Ts, self.v_max, later)
-                extra = self.reach(rid)
+                extra = self.reach(rid, now)
                 if (math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - extra
                         > self.required[j] + slack + 4.0 * self.v_max * self.Ts):
                     continue  # out of reach of this sample (both stretches are shorter)

@@ -97,6 +97,8 @@ STOP_GRACE = 0.01
 MAX_RATE_PER_SAMPLE = 20.0
 """Default ``--max-rate``: messages per sample period a robot may publish on one of its keys
 (:mod:`services.limits`, as :mod:`services.launch` passes in real time)."""
+CLOSE_GRACE = 0.05
+"""Seconds between the last zero on cmd_vel and the ROS 2 session's close."""
 LINK_PERIOD = 0.1
 """How often the watchdog thread looks whether the plan exchange still has a link, s."""
 
@@ -465,8 +467,11 @@ class Ros2Robot(StartUp, Node):
             timer.cancel()
 
     def close(self) -> None:
-        """Undeclare the ROS 2 node, close both sessions."""
+        """Zero on cmd_vel once more (given time to leave: a put just before the session
+        closes can be lost), undeclare the ROS 2 node, close both sessions."""
         try:
+            self.stream.finish(time.time())
+            time.sleep(CLOSE_GRACE)
             self.ros.close()
         finally:
             self.ros_session.close()
