@@ -105,7 +105,8 @@ class RobotNode(ControllerNode):
         self.filtering = (self.controller.settings.neighbour_slots is not None
                           and not options.all_plans)  # the settings as resolved for this scenario
         self.plans = PlanStore(self.validator, self.neighbours, self.policy,
-                               lambda: self.cursor.sample, lazy=self.filtering)
+                               lambda: self.cursor.sample, lazy=self.filtering,
+                               truth=self.true_state)
         self.addressed = 0  # plans sent on robot/<id>/plan/<to>
         self.step_lock: AbstractContextManager[object] = nullcontext()
         self.fallback_samples = 0
@@ -114,6 +115,14 @@ class RobotNode(ControllerNode):
         # lockstep: neighbours alive but silent (no plan within --timeout), by the sample of
         # the plan that did not come; not waited for until a plan of it or later does
         self.silent: dict[int, int] = {}
+
+    def true_state(self, robot_id: int, sample: int) -> np.ndarray | None:
+        """The plant's state of robot ``robot_id`` at ``sample``, if this robot has it (a
+        neighbour's plan of that sample must start there: :class:`services.plans.PlanStore`)."""
+        entry = self.samples.get(sample)
+        if entry is None or robot_id not in self.ids:
+            return None
+        return entry.states[self.ids.index(robot_id)]
 
     def take_plan(self, robot_id: int, payload: bytes) -> bool:
         if robot_id not in self.plans:
@@ -180,6 +189,9 @@ class RobotNode(ControllerNode):
         status = super().run()
         log.info("robot %d: %d plans received, %d decoded, %d sent addressed", self.robot_id,
                  self.plans.received, self.plans.decoded, self.addressed)
+        for rid, n in sorted(self.plans.false.items()):
+            log.warning("robot %d: untrusted robot %d: %d false plans refused", self.robot_id,
+                        rid, n)
         return status
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:

@@ -22,10 +22,12 @@ Hz (:class:`SimRobot`), and its odometry reports the velocities it has.
 Each robot stops by itself when no command came for ``--cmd-timeout`` s (default
 0.5, the ``cmd_vel_timeout`` of ROS 2 Jazzy's diff_drive_controller; checked at
 every odometry instant and when the next command comes: a gap longer than the
-timeout stopped the robot at its end), as such a base does, and counts it (a *command timeout*,
-counted when the command it held was not zero) and how long it stood on it, until
-the next command. A command equal to the one in force changes nothing (under
-acceleration limits its ramp goes on).
+timeout stopped the robot at its end; not judged within ``STALL`` s after the
+simulator itself did not run for ``STALL`` s, when commands may still be queued:
+a real base does not stall with its controller), as such a base does, and
+counts it (a *command timeout*, counted when the command it held was not zero)
+and how long it stood on it, until the next command. A command equal to the one
+in force changes nothing (under acceleration limits its ramp goes on).
 
 ``--odom-stop ID:T`` stops robot ``ID``'s odometry at ``t = T`` (s after the
 epoch) while it keeps obeying its commands (a failed sensor). On SIGINT,
@@ -60,10 +62,13 @@ from ..node import install_signal_handlers, setup_logging
 from .sdk import use_local_definitions
 from .timing import arc
 
-__all__ = ["SimRobot", "build_parser", "main"]
+__all__ = ["STALL", "SimRobot", "build_parser", "main"]
 
 log = logging.getLogger("services.ros2.simfleet")
 PROG = "services.ros2.simfleet"
+STALL = 0.1
+"""A simulator loop that did not run for this long stalled (the machine's load): command
+timeouts are not judged for as long after it (its queued commands come first)."""
 
 
 class SimRobot:
@@ -126,6 +131,7 @@ class SimRobot:
         self.timeout = float(timeout)
         self.timeouts = 0
         self.timed_out = 0.0
+        self.judge_from = -math.inf  # no timeout is judged before (a stalled simulator)
         self._last_command: float | None = None  # when the last command came
         self._expired_at: float | None = None  # when the timeout stopped it (until a command)
 
@@ -177,6 +183,8 @@ class SimRobot:
 
     def _expire(self, t: float) -> bool:
         """:meth:`expire` (the caller holds the lock)."""
+        if t < self.judge_from:  # the simulator itself stood: commands may be queued
+            return False
         if (self.timeout <= 0.0 or self._last_command is None
                 or self._expired_at is not None or t - self._last_command <= self.timeout):
             return False
@@ -333,6 +341,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     period = 1.0 / args.rate
     due = {rid: start + rng.random() * period for rid in robots}
     sent = dict.fromkeys(robots, 0)
+    ticked, stalls = time.time(), 0
     log.info("%d robots, odometry at %g Hz", len(robots), args.rate)
     end = None if args.duration is None else start + args.duration
     try:
@@ -342,6 +351,11 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             if wait > 0.0 and stop.wait(wait):
                 break
             t = time.time()
+            if t - ticked > STALL:  # this process stood: let queued commands in first
+                stalls += 1
+                for robot in robots.values():
+                    robot.judge_from = t + STALL
+            ticked = t
             due[rid] += period * max(1, int((t - due[rid]) // period) + 1)
             if epoch is None and t - looked > 0.1:
                 looked = t
@@ -356,7 +370,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     finally:
         now = time.time()
         out = {"epoch": start if epoch is None else epoch, "start": start, "end": now,
-               "rate": args.rate, "cmd_timeout": args.cmd_timeout,
+               "rate": args.rate, "cmd_timeout": args.cmd_timeout, "stalls": stalls,
                "odom_stop": {str(k): v for k, v in stops.items()},
                "robots": {str(rid): {"diameter": r.diameter, "segments": r.segments,
                                      "odometry_sent": sent[rid],
