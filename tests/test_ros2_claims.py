@@ -115,3 +115,27 @@ def test_a_simulated_base_stops_on_its_command_timeout_and_counts_it():
     # standing still (zero held), a timeout does not count
     robot.command(0.0, 0.0, 103.1)
     assert not robot.expire(104.0) and robot.timeouts == 2
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+def test_plant_mode_refuses_a_plan_not_starting_at_its_robots_state(lazy):
+    from services.messages import encode
+    from services.plans import PlanStore, StepPlans
+    from services.protocol import AcceptancePolicy
+    from services.validator import MessageValidator
+
+    true = {(2, 299): np.array([1.0, 2.0, 0.3]), (3, 299): np.array([-1.0, 0.0, 0.0])}
+    store = PlanStore(MessageValidator([1, 2, 3], N), [2, 3], AcceptancePolicy(1000, TS, N),
+                      lambda: 300, lazy=lazy, truth=lambda rid, k: true.get((rid, k)))
+
+    def plan(rid: int, start: np.ndarray, sample: int = 299) -> bytes:
+        return encode(PlanMsg(rid, sample, 1.0, 0.0, np.tile(start, (N + 1, 1)),
+                              np.zeros((N, 2))))
+
+    store.add(2, plan(2, true[2, 299] + [0.5, 0.0, 0.0]))  # robot 2 claimed 0.5 m off
+    store.add(3, plan(3, true[3, 299]))
+    store.add(2, plan(2, np.array([7.0, 7.0, 0.0]), 298))  # no state of 298 here: kept
+    plans = StepPlans(store, 300, [2, 3])
+    assert plans[3].sample == 299 and plans[2].sample == 298  # 299's refused when read
+    assert store.false == {2: 1}
+
