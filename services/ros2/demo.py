@@ -17,9 +17,11 @@ Starts, as processes on loopback (multicast scouting off):
   ``robot-<id>``), and hands each child only its own over an inherited socket
   (:mod:`services.handover`): no key is written to disk;
 - one controller process per robot, ``sqpmpc robot --id I --ros2`` (client of
-  both routers), all with the same epoch (t = 0 of the references, a few
-  seconds after the start: every controller is up by then) and each with a
-  random phase of its sample instants.
+  both routers; its sample loop at ``--priority auto``, the simulated robots and the
+  routers put at the same priority once the fleet is up: they stand in for the
+  robots' own real-time drive controllers), all with the same epoch (t = 0 of the
+  references, a few seconds after the start: every controller is up by then) and each
+  with a random phase of its sample instants.
 
 Options it does not know are given to every controller (e.g.
 ``--collision-margin 0.02``). When every controller has reached ``t_end`` the
@@ -54,10 +56,11 @@ from ..children import Child, free_ports, stop_children
 from ..credentials import issue
 from ..handover import Handover, make_private
 from ..node import install_signal_handlers
+from ..priority import NICE, RT_PRIORITY
 from .check import check_fleet
 
 __all__ = ["Credentials", "LoggedChild", "add_fleet_arguments", "build_parser", "main",
-           "start_clock"]
+           "robot_side_priority", "start_clock"]
 
 log = logging.getLogger("services.ros2.demo")
 PROG = "services.ros2.demo"
@@ -97,6 +100,32 @@ class Credentials:
             return LoggedChild(name, [*argv, "--credentials-fd", str(fd)], logfile, env, (fd,))
         finally:
             self.handover.started()
+
+
+def robot_side_priority(children: Sequence[Child]) -> str:
+    """Put every thread of ``children`` (the simulated robots and the routers: what stands
+    in for the robots' own real-time drive controllers and their middleware) at the
+    controllers' ``--priority auto`` (:mod:`services.priority`), once the fleet is up;
+    returns what was done."""
+    done = "normal priority (neither SCHED_RR nor a negative nice is permitted)"
+    for child in children:
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{child.proc.pid}/task")]
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(RT_PRIORITY))
+                done = f"SCHED_RR priority {RT_PRIORITY}"
+            except PermissionError:
+                try:
+                    os.setpriority(os.PRIO_PROCESS, tid, NICE)
+                    done = f"nice {NICE}"
+                except PermissionError:
+                    pass
+            except ProcessLookupError:
+                pass
+    return done
 
 
 def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
@@ -272,6 +301,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             log.error("the controllers were not all up within %g s (see %s)", args.startup,
                       logs)
         epoch = float(epoch_file.read_text())
+        log.info("simulated robots and routers at %s", robot_side_priority(
+            [c for c in children if c.name in ("ros2-router", "router", "simfleet")]))
         if attack is not None:
             kind, rid = attack
             children.append(start("forger", [
