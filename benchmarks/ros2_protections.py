@@ -80,11 +80,14 @@ neighbour's plan must start at the plant's state of its sample, else it is refus
 controller predicts that neighbour from its states for that sample (the paper's fallback)
 and the robot is named.
 
-**Same protections in every mode.** `sqpmpc robot --ros2` takes `--priority auto` and a
-per-publisher rate limit of `20 / Ts` (`services.limits`) by default, as `sqpmpc launch`
-passes in real time; `--priority off` and `--no-flood-limits` opt out. (Hand-started
-plant-mode services keep their defaults, off and no rate limit: the robot cannot tell a
-lockstep run, whose rate is the machine's, from a real-time one.)
+**Same protections in every mode.** Every service now defaults to `--priority auto`,
+raised when a real-time sample loop starts (never in lockstep), hand-started ones too;
+`sqpmpc robot --ros2` also takes a per-publisher rate limit of `20 / Ts`
+(`services.limits`) by default, as `sqpmpc launch` passes in real time; `--priority off`
+and `--no-flood-limits` opt out. The demos pass them. Not done: a default rate limit for
+hand-started plant-mode services (the limit is fixed when the Zenoh session opens, and a
+robot cannot tell then a lockstep run, whose rate is the machine's, from a real-time one:
+give `--max-rate 20/Ts` by hand).
 
 **Secure by default.** `sqpmpc robot` refuses to start without `--credentials`,
 `--credentials-fd` or `--zenoh-config` (one error line), unless `--insecure` is given, which

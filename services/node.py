@@ -105,10 +105,10 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="neither the rate nor the size limit (the opt-out; benchmarks)")
     parser.add_argument("--priority", type=parse_priority, default=None,
                         metavar="off|auto|N",
-                        help="scheduling priority of the sample loop (services.priority): "
-                             "off (default, but auto for sqpmpc robot --ros2), auto "
-                             "(SCHED_RR where permitted, else a negative nice; services.launch "
-                             "passes it in real time) or a SCHED_RR priority 1-99")
+                        help="scheduling priority of the sample loop in real time "
+                             "(services.priority; a lockstep run's loops keep theirs): auto "
+                             "(default: SCHED_RR where permitted, else a negative nice, else "
+                             "unchanged), off (the opt-out) or a SCHED_RR priority 1-99")
     add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
 
@@ -218,7 +218,8 @@ class Node:
         self.alive: set[str] = set()
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
-        self.priority: Priority = getattr(args, "priority", None) or Priority("off")
+        # auto by default: raised only when a real-time sample loop starts (never in lockstep)
+        self.priority: Priority = getattr(args, "priority", None) or Priority("auto")
         try:
             check_priority(self.priority)
         except PermissionError as exc:
