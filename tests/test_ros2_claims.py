@@ -51,11 +51,14 @@ def test_false_plans_are_refused_and_their_robot_kept_at_a_samples_reach():
     for reason, msg in false.items():
         why = near.add(msg, now)
         assert why is not None and reason in why, (reason, why)
-    assert near.untrusted == {2: len(false)} and near.received == 2
-    assert "starts" in near.reasons[2]
-    # the refused plans are never used; its honest next plan is still kept
+    assert near.untrusted == {2: len(false)} and "starts" in near.reasons[2]
+    # the second moving plan could follow the first (not the second): a fork, two claims
+    # kept (it may be on either); every other one is refused, never used
+    assert near.received == 3 and [len(c) for c in near.forks[2]] == [2]
+    assert near.forks[2][0][-1].stamp == now + 0.2
+    # its honest next plan is still kept on its chain
     assert near.add(_plan(where, go, now + 0.4), now + 0.45) is None
-    assert near.received == 3 and near.plans[2][-1].stamp == now + 0.4
+    assert near.received == 4 and near.plans[2][-1].stamp == now + 0.4
     # untrusted: a sample's reach more room (0.3 m), so a path that passed beside it now fails
     beside = np.array([where[0], where[1] + 0.3 + 0.02 + 0.1, 0.0])
     assert near.reach(2, now + 0.45) == pytest.approx(V * TS)
@@ -139,3 +142,28 @@ def test_plant_mode_refuses_a_plan_not_starting_at_its_robots_state(lazy):
     assert plans[3].sample == 299 and plans[2].sample == 298  # 299's refused when read
     assert store.false == {2: 1}
 
+
+
+def test_a_forged_stop_does_not_hide_where_the_robot_goes():
+    """A key holder claims robot 2 stopped at its start (consistent with its first plan);
+    robot 2's own next plan contradicts that claim but follows its first plan: kept as a
+    fork, and the check keeps out of both claims (before, robot 2 was believed standing
+    while it drove on: a collision in the ROS 2 flood benchmark)."""
+    now = time.time()
+    near = _neighbours()
+    go = (0.6, 0.0)
+    start = np.zeros(3)
+    assert near.add(_plan(start, go, now - 1.0), now) is None
+    assert near.add(_plan(start, (0.0, 0.0), now - 0.8), now) is None  # the forged stop
+    honest = _plan(arc(start, *go, TS), go, now - 0.5)
+    why = near.add(honest, now)
+    assert why is not None and "contradicting" in why and near.untrusted == {2: 1}
+    assert [c[-1].stamp for c in near.forks[2]] == [now - 0.5]
+    # beside where robot 2 drives (0.6 m on at `now`), far from where the forged stop is
+    beside = np.array([0.6, 0.45, 0.0])
+    assert not near.path_is_safe(beside, np.zeros(2), now)
+    times = now + np.linspace(0.0, TS, 11)
+    path = np.tile(beside[:2], (11, 1))
+    on_fork = near._stretch_gaps(near.forks[2][0], path, times, False).min()
+    on_chain = near._stretch_gaps(near.plans[2], path, times, False).min()
+    assert on_fork + 0.1 < on_chain  # the fork is what keeps it out

@@ -77,7 +77,7 @@ from ..priority import Priority
 from . import msgs
 from .controller import Ros2Controller
 from .graph import Received, Ros2Node
-from .neighbours import Neighbours
+from .neighbours import MIN_SPACING, Neighbours
 from .options import check_margin, ros2_config, ros2_problem
 from .startup import PUBLISH_SLACK, StartUp
 from .stream import CommandStream
@@ -284,9 +284,12 @@ class Ros2Robot(StartUp, Node):
                      inputs: np.ndarray) -> None:
         """The plan to the neighbours (sqpmpc keys) and as a Path on ``NS/plan``; a plan
         stamped before the last one sent (a stop announced inside a sample already
-        planned) is stamped with the last one's instead: the stamps never go back
-        (:meth:`services.ros2.neighbours.Neighbours.add`)."""
-        stamp = max(stamp, self._last_stamp)
+        planned) is stamped with the last one's instead, a standing one at least
+        :data:`~services.ros2.neighbours.MIN_SPACING` samples after it: the stamps never go
+        back nor crowd (:meth:`services.ros2.neighbours.Neighbours.add`)."""
+        standing = not np.asarray(inputs)[0].any()
+        # a standing plan at most every MIN_SPACING Ts (true: it stands from then on too)
+        stamp = max(stamp, self._last_stamp + (MIN_SPACING * self.Ts if standing else 0.0))
         self._last_stamp = stamp
         t = stamp - (self.epoch or 0.0)
         self.bus.put(encode(PlanMsg(self.robot_id, sample, t, stamp, states, inputs)),
