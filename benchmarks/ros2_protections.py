@@ -64,21 +64,28 @@ plan exchange has lost its last link (a watchdog looks every 0.1 s) and at the e
 stop on `--cmd-timeout` (default 0.5 s) as diff_drive_controller does and count it.
 
 **Plans are claims, checked** (`services.ros2.neighbours.Neighbours.add`). A neighbour's
-plan is kept only if its stamp is after the neighbour's previous plan and at most a sample
-(plus `--ros2-guard`) ahead of this robot's clock, if it is the only moving plan of its
-sample, if its inputs lie within the velocity bounds (1 % of the range for the QP's
-tolerance) and no stage is further than `v_max Ts` from the one before, and if it starts
-within `--plan-tolerance` (0.05 m) plus the check's margin of where the neighbour's kept
-plans put it at some moment of the sample before its stamp (a robot may stop at any moment).
-A robot whose plan fails is named in the log (`robot 2 is untrusted from now on: its plan
-...`; at the end `untrusted robot 2: N false plans refused`) and, for ten samples after its
-last false plan, kept at a sample's reach `v_max Ts` more everywhere it may be; its refused
-plans are never used, its consistent ones still place it. A process holding a robot's key
-can therefore make its neighbours keep more room from it, not put it where it is not.
-Plant mode does the same with the plant's states (`services.plans.PlanStore`): a
-neighbour's plan must start at the plant's state of its sample, else it is refused, the
-controller predicts that neighbour from its states for that sample (the paper's fallback)
-and the robot is named.
+plan is kept only if its stamp is at least 0.2 Ts after the neighbour's previous plan and at
+most a sample (plus `--ros2-guard`) ahead of this robot's clock, if it is the only moving
+plan of its sample, if its inputs lie within the velocity bounds (1 % of the range for the
+QP's tolerance) and no stage is further than `v_max Ts` from the one before, and if it
+starts within `--plan-tolerance` (0.05 m) plus the check's margin of where the neighbour's
+kept plans put it at some moment of the sample before its stamp (a robot may stop at any
+moment). A plan that contradicts the newest plans but follows older ones is kept as a
+*fork*: of two claims that cannot both be true the neighbour may be on either, and the check
+keeps out of every claim (without forks, a key holder's claim that robot 2 had stopped at
+its start, consistent with its first plan, made every later plan of robot 2 look false:
+robot 2 was believed standing while it drove on, and a flood run (below, before forks) ended
+in a collision of robots 1 and 2, -0.069 m; forks and the 0.2 Ts spacing came after it). A
+robot whose plan fails or contradicts another is named in the log (`robot 2 is untrusted
+from now on: its plan ...`; at the end `untrusted robot 2: N false plans refused`) and, for
+ten samples after its last false plan, kept at a sample's reach `v_max Ts` more everywhere
+it may be; its refused plans are never used, its consistent ones still place it. A process
+holding a robot's key can therefore make its neighbours keep more room from it, not put it
+where it is not nor hide where it is (short of forging a whole physically consistent path
+from the robot's true one, which the neighbours then also keep out of). Plant mode does the
+same with the plant's states (`services.plans.PlanStore`): a neighbour's plan must start at
+the plant's state of its sample, else it is refused, the controller predicts that neighbour
+from its states for that sample (the paper's fallback) and the robot is named.
 
 **Same protections in every mode.** Every service now defaults to `--priority auto`,
 raised when a real-time sample loop starts (never in lockstep), hand-started ones too;
