@@ -80,12 +80,13 @@ robot whose plan fails or contradicts another is named in the log (`robot 2 is u
 from now on: its plan ...`; at the end `untrusted robot 2: N false plans refused`) and, for
 ten samples after its last false plan, kept at a sample's reach `v_max Ts` more everywhere
 it may be; its refused plans are never used, its consistent ones still place it. A process
-holding a robot's key can therefore make its neighbours keep more room from it, not put it
-where it is not nor hide where it is (short of forging a whole physically consistent path
-from the robot's true one, which the neighbours then also keep out of). Plant mode does the
-same with the plant's states (`services.plans.PlanStore`): a neighbour's plan must start at
-the plant's state of its sample, else it is refused, the controller predicts that neighbour
-from its states for that sample (the paper's fallback) and the robot is named.
+holding a robot's key can therefore make its neighbours keep more room from it; in the
+attacks measured it could not put the robot where it is not nor hide where it is. Not
+proved: a key holder forging many physically consistent paths branching from the robot's
+true one could crowd the true one out (4 forks are kept per robot, the newest). Plant mode
+does the same with the plant's states (`services.plans.PlanStore`): a neighbour's plan must
+start at the plant's state of its sample, else it is refused, the controller predicts that
+neighbour from its states for that sample (the paper's fallback) and the robot is named.
 
 **Same protections in every mode.** Every service now defaults to `--priority auto`,
 raised when a real-time sample loop starts (never in lockstep), hand-started ones too;
