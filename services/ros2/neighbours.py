@@ -29,8 +29,10 @@ either, and the check keeps out of both. A neighbour whose plan breaks one of
 these is *untrusted*, named in the log, and held at a sample's reach
 ``v_max Ts`` more everywhere it may be (for :data:`UNTRUSTED_SAMPLES` samples
 after its last false plan); its refused plans are never used. So a process
-holding a robot's key can make its neighbours keep more room from it, but
-cannot put it where it is not, nor hide where it is.
+holding a robot's key can make its neighbours keep more room from it, and in
+the attacks measured (``docs/ros2.md``) could not put it where it is not nor
+hide where it is; :data:`MAX_FORKS` bounds what is kept of many consistent
+forged paths, so their number could crowd out the true one (not proved safe).
 
 A neighbour that left (its token disappeared) stands within a sample's reach of
 where its last plan put it (a base stops on its command timeout, 0.5 s at most
