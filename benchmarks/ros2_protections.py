@@ -144,9 +144,10 @@ for every plan of a neighbour, a plan of robot 2 stamped at that neighbour's nex
 standing where the neighbour will be (`freeze`) or 0.35 m ahead of it (`herd`), robot 2's
 own controller running too; `flood`: the forger re-sends robot 2's plan and command as fast
 as it can (nice 0, same cores); `kill`: robot 5's controller killed (SIGKILL) at `t` = 12 s,
-started again 3 s later.
-<!-- /protections -->"""
-"""The section of ``docs/ros2.md`` (``date``, ``table``)."""
+started again 3 s later; `..., before forks`: the same attacks on the tree before forks
+and the 0.2 Ts spacing.
+{notes}<!-- /protections -->"""
+"""The section of ``docs/ros2.md`` (``date``, ``table``, ``notes``)."""
 
 
 def run_case(name: str, folder: Path) -> dict:
@@ -214,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--from-json", type=Path, default=None, metavar="FILE",
                    help="render the rows a --json run wrote instead of running")
     p.add_argument("--date", default=None, help="with --from-json: when they ran")
+    p.add_argument("--notes", type=Path, default=None, metavar="FILE",
+                   help="Markdown to put after the table (what the rows showed)")
     args = p.parse_args(argv)
     rows: list[dict] = []
     began = args.date or time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
@@ -233,7 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     if not args.no_write and OUT.exists():
         text = OUT.read_text()
-        block = SECTION.format(date=began, table=table)
+        notes = "" if args.notes is None else "\n" + args.notes.read_text().strip() + "\n"
+        block = SECTION.format(date=began, table=table, notes=notes)
         start, end = text.find("<!-- protections -->"), text.find("<!-- /protections -->")
         if 0 <= start < end:
             text = text[:start] + block + text[end + len("<!-- /protections -->"):]
