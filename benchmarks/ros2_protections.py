@@ -88,14 +88,15 @@ does the same with the plant's states (`services.plans.PlanStore`): a neighbour'
 start at the plant's state of its sample, else it is refused, the controller predicts that
 neighbour from its states for that sample (the paper's fallback) and the robot is named.
 
-**Same protections in every mode.** Every service now defaults to `--priority auto`,
-raised when a real-time sample loop starts (never in lockstep), hand-started ones too;
-`sqpmpc robot --ros2` also takes a per-publisher rate limit of `20 / Ts`
-(`services.limits`) by default, as `sqpmpc launch` passes in real time; `--priority off`
-and `--no-flood-limits` opt out. The demos pass them. Not done: a default rate limit for
-hand-started plant-mode services (the limit is fixed when the Zenoh session opens, and a
-robot cannot tell then a lockstep run, whose rate is the machine's, from a real-time one:
-give `--max-rate 20/Ts` by hand).
+**Same protections in every mode.** Every service now defaults to `--priority auto`, raised
+when a real-time sample loop starts (never in lockstep), hand-started ones and `sqpmpc robot
+--ros2` too; `--priority off` opts out. The per-publisher rate limit (`services.limits`,
+`--max-rate`) is not on by default in any hand-started service: it is fixed when the Zenoh
+session opens, when a robot cannot tell a lockstep run (whose rate is the machine's) from a
+real-time one, and in the ROS 2 mode, where every plan comes through a router, Zenoh keeps
+its state per link, so it limits a key, not a publisher: with it on by default (the rows
+`nominal` to `kill` below), a flood on robot 2's key made every receiver drop robot 2's own
+plans with the forged ones, and robot 2's neighbours collided with it (`flood`).
 
 **Secure by default.** `sqpmpc robot` refuses to start without `--credentials`,
 `--credentials-fd` or `--zenoh-config` (one error line), unless `--insecure` is given, which

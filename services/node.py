@@ -98,9 +98,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="peer (default) or client of a router")
     parser.add_argument("--max-rate", type=positive_float, default=None, metavar="HZ",
                         help="drop what a robot publishes on one of its keys faster than this "
-                             "(services.limits; services.launch passes 20/Ts in real time, "
-                             "sqpmpc robot --ros2 takes 20/Ts by default; otherwise default: "
-                             "no rate limit, payloads above 64 KiB are always dropped)")
+                             "(services.limits; services.launch passes 20/Ts in real time; "
+                             "default: no rate limit, payloads above 64 KiB are always "
+                             "dropped)")
     parser.add_argument("--no-flood-limits", action="store_true",
                         help="neither the rate nor the size limit (the opt-out; benchmarks)")
     parser.add_argument("--priority", type=parse_priority, default=None,

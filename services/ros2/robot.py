@@ -94,9 +94,6 @@ WATCH_PERIOD = 0.01
 """How often the watchdog thread looks at the odometry's age, s."""
 STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
-MAX_RATE_PER_SAMPLE = 20.0
-"""Default ``--max-rate``: messages per sample period a robot may publish on one of its keys
-(:mod:`services.limits`, as :mod:`services.launch` passes in real time)."""
 CLOSE_GRACE = 0.05
 """Seconds between the last zero on cmd_vel and the ROS 2 session's close."""
 LINK_PERIOD = 0.1
@@ -129,10 +126,10 @@ class Ros2Robot(StartUp, Node):
         # stage-one-override on the obstacle rows too: a stage-1 row the current positions
         # violate is capped at the current gap, so standing still stays feasible
         self.controller.collisions.stage_one_rule_for_obstacles = True
-        # the same protections as a launched real-time run, by default (services.limits,
-        # services.priority); --no-flood-limits and --priority off opt out
-        if getattr(args, "max_rate", None) is None:
-            args.max_rate = MAX_RATE_PER_SAMPLE / scenario.sample_time
+        # --priority auto by default, as every service (services.priority). No rate limit
+        # by default: through a router, a per-key limit drops a robot's own plans with a
+        # flood on its key (one link carries both): neighbours lost sight of the robot and
+        # collided with it (docs/ros2.md, Protections); --max-rate opts in
         if getattr(args, "priority", None) is None:
             args.priority = Priority("auto")
         super().__init__(scenario, args, f"robot/{self.robot_id}", "decentralized")
