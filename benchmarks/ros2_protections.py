@@ -146,7 +146,8 @@ standing where the neighbour will be (`freeze`) or 0.35 m ahead of it (`herd`), 
 own controller running too; `flood`: the forger re-sends robot 2's plan and command as fast
 as it can (nice 0, same cores); `kill`: robot 5's controller killed (SIGKILL) at `t` = 12 s,
 started again 3 s later; `..., before forks`: the same attacks on the tree before forks
-and the 0.2 Ts spacing.
+and the 0.2 Ts spacing; `40 Hz limit`: with the per-key rate limit `--max-rate 20/Ts` that
+was the ROS 2 mode's default then (every row but `flood, no limit` ran with it).
 {notes}<!-- /protections -->"""
 """The section of ``docs/ros2.md`` (``date``, ``table``, ``notes``)."""
 
