@@ -34,7 +34,8 @@ CASES = {
 }
 """Row name -> demo arguments."""
 
-__all__ = ["CASES", "HOSTS_PENDING", "OUT", "log_counts", "main", "run_case", "section"]
+__all__ = ["CASES", "HOSTS_PENDING", "OUT", "PROTECTIONS_PENDING", "log_counts", "main",
+           "run_case", "section"]
 
 HOSTS_PENDING = """<!-- hosts -->
 ## Every robot a host of its own
@@ -42,6 +43,12 @@ HOSTS_PENDING = """<!-- hosts -->
 Not run yet: `sudo python -m benchmarks.ros2_hosts` writes this section.
 <!-- /hosts -->"""
 """The hosts section before :mod:`benchmarks.ros2_hosts` has run."""
+PROTECTIONS_PENDING = """<!-- protections -->
+## Protections
+
+Not run yet: `python -m benchmarks.ros2_protections` writes this section.
+<!-- /protections -->"""
+"""The protections section before :mod:`benchmarks.ros2_protections` has run."""
 
 
 def run_case(name: str, folder: Path, tolerance: float) -> dict:
@@ -138,7 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     if not args.no_write:
         hosts = section(OUT.read_text(), "hosts") if OUT.exists() else None
+        protections = section(OUT.read_text(), "protections") if OUT.exists() else None
         OUT.write_text(_DOC.format(table=table, hosts=hosts or HOSTS_PENDING,
+                                   protections=protections or PROTECTIONS_PENDING,
                                    date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())))
         print(f"wrote {OUT}")
     return 0 if all(r.get("collisions", 1) == 0 for r in rows) else 1
@@ -148,7 +157,8 @@ _DOC = """# ROS 2 robots over Zenoh
 
 `sqpmpc robot --id ID --scenario S --ros2` drives a ROS 2 robot (CONTRACT 4):
 `nav_msgs/Odometry` in on `NS/odom`, `geometry_msgs/Twist` (or `TwistStamped`,
-`--twist-stamped`) out on `NS/cmd_vel` every sample, its plan as `nav_msgs/Path` on
+`--twist-stamped`) out on `NS/cmd_vel` (each sample's input, republished at `--cmd-rate`,
+default 20 Hz), its plan as `nav_msgs/Path` on
 `NS/plan`, in rmw_zenoh's key format, CDR, attachments and graph tokens
 (`services.ros2`). There is no plant process: each robot runs on its own clock at
 the scenario's `Ts` with a phase of its own, takes its own state from its odometry and
@@ -300,6 +310,8 @@ The tree before (6384a41) on the same machine: loopback swap-16 14/16 (05:08; 16
 02:37 and 04:28), 181 refused inputs, 172 phase shifts; hosts 16/16 by t_end in two of
 four runs, 10/16 in the other two (all 16 by 98 s), 482 refused inputs and 478 phase
 shifts in one run; 0 collisions in every run.
+
+{protections}
 """
 
 if __name__ == "__main__":

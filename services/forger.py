@@ -25,6 +25,12 @@ possibly none) and, for ``--duration`` seconds, publishes:
   digest and settings (what a controller started with other settings
   sends); with robot ``--target``'s own credentials the access control
   lets it through;
+- ``freeze`` and ``herd`` (against ``sqpmpc robot --ros2``, with robot
+  ``--target``'s own key): it reads every robot's plans and, as soon as a
+  neighbour's plan comes, sends a plan of robot ``--target`` stamped at that
+  neighbour's next instant (one plan per neighbour, many per sample), standing
+  where the neighbour will then be (``freeze``) or 0.35 m ahead of it on its
+  heading (``herd``);
 - ``flood``: as fast as it can (no pause between rounds), robot ``--target``'s
   own ``cmd`` and ``plan`` (also addressed to every other robot) of the newest
   sample, well formed, or with ``--flood-bytes N`` payloads of ``N`` bytes.
@@ -58,15 +64,20 @@ from .node import (
     scenario_digest,
     scenario_from_args,
 )
+from .ros2.timing import arc
 from .transport import make_config, run_prefix
 
 __all__ = ["ATTACKS", "FORGED_SPEED", "build_parser", "forged_input", "forged_speed", "main"]
 
 PROG = "services.forger"
-ATTACKS = ("cmd", "plan", "state", "done", "alive", "settings", "flood")
+ATTACKS = ("cmd", "plan", "state", "done", "alive", "settings", "flood", "freeze", "herd")
 """What the forger can send."""
 FORGED_SPEED = 0.987654321
 """Forged speed as a fraction of the upper speed bound."""
+
+
+HERD_AHEAD = 0.35
+"""``herd``: how far ahead of a neighbour on its heading the forged plan stands, m."""
 
 
 def forged_speed(upper: np.ndarray) -> float:
@@ -165,6 +176,12 @@ def main(argv: list[str] | None = None) -> int:
     states = session.declare_subscriber(f"{prefix}/plant/state",
                                         lambda sample: inbox.put(sample.payload.to_bytes()),
                                         allowed_origin=zenoh.Locality.REMOTE)
+    # ROS 2 mode: every robot's plans (its neighbours' instants and where they go)
+    plans_in: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    plan_sub = session.declare_subscriber(
+        f"{prefix}/robot/*/plan", lambda sample: plans_in.put(sample.payload.to_bytes()),
+        allowed_origin=zenoh.Locality.REMOTE) if {"freeze", "herd"} & set(attacks) else None
+    answered: set[tuple[int, float]] = set()  # (neighbour, its next instant) already sent
     try:
         if "alive" in attacks:
             token = session.liveliness().declare_token(f"{prefix}/alive/robot/{args.target}")
@@ -204,6 +221,32 @@ def main(argv: list[str] | None = None) -> int:
                     if rid != args.target:
                         put(plan, f"robot/{args.target}/plan/{rid}")
                 sent["plan"] += 1
+            while plan_sub is not None and not plans_in.empty():
+                try:
+                    other = decode(plans_in.get_nowait(), scenario.horizon)
+                except (queue.Empty, InvalidMessage):
+                    break
+                if not isinstance(other, PlanMsg) or other.id == args.target:
+                    continue
+                nxt = other.stamp + scenario.sample_time  # when it decides next
+                if (other.id, nxt) in answered:
+                    continue
+                answered.add((other.id, nxt))
+                u = other.inputs[0]
+                at = arc(other.states[0], float(u[0]), float(u[1]), scenario.sample_time)
+                for kind in ("freeze", "herd"):
+                    if kind not in attacks:
+                        continue
+                    stand = at.copy()
+                    if kind == "herd":
+                        stand[:2] += HERD_AHEAD * np.array([np.cos(at[2]), np.sin(at[2])])
+                    plan = encode(PlanMsg(args.target, other.sample + 1,
+                                          other.t + scenario.sample_time, nxt,
+                                          np.repeat(stand[None, :], scenario.horizon + 1, 0),
+                                          np.zeros((scenario.horizon, 2))))
+                    put(plan, f"robot/{args.target}/plan", block=True)
+                    put(plan, f"robot/{args.target}/plan/{other.id}", block=True)
+                    sent[kind] += 1
             if "state" in attacks and k < scenario.steps:
                 moved = x + np.array([1.0, 0.5, 0.0])
                 put(encode(StateMsg(k + 1, (k + 1) * scenario.sample_time, tuple(ids), moved,
@@ -246,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         # reported first: an undeclare or close that hangs (zenoh-python #434) loses nothing
         report()
-        for obj in (states, token):
+        for obj in (states, token, plan_sub):
             if obj is not None:
                 obj.undeclare()
         session.close()

@@ -42,7 +42,10 @@ included, ends every process without a traceback (a signal that comes while
 a service still imports its modules is honoured once it can be,
 :mod:`services.early`) and leaves a run folder readable by ``sqpmpc metrics``:
 stopped before the plant started, the launcher still starts it, and a run
-stopped before its first sample says so (``steps 0``, ``interrupted``).
+stopped before its first sample says so (``steps 0``, ``interrupted``). A
+controller killed while the run goes on (a crash, ``kill -9``) is
+started again at once, with its credentials handed over anew (at most
+:data:`MAX_RESTARTS` times); it rejoins as a late robot does.
 
 Exit status: the plant's (0 when the run completed), 2 for bad input.
 """
@@ -100,6 +103,12 @@ MAX_RATE_PER_SAMPLE = 20.0
 """Longest wait for a child to handle signals before one is sent to it anyway, s."""
 START_EVERY = 5.0
 """Seconds between two lines while the run's processes start."""
+MAX_RESTARTS = 3
+"""Times the launcher starts a controller killed by a signal again (not one that exited)."""
+RESTART_SIGNALS = frozenset({signal.SIGKILL, signal.SIGSEGV, signal.SIGABRT, signal.SIGBUS,
+                             signal.SIGILL, signal.SIGFPE})
+"""A controller ended by one of these (a crash, ``kill -9``) is started again; one stopped
+by SIGTERM or SIGINT is not."""
 CONTROLLER_GRACE = 5.0
 """Seconds the controllers may take to exit after the plant finished."""
 
@@ -213,7 +222,8 @@ def _commands(args: argparse.Namespace, ids: list[int], run: str, out: Path,
             cmds.append((name, [*py, "services.central", *common, *net]))
         else:
             id_args = [a for rid in rids for a in ("--id", rid)]
-            cmds.append((name, [*py, "services.robot", *id_args, *common, *net]))
+            insecure = ["--insecure"] if proto == "tcp" else []  # named, as it must be
+            cmds.append((name, [*py, "services.robot", *id_args, *common, *net, *insecure]))
     extra = [a for ep in args.also_connect for a in ("--connect", ep)]
     if args.router:
         cmds.insert(0, ("router", [*py, "services.router", "--listen", plant_ep,
@@ -353,21 +363,26 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         commands = _commands(args, [int(i) for i in scenario.ids], run, out,
                              scenario.sample_time, args.credentials, issued is not None)
         handover = Handover(issued.meta) if issued is not None else None
+
+        def spawn(name: str, cmd: list[str], cpu: int | None) -> Child:
+            """Start a child; with issued credentials, its own handed over anew."""
+            if handover is None or issued is None:
+                return Child(name, cmd, cpu, env)
+            fd = handover.child_end({i: issued.config(i) for i in _identities_of(name)})
+            try:
+                return Child(name, [*cmd, "--credentials-fd", str(fd)], cpu, env, (fd,))
+            finally:
+                handover.started()
+
+        how: dict[str, tuple[list[str], int | None]] = {}
+        restarts: dict[str, int] = {}
         for j, (name, cmd) in enumerate(commands):
             if stop.is_set() and name != "plant":
                 continue  # stopped already: only the plant, which writes the (empty) run
             cpu = cpus[(j - 1) % len(cpus)] if args.pin_cpus and cpus and j > 0 else None
-            if handover is None or issued is None:
-                children.append(Child(name, cmd, cpu, env))
-                continue
-            fd = handover.child_end({i: issued.config(i) for i in _identities_of(name)})
-            try:
-                children.append(Child(name, [*cmd, "--credentials-fd", str(fd)], cpu, env,
-                                      (fd,)))
-            finally:
-                handover.started()
+            how[name] = (cmd, cpu)
+            children.append(spawn(name, cmd, cpu))
         plant = next((c for c in children if c.name == "plant"), None)
-        services = [c for c in children if c.name != "router"]
         progress = StartProgress(out / RECORD_FILE, len(children))
         while plant is not None and not stop.is_set():
             progress.tick()
@@ -375,14 +390,23 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             if code is not None:
                 status = code
                 break
-            for c in children:
+            for j, c in enumerate(children):
                 if c is plant:
                     continue
                 code = c.poll()
-                if code not in (None, 0) and not c.reported:
+                if (code is not None and -code in RESTART_SIGNALS and c.name != "router"
+                        and restarts.get(c.name, 0) < MAX_RESTARTS):
+                    # killed (a crash, kill -9): start it again, its credentials anew
+                    restarts[c.name] = restarts.get(c.name, 0) + 1
+                    log.warning("%s was killed by %s: starting it again (%d of at most %d)",
+                                c.name, signal.Signals(-code).name, restarts[c.name],
+                                MAX_RESTARTS)
+                    children[j] = spawn(c.name, *how[c.name])
+                elif code not in (None, 0) and not c.reported:
                     c.reported = True
                     log.warning("%s exited with status %s", c.name, code)
             time.sleep(0.05)
+        services = [c for c in children if c.name != "router"]
         if stop.is_set():
             sig = received.get("signal", signal.SIGTERM)
             log.info("stopping on %s", signal.Signals(sig).name)

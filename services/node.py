@@ -99,15 +99,16 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-rate", type=positive_float, default=None, metavar="HZ",
                         help="drop what a robot publishes on one of its keys faster than this "
                              "(services.limits; services.launch passes 20/Ts in real time; "
-                             "default: no rate limit, payloads above 64 KiB are always dropped)")
+                             "default: no rate limit, payloads above 64 KiB are always "
+                             "dropped)")
     parser.add_argument("--no-flood-limits", action="store_true",
-                        help="benchmarks only: neither the rate nor the size limit")
-    parser.add_argument("--priority", type=parse_priority, default=Priority("off"),
+                        help="neither the rate nor the size limit (the opt-out; benchmarks)")
+    parser.add_argument("--priority", type=parse_priority, default=None,
                         metavar="off|auto|N",
-                        help="scheduling priority of the sample loop (services.priority): "
-                             "off (default), auto (SCHED_RR where permitted, else a negative "
-                             "nice; services.launch passes it in real time) or a SCHED_RR "
-                             "priority 1-99")
+                        help="scheduling priority of the sample loop in real time "
+                             "(services.priority; a lockstep run's loops keep theirs): auto "
+                             "(default: SCHED_RR where permitted, else a negative nice, else "
+                             "unchanged), off (the opt-out) or a SCHED_RR priority 1-99")
     add_credential_arguments(parser)
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
 
@@ -217,7 +218,8 @@ class Node:
         self.alive: set[str] = set()
         self.stop = threading.Event()
         self.signals: dict[str, int] = {}
-        self.priority: Priority = getattr(args, "priority", Priority("off"))
+        # auto by default: raised only when a real-time sample loop starts (never in lockstep)
+        self.priority: Priority = getattr(args, "priority", None) or Priority("auto")
         try:
             check_priority(self.priority)
         except PermissionError as exc:

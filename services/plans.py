@@ -21,6 +21,15 @@ other plan of the fleet is traffic it pays for and never uses.
   acceptance policy (:mod:`services.protocol`), the body decoded and
   validated when read.
 
+Plans are claims, checked: a plan's stage 0 must be where the plant's state of
+its sample put its robot (within :data:`START_TOLERANCE`), when this robot has
+that state (``truth``). A plan that is not is refused as false: the
+controller predicts that neighbour from its states for that sample (the
+paper's fallback), and the robot is named in the log (:attr:`PlanStore.false`).
+So a process holding a robot's key cannot place it where it is not; as only
+the first plan of a sample is kept, a false plan that comes first costs the
+neighbours that robot's plan of that sample.
+
 Both sides compute from the same states with the same rule, so a lockstep
 run equals the in-process run; a plan that is late or lost is what the
 controller already handles (the paper's fallback). ``docs/fleet-services.md``
@@ -44,9 +53,13 @@ from .messages import InvalidMessage, PlanMsg, peek_plan
 from .protocol import AcceptancePolicy, Verdict
 from .validator import MessageValidator
 
-__all__ = ["PlanStore", "StepPlans", "recipients", "slotted"]
+__all__ = ["START_TOLERANCE", "PlanStore", "StepPlans", "recipients", "slotted"]
 
 log = logging.getLogger(__name__)
+
+START_TOLERANCE = 1.0e-6
+"""How far a plan's stage 0 may be from the plant's state of its sample, m (both are the
+same numbers: the controller starts its plan at the state it was given)."""
 
 
 def slotted(states: np.ndarray, controller: DecentralizedController) -> list[int]:
@@ -79,17 +92,25 @@ class PlanStore:
         The run's acceptance rules (:meth:`AcceptancePolicy.plan`).
     cursor
         The receiving robot's cursor in the state stream (sample), called per plan.
+    truth
+        ``truth(robot_id, sample)``: the plant's state of that robot at that sample, if
+        this robot has it (``None``: not checked).
 
     Attributes
     ----------
     received, decoded, repeats
         Plans accepted so far, plans decoded so far, copies dropped.
+    false
+        Per robot, plans refused as false (not starting at the plant's state).
     """
 
     def __init__(self, validator: MessageValidator, neighbours: Iterable[int],
                  policy: AcceptancePolicy, cursor: Callable[[], int],
-                 lazy: bool = True) -> None:
+                 lazy: bool = True,
+                 truth: Callable[[int, int], np.ndarray | None] | None = None) -> None:
         self.validator = validator
+        self.truth = truth
+        self.false: dict[int, int] = {}
         self.policy = policy
         self.cursor = cursor
         self.lazy = lazy
@@ -121,6 +142,8 @@ class PlanStore:
                 raise InvalidMessage(f"a {type(msg).__name__} on a plan key")
             item: bytes | PlanMessage = _as_plan(msg)
             sample = msg.sample
+            if self._is_false(item):
+                return
             if self._admit(robot_id, sample):
                 self.decoded += 1
             else:
@@ -150,10 +173,27 @@ class PlanStore:
             raise InvalidMessage(decision.reason)
         return False
 
+    def _is_false(self, plan: PlanMessage) -> bool:
+        """Whether ``plan`` does not start where the plant's state of its sample put its
+        robot (counted and, the first time, logged with the robot's name)."""
+        if self.truth is None:
+            return False
+        true = self.truth(plan.robot_id, plan.sample)
+        if true is None:
+            return False
+        off = float(np.hypot(*(np.asarray(plan.states[0, :2]) - np.asarray(true[:2]))))
+        if off <= START_TOLERANCE:
+            return False
+        n = self.false[plan.robot_id] = self.false.get(plan.robot_id, 0) + 1
+        if n == 1:
+            log.warning("robot %d is untrusted: its plan of sample %d starts %.3f m from its "
+                        "state (refused, as every such plan)", plan.robot_id, plan.sample, off)
+        return True
+
     def add_decoded(self, msg: PlanMsg) -> None:
         """Keep a plan already decoded and validated (if :meth:`AcceptancePolicy.plan`
         admits it)."""
-        if not self._admit(msg.id, msg.sample):
+        if self._is_false(_as_plan(msg)) or not self._admit(msg.id, msg.sample):
             return
         self._plans[msg.id][msg.sample] = _as_plan(msg)
         self._newest[msg.id] = max(self._newest[msg.id], msg.sample)
@@ -195,7 +235,11 @@ class PlanStore:
             self.validator.refuse(f"plan header of sample {sample} over another body")
             del stored[sample]
             return None
-        stored[sample] = plan = _as_plan(msg)
+        plan = _as_plan(msg)
+        if self._is_false(plan):
+            del stored[sample]
+            return None
+        stored[sample] = plan
         return plan
 
     def clear(self, robot_id: int) -> None:

@@ -5,9 +5,10 @@ real-time scheduling priority, so that nothing else on its computer (a
 logger, a busy update, a process an attacker started) can take the CPU from
 it when its sample comes. ``--priority`` does the same for the services:
 
-- ``off`` (the default of a service started by hand): the process keeps the
-  priority it was started with;
-- ``auto`` (what :mod:`services.launch` passes in real time): ``SCHED_RR`` at
+- ``off`` (the opt-out): the process keeps the priority it was started with;
+- ``auto`` (the default, of a service started by hand too, and what
+  :mod:`services.launch` passes in real time; a lockstep run's sample loops never
+  raise theirs): ``SCHED_RR`` at
   :data:`RT_PRIORITY` where the process may (root or ``CAP_SYS_NICE``, or an
   ``RLIMIT_RTPRIO`` allowing it), else a nice value of :data:`NICE` where it
   may, else nothing; the outcome is logged once;

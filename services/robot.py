@@ -67,10 +67,10 @@ from .node import (
     setup_logging,
 )
 from .plans import PlanStore, StepPlans, slotted
-from .ros2.options import add_ros2_arguments
+from .ros2.options import add_ros2_arguments, ros2_problem
 from .ros2.robot import main_ros2
 
-__all__ = ["RobotNode", "build_parser", "host", "main"]
+__all__ = ["RobotNode", "build_parser", "credentials_problem", "host", "main"]
 
 log = logging.getLogger(__name__)
 PROG = "services.robot"
@@ -105,7 +105,8 @@ class RobotNode(ControllerNode):
         self.filtering = (self.controller.settings.neighbour_slots is not None
                           and not options.all_plans)  # the settings as resolved for this scenario
         self.plans = PlanStore(self.validator, self.neighbours, self.policy,
-                               lambda: self.cursor.sample, lazy=self.filtering)
+                               lambda: self.cursor.sample, lazy=self.filtering,
+                               truth=self.true_state)
         self.addressed = 0  # plans sent on robot/<id>/plan/<to>
         self.step_lock: AbstractContextManager[object] = nullcontext()
         self.fallback_samples = 0
@@ -114,6 +115,14 @@ class RobotNode(ControllerNode):
         # lockstep: neighbours alive but silent (no plan within --timeout), by the sample of
         # the plan that did not come; not waited for until a plan of it or later does
         self.silent: dict[int, int] = {}
+
+    def true_state(self, robot_id: int, sample: int) -> np.ndarray | None:
+        """The plant's state of robot ``robot_id`` at ``sample``, if this robot has it (a
+        neighbour's plan of that sample must start there: :class:`services.plans.PlanStore`)."""
+        entry = self.samples.get(sample)
+        if entry is None or robot_id not in self.ids:
+            return None
+        return entry.states[self.ids.index(robot_id)]
 
     def take_plan(self, robot_id: int, payload: bytes) -> bool:
         if robot_id not in self.plans:
@@ -180,6 +189,9 @@ class RobotNode(ControllerNode):
         status = super().run()
         log.info("robot %d: %d plans received, %d decoded, %d sent addressed", self.robot_id,
                  self.plans.received, self.plans.decoded, self.addressed)
+        for rid, n in sorted(self.plans.false.items()):
+            log.warning("robot %d: untrusted robot %d: %d false plans refused", self.robot_id,
+                        rid, n)
         return status
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:
@@ -281,9 +293,32 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "process (one thread and one Zenoh session each, every session "
                              "listening on a free loopback port)")
     add_common_arguments(parser)
+    parser.add_argument("--insecure", action="store_true",
+                        help="run the plan exchange without credentials, on plain TCP (any "
+                             "process that reaches the endpoints can then publish plans and "
+                             "inputs as this robot); without it, a robot given no "
+                             "--credentials, --credentials-fd or --zenoh-config refuses to "
+                             "start")
     add_controller_arguments(parser, "longest wait for a neighbour's plan in lockstep, s")
     add_ros2_arguments(parser)
     return parser
+
+
+def credentials_problem(args: argparse.Namespace) -> str | None:
+    """Why the plan exchange may not start as asked, if so: secure by default, a robot
+    needs ``--credentials``, ``--credentials-fd`` or ``--zenoh-config``, or ``--insecure``
+    explicitly (not both)."""
+    given = [flag for flag, value in (("--credentials", args.credentials),
+                                      ("--credentials-fd", args.credentials_fd),
+                                      ("--zenoh-config", args.zenoh_config))
+             if value is not None]
+    if args.insecure and given:
+        return f"give {given[0]} or --insecure, not both"
+    if not args.insecure and not given:
+        return ("no credentials: the plan exchange needs --credentials DIR (sqpmpc "
+                "credentials), --credentials-fd FD (sqpmpc launch) or --zenoh-config FILE; "
+                "--insecure runs it on plain TCP without them (debugging only)")
+    return None
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> int:
@@ -300,6 +335,17 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     problem = combination_problem(options_of(args), "decentralized", scenario.n_robots)
     if problem:
         fail(prog, problem)
+    if args.ros2:  # its own options first: one error for the first thing wrong
+        problem = ros2_problem(args, scenario)
+        if problem:
+            fail(prog, problem)
+    problem = credentials_problem(args)
+    if problem:
+        fail(prog, problem)
+    if args.insecure:
+        log.warning("INSECURE (--insecure): the plan exchange runs without credentials on "
+                    "plain TCP; any process that reaches its endpoints can publish as any "
+                    "robot")
     if args.ros2:  # a ROS 2 robot on its own clock, no plant (services.ros2.robot)
         return main_ros2(args, scenario, prog)
     if len(ids) > 1 and args.listen:

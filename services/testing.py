@@ -23,6 +23,7 @@ from .node import POLL
 from .transport import Bus, Event
 
 __all__ = [
+    "INSECURE_FLAGS",
     "REPO",
     "Probe",
     "ServiceProcess",
@@ -34,6 +35,9 @@ __all__ = [
 ]
 
 REPO = Path(__file__).resolve().parent.parent
+INSECURE_FLAGS = frozenset({"--insecure", "--credentials", "--credentials-fd", "--zenoh-config"})
+"""A robot started by :func:`start_service` with none of these gets ``--insecure`` (its
+plan exchange refuses to start without credentials otherwise)."""
 """The project's root (services run with it as working directory)."""
 
 
@@ -65,9 +69,13 @@ class ServiceProcess:
 
 def start_service(module: str, args: Sequence[str], log_dir: Path, name: str | None = None,
                   env: dict[str, str] | None = None) -> ServiceProcess:
-    """Start ``python -m services.<module> <args>`` with its output in ``log_dir``."""
+    """Start ``python -m services.<module> <args>`` with its output in ``log_dir`` (a robot
+    without credentials with ``--insecure``: :data:`INSECURE_FLAGS`)."""
     name = name or module
     log_dir.mkdir(parents=True, exist_ok=True)
+    args = list(args)
+    if module == "robot" and not INSECURE_FLAGS.intersection(args):
+        args.append("--insecure")  # a robot refuses to start without credentials otherwise
     argv = [sys.executable, "-m", f"services.{module}", *args]
     return ServiceProcess(name, argv, log_dir / f"{name.replace('/', '-')}.log", env)
 

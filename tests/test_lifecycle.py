@@ -200,3 +200,40 @@ def test_priority_values_are_checked():
     with pytest.raises(ValueError, match="off, auto or rr"):
         Priority("fifo")
     assert raise_priority(Priority("off"), "test") == "normal priority"
+
+
+def test_a_killed_controller_is_started_again_with_credentials_and_the_run_completes(
+        tmp_path):
+    """``sqpmpc launch`` (secure by default: credentials handed over, none on disk) starts a
+    controller killed with SIGKILL again, its credentials handed over anew; it rejoins and
+    the run completes without collision."""
+    out = tmp_path / "rt"
+    launch = start_service("launch", ["--scenario", SCENARIO, "--scheme", "decentralized",
+                                       "--mode", "realtime", "--t-end", "12", "--out",
+                                       str(out), "--no-plots", "--log-level", "INFO"],
+                           tmp_path / "logs")
+    try:
+        victim = None
+        deadline = time.monotonic() + 120
+        while victim is None and launch.proc.poll() is None and time.monotonic() < deadline:
+            for pid in child_pids(launch.pid):
+                try:
+                    argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode().split("\0")
+                except OSError:
+                    continue
+                if "services.robot" in argv and argv[argv.index("--id") + 1] == "2":
+                    victim = pid
+            time.sleep(0.2)
+        assert victim is not None, launch.output()
+        while "sample loop at" not in launch.output():  # the real-time run has begun
+            assert launch.proc.poll() is None and time.monotonic() < deadline, launch.output()
+            time.sleep(0.2)
+        os.kill(victim, signal.SIGKILL)
+        assert launch.wait(150) == 0, launch.output()
+    finally:
+        stop_processes([launch])
+    text = launch.output()
+    assert "robot/2 was killed by SIGKILL: starting it again (1 of at most 3)" in text, text
+    assert "no credentials handed over" not in text and "Traceback" not in text
+    m = _metrics(out)
+    assert m["completed"] is True and m["collisions"] == 0

@@ -13,8 +13,10 @@ from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.registry import (
+    OPT_IN,
     RULES,
     SAFETY_ROWS,
+    default_names,
     describe_rules,
     rule_names,
     select_rules,
@@ -39,7 +41,8 @@ def test_describe_lists_every_rule_and_safety_row_once() -> None:
 
 
 def test_selection() -> None:
-    assert [r.name for r in select_rules(None)] == rule_names()
+    assert [r.name for r in select_rules(None)] == default_names()
+    assert default_names() == [n for n in rule_names() if n not in OPT_IN]
     assert select_rules(["none"]) == ()
     assert [r.name for r in select_rules(["detour", "keep-right"])] == ["keep-right", "detour"]
     assert "detour" not in [r.name for r in select_rules(None, without=["detour"])]
@@ -78,7 +81,7 @@ def test_rule_parameters_by_assignment() -> None:
 
 
 @pytest.mark.parametrize("scheme", ["centralized", "decentralized"])
-@pytest.mark.parametrize("removed", [*rule_names(), "all"])
+@pytest.mark.parametrize("removed", [*default_names(), "all"])
 def test_engine_runs_safely_without_each_rule(removed: str, scheme: str) -> None:
     settings = SolverSettings(rules=()) if removed == "all" else SolverSettings().without(
         removed)

@@ -78,6 +78,11 @@ class FleetCheck:
     (under acceleration limits: until its velocities are zero, the log holds velocities)."""
     moved_after_zero: dict[str, bool]
     """Per such robot: whether a non-zero command came after that zero."""
+    command_timeouts: dict[str, int] = field(default_factory=dict)
+    """Per robot: times its base stopped on its command timeout (no command for the
+    simulated fleet's ``--cmd-timeout``) while its command was not zero."""
+    timed_out: dict[str, float] = field(default_factory=dict)
+    """Per robot: seconds it stood on a command timeout."""
     arrival_times: dict[str, float | None] = field(default_factory=dict)
     """Per robot: the scenario time (s from the epoch) from which it stayed within
     ``tolerance`` of its reference to the end, on a grid of :data:`ARRIVAL_STEP`
@@ -146,7 +151,10 @@ def check_fleet(data: dict, scenario: Scenario, tolerance: float = 0.05,
         min_clearance=worst, certified_clearance=worst - v_max * dt, closest_pair=pair,
         final_errors=errors, arrived=sum(e <= tolerance for e in errors.values()),
         tolerance=tolerance, commands=sum(len(s) - 1 for s in segs.values()),
-        stop_to_zero=stop_to_zero, moved_after_zero=moved, arrival_times=arrival)
+        stop_to_zero=stop_to_zero, moved_after_zero=moved, arrival_times=arrival,
+        command_timeouts={rid: int(data["robots"][rid].get("command_timeouts", 0))
+                          for rid in ids},
+        timed_out={rid: float(data["robots"][rid].get("timed_out", 0.0)) for rid in ids})
 
 
 def build_parser(prog: str = "services.ros2.check") -> argparse.ArgumentParser:

@@ -1,8 +1,9 @@
 """A ROS 2 fleet on this machine: simulated ROS 2 robots, one ``sqpmpc robot --ros2`` each.
 
 ``python -m services.ros2.demo --scenario S [--out DIR] [--t-end T] [--rate HZ]
-[--odom-stop ID:T] [--twist-stamped] [--insecure] [--log-level L] [controller
-options...]`` (also ``sqpmpc launch --ros2-demo ...``)
+[--odom-stop ID:T] [--twist-stamped] [--insecure] [--cmd-timeout S]
+[--attack KIND:ID] [--kill ID:T[:R]] [--log-level L] [controller options...]``
+(also ``sqpmpc launch --ros2-demo ...``)
 
 Starts, as processes on loopback (multicast scouting off):
 
@@ -16,9 +17,11 @@ Starts, as processes on loopback (multicast scouting off):
   ``robot-<id>``), and hands each child only its own over an inherited socket
   (:mod:`services.handover`): no key is written to disk;
 - one controller process per robot, ``sqpmpc robot --id I --ros2`` (client of
-  both routers), all with the same epoch (t = 0 of the references, a few
-  seconds after the start: every controller is up by then) and each with a
-  random phase of its sample instants.
+  both routers; its sample loop at ``--priority auto``, the simulated robots and the
+  routers put at the same priority once the fleet is up: they stand in for the
+  robots' own real-time drive controllers), all with the same epoch (t = 0 of the
+  references, a few seconds after the start: every controller is up by then) and each
+  with a random phase of its sample instants.
 
 Options it does not know are given to every controller (e.g.
 ``--collision-margin 0.02``). When every controller has reached ``t_end`` the
@@ -47,7 +50,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from sqpmpc.cli.options import Parser, positive_float
+from sqpmpc.cli.options import Parser, nonnegative_float, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.io.files import write_plots, write_run
 from sqpmpc.io.recorder import owner_hint, prepare_output
@@ -59,11 +62,12 @@ from ..children import Child, free_ports, stop_children
 from ..credentials import issue
 from ..handover import Handover, make_private
 from ..node import install_signal_handlers
+from ..priority import NICE, RT_PRIORITY
 from .check import check_fleet
 from .record import fleet_record
 
 __all__ = ["Credentials", "LoggedChild", "add_fleet_arguments", "build_parser", "main",
-           "start_clock"]
+           "robot_side_priority", "start_clock"]
 
 log = logging.getLogger("services.ros2.demo")
 PROG = "services.ros2.demo"
@@ -105,6 +109,32 @@ class Credentials:
             return LoggedChild(name, [*argv, "--credentials-fd", str(fd)], logfile, env, (fd,))
         finally:
             self.handover.started()
+
+
+def robot_side_priority(children: Sequence[Child]) -> str:
+    """Put every thread of ``children`` (the simulated robots and the routers: what stands
+    in for the robots' own real-time drive controllers and their middleware) at the
+    controllers' ``--priority auto`` (:mod:`services.priority`), once the fleet is up;
+    returns what was done."""
+    done = "normal priority (neither SCHED_RR nor a negative nice is permitted)"
+    for child in children:
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{child.proc.pid}/task")]
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(RT_PRIORITY))
+                done = f"SCHED_RR priority {RT_PRIORITY}"
+            except PermissionError:
+                try:
+                    os.setpriority(os.PRIO_PROCESS, tid, NICE)
+                    done = f"nice {NICE}"
+                except PermissionError:
+                    pass
+            except ProcessLookupError:
+                pass
+    return done
 
 
 def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
@@ -167,8 +197,42 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     p.add_argument("--odom-stop", action="append", default=[], metavar="ID:T",
                    help="robot ID's odometry stops at t = T s (repeatable)")
     p.add_argument("--twist-stamped", action="store_true", help="cmd_vel as TwistStamped")
+    p.add_argument("--cmd-timeout", type=nonnegative_float, default=0.5, metavar="S",
+                   help="the simulated robots stop when no command came for S s (default "
+                        "0.5, diff_drive_controller's; 0: never)")
+    p.add_argument("--attack", default=None, metavar="KIND:ID",
+                   help="benchmarks: once the clock starts, a services.forger with robot ID's "
+                        "own credentials sends KIND (freeze, herd or flood) until the end")
+    p.add_argument("--kill", action="append", default=[], metavar="ID:T[:R]",
+                   help="kill -9 robot ID's controller at t = T s and start it again R s "
+                        "later (default 3; it rejoins with credentials handed over anew)")
     p.add_argument("--log-level", default="INFO", help="log level of the processes")
     return p
+
+
+def _faults(args: argparse.Namespace, ids: list[int]) -> tuple[tuple[str, int] | None,
+                                                                 list[tuple[int, float, float]]]:
+    """``--attack`` as ``(kind, id)`` and ``--kill`` as ``(id, t, restart after)``; raises
+    :class:`ProblemError` naming the flag."""
+    attack = None
+    if args.attack is not None:
+        kind, _, rid = args.attack.partition(":")
+        if kind not in ("freeze", "herd", "flood") or not rid.isdigit() or int(rid) not in ids:
+            raise ProblemError(f"--attack: expected freeze|herd|flood:ID with ID a robot of the "
+                               f"scenario, got {args.attack!r}")
+        attack = (kind, int(rid))
+    kills = []
+    for item in args.kill:
+        parts = item.split(":")
+        try:
+            rid, t, after = int(parts[0]), float(parts[1]), float(parts[2]) if len(parts) > 2 \
+                else 3.0
+        except (ValueError, IndexError):
+            raise ProblemError(f"--kill: expected ID:T[:R], got {item!r}") from None
+        if rid not in ids or len(parts) > 3 or t < 0.0 or after < 0.0:
+            raise ProblemError(f"--kill {item}: expected a robot of the scenario, T, R >= 0")
+        kills.append((rid, t, after))
+    return attack, kills
 
 
 def add_fleet_arguments(p: argparse.ArgumentParser, kind: str) -> None:
@@ -202,6 +266,11 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         return 2
     t_end = args.t_end or scenario.t_end
     ids = [int(i) for i in scenario.ids]
+    try:
+        attack, kills = _faults(args, ids)
+    except ProblemError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     out = args.out or Path("runs") / f"ros2-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:  # the output contract of every runner: a non-empty --out only with --overwrite
         prepare_output(out, args.overwrite)
@@ -241,12 +310,14 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         epoch_file.unlink(missing_ok=True)
         sim = [*py, "services.ros2.simfleet", "--scenario", args.scenario, "--router",
                f"127.0.0.1:{ros_port}", "--out", str(out), "--rate", repr(args.rate),
-               "--epoch-file", str(epoch_file), "--log-level", args.log_level]
+               "--epoch-file", str(epoch_file), "--log-level", args.log_level,
+               "--cmd-timeout", repr(args.cmd_timeout)]
         sim += [a for s in args.odom_stop for a in ("--odom-stop", s)]
         if args.twist_stamped:
             sim.append("--twist-stamped")
         children.append(LoggedChild("simfleet", sim, logs / "simfleet.log", env))
         robots = []
+        commands: dict[int, list[str]] = {}
         for rid in ids:
             cmd = [*py, "services.robot", "--id", str(rid), "--scenario", args.scenario,
                    "--t-end", repr(t_end), "--run", run, "--ros2", "--ros2-connect", ros_ep,
@@ -254,6 +325,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                    str(epoch_file), "--log-level", args.log_level, *extra]
             if args.twist_stamped:
                 cmd.append("--twist-stamped")
+            if credentials is None:
+                cmd.append("--insecure")
+            commands[rid] = cmd
             robots.append(start(f"robot/{rid}", cmd, logs / f"robot-{rid}.log",
                                 f"robot-{rid}"))
         children.extend(robots)
@@ -261,20 +335,48 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         if not start_clock(ros_ep, ids, epoch_file, args.startup, stop):
             log.error("the controllers were not all up within %g s (see %s)", args.startup,
                       logs)
-        t0 = shown = time.monotonic()
-        while not stop.is_set() and any(r.poll() is None for r in robots):
+        epoch = float(epoch_file.read_text())
+        log.info("simulated robots and routers at %s", robot_side_priority(
+            [c for c in children if c.name in ("ros2-router", "router", "simfleet")]))
+        if attack is not None:
+            kind, rid = attack
+            children.append(start("forger", [
+                *py, "services.forger", "--scenario", args.scenario, "--run", run,
+                "--zenoh-mode", "client", "--connect", sq_ep, "--identity", f"robot-{rid}",
+                "--attack", kind, "--target", str(rid), "--duration",
+                repr(epoch + t_end - time.time() + 5.0), "--log-level", "WARNING"],
+                logs / "forger.log", f"robot-{rid}"))
+        pending = sorted(kills, key=lambda k: k[1])
+        shown = time.monotonic()
+        while not stop.is_set() and (any(r.poll() is None for r in robots) or pending):
+            now = time.time() - epoch
             if time.monotonic() - shown >= PROGRESS_EVERY:  # a line while the fleet runs
                 shown = time.monotonic()
-                log.info("running: %.0f s (t_end %g s), %d/%d "
-                         "controllers on", shown - t0, t_end,
+                log.info("running: t = %.0f s of %g s, %d/%d controllers on", now, t_end,
                          sum(r.poll() is None for r in robots), len(robots))
-            time.sleep(0.2)
+            for rid, t, after in [k for k in pending if now >= k[1] + (k[2] if any(
+                    r.name == f"robot/{k[0]}" and r.poll() is not None for r in robots)
+                    else 0.0)]:
+                old = next(r for r in robots if r.name == f"robot/{rid}")
+                if old.poll() is None:  # kill -9 now, start again `after` s later
+                    os.kill(old.proc.pid, signal.SIGKILL)
+                    old.proc.wait()
+                    log.info("killed robot %d's controller at t = %.2f s", rid, now)
+                    continue
+                pending.remove((rid, t, after))
+                robots.remove(old)
+                robots.append(start(f"robot/{rid}", commands[rid],
+                                    logs / f"robot-{rid}-restarted.log", f"robot-{rid}"))
+                children.append(robots[-1])
+                log.info("started robot %d's controller again at t = %.2f s", rid, now)
+            time.sleep(0.05)
         failed = [r.name for r in robots if r.poll() not in (None, 0)]
         if failed:
             log.warning("controllers that failed: %s (see %s)", failed, logs)
         status = 128 + received["signal"] if stop.is_set() else (1 if failed else 0)
     finally:
-        stop_children([c for c in children if c.name.startswith("robot/")], {}, 10.0)
+        stop_children([c for c in children if c.name.startswith("robot/")
+                       or c.name == "forger"], {}, 10.0)
         stop_children([c for c in children if c.name == "simfleet"],
                       {"simfleet": signal.SIGINT}, 30.0)
         stop_children([c for c in children if "router" in c.name], {}, 10.0)
@@ -290,7 +392,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     write_plots(out, record)
     print(f"{result.robots} robots: {result.collisions} collisions (certified clearance "
           f"{result.certified_clearance:.4f} m), {result.arrived}/{result.robots} within "
-          f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m)"
+          f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m), "
+          f"{sum(result.command_timeouts.values())} command timeouts"
           + "".join(f"; robot {r}: zero {d:.3f} s after its odometry stopped"
                     if d is not None else f"; robot {r}: no zero after its odometry stopped"
                     for r, d in result.stop_to_zero.items()))

@@ -217,7 +217,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                 "--t-end", repr(t_end), "--run", run, "--ros2", "--ros2-connect", local,
                 "--zenoh-mode", "client", "--connect",
                 f"{proto}/{h.hub_address}:{PORTS['relay_sqpmpc']}", "--epoch-file",
-                str(epoch_file), "--log-level", args.log_level, *extra),
+                str(epoch_file), "--log-level", args.log_level, *extra,
+                *(["--insecure"] if credentials is None else [])),
                 logs / f"robot-{rid}.log", f"robot-{rid}"))
         children.extend(robots)
         log.info("%d hosts, loss %g each way per link, delay %g s each way; logs in %s",

@@ -15,6 +15,30 @@ stamp for one sample, so that arc is exact (:func:`services.ros2.timing.committe
   reach), from the disc it may reach since for any other one; from where a
   neighbour that left stopped, plus a sample's reach.
 
+Plans are claims, checked (:meth:`Neighbours.add`): a plan is kept only if its
+stamp is later than the neighbour's previous plan (by at least
+:data:`MIN_SPACING` samples) and not more than a sample (plus the guard) ahead
+of this robot's clock, if it is the only moving plan of its sample, if every
+stage is reachable under the velocity bounds (inputs within them, no stage
+further than ``v_max Ts`` from the one before) and if it starts where the
+neighbour's own past plans put it: within the tolerance of its committed motion
+at some moment of the sample before its stamp (a robot may stop at any
+moment). A plan that contradicts the newest plans but follows older ones is
+kept as a fork: of two claims that cannot both be true, the neighbour may be on
+either, and the check keeps out of both. A neighbour whose plan breaks one of
+these is *untrusted*, named in the log, and held at a sample's reach
+``v_max Ts`` more everywhere it may be (for :data:`UNTRUSTED_SAMPLES` samples
+after its last false plan); its refused plans are never used. So a process
+holding a robot's key can make its neighbours keep more room from it, and in
+the attacks measured (``docs/ros2.md``) could not put it where it is not nor
+hide where it is; :data:`MAX_FORKS` bounds what is kept of many consistent
+forged paths, so their number could crowd out the true one (not proved safe).
+
+A neighbour that left (its token disappeared) stands within a sample's reach of
+where its last plan put it (a base stops on its command timeout, 0.5 s at most
+without commands). A robot already inside that disc may still leave it: along
+a path on which its distance to every point of the disc never decreases.
+
 A robot that stands still, or stops at any moment, is therefore safe: whoever
 decides later avoids it, whoever decided earlier kept out of all of its arc
 and of where it stops or of all it could reach. At every instant, the robot of
@@ -33,14 +57,34 @@ from sqpmpc.control.plans import PlanMessage
 from ..messages import PlanMsg
 from .timing import Estimate, TimedPlan, arcs, committed, neighbour_estimate
 
-__all__ = ["CHECK_STEPS", "FAR", "KEPT_PLANS", "Neighbours"]
+__all__ = ["BOUND_SLACK", "CHECK_STEPS", "FAR", "FORK_SAMPLES", "KEPT_PLANS", "MAX_FORKS",
+           "MIN_SPACING", "PLAN_TOLERANCE", "UNTRUSTED_SAMPLES", "Neighbours"]
 
 FAR = 1.0e4
 """Where a neighbour never heard from is put (m): beyond every interaction radius."""
-KEPT_PLANS = 4
-"""Plans kept per neighbour (the newest few: one stamped before each of the own instants)."""
+KEPT_PLANS = 16
+"""Plans kept per neighbour and fork (the newest: at least three samples' worth, as
+:data:`MIN_SPACING` allows at most five a sample)."""
+MIN_SPACING = 0.2
+"""A plan must come at least this many samples after the one before it on its chain (a
+robot sends one moving plan a sample, and a standing one at most every 0.2 Ts)."""
 CHECK_STEPS = 100
 """Points per sample at which :meth:`Neighbours.path_is_safe` measures the distances."""
+PLAN_TOLERANCE = 0.05
+"""How far a plan's stage 0 may be from where its robot's past plans put it, m (besides
+the check's margin): odometry and command latency."""
+BOUND_SLACK = 0.01
+"""An input may exceed its bounds by this fraction of their range (the QP's tolerance)."""
+UNTRUSTED_SAMPLES = 10
+"""An untrusted neighbour is kept at a sample's reach more for this many samples after its
+last false plan (named in the log for good)."""
+FORK_SAMPLES = 3
+"""A fork (a chain of plans contradicting another) without a plan for this many samples
+is forgotten."""
+MAX_FORKS = 4
+"""Forks kept per neighbour (the newest)."""
+CONTINUITY_STEPS = 25
+"""Points of the sample before a plan's stamp at which its start is compared."""
 
 
 class Neighbours:
@@ -62,6 +106,14 @@ class Neighbours:
         Bound on the clock offset between robots, s.
     margin
         Added to every required distance in the check, m.
+    keep_current
+        Inside the margin, accept a path that gets no closer than the robot is now.
+    input_bounds
+        ``(lower, upper)`` of ``(v, omega)``: a plan's inputs must lie within them
+        (default: ``|v| <= max_speed`` only).
+    tolerance
+        How far a plan may start from where the neighbour's past plans put it, m
+        (added to ``margin``).
 
     Attributes
     ----------
@@ -70,14 +122,20 @@ class Neighbours:
     departed
         Per neighbour that left (its token disappeared): where it stopped.
     received, refused
-        Plans kept, plans dropped as from the future or too old.
+        Plans kept, plans dropped as too old.
+    untrusted
+        Per neighbour whose plans broke the checks: how many it sent (refused).
+    reasons
+        Per untrusted neighbour: the first reason one of its plans was refused.
     blocked_by_concurrent
         The last failed check failed on a neighbour deciding at about the same instants.
     """
 
     def __init__(self, ids: list[int], robot_id: int, required: np.ndarray,
                  sample_time: float, horizon: int, max_speed: float, lead: float,
-                 guard: float, margin: float, keep_current: bool = False) -> None:
+                 guard: float, margin: float, keep_current: bool = False,
+                 input_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 tolerance: float = PLAN_TOLERANCE) -> None:
         self.ids = [int(i) for i in ids]
         self.robot_id = int(robot_id)
         self.required = np.asarray(required, dtype=float)
@@ -86,27 +144,128 @@ class Neighbours:
         self.plans: dict[int, list[TimedPlan]] = {i: [] for i in self.ids if i != robot_id}
         self.departed: dict[int, Estimate] = {}
         self.received = self.refused = 0
+        self.untrusted: dict[int, int] = {}
+        self.reasons: dict[int, str] = {}
+        self.last_false: dict[int, float] = {}
+        self.forks: dict[int, list[list[TimedPlan]]] = {}
+        self.tolerance = float(tolerance)
+        if input_bounds is None:
+            input_bounds = (np.array([-self.v_max, -np.inf]), np.array([self.v_max, np.inf]))
+        self.input_lower = np.asarray(input_bounds[0], dtype=float)
+        self.input_upper = np.asarray(input_bounds[1], dtype=float)
         self.blocked_by_concurrent = False
         self.keep_current = bool(keep_current)
         """Inside the margin (never below the required distance), accept a path that gets
         no closer than the robot is now (under acceleration limits the margin holds the
         braking distance, which a robot told to stop uses up)."""
 
-    def add(self, msg: PlanMsg, now: float) -> None:
-        """Keep a neighbour's plan (validated by the node) unless from the future or too old."""
+    def add(self, msg: PlanMsg, now: float) -> str | None:
+        """Keep a neighbour's plan (validated by the node) if it passes the checks of the
+        module notes; returns why it is a false claim or contradicts another (its robot
+        is then untrusted), ``None`` when kept, too old or a repeat.
+
+        A plan that continues the neighbour's kept plans (its chain) is appended to it.
+        One that does not, but continues a fork (a chain that branched off, below) or
+        the chain without its newest plans, is kept as a fork: two claims that cannot
+        both be true, so the neighbour may be on either, and the check keeps out of both
+        (:meth:`path_is_safe`). One that continues nothing is refused.
+        """
         kept = self.plans.get(msg.id)
         if kept is None:
-            return
-        if msg.stamp > now + self.Ts or msg.stamp < now - self.N * self.Ts:
-            self.refused += 1
-            return
-        if any(p.stamp == msg.stamp for p in kept):
-            return
-        kept.append(TimedPlan(msg.stamp, msg.states, msg.inputs))
-        kept.sort(key=lambda p: p.stamp)
-        del kept[:-KEPT_PLANS]
-        self.departed.pop(msg.id, None)  # back
-        self.received += 1
+            return None
+        if msg.stamp < now - self.N * self.Ts:
+            self.refused += 1  # late, not false
+            return None
+        forks = self.forks.setdefault(msg.id, [])
+        if any(p.stamp == msg.stamp for c in (kept, *forks) for p in c):
+            return None  # a repeat, or a stop announced at the same instant (ignored)
+        plan = TimedPlan(msg.stamp, msg.states, msg.inputs)
+        why = self._implausible(msg, now)
+        if why is None:
+            why = self._discontinuous(kept, msg)
+            if why is None:
+                kept.append(plan)
+                del kept[:-KEPT_PLANS]
+                self.departed.pop(msg.id, None)  # back
+                self.received += 1
+                self._prune(msg.id, now)
+                return None
+            fork = next((c for c in forks if self._discontinuous(c, msg) is None), None)
+            if fork is None:
+                base = next((kept[:i] for i in range(len(kept) - 1, 0, -1)
+                             if self._discontinuous(kept[:i], msg) is None), None)
+                if base is not None:
+                    fork = list(base)
+                    forks.append(fork)
+                    why = f"contradicting its plan stamped {kept[len(base)].stamp:.3f} ({why})"
+            if fork is not None:
+                fork.append(plan)
+                del fork[:-KEPT_PLANS]
+                self.received += 1
+                self._prune(msg.id, now)
+        self.untrusted[msg.id] = self.untrusted.get(msg.id, 0) + 1
+        self.reasons.setdefault(msg.id, why)
+        self.last_false[msg.id] = now
+        return why
+
+    def _prune(self, robot_id: int, now: float) -> None:
+        """Forget forks without a plan for :data:`FORK_SAMPLES` samples (at most
+        :data:`MAX_FORKS`, the newest); a chain that went silent that long while a fork
+        goes on is replaced by the fork (the neighbour is there)."""
+        kept, forks = self.plans[robot_id], self.forks[robot_id]
+        life = FORK_SAMPLES * self.Ts
+        live = [c for c in forks if c[-1].stamp >= now - life]
+        if live and kept and kept[-1].stamp < now - life:
+            newest = max(live, key=lambda c: c[-1].stamp)
+            live.remove(newest)
+            kept[:] = newest
+        live.sort(key=lambda c: c[-1].stamp)
+        self.forks[robot_id] = live[-MAX_FORKS:]
+
+    def _implausible(self, msg: PlanMsg, now: float) -> str | None:
+        """Why ``msg`` is no plan of a robot at all, if so (its stamp, bounds, stages)."""
+        if msg.stamp > now + self.Ts + self.guard:
+            return f"stamped {msg.stamp - now:.3f} s ahead of this robot's clock"
+        u, x = np.asarray(msg.inputs, dtype=float), np.asarray(msg.states, dtype=float)
+        slack = BOUND_SLACK * np.where(np.isfinite(self.input_upper - self.input_lower),
+                                       self.input_upper - self.input_lower, 0.0)
+        if (u < self.input_lower - slack).any() or (u > self.input_upper + slack).any():
+            return "an input outside the velocity bounds"  # beyond the QP's tolerance
+        step = float(np.hypot(*np.diff(x[:, :2], axis=0).T).max(initial=0.0))
+        if step > self.v_max * self.Ts + self.tolerance:
+            return f"a stage {step:.3f} m from the one before (beyond v_max Ts)"
+        return None
+
+    def _discontinuous(self, kept: list[TimedPlan], msg: PlanMsg) -> str | None:
+        """Why ``msg`` cannot follow the plans ``kept`` (a chain), if so."""
+        if not kept:
+            return None
+        last = kept[-1]
+        u, x = np.asarray(msg.inputs, dtype=float), np.asarray(msg.states, dtype=float)
+        if msg.stamp < last.stamp:
+            return f"stamped {last.stamp - msg.stamp:.3f} s before its previous plan"
+        if msg.stamp - last.stamp < MIN_SPACING * self.Ts - 1e-6:
+            return (f"stamped {msg.stamp - last.stamp:.3f} s after its previous plan (at most "
+                    f"one every {MIN_SPACING:g} Ts)")
+        if u[0].any():  # a moving plan: one per sample (stops may be announced any time)
+            moving = [p.stamp for p in kept if p.inputs[0].any()]
+            if moving and msg.stamp - moving[-1] < self.Ts - self.guard:
+                return (f"a second moving plan {msg.stamp - moving[-1]:.3f} s after the "
+                        "last (one per sample)")
+        times = msg.stamp - self.Ts * np.linspace(0.0, 1.0, CONTINUITY_STEPS + 1)
+        pos, rad = committed(kept, times, self.Ts, self.v_max, False)
+        off = float((np.hypot(pos[:, 0] - x[0, 0], pos[:, 1] - x[0, 1]) - rad).min())
+        if off > self.margin + self.tolerance:
+            return f"starts {off:.3f} m from where its past plans put it"
+        return None
+
+    def reach(self, robot_id: int, now: float) -> float:
+        """Added to everywhere neighbour ``robot_id`` may be at wall time ``now``, m: a
+        sample's reach while it is untrusted (a false plan within the last
+        :data:`UNTRUSTED_SAMPLES` samples), else 0."""
+        last = self.last_false.get(robot_id)
+        held = last is not None and now - last < UNTRUSTED_SAMPLES * self.Ts
+        return self.v_max * self.Ts if held else 0.0
 
     def left(self, robot_id: int, now: float) -> None:
         """Neighbour ``robot_id`` stopped (zero on shutdown): it stands where its plan had
@@ -114,6 +273,7 @@ class Neighbours:
         kept = self.plans.get(robot_id)
         if not kept:
             return
+        self.forks.pop(robot_id, None)
         est = neighbour_estimate(kept, now, self.Ts, self.v_max)
         if est is not None:
             self.departed[robot_id] = Estimate(est.state, est.uncertainty + self.v_max * self.Ts)
@@ -164,7 +324,7 @@ class Neighbours:
             if not (t - self.Ts <= nxt < t and nxt - self.lead <= now + self.guard):
                 continue
             at, r = committed(kept, np.array([t]), self.Ts, self.v_max, False)
-            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] \
+            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - self.reach(rid, now) \
                     <= self.required[j] + reach:
                 return True
         return False
@@ -199,21 +359,31 @@ class Neighbours:
                 continue
             left = self.departed.get(rid)
             concurrent = False
+            need = self.required[j] + slack
             if left is not None:
                 gap = np.hypot(path[:, 0] - left.state[0], path[:, 1] - left.state[1]) \
                     - left.uncertainty
+                if float(gap.min()) < need and _leaves(path, left.state[:2],
+                                                       left.uncertainty):
+                    continue  # inside its disc already, and getting no closer to any of it
             elif self.plans[rid]:
                 kept = self.plans[rid]
                 later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
                 concurrent = not later
-                at, r = committed(kept, times[:1], self.Ts, self.v_max, later)
-                if (math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0]
-                        > self.required[j] + slack + 4.0 * self.v_max * self.Ts):
-                    continue  # out of reach of this sample (both stretches are shorter)
-                gap = self._stretch_gaps(kept, path, times, later)
+                extra = self.reach(rid, now)
+                chains = [(kept, later), *((f, False) for f in self.forks.get(rid, ()))]
+                near = []  # the claims within reach of this sample (it may be on any)
+                for chain, hold in chains:
+                    at, r = committed(chain, times[:1], self.Ts, self.v_max, hold)
+                    if (math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - extra
+                            <= self.required[j] + slack + 4.0 * self.v_max * self.Ts):
+                        near.append((chain, hold))  # (both stretches are shorter)
+                if not near:
+                    continue
+                gap = np.min([self._stretch_gaps(c, path, times, h) for c, h in near],
+                             axis=0) - extra
             else:
                 continue
-            need = self.required[j] + slack
             if self.keep_current:
                 need = max(float(self.required[j]), min(need, float(gap[0])))
             if float(gap.min()) < need:
@@ -238,3 +408,15 @@ class Neighbours:
         cols = np.arange(grid.size)
         dist[(cols[None, :] < first[:, None]) | (cols[None, :] > last[:, None])] = np.inf
         return dist.min(axis=1)
+
+
+def _leaves(path: np.ndarray, centre: np.ndarray, radius: float) -> bool:
+    """Whether moving along ``path`` ``(T, 2)`` never brings it closer to any point of the
+    disc (``centre``, ``radius``): outside the disc, every step ``d`` from a point ``p``
+    has ``d . (p - centre) >= |d| radius`` (``min`` over the disc's points ``q`` of
+    ``d . (p - q)``)."""
+    w = path[:-1] - centre[None, :]
+    d = np.diff(path, axis=0)
+    if (np.hypot(w[:, 0], w[:, 1]) <= radius).any():
+        return False
+    return bool(((d * w).sum(axis=1) >= np.hypot(d[:, 0], d[:, 1]) * radius - 1e-12).all())

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+import zenoh
+
 from sqpmpc.cli.options import nonnegative_float, positive_float
+from sqpmpc.errors import ProblemError
 from sqpmpc.problem.plant import model_margin
 from sqpmpc.problem.scenario import Scenario
 
 from ..node import options_of
 from .graph import check_name
 
-__all__ = ["add_ros2_arguments", "check_margin", "ros2_problem"]
+__all__ = ["add_ros2_arguments", "check_margin", "ros2_config", "ros2_problem"]
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,6 +37,16 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
                         "(repeatable; default tcp/127.0.0.1:7447)")
     g.add_argument("--ros2-zenoh-mode", choices=("client", "peer"), default="client",
                    help="the ROS 2 session's mode (default client of the router)")
+    g.add_argument("--ros2-zenoh-config", type=Path, default=None, metavar="FILE",
+                   help="a Zenoh config file for the ROS 2 session, e.g. one made for an "
+                        "rmw_zenoh network secured with TLS and access control (docs/ros2.md; "
+                        "its connect endpoints unless --ros2-connect is given)")
+    g.add_argument("--cmd-rate", type=nonnegative_float, default=20.0, metavar="HZ",
+                   help="republish the command in force on cmd_vel at this rate (default 20: "
+                        "well inside a base's 0.5 s command timeout; 0: once per sample)")
+    g.add_argument("--odom-future", type=nonnegative_float, default=0.05, metavar="S",
+                   help="refuse (and count) an odometry stamped more than this after its "
+                        "arrival, s (default 0.05; clocks must agree within it)")
     g.add_argument("--epoch", type=float, default=None, metavar="UNIX_S",
                    help="wall time (Unix s) of the scenario's t = 0, shared by the fleet "
                         "(default: this robot's start)")
@@ -49,6 +63,10 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--ros2-margin", type=nonnegative_float, default=0.02, metavar="M",
                    help="added to every required distance in the check of each input: "
                         "odometry and timing errors, m (default 0.02)")
+    g.add_argument("--plan-tolerance", type=nonnegative_float, default=0.05, metavar="M",
+                   help="a neighbour's plan must start within this (plus the check's margin) "
+                        "of where its past plans put it, else it is refused and the "
+                        "neighbour untrusted, m (default 0.05)")
     g.add_argument("--ros2-guard", type=nonnegative_float, default=0.02, metavar="S",
                    help="bound on the clock offset between robots, s (default 0.02): a "
                         "neighbour deciding less than this after this robot's check is held "
@@ -74,9 +92,45 @@ def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
         return f"--lead: must be less than Ts = {scenario.sample_time:g} s, got {lead:g}"
     if args.epoch is not None and args.epoch_file is not None:
         return "give --epoch or --epoch-file, not both"
+    if args.ros2_zenoh_config is not None and not args.ros2_zenoh_config.is_file():
+        return f"--ros2-zenoh-config {args.ros2_zenoh_config}: no such file"
+    if args.cmd_rate > 0.0 and 1.0 / args.cmd_rate >= scenario.sample_time:
+        return (f"--cmd-rate: must be above 1/Ts = {1.0 / scenario.sample_time:g} Hz (or 0: "
+                f"once per sample), got {args.cmd_rate:g}")
     if options_of(args).decentralized_mode != "shared":
         return "--decentralized-mode: --ros2 holds every neighbour by its own check"
     return None
+
+
+def ros2_config(args: argparse.Namespace) -> zenoh.Config:
+    """The ROS 2 session's Zenoh config: ``--ros2-zenoh-config`` (or an empty one), its
+    connect endpoints replaced by ``--ros2-connect`` when given (default, without either,
+    the router ``tcp/127.0.0.1:7447``), mode ``--ros2-zenoh-mode``, multicast scouting off.
+
+    Raises
+    ------
+    ProblemError
+        A config file Zenoh cannot read (one message naming the flag).
+    """
+    path = args.ros2_zenoh_config
+    try:
+        conf = zenoh.Config() if path is None else zenoh.Config.from_file(str(path))
+    except (zenoh.ZError, ValueError, OSError) as exc:
+        raise ProblemError(f"--ros2-zenoh-config {path}: {str(exc).split(' at /')[0]}") \
+            from None
+    connect = args.ros2_connect
+    if connect is None:
+        own = json.loads(conf.get_json("connect/endpoints"))
+        has_own = path is not None and isinstance(own, list) and bool(own)
+        connect = own if has_own else ["tcp/127.0.0.1:7447"]
+    conf.insert_json5("mode", json.dumps(args.ros2_zenoh_mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if args.ros2_zenoh_mode == "client":
+        conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router
+    elif path is None:
+        conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
+    return conf
 
 
 def check_margin(margin: float, scenario: Scenario) -> float:

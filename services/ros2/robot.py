@@ -37,8 +37,15 @@ Every robot of a fleet uses the same ``--lead`` (it tells when a neighbour
 decides). The safety argument is per pair: at every instant the robot that
 decided last knew the other's motion up to then and kept the distance from it.
 
-The command is zero when the odometry is older than ``--odom-timeout``
-(checked continuously), at the end and on SIGINT/SIGTERM; while the odometry is
+The command is republished at ``--cmd-rate`` Hz (default 20: well inside the
+0.5 s ``cmd_vel_timeout`` of ROS 2 Jazzy's diff_drive_controller) holding the
+sample's input, so a base's command timeout never fires in a normal run. It is
+zero when the odometry is older than ``--odom-timeout`` (checked continuously),
+when the plan exchange is lost (the sqpmpc session has no link left after it had
+one: neighbours can no longer see this robot's plans), at the end and on
+SIGINT/SIGTERM; an odometry stamped more than ``--odom-future`` s after its
+arrival is refused and counted (``odometry_future``): one such message would
+otherwise be taken as the newest until its stamp; while the odometry is
 stale it publishes at each instant a plan standing where odometry and commands put
 it, stamped at that instant. A neighbour without a plan yet is unknown (not running);
 one whose token disappears (it stopped, commanding zero) is held where its last plan
@@ -66,12 +73,14 @@ from sqpmpc.problem.scenario import Scenario
 from ..control import controller_settings
 from ..messages import Message, PlanMsg, encode
 from ..node import POLL, Node
-from ..transport import make_config
+from ..priority import Priority
 from . import msgs
 from .controller import Ros2Controller
 from .graph import Received, Ros2Node
-from .neighbours import Neighbours
-from .options import check_margin, ros2_problem
+from .neighbours import MIN_SPACING, Neighbours
+from .options import check_margin, ros2_config, ros2_problem
+from .startup import PUBLISH_SLACK, StartUp
+from .stream import CommandStream
 from .timing import own_motion
 
 __all__ = ["Ros2Robot", "main_ros2"]
@@ -85,11 +94,13 @@ WATCH_PERIOD = 0.01
 """How often the watchdog thread looks at the odometry's age, s."""
 STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
-PUBLISH_SLACK = 0.005
-"""A plan not ready this long before its instant is dropped: the robot stands still."""
+CLOSE_GRACE = 0.05
+"""Seconds between the last zero on cmd_vel and the ROS 2 session's close."""
+LINK_PERIOD = 0.1
+"""How often the watchdog thread looks whether the plan exchange still has a link, s."""
 
 
-class Ros2Robot(Node):
+class Ros2Robot(StartUp, Node):
     """The controller of one ROS 2 robot (see the module notes).
 
     Parameters
@@ -102,6 +113,7 @@ class Ros2Robot(Node):
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
+        ros_config = ros2_config(args)  # a bad file: one error before any session opens
         self.robot_id = int(args.id[0])
         settings = controller_settings(args)
         # the QP keeps more room than the check asks for (the check is continuous, the
@@ -114,6 +126,12 @@ class Ros2Robot(Node):
         # stage-one-override on the obstacle rows too: a stage-1 row the current positions
         # violate is capped at the current gap, so standing still stays feasible
         self.controller.collisions.stage_one_rule_for_obstacles = True
+        # --priority auto by default, as every service (services.priority). No rate limit
+        # by default: through a router, a per-key limit drops a robot's own plans with a
+        # flood on its key (one link carries both): neighbours lost sight of the robot and
+        # collided with it (docs/ros2.md, Protections); --max-rate opts in
+        if getattr(args, "priority", None) is None:
+            args.priority = Priority("auto")
         super().__init__(scenario, args, f"robot/{self.robot_id}", "decentralized")
         self.index = scenario.index_of(self.robot_id)
         self.Ts = scenario.sample_time
@@ -122,7 +140,10 @@ class Ros2Robot(Node):
                                      scenario.required_distances()[self.index], self.Ts,
                                      scenario.horizon, float(self.controller.context.max_speed),
                                      self.lead, args.ros2_guard, self.check_margin,
-                                     keep_current=scenario.bounds.dynamic_limits)
+                                     keep_current=scenario.bounds.dynamic_limits,
+                                     input_bounds=(scenario.bounds.input_lower(),
+                                                   scenario.bounds.input_upper()),
+                                     tolerance=args.plan_tolerance)
         self.controller.neighbours = self.neighbours  # its first-input check is the robot's
         self.limits = (scenario.bounds.acceleration_lower(),
                        scenario.bounds.acceleration_upper()) \
@@ -133,30 +154,35 @@ class Ros2Robot(Node):
         self.startup_timeout = args.startup_timeout
         self.epoch = args.epoch
         self.epoch_file: Path | None = args.epoch_file
-        self._cmd_lock = threading.RLock()
         self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
                        "late_samples": 0, "plan_waits": 0, "stopped_late": 0,
-                       "stale_odometry": 0, "zero_commands": 0}
+                       "stale_odometry": 0, "odometry_future": 0,
+                       "plan_network_lost": 0, "republished": 0}
+        self.cmd_period = 1.0 / args.cmd_rate if args.cmd_rate > 0.0 else None
+        """Period of the command stream (``--cmd-rate``), s; ``None``: once per sample."""
+        self.odom_future = float(args.odom_future)
+        self._last_stamp = -math.inf  # of the last plan sent
+        self._linked = False  # the plan exchange had a link
+        self._lost = False  # ... and has none now
         self._lock = threading.Lock()
         self._odom: tuple[float, np.ndarray, float, float] | None = None  # t, pose, v, w
         self._frame = ("odom", "base_link")
-        self._sent: list[tuple[float, float, float]] = []  # (time, v, omega) commands sent
         self._step_seconds: deque[float] = deque(maxlen=10)  # the recent steps' durations
         self._braked = False
         self._standing: np.ndarray | None = None
         self._done = False
         ns = args.ros2_namespace or f"/robot{self.robot_id}"
         self.twist_stamped = bool(args.twist_stamped)
-        connect = args.ros2_connect if args.ros2_connect is not None else [
-            "tcp/127.0.0.1:7447"]
-        self.ros_session = zenoh.open(make_config((), connect, args.ros2_zenoh_mode))
+        self.ros_session = zenoh.open(ros_config)
         try:
             self.ros = Ros2Node(self.ros_session, f"sqpmpc_robot{self.robot_id}", ns,
                                 args.ros2_domain)
             self.ros.subscribe("odom", "nav_msgs/msg/Odometry", self._on_odom)
-            self.cmd_pub = self.ros.publisher(
+            self.stream = CommandStream(self.ros.publisher(
                 "cmd_vel", "geometry_msgs/msg/TwistStamped" if self.twist_stamped
-                else "geometry_msgs/msg/Twist")
+                else "geometry_msgs/msg/Twist"), self.twist_stamped, self.cmd_period,
+                lambda: self._frame[1])
+            self._cmd_lock = self.stream.lock  # the main thread, stop timer and watchdog
             self.path_pub = self.ros.publisher("plan", "nav_msgs/msg/Path")
         except Exception:
             self.ros_session.close()
@@ -172,8 +198,17 @@ class Ros2Robot(Node):
         if not (np.isfinite(pose).all() and math.isfinite(v) and math.isfinite(w)):
             return
         stamp = o.header.stamp.seconds()
+        if stamp > rec.arrival + self.odom_future:  # it would be the newest until then
+            with self._lock:
+                self.counts["odometry_future"] += 1
+                first = self.counts["odometry_future"] == 1
+            if first:
+                log.warning("%s: refused an odometry stamped %.3f s in the future (more than "
+                            "--odom-future %g s; counted as odometry_future)", self.name,
+                            stamp - rec.arrival, self.odom_future)
+            return
         # the stamp if it is plausible (same clock), else the arrival
-        t = stamp if abs(stamp - rec.arrival) < 1.0 else rec.arrival
+        t = stamp if stamp > rec.arrival - 1.0 else rec.arrival
         with self._lock:
             if self._odom is None or t > self._odom[0]:
                 self._odom = (t, pose, v, w)
@@ -181,7 +216,12 @@ class Ros2Robot(Node):
 
     def on_message(self, kind: str, msg: Message) -> None:
         if isinstance(msg, PlanMsg):
-            self.neighbours.add(msg, time.time())
+            first = msg.id not in self.neighbours.untrusted
+            why = self.neighbours.add(msg, time.time())
+            if why is not None and first:
+                log.warning("%s: robot %d is untrusted from now on: its plan is %s (kept "
+                            "at a sample's reach more, its false plans refused)", self.name,
+                            msg.id, why)
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         if alive or not name.startswith("robot/"):
@@ -207,7 +247,7 @@ class Ros2Robot(Node):
             if self._odom is None:
                 return None
             odom = self._odom
-        return own_motion(odom, list(self._sent), t, self.Ts, self.limits)
+        return own_motion(odom, list(self.stream.sent), t, self.Ts, self.limits)
 
     def controller_states(self, others: np.ndarray, t: float) -> np.ndarray:
         """The controller's measured states at wall time ``t``: the neighbours' poses
@@ -232,25 +272,22 @@ class Ros2Robot(Node):
 
     # ------------------------------------------------------------------ outputs
     def command(self, v: float, omega: float, at: float) -> None:
-        """Send ``(v, omega)`` on cmd_vel now and remember it (for the own state)."""
-        twist = msgs.Twist(msgs.Vector3(float(v)), msgs.Vector3(0.0, 0.0, float(omega)))
-        with self._cmd_lock:  # the main thread and the stop timer
-            if self.twist_stamped:
-                self.cmd_pub.publish(msgs.TwistStamped(
-                    msgs.Header(msgs.Time.from_seconds(at), self._frame[1]), twist))
-            else:
-                self.cmd_pub.publish(twist)
-            self._sent.append((at, float(v), float(omega)))
-            with self._lock:  # the commands since the newest odometry (own_state needs all)
-                t0 = -math.inf if self._odom is None else self._odom[0]
-            if len(self._sent) > 16 and self._sent[0][0] < t0:
-                self._sent = [c for c in self._sent if c[0] >= t0] or self._sent[-1:]
-            if v == 0.0 and omega == 0.0:
-                self.counts["zero_commands"] += 1
+        """Send ``(v, omega)`` on cmd_vel now and hold it (:mod:`services.ros2.stream`)."""
+        with self._lock:  # the commands since the newest odometry (own_state needs all)
+            since = -math.inf if self._odom is None else self._odom[0]
+        self.stream.command(v, omega, at, since)
 
     def publish_plan(self, sample: int, stamp: float, states: np.ndarray,
                      inputs: np.ndarray) -> None:
-        """The plan to the neighbours (sqpmpc keys) and as a Path on ``NS/plan``."""
+        """The plan to the neighbours (sqpmpc keys) and as a Path on ``NS/plan``; a plan
+        stamped before the last one sent (a stop announced inside a sample already
+        planned) is stamped with the last one's instead, a standing one at least
+        :data:`~services.ros2.neighbours.MIN_SPACING` samples after it: the stamps never go
+        back nor crowd (:meth:`services.ros2.neighbours.Neighbours.add`)."""
+        standing = not np.asarray(inputs)[0].any()
+        # a standing plan at most every MIN_SPACING Ts (true: it stands from then on too)
+        stamp = max(stamp, self._last_stamp + (MIN_SPACING * self.Ts if standing else 0.0))
+        self._last_stamp = stamp
         t = stamp - (self.epoch or 0.0)
         self.bus.put(encode(PlanMsg(self.robot_id, sample, t, stamp, states, inputs)),
                      "robot", self.robot_id, "plan")
@@ -286,10 +323,19 @@ class Ros2Robot(Node):
         return True
 
     def _watchdog(self) -> None:
-        """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale,
-        whatever the main loop is doing (a long step, a stalled process)."""
+        """A thread: stop the robot within ``WATCH_PERIOD`` of its odometry going stale
+        and within :data:`LINK_PERIOD` of its plan exchange losing its last link, whatever
+        the main loop is doing (a long step, a stalled process); republish the command in
+        force every ``--cmd-rate`` period."""
+        looked = 0.0
         while not self.stop.wait(WATCH_PERIOD) and not self._done:
+            now = time.time()
             self._stop_if_stale()
+            if now - looked >= LINK_PERIOD:
+                looked = now
+                self._stop_if_lost()
+            if self.stream.republish(time.time()):
+                self.counts["republished"] += 1
 
     def _watch(self, until: float, sample: int) -> None:
         """Handle events until wall time ``until``; when the odometry has gone stale,
@@ -326,6 +372,7 @@ class Ros2Robot(Node):
         watchdog = threading.Thread(target=self._watchdog, name="odometry-watchdog",
                                     daemon=True)
         watchdog.start()
+        self.raise_priority()  # every thread, the watchdog's too (services.priority)
         try:
             while not self.stop.is_set():
                 Tk = T0 + k * self.Ts
@@ -350,80 +397,24 @@ class Ros2Robot(Node):
                     k += math.ceil(behind / self.Ts)
         finally:
             self._done = True
-            self.command(0.0, 0.0, time.time())
-        counts = {**self.counts, "plans_received": self.neighbours.received,
-                  "plans_refused": self.neighbours.refused}
+            self.stream.finish(time.time())  # zero, no repeat after it
+        counts = {**self.counts, "zero_commands": self.stream.zero_commands,
+                  "plans_received": self.neighbours.received,
+                  "plans_refused": self.neighbours.refused,
+                  "false_plans": sum(self.neighbours.untrusted.values())}
+        for rid, n in sorted(self.neighbours.untrusted.items()):
+            log.warning("%s: untrusted robot %d: %d false plans refused (first: %s)",
+                        self.name, rid, n, self.neighbours.reasons[rid])
         log.info("%s: %s, %d invalid messages dropped", self.name,
                  ", ".join(f"{v} {k}" for k, v in counts.items()), self.validator.invalid)
         return 0
 
-    def _wait_for_epoch(self) -> float | None:
-        """Publish standing plans until ``--epoch-file`` holds a number (``None``: stopped,
-        or a file that is not a number)."""
-        while not self.stop.is_set():
-            if self.epoch_file.exists():
-                text = self.epoch_file.read_text().strip()
-                try:
-                    return float(text)
-                except ValueError:
-                    log.error("%s: --epoch-file %s holds %r, not a time in Unix s",
-                              self.name, self.epoch_file, text[:40])
-                    return None
-            self.brake(time.time(), 0)
-            self.wait_until(lambda: False, min(self.Ts, 0.2))
-        return None
-
-    def _announce(self, start: float) -> None:
-        """Publish standing plans until the epoch and until a plan of every neighbour seen
-        alive has come (at most ``--timeout``): a robot that moves knows where every
-        running neighbour is."""
-        deadline = start + self.timeout
-        while not self.stop.is_set():
-            now = time.time()
-            self.brake(now, 0)
-            plans = self.neighbours.plans
-            alive = [i for i in plans if f"robot/{i}" in self.alive]
-            if now >= self.epoch - self.Ts and (all(plans[i] for i in alive)
-                                                or now >= deadline):
-                break
-            self.wait_until(lambda: False, min(self.Ts, 0.2))
-        missing = [i for i, kept in self.neighbours.plans.items() if not kept]
-        if missing:
-            log.warning("%s starts without plans from %s", self.name, missing)
-
-    def _announce_shift(self, sample: int, stamp: float) -> None:
-        """A plan standing where the robot stands, stamped a sample before its new instant
-        (true: zero until then): the neighbours see when it decides next, instead of a
-        plan in flight that holds them by its reach (and shifts them in turn)."""
-        N = self.scenario.horizon
-        self.publish_plan(sample, stamp, np.repeat(self._standing[None], N + 1, axis=0),
-                          np.zeros((N, 2)))
-
-    def _await_plans(self, Tk: float) -> None:
-        """Handle events while a plan of a neighbour that decided before this robot is in
-        flight (:meth:`services.ros2.neighbours.Neighbours.awaited`), at most until the
-        sample's computation must start (``Tk`` less :data:`PUBLISH_SLACK` and twice the
-        longest of the recent steps)."""
-        self.drain()
-        budget = 2.0 * max(self._step_seconds, default=0.05) + PUBLISH_SLACK
-        deadline = Tk - budget
-        own = self.own_state(Tk)
-        if own is None or time.time() >= deadline:
-            return
-        waited = False
-        while not self.stop.is_set() and self.neighbours.awaited(own, Tk, time.time()):
-            now = time.time()
-            if now >= deadline:
-                break
-            waited = True
-            self.pump(deadline - now)
-        self.counts["plan_waits"] += waited
-
     def _step(self, k: int, Tk: float) -> None:
         """Compute sample ``k`` (instant ``Tk``), send the plan, the command at ``Tk``."""
         now = time.time()
-        if self.odometry_age(now) > self.odom_timeout:
-            # braked while stale; its plan stamped at Tk as every plan, not a lead early
+        if self.odometry_age(now) > self.odom_timeout or self._lost:
+            # braked while stale or cut off; its plan stamped at Tk as every plan, not a
+            # lead early
             self.brake(now, k, Tk)
             return
         self._braked = False
@@ -467,8 +458,8 @@ class Ros2Robot(Node):
                                   np.zeros((N, 2)))
             self._watch(Tk, k)
             with self._cmd_lock:  # the watchdog cannot stop it in between
-                if self._braked:  # the odometry went stale meanwhile: the zero stands
-                    return
+                if self._braked or self._lost:  # the odometry went stale or the plan
+                    return  # exchange was lost meanwhile: the zero stands
                 sent.set()
                 self.command(float(u[0]), float(u[1]), time.time())
             self.counts["samples"] += 1
@@ -476,8 +467,11 @@ class Ros2Robot(Node):
             timer.cancel()
 
     def close(self) -> None:
-        """Undeclare the ROS 2 node, close both sessions."""
+        """Zero on cmd_vel once more (given time to leave: a put just before the session
+        closes can be lost), undeclare the ROS 2 node, close both sessions."""
         try:
+            self.stream.finish(time.time())
+            time.sleep(CLOSE_GRACE)
             self.ros.close()
         finally:
             self.ros_session.close()

@@ -2,7 +2,8 @@
 
 ``python -m services.ros2.simfleet --scenario S --router HOST:PORT --out DIR
 [--ids 1,2] [--rate 50] [--domain D] [--twist-stamped] [--odom-stop ID:T]
-[--duration S] [--epoch UNIX_S | --epoch-file FILE] [--seed K] [--control-rate HZ]``
+[--duration S] [--epoch UNIX_S | --epoch-file FILE] [--seed K] [--control-rate HZ]
+[--cmd-timeout S]``
 
 Each robot of the scenario (or of ``--ids``) is a unicycle that starts at the
 scenario's initial state, obeys ``/robot<ID>/cmd_vel`` (``Twist`` or
@@ -17,6 +18,16 @@ speaks the format as another implementation reads it.
 With the scenario's acceleration limits (CONTRACT 1c) each robot's velocities
 ramp toward a command no faster than the limits, updated at ``--control-rate``
 Hz (:class:`SimRobot`), and its odometry reports the velocities it has.
+
+Each robot stops by itself when no command came for ``--cmd-timeout`` s (default
+0.5, the ``cmd_vel_timeout`` of ROS 2 Jazzy's diff_drive_controller; checked at
+every odometry instant and when the next command comes: a gap longer than the
+timeout stopped the robot at its end; not judged within ``STALL`` s after the
+simulator itself did not run for ``STALL`` s, when commands may still be queued:
+a real base does not stall with its controller), as such a base does, and
+counts it (a *command timeout*, counted when the command it held was not zero)
+and how long it stood on it, until the next command. A command equal to the one
+in force changes nothing (under acceleration limits its ramp goes on).
 
 ``--odom-stop ID:T`` stops robot ``ID``'s odometry at ``t = T`` (s after the
 epoch) while it keeps obeying its commands (a failed sensor). On SIGINT,
@@ -41,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sqpmpc.cli.options import Parser, positive_float
+from sqpmpc.cli.options import Parser, nonnegative_float, positive_float
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.io.atomic import atomic_path
 from sqpmpc.problem.plant import ramp_accelerations
@@ -51,10 +62,13 @@ from ..node import install_signal_handlers, setup_logging
 from .sdk import use_local_definitions
 from .timing import arc
 
-__all__ = ["SimRobot", "build_parser", "main"]
+__all__ = ["STALL", "SimRobot", "build_parser", "main"]
 
 log = logging.getLogger("services.ros2.simfleet")
 PROG = "services.ros2.simfleet"
+STALL = 0.1
+"""A simulator loop that did not run for this long stalled (the machine's load): command
+timeouts are not judged for as long after it (its queued commands come first)."""
 
 
 class SimRobot:
@@ -85,11 +99,20 @@ class SimRobot:
         The scenario's ``Ts`` (with ``limits``).
     tick
         Period of the velocity controller, s (with ``limits``).
+    timeout
+        Command timeout, s (0: none): :meth:`expire`.
+
+    Attributes
+    ----------
+    timeouts
+        Command timeouts that stopped the robot (the command in force was not zero).
+    timed_out
+        Seconds the robot stood on its command timeout (until the next command).
     """
 
     def __init__(self, robot_id: int, diameter: float, state: np.ndarray, start: float,
                  limits: tuple[np.ndarray, np.ndarray] | None = None,
-                 sample_time: float = 0.1, tick: float = 0.005) -> None:
+                 sample_time: float = 0.1, tick: float = 0.005, timeout: float = 0.0) -> None:
         self.robot_id = robot_id
         self.diameter = diameter
         self.limits = None if limits is None else (np.asarray(limits[0], dtype=float),
@@ -105,6 +128,12 @@ class SimRobot:
         self._tick = math.floor(start / self.tick)  # the last tick applied
         self.segments: list[list[float]] = [[start, *self._state.tolist(), 0.0, 0.0]]
         self.commands = 0
+        self.timeout = float(timeout)
+        self.timeouts = 0
+        self.timed_out = 0.0
+        self.judge_from = -math.inf  # no timeout is judged before (a stalled simulator)
+        self._last_command: float | None = None  # when the last command came
+        self._expired_at: float | None = None  # when the timeout stopped it (until a command)
 
     def _advance(self, t: float) -> None:
         """Move the state to wall time ``t`` (the velocity controller's ticks on the way)."""
@@ -130,18 +159,53 @@ class SimRobot:
             return self._state.copy(), (float(self._vel[0]), float(self._vel[1]))
 
     def command(self, v: float, omega: float, t: float) -> None:
-        """The command ``(v, omega)`` from wall time ``t`` on."""
+        """The command ``(v, omega)`` from wall time ``t`` on (one equal to the command in
+        force changes nothing but the time of the last command)."""
         with self._lock:
+            self._expire(t)  # it may have timed out since the last (checked at odometry)
             self._advance(t)
-            self._cmd = np.array([float(v), float(omega)])
+            self._last_command = t
+            if self._expired_at is not None:
+                self.timed_out += max(0.0, t - self._expired_at)
+                self._expired_at = None
             self.commands += 1
-            if self.limits is None:
-                self._vel = self._cmd.copy()
-                self.segments.append([self._t, *self._state.tolist(), *self._vel.tolist()])
+            cmd = np.array([float(v), float(omega)])
+            if np.array_equal(cmd, self._cmd):
                 return
-            self._tick = math.floor(self._t / self.tick)
-            self._rate = ramp_accelerations(self._cmd, self._vel, self.sample_time,
-                                            *self.limits)
+            self._set(cmd)
+
+    def expire(self, t: float) -> bool:
+        """At wall time ``t``: stop the robot (a zero command from its timeout's end on, or
+        from its last move of the state if later) when no command came for ``timeout`` s,
+        as a base's command timeout; ``True`` if it did now."""
+        with self._lock:
+            return self._expire(t)
+
+    def _expire(self, t: float) -> bool:
+        """:meth:`expire` (the caller holds the lock)."""
+        if t < self.judge_from:  # the simulator itself stood: commands may be queued
+            return False
+        if (self.timeout <= 0.0 or self._last_command is None
+                or self._expired_at is not None or t - self._last_command <= self.timeout):
+            return False
+        when = max(self._last_command + self.timeout, self._t)
+        self._advance(when)
+        self._expired_at = when
+        if not self._cmd.any():
+            return False
+        self.timeouts += 1
+        self._set(np.zeros(2))
+        return True
+
+    def _set(self, cmd: np.ndarray) -> None:
+        """The command in force from ``self._t`` on (the caller holds the lock)."""
+        self._cmd = cmd
+        if self.limits is None:
+            self._vel = self._cmd.copy()
+            self.segments.append([self._t, *self._state.tolist(), *self._vel.tolist()])
+            return
+        self._tick = math.floor(self._t / self.tick)
+        self._rate = ramp_accelerations(self._cmd, self._vel, self.sample_time, *self.limits)
 
 
 def _odom_message(pub, classes: dict, robot: SimRobot, t: float) -> None:
@@ -182,6 +246,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                    help="update rate of the robots' velocity controllers under the "
                         "scenario's acceleration limits, Hz (default 200)")
     p.add_argument("--domain", type=int, default=0, help="ROS domain id")
+    p.add_argument("--cmd-timeout", type=nonnegative_float, default=0.5, metavar="S",
+                   help="a robot stops when no command came for S s, as diff_drive_controller's "
+                        "cmd_vel_timeout (default 0.5; 0: never)")
     p.add_argument("--twist-stamped", action="store_true",
                    help="cmd_vel carries TwistStamped")
     p.add_argument("--odom-stop", action="append", default=[], metavar="ID:T",
@@ -245,7 +312,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         if bounds.dynamic_limits else None
     robots = {rid: SimRobot(rid, float(scenario.robots[scenario.index_of(rid)].diameter),
                             scenario.initial_states()[scenario.index_of(rid)], start, limits,
-                            scenario.sample_time, 1.0 / args.control_rate)
+                            scenario.sample_time, 1.0 / args.control_rate, args.cmd_timeout)
               for rid in ids}
     cmd_type = "geometry_msgs/msg/TwistStamped" if args.twist_stamped else \
         "geometry_msgs/msg/Twist"
@@ -274,6 +341,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     period = 1.0 / args.rate
     due = {rid: start + rng.random() * period for rid in robots}
     sent = dict.fromkeys(robots, 0)
+    ticked, stalls = time.time(), 0
     log.info("%d robots, odometry at %g Hz", len(robots), args.rate)
     end = None if args.duration is None else start + args.duration
     try:
@@ -283,10 +351,18 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             if wait > 0.0 and stop.wait(wait):
                 break
             t = time.time()
+            if t - ticked > STALL:  # this process stood: let queued commands in first
+                stalls += 1
+                for robot in robots.values():
+                    robot.judge_from = t + STALL
+            ticked = t
             due[rid] += period * max(1, int((t - due[rid]) // period) + 1)
             if epoch is None and t - looked > 0.1:
                 looked = t
                 epoch = _read_epoch(args.epoch_file)
+            if robots[rid].expire(t):
+                log.warning("robot %d: no command for %g s: stopped (command timeout)", rid,
+                            args.cmd_timeout)
             if rid in stops and epoch is not None and t - epoch >= stops[rid]:
                 continue  # the sensor failed
             _odom_message(pubs[rid], classes, robots[rid], t)
@@ -294,10 +370,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     finally:
         now = time.time()
         out = {"epoch": start if epoch is None else epoch, "start": start, "end": now,
-               "rate": args.rate,
+               "rate": args.rate, "cmd_timeout": args.cmd_timeout, "stalls": stalls,
                "odom_stop": {str(k): v for k, v in stops.items()},
                "robots": {str(rid): {"diameter": r.diameter, "segments": r.segments,
-                                     "odometry_sent": sent[rid]}
+                                     "odometry_sent": sent[rid],
+                                     "command_timeouts": r.timeouts,
+                                     "timed_out": r.timed_out}
                           for rid, r in robots.items()}}
         args.out.mkdir(parents=True, exist_ok=True)
         with atomic_path(args.out / "poses.json") as tmp:

@@ -44,6 +44,7 @@ from sqpmpc.io.recorder import prepare_output
 from sqpmpc.io.reporting import STATUS_PERIOD, StatusLines, missed_goal, summarize
 from sqpmpc.problem.fleets import FLEET_KINDS, antipodal_swap, grid_to_grid, random_crossings
 from sqpmpc.problem.goals import unreachable_goals
+from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario
 from sqpmpc.rules.registry import describe_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
@@ -97,9 +98,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("list", help="list the built-in scenarios")
     gen = sub.add_parser("generate", help="write a fleet scenario file (swap, random "
                                           "crossings, grid-to-grid)")
-    gen.add_argument("kind", choices=FLEET_KINDS,
+    gen.add_argument("kind", choices=(*FLEET_KINDS, "mapf"),
                      help="swap: antipodal swap on a circle; crossings: random starts and "
-                          "goals (seeded); grid: a grid sent to the mirrored grid")
+                          "goals (seeded); grid: a grid sent to the mirrored grid; mapf: a "
+                          "MovingAI .map (with its .scen agents or random cells)")
+    gen.add_argument("--map", type=Path, help="mapf: the MovingAI .map file")
+    gen.add_argument("--scen", type=Path,
+                     help="mapf: a MovingAI .scen file (its first --robots agents; default: "
+                          "random free cells, --seed)")
+    gen.add_argument("--cell", type=positive_float, help="mapf: cell size, m (default 1)")
+    gen.add_argument("--v-max", type=positive_float, help="mapf: bound of |v|, m/s (default 1)")
+    gen.add_argument("--acceleration", type=positive_float, nargs=2,
+                     metavar=("A", "ALPHA"),
+                     help="mapf: bounds of |a| (m/s^2) and |alpha| (rad/s^2); default none")
     gen.add_argument("--robots", type=positive_int, help="swap, crossings: number of robots")
     gen.add_argument("--seed", type=int, help="crossings: random seed")
     gen.add_argument("--rows", type=positive_int, help="grid: rows")
@@ -108,9 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="crossings, grid: smallest distance between robots, m")
     gen.add_argument("--gap", type=nonnegative_float,
                      help="grid: distance between the two grids, m")
-    gen.add_argument("--sample-time", type=positive_float, default=0.5,
-                     help="Ts, s (default 0.5)")
-    gen.add_argument("--horizon", type=positive_int, default=8, help="N (default 8)")
+    gen.add_argument("--sample-time", type=positive_float, default=None,
+                     help="Ts, s (default 0.5; mapf 0.2)")
+    gen.add_argument("--horizon", type=positive_int, default=None,
+                     help="N (default 8; mapf 10)")
     gen.add_argument("--diameter", type=positive_float, default=0.3, help="robot diameter, m")
     gen.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     sub.add_parser("rules", help="list the liveness rules and the always-on safety rows")
@@ -126,27 +138,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 _GENERATE_OPTIONS = {"swap": ("robots",), "crossings": ("robots", "seed", "spacing"),
-                     "grid": ("rows", "cols", "spacing", "gap")}
-_REQUIRED = {"swap": ("robots",), "crossings": ("robots", "seed"), "grid": ("rows", "cols")}
+                     "grid": ("rows", "cols", "spacing", "gap"),
+                     "mapf": ("robots", "seed", "map", "scen", "cell", "v_max", "acceleration")}
+_REQUIRED = {"swap": ("robots",), "crossings": ("robots", "seed"), "grid": ("rows", "cols"),
+             "mapf": ("map", "robots")}
 
 
 def _generate(args: argparse.Namespace) -> int:
     """``sqpmpc generate``: write the scenario file, or refuse with one message (status 2)."""
     kind = args.kind
-    given = [k for k in ("robots", "seed", "rows", "cols", "spacing", "gap")
-             if getattr(args, k) is not None]
+    given = [k for k in ("robots", "seed", "rows", "cols", "spacing", "gap", "map", "scen",
+                         "cell", "v_max", "acceleration") if getattr(args, k) is not None]
     wrong = [k for k in given if k not in _GENERATE_OPTIONS[kind]]
     missing = [k for k in _REQUIRED[kind] if getattr(args, k) is None]
     try:
         if wrong:
-            raise ProblemError(f"--{wrong[0]} does not apply to '{kind}' (it takes "
-                               f"{', '.join('--' + k for k in _GENERATE_OPTIONS[kind])})")
+            takes = ", ".join("--" + k.replace("_", "-") for k in _GENERATE_OPTIONS[kind])
+            raise ProblemError(f"--{wrong[0].replace('_', '-')} does not apply to '{kind}' "
+                               f"(it takes {takes})")
         if missing:
             raise ProblemError(f"'{kind}' needs --{missing[0]}")
-        common = {"sample_time": args.sample_time, "horizon": args.horizon,
+        mapf = kind == "mapf"
+        common = {"sample_time": args.sample_time or (0.2 if mapf else 0.5),
+                  "horizon": args.horizon or (10 if mapf else 8),
                   "diameter": args.diameter}
         extra = {k: getattr(args, k) for k in ("spacing", "gap") if getattr(args, k) is not None}
-        if kind == "swap":
+        if kind == "mapf":
+            accel = args.acceleration or (None, None)
+            scenario = mapf_scenario(
+                args.map, args.robots, scen_path=args.scen, cell=args.cell or 1.0,
+                v_max=args.v_max or 1.0, acceleration=accel[0],
+                angular_acceleration=accel[1], seed=args.seed or 0, **common)
+        elif kind == "swap":
             scenario = antipodal_swap(args.robots, **common)
         elif kind == "crossings":
             scenario = random_crossings(args.robots, args.seed, **common, **extra)

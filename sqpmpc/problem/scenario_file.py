@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.grid import ROADMAP_KEYS, GridSpec
+from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.references import _describe, _FieldError, reference_from_dict

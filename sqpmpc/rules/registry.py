@@ -28,7 +28,9 @@ from sqpmpc.rules.roundabout import Roundabout
 from sqpmpc.rules.routes import RouteFollowing
 
 __all__ = [
+    "OPT_IN",
     "RULES",
+    "default_names",
     "SAFETY_ROWS",
     "add_rule_arguments",
     "check_rules",
@@ -44,9 +46,13 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, TouchingPairs, Coordination, RouteFollowing, Yield, Roundabout,
-                Detour, Parking, StallRepair, GearCycle)
+    for cls in (TurnLimit, KeepRight, TouchingPairs, Coordination, RouteFollowing, Yield,
+                Roundabout, Detour, Parking, StallRepair, GearCycle)
 }
+
+#: Registered rules that are off unless named (``--rules``): the roadmap coordination
+#: is opt-in until it brings every robot home where the rules do (docs/coordination.md).
+OPT_IN: tuple[str, ...] = ("coordination",)
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.ocp.collision_rows`).
 SAFETY_ROWS: dict[str, str] = {
@@ -64,9 +70,14 @@ def rule_names() -> list[str]:
     return list(RULES)
 
 
+def default_names() -> list[str]:
+    """Names of the rules on by default (every built-in but :data:`OPT_IN`), in order."""
+    return [name for name in RULES if name not in OPT_IN]
+
+
 def default_rules() -> tuple[Rule, ...]:
-    """Every built-in rule with its default parameters."""
-    return tuple(cls() for cls in RULES.values())
+    """The rules on by default, with their default parameters."""
+    return tuple(RULES[name]() for name in default_names())
 
 
 def check_rules(rules: Sequence[Rule]) -> tuple[Rule, ...]:
@@ -98,9 +109,9 @@ def select_rules(names: Iterable[str] | None = None, without: Iterable[str] = ()
     """The default-parameter rules named in ``names`` (all if ``None``) minus ``without``.
 
     ``option`` names the user-facing option in error messages. ``"none"`` as
-    the only name selects no rule.
+    the only name selects no rule. ``None`` selects the rules on by default.
     """
-    chosen = list(RULES) if names is None else [n.strip() for n in names if n.strip()]
+    chosen = default_names() if names is None else [n.strip() for n in names if n.strip()]
     if chosen == ["none"]:
         chosen = []
     without = [n.strip() for n in without if n.strip()]
@@ -114,8 +125,10 @@ def select_rules(names: Iterable[str] | None = None, without: Iterable[str] = ()
 def describe_rules() -> str:
     """One line per rule and per safety row (``sqpmpc rules``)."""
     width = max(map(len, list(RULES) + list(SAFETY_ROWS)))
-    lines = ["rules (on by default; remove one with --without NAME):"]
-    lines += [f"  {name:<{width}}  {cls.summary}" for name, cls in RULES.items()]
+    lines = ["rules (on by default but those marked opt-in; remove one with --without NAME, "
+             "choose with --rules A,B):"]
+    lines += [f"  {name:<{width}}  {'(opt-in) ' if name in OPT_IN else ''}{cls.summary}"
+              for name, cls in RULES.items()]
     lines.append("safety rows (always on):")
     lines += [f"  {name:<{width}}  {text}" for name, text in SAFETY_ROWS.items()]
     return "\n".join(lines)

@@ -1,0 +1,204 @@
+"""The coordination layer: roadmap, conflict-free plans, their delay-tolerant execution,
+and the MovingAI reader (no closed loop here: tests/test_coordination_loop.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sqpmpc.coordination.fleet import fleet_plan
+from sqpmpc.coordination.mapf import PlanningError, plan_paths
+from sqpmpc.coordination.roadmap import build_roadmap
+from sqpmpc.coordination.schedule import Execution, Schedule
+from sqpmpc.errors import ProblemError, ScenarioError
+from sqpmpc.problem.fleets import antipodal_swap
+from sqpmpc.problem.grid import GridSpec
+from sqpmpc.problem.movingai import blocked_rectangles, mapf_scenario, read_map, read_scen
+from sqpmpc.problem.polygons import PolygonObstacle
+from sqpmpc.problem.scenario_file import parse_scenario_text
+
+DATA = Path(__file__).parent / "data"
+MAP, SCEN = DATA / "maze-12-8.map", DATA / "maze-12-8.scen"
+
+
+def check_plan(adjacency: set[tuple[int, int]], configs: np.ndarray, starts: np.ndarray,
+               goals: np.ndarray) -> None:
+    """A plan is valid: from the starts to the goals, one edge or a wait per step, no two
+    robots on a vertex, no two robots swapping along an edge."""
+    assert np.array_equal(configs[0], starts)
+    assert np.array_equal(configs[-1], goals)
+    for a, b in zip(configs[:-1], configs[1:], strict=True):
+        assert len(set(b.tolist())) == b.size, "vertex conflict"
+        for u, v in zip(a, b, strict=True):
+            assert u == v or (int(u), int(v)) in adjacency, "not an edge"
+        moves = {(int(u), int(v)) for u, v in zip(a, b, strict=True) if u != v}
+        assert not any((v, u) in moves for u, v in moves), "swap conflict"
+
+
+def _edges(roadmap) -> set[tuple[int, int]]:
+    return {(v, int(u)) for v in range(roadmap.size) for u in roadmap.neighbours(v)}
+
+
+def _maze_plan(cell: float = 0.5):
+    sc = mapf_scenario(MAP, 6, scen_path=SCEN, cell=cell, diameter=0.3)
+    return sc, fleet_plan(sc, 0.15 + 0.01, 0.3 + 0.01)
+
+
+def test_movingai_map_and_scen_are_read() -> None:
+    blocked = read_map(MAP)
+    assert blocked.shape == (8, 12) and int(blocked.sum()) == 40
+    agents = read_scen(SCEN)
+    assert agents[0] == ((0, 0), (11, 6)) and len(agents) == 6
+    rects = blocked_rectangles(blocked)
+    covered = np.zeros_like(blocked)
+    for r0, c0, r1, c1 in rects:
+        assert not covered[r0:r1, c0:c1].any(), "rectangles overlap"
+        covered[r0:r1, c0:c1] = True
+    assert np.array_equal(covered, blocked)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("type octile\nheight 2\nwidth 3\nmap\n...\n.x.\n", "line 6"),
+    ("height 2\nwidth 3\n", "not a MovingAI map"),
+    ("type octile\nheight 3\nwidth 3\nmap\n...\n...\n", "expected 3 map rows"),
+])
+def test_bad_maps_are_refused_by_name(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.map"
+    path.write_text(text)
+    with pytest.raises(ProblemError, match=message):
+        read_map(path)
+
+
+def test_mapf_scenario_declares_its_grid_and_round_trips() -> None:
+    sc = mapf_scenario(MAP, 6, scen_path=SCEN, cell=0.5, diameter=0.3, acceleration=2.0,
+                       angular_acceleration=10.0)
+    assert sc.roadmap == GridSpec(0.5, (0.25, 0.25))
+    assert np.allclose(sc.initial_states()[0, :2], (0.25, 3.75))  # row 0 is the top
+    again = parse_scenario_text(sc.to_toml().encode(), "again")
+    assert again == sc
+    with pytest.raises(ProblemError, match="does not fit a cell"):
+        mapf_scenario(MAP, 2, cell=0.3, diameter=0.3)
+    with pytest.raises(ProblemError, match="the file has 6 agents"):
+        mapf_scenario(MAP, 7, scen_path=SCEN)
+
+
+def test_roadmap_section_is_validated() -> None:
+    text = mapf_scenario(MAP, 2, cell=0.5).to_toml().replace("cell = 0.5", "cell = -1.0")
+    with pytest.raises(ScenarioError, match=r"roadmap\.cell"):
+        parse_scenario_text(text.encode(), "bad")
+
+
+def test_every_free_cell_is_a_vertex_and_only_neighbours_are_joined() -> None:
+    sc, plan = _maze_plan()
+    roadmap = plan.roadmap
+    blocked = read_map(MAP)
+    assert roadmap.size == int((~blocked).sum())
+    for v, u in _edges(roadmap):
+        assert np.isclose(np.hypot(*(roadmap.positions[v] - roadmap.positions[u])), 0.5)
+    assert np.allclose(roadmap.positions[roadmap.starts], sc.initial_states()[:, :2])
+
+
+def test_a_cell_no_wider_than_the_kept_distance_is_refused() -> None:
+    sc = mapf_scenario(MAP, 2, cell=0.5, diameter=0.3)
+    with pytest.raises(ProblemError, match="not wider than the distance the robots keep"):
+        fleet_plan(sc, 0.16, 0.5)
+
+
+def test_the_maze_plan_is_conflict_free() -> None:
+    sc, plan = _maze_plan()
+    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_instances_are_planned_conflict_free(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    sc, plan = _maze_plan()
+    roadmap = plan.roadmap
+    k = int(rng.integers(2, 10))
+    starts = rng.choice(roadmap.size, k, replace=False)
+    goals = rng.choice(roadmap.size, k, replace=False)
+    configs = plan_paths(roadmap, starts, goals, seed=seed)
+    check_plan(_edges(roadmap), configs, starts, goals)
+
+
+def test_a_goal_cut_off_or_shared_is_refused_by_name() -> None:
+    positions = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
+    wall = PolygonObstacle(((1.55, -0.5), (2.45, -0.5), (2.45, 0.5), (1.55, 0.5)))
+    roadmap = build_roadmap((wall,), (), (np.array([-0.5, -0.5]), np.array([3.5, 0.5])),
+                            positions[:2], positions[[1, 0]], np.array([True, True]), 0.1, 0.5,
+                            0.3, GridSpec(1.0, (0.0, 0.0)))
+    isolated = np.flatnonzero(np.all(np.isclose(roadmap.positions, [3.0, 0.0]), axis=1))
+    with pytest.raises(PlanningError, match="robot index 0 cannot reach its goal"):
+        plan_paths(roadmap, np.array([roadmap.starts[0]]), isolated)
+    with pytest.raises(PlanningError, match="share the goal vertex"):
+        plan_paths(roadmap, roadmap.starts, roadmap.starts[[0, 0]])
+
+
+def test_a_two_robot_swap_in_a_corridor_with_one_pocket_is_solved() -> None:
+    """A line of 5 cells with a pocket above the middle: the robots at both ends swap
+    (PIBT alone cannot, LaCAM's search does)."""
+    walls = [PolygonObstacle(((x - 0.45, 0.55), (x + 0.45, 0.55), (x + 0.45, 1.45),
+                              (x - 0.45, 1.45))) for x in (0.0, 1.0, 3.0, 4.0)]
+    ends = np.array([[0.0, 0.0], [4.0, 0.0]])
+    roadmap = build_roadmap(walls, (), (np.array([-0.5, -0.5]), np.array([4.5, 1.5])),
+                            ends, ends[::-1], np.array([True, True]), 0.0, 0.5, 0.3,
+                            GridSpec(1.0, (0.0, 0.0)))
+    assert roadmap.size == 6
+    configs = plan_paths(roadmap, roadmap.starts, roadmap.goals)
+    check_plan(_edges(roadmap), configs, roadmap.starts, roadmap.goals)
+
+
+def _execute(schedule: Schedule, roadmap, rng: np.random.Generator, slow: float) -> int:
+    """Discrete execution with random delays: each round every robot that may head for
+    its next vertex moves there with probability 1 - slow. Returns the rounds taken;
+    checks that no two robots share a vertex and that the execution never stalls."""
+    n = schedule.size
+    execution = Execution(schedule, roadmap, np.arange(n), window=1)
+    rounds = 0
+    while not all(execution.finished(i) for i in range(n)):
+        rounds += 1
+        may = execution.permitted_all()
+        waiting = [i for i in range(n) if not execution.finished(i)]
+        assert any(may[i] > execution.progress[i] for i in waiting), "deadlock"
+        positions = roadmap.positions[execution.configuration()].copy()
+        for i in range(n):
+            p = int(execution.progress[i])
+            if may[i] > p and rng.random() > slow:
+                positions[i] = roadmap.positions[schedule.paths[i, p + 1]]
+        before = execution.progress.copy()
+        execution.advance(positions)
+        assert np.all(execution.progress - before <= 1)
+        occupied = execution.configuration()
+        assert len(set(occupied.tolist())) == n, "two robots on one vertex"
+    return rounds
+
+
+@pytest.mark.parametrize("slow", [0.0, 0.5, 0.9])
+def test_execution_with_delays_keeps_vertices_apart_and_never_deadlocks(slow: float) -> None:
+    rng = np.random.default_rng(7)
+    sc, plan = _maze_plan()
+    rounds = _execute(plan.schedule, plan.roadmap, rng, slow)
+    if slow == 0.0:  # undelayed, the execution is as fast as the plan
+        assert rounds <= plan.makespan_steps
+
+
+def test_execution_of_a_large_random_plan_with_delays() -> None:
+    rng = np.random.default_rng(3)
+    sc, plan = _maze_plan()
+    roadmap = plan.roadmap
+    starts = rng.choice(roadmap.size, 10, replace=False)
+    goals = rng.choice(roadmap.size, 10, replace=False)
+    schedule = Schedule.from_plan(plan_paths(roadmap, starts, goals))
+    _execute(schedule, roadmap, rng, 0.6)
+
+
+def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> None:
+    sc = antipodal_swap(16)
+    plan = fleet_plan(sc, 0.16, 0.31)
+    assert plan is not None and plan.robots.size == 16
+    assert np.isclose(plan.roadmap.spacing, 0.31 + 2 * plan.roadmap.reach)
+    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
+    # the robots' own points are vertices: they start and end exactly there
+    assert np.allclose(plan.roadmap.positions[plan.roadmap.starts], sc.initial_states()[:, :2])

@@ -1,0 +1,166 @@
+"""The ROS 2 mode's protections without processes: plans are claims checked against the
+neighbour's past plans and bounds, a departed neighbour's disc may be left, a robot
+without credentials refuses to start, a simulated base stops on its command timeout."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from services.messages import PlanMsg
+from services.robot import main as robot_main
+from services.ros2.neighbours import Neighbours
+from services.ros2.simfleet import SimRobot
+from services.ros2.timing import Estimate, arc
+
+TS, N, V = 0.5, 8, 0.6
+
+
+def _neighbours() -> Neighbours:
+    return Neighbours([1, 2], 1, np.array([0.0, 0.3]), TS, N, V, lead=0.15, guard=0.02,
+                      margin=0.02, input_bounds=(np.array([-V, -0.8]), np.array([V, 0.8])))
+
+
+def _plan(start: np.ndarray, u: tuple[float, float], stamp: float) -> PlanMsg:
+    """An honest plan: ``u`` held, its stages on the exact arcs."""
+    states = [np.asarray(start, dtype=float)]
+    for _ in range(N):
+        states.append(arc(states[-1], u[0], u[1], TS))
+    return PlanMsg(2, 0, 0.0, stamp, np.array(states), np.tile(u, (N, 1)))
+
+
+def test_false_plans_are_refused_and_their_robot_kept_at_a_samples_reach():
+    now = time.time()
+    near = _neighbours()
+    go = (0.4, 0.2)
+    first = _plan(np.zeros(3), go, now - 0.6)
+    assert near.add(first, now) is None
+    # its next plan starts where the first put it one sample later: kept
+    second = _plan(arc(np.zeros(3), *go, TS), go, now - 0.1)
+    assert near.add(second, now) is None and near.untrusted == {}
+    where = arc(second.states[0], *go, TS)
+    false = {
+        "starts": _plan(np.array([3.0, 0.0, 0.0]), (0.0, 0.0), now + 0.4),  # the freeze
+        "second moving plan": _plan(where, go, now + 0.2),
+        "outside the velocity bounds": _plan(where, (0.9, 0.0), now + 0.4),
+        "before its previous plan": _plan(where, (0.0, 0.0), now - 0.3),
+        "ahead of this robot's clock": _plan(where, (0.0, 0.0), now + 5.0),
+    }
+    for reason, msg in false.items():
+        why = near.add(msg, now)
+        assert why is not None and reason in why, (reason, why)
+    assert near.untrusted == {2: len(false)} and "starts" in near.reasons[2]
+    # the second moving plan could follow the first (not the second): a fork, two claims
+    # kept (it may be on either); every other one is refused, never used
+    assert near.received == 3 and [len(c) for c in near.forks[2]] == [2]
+    assert near.forks[2][0][-1].stamp == now + 0.2
+    # its honest next plan is still kept on its chain
+    assert near.add(_plan(where, go, now + 0.4), now + 0.45) is None
+    assert near.received == 4 and near.plans[2][-1].stamp == now + 0.4
+    # untrusted: a sample's reach more room (0.3 m), so a path that passed beside it now fails
+    beside = np.array([where[0], where[1] + 0.3 + 0.02 + 0.1, 0.0])
+    assert near.reach(2, now + 0.45) == pytest.approx(V * TS)
+    assert near.reach(2, now + 10 * TS + 0.1) == 0.0  # ten samples without a false plan
+    trusted = _neighbours()
+    for msg in (first, second, _plan(where, go, now + 0.4)):
+        assert trusted.add(msg, now + 0.45) is None
+    assert trusted.path_is_safe(beside, np.zeros(2), now + 0.45)
+    assert not near.path_is_safe(beside, np.zeros(2), now + 0.45)
+
+
+def test_a_robot_inside_a_departed_neighbours_disc_may_leave_it_but_not_approach():
+    now = time.time()
+    near = _neighbours()
+    near.plans[2].append(_plan(np.zeros(3), (0.0, 0.0), now - 1.0))  # as add() keeps it
+    near.departed[2] = Estimate(np.zeros(3), V * TS)  # left: a sample's reach, 0.3 m
+    inside = np.array([0.5, 0.0, 0.0])  # 0.2 m from the disc, 0.3 m + margin needed
+    assert near.path_is_safe(inside, np.array([0.4, 0.0]), now)  # straight away
+    assert near.path_is_safe(inside, np.zeros(2), now)
+    assert not near.path_is_safe(inside, np.array([-0.2, 0.0]), now)  # towards it
+    sideways = np.array([0.5, 0.0, np.pi / 2])
+    assert not near.path_is_safe(sideways, np.array([0.4, 0.0]), now)  # round it: closer
+    # far enough, the usual check: passing by is fine
+    assert near.path_is_safe(np.array([1.5, 0.0, np.pi / 2]), np.array([0.4, 0.0]), now)
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    ([], "no credentials: the plan exchange needs --credentials DIR"),
+    (["--insecure", "--zenoh-config", "x.json5"], "give --zenoh-config or --insecure"),
+    (["--ros2", "--insecure", "--ros2-zenoh-config", "no-such.json5"],
+     "--ros2-zenoh-config no-such.json5: no such file"),
+    (["--ros2", "--insecure", "--cmd-rate", "1"], "--cmd-rate: must be above 1/Ts"),
+])
+def test_a_robot_without_credentials_refuses_to_start(capsys, extra, message):
+    with pytest.raises(SystemExit) as exc:
+        robot_main(["--id", "1", "--scenario", "paper-s2", *extra])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_a_simulated_base_stops_on_its_command_timeout_and_counts_it():
+    robot = SimRobot(1, 0.3, np.zeros(3), 100.0, timeout=0.5)
+    robot.command(0.4, 0.0, 100.0)
+    assert not robot.expire(100.45)
+    robot.command(0.4, 0.0, 100.45)  # the same command again: held, the timeout restarts
+    assert not robot.expire(100.9)
+    assert robot.expire(101.0) and robot.timeouts == 1
+    state, vel = robot.at(102.0)
+    assert vel == (0.0, 0.0)
+    assert state[0] == pytest.approx(0.4 * 0.95)  # moved until 100.95, then stood
+    robot.command(0.4, 0.0, 102.0)
+    assert robot.timed_out == pytest.approx(102.0 - 100.95)
+    # a gap seen only when the next command comes counts too
+    robot.command(0.2, 0.0, 103.0)
+    assert robot.timeouts == 2 and robot.at(103.0)[0][0] == pytest.approx(0.38 + 0.2)
+    # standing still (zero held), a timeout does not count
+    robot.command(0.0, 0.0, 103.1)
+    assert not robot.expire(104.0) and robot.timeouts == 2
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+def test_plant_mode_refuses_a_plan_not_starting_at_its_robots_state(lazy):
+    from services.messages import encode
+    from services.plans import PlanStore, StepPlans
+    from services.protocol import AcceptancePolicy
+    from services.validator import MessageValidator
+
+    true = {(2, 299): np.array([1.0, 2.0, 0.3]), (3, 299): np.array([-1.0, 0.0, 0.0])}
+    store = PlanStore(MessageValidator([1, 2, 3], N), [2, 3], AcceptancePolicy(1000, TS, N),
+                      lambda: 300, lazy=lazy, truth=lambda rid, k: true.get((rid, k)))
+
+    def plan(rid: int, start: np.ndarray, sample: int = 299) -> bytes:
+        return encode(PlanMsg(rid, sample, 1.0, 0.0, np.tile(start, (N + 1, 1)),
+                              np.zeros((N, 2))))
+
+    store.add(2, plan(2, true[2, 299] + [0.5, 0.0, 0.0]))  # robot 2 claimed 0.5 m off
+    store.add(3, plan(3, true[3, 299]))
+    store.add(2, plan(2, np.array([7.0, 7.0, 0.0]), 298))  # no state of 298 here: kept
+    plans = StepPlans(store, 300, [2, 3])
+    assert plans[3].sample == 299 and plans[2].sample == 298  # 299's refused when read
+    assert store.false == {2: 1}
+
+
+
+def test_a_forged_stop_does_not_hide_where_the_robot_goes():
+    """A key holder claims robot 2 stopped at its start (consistent with its first plan);
+    robot 2's own next plan contradicts that claim but follows its first plan: kept as a
+    fork, and the check keeps out of both claims (before, robot 2 was believed standing
+    while it drove on: a collision in the ROS 2 flood benchmark)."""
+    now = time.time()
+    near = _neighbours()
+    go = (0.6, 0.0)
+    start = np.zeros(3)
+    assert near.add(_plan(start, go, now - 1.0), now) is None
+    assert near.add(_plan(start, (0.0, 0.0), now - 0.8), now) is None  # the forged stop
+    honest = _plan(arc(start, *go, TS), go, now - 0.5)
+    why = near.add(honest, now)
+    assert why is not None and "contradicting" in why and near.untrusted == {2: 1}
+    assert [c[-1].stamp for c in near.forks[2]] == [now - 0.5]
+    # ahead of where robot 2 drives (0.6 m on at `now`), clear of all the forged stop allows
+    ahead = np.array([1.2, 0.3, 0.0])
+    assert not near.path_is_safe(ahead, np.zeros(2), now)
+    near.forks[2].clear()  # the forged stop alone: robot 2 would be hidden
+    assert near.path_is_safe(ahead, np.zeros(2), now)
