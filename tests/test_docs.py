@@ -255,6 +255,7 @@ def test_shell_blocks_parse_and_the_cheap_ones_run(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("COLUMNS", "100")
     (tmp_path / "run.toml").write_text('collision_margin = 0.05\n')
+    shutil.copytree(ROOT / "tests" / "data", tmp_path / "tests" / "data")  # the maps named
     for kind, code in _blocks(page):
         if kind in ("sh", "bash", ""):  # no kind: the reports' command lines
             for words in _command_lines(code):
