@@ -18,9 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.coordination.mapf import plan_paths
-from sqpmpc.coordination.roadmap import Roadmap, box_of, build_roadmap
+from sqpmpc.coordination.roadmap import Roadmap, build_roadmap
 from sqpmpc.coordination.schedule import Schedule
 from sqpmpc.problem.references import PointReference
+from sqpmpc.problem.routes import scenario_box
 from sqpmpc.problem.scenario import Scenario
 
 __all__ = ["FleetPlan", "fleet_plan", "replan"]
@@ -114,7 +115,7 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     t0 = time.process_time()
     if roadmap is None:
         roadmap = build_roadmap(
-            scenario.polygons, scenario.obstacles, box_of(scenario.bounds), starts, goals,
+            scenario.polygons, scenario.obstacles, scenario_box(scenario), starts, goals,
             has_goal, clearance, separation, float(scenario.diameters().max()),
             scenario.roadmap)
     s = roadmap.starts[robots] if start_vertices is None else start_vertices

@@ -55,11 +55,11 @@ from shapely.geometry import Point
 from shapely.ops import unary_union
 
 from sqpmpc.errors import ProblemError
-from sqpmpc.problem.grid import GridSpec
+from sqpmpc.problem.grid import GridSpec, grid_edges
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.polygons import PolygonObstacle
 
-__all__ = ["Roadmap", "box_of", "build_roadmap"]
+__all__ = ["Roadmap", "build_roadmap"]
 
 _OFFSETS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
 
@@ -156,14 +156,6 @@ def _grid(low: np.ndarray, high: np.ndarray, h: float, origin: np.ndarray
     ys = first[1] + h * np.arange(counts[1])
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     return np.column_stack((gx.ravel(), gy.ravel())), (int(counts[0]), int(counts[1])), first
-
-
-def _grid_edges(shape: tuple[int, int]) -> np.ndarray:
-    rows, cols = shape
-    index = np.arange(rows * cols).reshape(rows, cols)
-    right = np.column_stack((index[:-1, :].ravel(), index[1:, :].ravel()))
-    up = np.column_stack((index[:, :-1].ravel(), index[:, 1:].ravel()))
-    return np.concatenate((right, up))
 
 
 def _attach(points: np.ndarray, reach: float, h: float, grid: np.ndarray,
@@ -285,7 +277,7 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
     planned = np.flatnonzero(has_goal)
     ends = np.concatenate((starts[planned], goals[planned]))
     where, keep, new = _attach(ends, reach, h, points, keep)
-    edges = _grid_edges(shape)
+    edges = grid_edges(shape)
     edges = edges[keep[edges[:, 0]] & keep[edges[:, 1]]]
     edges = edges[_free_segments(points[edges[:, 0]], points[edges[:, 1]], inflated)]
     # renumber: kept grid vertices, then the new ones
@@ -332,12 +324,3 @@ def _joined(roadmap: Roadmap, has_goal: np.ndarray) -> int:
     _, label = connected_components(roadmap.adjacency(), directed=False)
     s, g = roadmap.starts[has_goal], roadmap.goals[has_goal]
     return int(np.sum((s >= 0) & (g >= 0) & (label[np.maximum(s, 0)] == label[np.maximum(g, 0)])))
-
-
-def box_of(bounds: object) -> tuple[np.ndarray, np.ndarray] | None:
-    """The ``(low, high)`` position box of a scenario's :class:`~sqpmpc.problem.bounds.Bounds`."""
-    low, high = bounds.position_lower(), bounds.position_upper()  # type: ignore[attr-defined]
-    if not (np.isfinite(low).any() or np.isfinite(high).any()):
-        return None
-    return np.asarray(low, float), np.asarray(high, float)
-

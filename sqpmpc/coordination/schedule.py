@@ -56,18 +56,19 @@ class Schedule:
         ``(n, L)`` the plan's step at which the robot enters each path vertex.
     lengths
         ``(n,)`` number of vertices of each path.
-    dep_robot, dep_index, dep_need
-        Per robot ``i`` (lists of arrays): ``i`` may head for its path vertex
-        ``dep_index[i][e]`` only when robot ``dep_robot[i][e]``'s progress is at least
-        ``dep_need[i][e]``; sorted by ``dep_index``.
+    dep_owner, dep_index, dep_robot, dep_need
+        ``(D,)`` each, one entry per dependency: robot ``dep_owner[e]`` may head for its
+        path vertex ``dep_index[e]`` only when robot ``dep_robot[e]``'s progress is at
+        least ``dep_need[e]``.
     """
 
     paths: np.ndarray
     entries: np.ndarray
     lengths: np.ndarray
-    dep_robot: tuple[np.ndarray, ...]
-    dep_index: tuple[np.ndarray, ...]
-    dep_need: tuple[np.ndarray, ...]
+    dep_owner: np.ndarray
+    dep_index: np.ndarray
+    dep_robot: np.ndarray
+    dep_need: np.ndarray
 
     @classmethod
     def from_plan(cls, configs: np.ndarray) -> Schedule:
@@ -98,20 +99,9 @@ class Schedule:
         order = np.lexsort((enter, vertex))
         v, r, k = vertex[order], robot[order], index[order]
         same = np.flatnonzero(v[1:] == v[:-1])  # visit same+1 follows visit same
-        deps: list[list[tuple[int, int, int]]] = [[] for _ in range(n)]
-        for a in same:
-            later, earlier = int(r[a + 1]), int(r[a])
-            if later == earlier:  # the same robot back on a vertex it left: no wait
-                continue
-            deps[later].append((int(k[a + 1]), earlier, int(k[a]) + 1))
-        dep_robot, dep_index, dep_need = [], [], []
-        for i in range(n):
-            rows = sorted(deps[i])
-            dep_index.append(np.array([e[0] for e in rows], dtype=np.int64))
-            dep_robot.append(np.array([e[1] for e in rows], dtype=np.int64))
-            dep_need.append(np.array([e[2] for e in rows], dtype=np.int64))
-        return cls(padded, entry, lengths, tuple(dep_robot), tuple(dep_index),
-                   tuple(dep_need))
+        # the same robot back on a vertex it left waits for nobody
+        same = same[r[same + 1] != r[same]]
+        return cls(padded, entry, lengths, r[same + 1], k[same + 1], r[same], k[same] + 1)
 
     @property
     def size(self) -> int:
@@ -144,9 +134,6 @@ class Execution:
         self.window = max(int(window), 1)
         self._points = roadmap.positions[schedule.paths]  # (n, L, 2)
         self._last = schedule.lengths - 1
-        owner = np.repeat(np.arange(schedule.size), [d.size for d in schedule.dep_index])
-        self._dep = (owner, *(np.concatenate(x) if x else np.zeros(0, np.int64) for x in (
-            schedule.dep_index, schedule.dep_robot, schedule.dep_need)))
 
     def advance(self, positions: np.ndarray) -> np.ndarray:
         """Count progress from the measured ``positions (N, 2)`` of all robots (scenario
@@ -168,23 +155,12 @@ class Execution:
 
     def permitted_all(self) -> np.ndarray:
         """``(n,)`` the last path index every robot may head for now."""
-        owner, index, robot, need = self._dep
-        out = self._last.copy()
-        unmet = (index > self.progress[owner]) & (self.progress[robot] < need)
-        np.minimum.at(out, owner[unmet], index[unmet] - 1)
-        return out
-
-    def permitted(self, robot: int) -> int:
-        """The last path index robot ``robot`` (schedule order) may head for now."""
         s = self.schedule
-        p = int(self.progress[robot])
-        idx = s.dep_index[robot]
-        if idx.size:
-            later = idx > p
-            unmet = later & (self.progress[s.dep_robot[robot]] < s.dep_need[robot])
-            if unmet.any():
-                return int(idx[unmet].min()) - 1
-        return int(self._last[robot])
+        out = self._last.copy()
+        unmet = (s.dep_index > self.progress[s.dep_owner]) & (
+            self.progress[s.dep_robot] < s.dep_need)
+        np.minimum.at(out, s.dep_owner[unmet], s.dep_index[unmet] - 1)
+        return out
 
     def path_points(self, robot: int, first: int, last: int) -> np.ndarray:
         """``(last - first + 1, 2)`` the positions of robot ``robot``'s path vertices

@@ -16,9 +16,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from sqpmpc.errors import ProblemError
 
-__all__ = ["ROADMAP_KEYS", "GridSpec"]
+__all__ = ["ROADMAP_KEYS", "GridSpec", "grid_edges"]
 
 ROADMAP_KEYS = ("cell", "origin")
 """The keys of the ``[roadmap]`` table."""
@@ -61,3 +63,13 @@ class GridSpec:
     def to_dict(self) -> dict[str, object]:
         """The ``[roadmap]`` table."""
         return {"cell": self.cell, "origin": list(self.origin)}
+
+
+def grid_edges(shape: tuple[int, int]) -> np.ndarray:
+    """``(E, 2)`` the 4-neighbour pairs of a ``shape`` grid, as flat (C-order) indices:
+    neighbours along the first axis, then along the second."""
+    rows, cols = shape
+    index = np.arange(rows * cols).reshape(rows, cols)
+    first = np.column_stack((index[:-1, :].ravel(), index[1:, :].ravel()))
+    second = np.column_stack((index[:, :-1].ravel(), index[:, 1:].ravel()))
+    return np.concatenate((first, second))

@@ -29,6 +29,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from sqpmpc.errors import ProblemError
+from sqpmpc.problem.grid import grid_edges
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import parse_scenario
 
@@ -143,10 +144,7 @@ def _cell_centre(col: int, row: int, height: int, cell: float) -> tuple[float, f
 def _grid_distances(blocked: np.ndarray, sources: list[int]) -> np.ndarray:
     h, w = blocked.shape
     free = ~blocked.ravel()
-    index = np.arange(h * w).reshape(h, w)
-    pairs = [np.column_stack((index[:, :-1].ravel(), index[:, 1:].ravel())),
-             np.column_stack((index[:-1, :].ravel(), index[1:, :].ravel()))]
-    edges = np.concatenate(pairs)
+    edges = grid_edges((h, w))
     edges = edges[free[edges[:, 0]] & free[edges[:, 1]]]
     graph = coo_matrix((np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])),
                        shape=(h * w, h * w)).tocsr()

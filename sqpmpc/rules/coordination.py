@@ -86,9 +86,7 @@ class _Instance(RuleInstance):
         if all(np.allclose(g, old) for g, old in zip(goals, plan.goals, strict=True)):
             return
         self.plan = replan(plan, scenario, configuration, goals)
-        self._start(self.plan)
-        assert self.execution is not None
-        self.execution.progress[:] = 0  # the new paths start at the progress vertices
+        self._start(self.plan)  # the new paths start at the progress vertices
         self.counts["coordination_replans"] += 1
 
     def shape_references(self, view: SampleView) -> Contribution | None:
@@ -96,6 +94,7 @@ class _Instance(RuleInstance):
         if execution is None or plan is None:
             return None
         progress = execution.advance(view.positions)
+        permitted = execution.permitted_all()
         out = np.array(view.references)
         self._moving[:] = False
         positions = view.positions
@@ -108,7 +107,7 @@ class _Instance(RuleInstance):
             if p >= last:
                 out[m] = goal
                 continue
-            k = execution.permitted(row)
+            k = int(permitted[row])
             if k <= p:
                 self.counts["coordination_holds"] += 1
                 out[m] = execution.path_points(row, p, p)[0]
