@@ -70,6 +70,7 @@ __all__ = [
     "read_meta",
     "session_config",
     "write_credentials",
+    "write_private",
 ]
 
 CA_FILE = "ca.pem"
@@ -199,7 +200,7 @@ def session_config(folder: Path | None, identity: str, acl: dict[str, Any],
     return conf
 
 
-def _write_private(path: Path, data: bytes) -> None:
+def write_private(path: Path, data: bytes) -> None:
     """Write ``data`` to a new file readable by its owner only."""
     path.unlink(missing_ok=True)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
@@ -284,17 +285,17 @@ def write_credentials(out: Path, scenario: Scenario, run: str, scheme: str = "de
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
     folder = folder or out.resolve()
-    _write_private(out / CA_FILE, issued.ca)
+    write_private(out / CA_FILE, issued.ca)
     configs: dict[str, Path] = {}
     for name in names:
         key_pem, cert_pem = issued.keys[name]
-        _write_private(out / f"{name}.key", key_pem)
-        _write_private(out / f"{name}.pem", cert_pem)
+        write_private(out / f"{name}.key", key_pem)
+        write_private(out / f"{name}.pem", cert_pem)
         conf = session_config(folder, name, acl_config(run, names, name),
                               (router_listen or ()) if name == "router" else ())
         configs[name] = out / f"{name}.json5"
-        _write_private(configs[name], (json.dumps(conf, indent=2) + "\n").encode())
-    _write_private(out / META_FILE, (json.dumps(issued.meta, indent=2) + "\n").encode())
+        write_private(configs[name], (json.dumps(conf, indent=2) + "\n").encode())
+    write_private(out / META_FILE, (json.dumps(issued.meta, indent=2) + "\n").encode())
     return configs
 
 

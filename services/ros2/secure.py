@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -43,7 +42,7 @@ from sqpmpc.cli.options import Parser
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.scenario_file import load_scenario
 
-from ..credentials import CA_FILE, DEFAULT_HOSTS
+from ..credentials import CA_FILE, DEFAULT_HOSTS, write_private
 
 __all__ = ["ROUTER", "build_parser", "main", "ros2_acl", "write_ros2_configs"]
 
@@ -104,13 +103,6 @@ def _session(folder: Path, name: str, mode: str, endpoints: dict[str, list[str]]
     return conf
 
 
-def _write_private(path: Path, data: bytes) -> None:
-    path.unlink(missing_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data)
-
-
 def write_ros2_configs(out: Path, ids: Sequence[int], domain: int = 0,
                        router_listen: str = "tls/127.0.0.1:7447", hosts: Sequence[str] = (),
                        valid_hours: float = 24.0) -> dict[str, Path]:
@@ -127,12 +119,12 @@ def write_ros2_configs(out: Path, ids: Sequence[int], domain: int = 0,
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
     folder = out.resolve()
-    _write_private(out / CA_FILE, ca.certificate_pem())
+    write_private(out / CA_FILE, ca.certificate_pem())
     configs: dict[str, Path] = {}
     for name in [ROUTER, *names]:
         key_pem, cert_pem = ca.issue(name, [name, *DEFAULT_HOSTS, *hosts])
-        _write_private(out / f"{name}.key", key_pem)
-        _write_private(out / f"{name}.pem", cert_pem)
+        write_private(out / f"{name}.key", key_pem)
+        write_private(out / f"{name}.pem", cert_pem)
         if name == ROUTER:
             conf = _session(folder, name, "router",
                             {"listen": {"endpoints": [router_listen]}},
@@ -141,7 +133,7 @@ def write_ros2_configs(out: Path, ids: Sequence[int], domain: int = 0,
             conf = _session(folder, name, "client",
                             {"connect": {"endpoints": [router_listen]}}, None)
         configs[name] = out / f"{name}.json5"
-        _write_private(configs[name], (json.dumps(conf, indent=2) + "\n").encode())
+        write_private(configs[name], (json.dumps(conf, indent=2) + "\n").encode())
     return configs
 
 
