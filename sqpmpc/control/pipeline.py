@@ -226,6 +226,7 @@ class ControllerPipeline:
             engine.shift()
             shifted = engine.inputs()
         engine.start_sample(own)
+        engine.clear_motion()  # a rule's motions hold for their sample only
         # 4. rules shape the references, then the linearization point; their view's arrays:
         # the references made read-only, read-only views of the others (for this sample)
         raw = self.reference(t)
@@ -273,6 +274,10 @@ class ControllerPipeline:
             self.engine.update_position_weight_scale(c.position_weight_scale)
         if c.guess_speeds is not None:  # view.guess_speeds views the iterate: it shows them
             self.engine.update_guess_speeds(c.guess_speeds)
+        if c.motions is not None:
+            rows, poses, velocities = c.motions
+            self.engine.update_motion(rows, *self.model.motion_states(poses, velocities,
+                                                                       self.sample_time))
         if c.references is not None:
             view = view.but(references=c.references)
         return view

@@ -294,6 +294,14 @@ class AccelerationUnicycle(RobotModel):
         their paper-Euler rollout is the plan's poses under ``"euler"``."""
         return 0.5 * (states[..., :-1, 3:5] + states[..., 1:, 3:5])
 
+    def motion_states(self, poses: np.ndarray, velocities: np.ndarray, sample_time: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        r"""Poses and velocities as the states; the accelerations
+        :math:`(v_{i+1} - v_i) / T_s` as the inputs."""
+        v = np.asarray(velocities, dtype=float)
+        return (np.concatenate((np.asarray(poses, dtype=float), v), axis=-1),
+                np.diff(v, axis=-2) / float(sample_time))
+
     def commands(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         r"""The velocities of stage 1, :math:`(v_1, \omega_1)`, ``(m, 2)``."""
         return np.array(states[:, 1, 3:5], dtype=float)

@@ -180,6 +180,13 @@ class RobotModel(ABC):
         (what the neighbours receive)."""
 
     @abstractmethod
+    def motion_states(self, poses: np.ndarray, velocities: np.ndarray, sample_time: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """The model's states ``(..., N+1, nx)`` and inputs ``(..., N, nu)`` of a motion given by
+        its poses ``(..., N+1, 3)`` and velocities ``(v, omega)`` ``(..., N+1, 2)`` at the stages
+        (a linearization point: :mod:`sqpmpc.coordination.motion`)."""
+
+    @abstractmethod
     def commands(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """The velocity commands ``(m, 2)`` ``(v, omega)`` sent to the robots for a plan
         ``states (m, N+1, nx)``, ``inputs (m, N, nu)``."""

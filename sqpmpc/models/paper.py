@@ -103,6 +103,12 @@ class UnicycleModel(RobotModel):
         """The inputs themselves."""
         return inputs
 
+    def motion_states(self, poses: np.ndarray, velocities: np.ndarray, sample_time: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """The poses, and the mean velocities of each sample as its inputs."""
+        return (np.array(poses, dtype=float),
+                0.5 * (velocities[..., :-1, :] + velocities[..., 1:, :]))
+
     def commands(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """The first inputs ``(m, 2)`` (a copy)."""
         return inputs[:, 0].copy()

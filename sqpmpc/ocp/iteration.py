@@ -110,6 +110,7 @@ class MultipleShootingSQP:
         self.y = np.zeros(layout.n_con)
         self.merit_weight = 1.0
         self.samples = 0
+        self._motion = False  # some robots' input references are not 0 (update_motion)
         self._initial_index = np.ascontiguousarray(layout.state_index[:, 0])
         self._command_speed = np.ascontiguousarray(
             np.arange(layout.n_robots) * layout.block_size + self.model.command_speed_offset)
@@ -242,6 +243,36 @@ class MultipleShootingSQP:
     def update_guess_speeds(self, speeds: np.ndarray) -> None:
         """Set the speeds ``(m, N)`` of the current iterate (the linearization point)."""
         self.z[:self._robot_span].reshape(-1, self._block)[:, self._speed_stages] = speeds
+
+    def update_motion(self, robots: np.ndarray, states: np.ndarray, inputs: np.ndarray) -> None:
+        """The own robots ``robots (k,)`` track a motion of ``states (k, N+1, nx)`` and
+        ``inputs (k, N, nu)`` at this sample: it becomes their linearization point (stages
+        1..N; stage 0 stays the measured state; inputs clipped to their bounds) and the
+        reference of their inputs and velocity states (:meth:`SparseQP.update_input_references`;
+        the other robots' are 0, the paper's cost, until :meth:`clear_motion`)."""
+        L = self.layout
+        rows = np.asarray(robots, dtype=np.int64)
+        states = np.asarray(states, dtype=float)
+        inputs = np.clip(inputs, self.model.input_lower, self.model.input_upper)
+        self.z[L.state_index[rows, 1:]] = states[:, 1:]
+        self.z[L.input_index[rows]] = inputs
+        if self._motion:
+            self.clear_motion()
+        vel = list(self.model.velocity_states)
+        self.qp.update_input_references(rows, inputs, states[:, 1:, vel] if vel else None)
+        self._motion = True
+
+    def clear_motion(self) -> None:
+        """Every own robot's input reference back to 0 (the paper's cost)."""
+        if not self._motion:
+            return
+        L = self.layout
+        nv = len(self.model.velocity_states)
+        everyone = np.arange(L.n_robots)
+        self.qp.update_input_references(
+            everyone, np.zeros((L.n_robots, L.horizon, self.model.nu)),
+            np.zeros((L.n_robots, L.horizon, nv)) if nv else None)
+        self._motion = False
 
     def first_speeds(self) -> np.ndarray:
         """The speed commanded at this sample ``(m,)`` of each own robot in the current iterate

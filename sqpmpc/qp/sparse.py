@@ -115,6 +115,8 @@ class SparseQP:
         self._q_cost = np.zeros(L.n_var)
         self._q_curvature = np.zeros(L.n_var)
         self._Q_diag = np.zeros(2)
+        self._R_diag = np.zeros(L.model.nu)
+        self._V_diag: np.ndarray | None = None
         self._position_scale = np.ones(L.n_robots)
         self._reference_scale = np.zeros((L.n_robots, 1, 2))
         self._sizes = (L.block_size, L.stage_size)  # of the reference's kernel
@@ -182,6 +184,8 @@ class SparseQP:
             self._P_diag_cost[L.state_index[:, 1:][:, :, vel]] = 2.0 * np.asarray(
                 velocity_weights, float)
         self._Q_diag = np.asarray(Q_diag, float)
+        self._R_diag = np.asarray(R_diag, float)
+        self._V_diag = None if velocity_weights is None else np.asarray(velocity_weights, float)
         self._write_position_weights(np.ones(L.n_robots))
         self.P_values[L.P_diag_slice] = self._P_diag_cost + self._P_diag_curvature
         self._q_cost[L.n_var - L.n_slack:] = float(slack_penalty)
@@ -216,6 +220,20 @@ class SparseQP:
     def update_reference(self, reference: np.ndarray) -> None:
         """Reference positions ``(m, N, 2)`` of stages 1..N: :math:`q_p = -2 Q r`."""
         write_reference(self._q_cost, reference, self._reference_scale, *self._sizes)
+        self._dirty_vec = True
+
+    def update_input_references(self, robots: np.ndarray, inputs: np.ndarray,
+                                velocities: np.ndarray | None = None) -> None:
+        r"""Reference inputs ``(k, N, nu)`` (and velocity states ``(k, N, nv)`` of stages
+        1..N) of the own robots ``robots (k,)``: the cost
+        :math:`\|u_i - u^{\mathrm{ref}}_i\|_R^2` gives :math:`q_u = -2 R u^{\mathrm{ref}}`
+        (the paper's cost is the reference 0, every robot's at construction)."""
+        L = self.layout
+        rows = np.asarray(robots, dtype=np.int64)
+        self._q_cost[L.input_index[rows]] = -2.0 * self._R_diag * np.asarray(inputs, float)
+        if velocities is not None and self._V_diag is not None:
+            vel = np.asarray(L.model.velocity_states, dtype=np.int64)
+            self._q_cost[L.state_index[rows, 1:][:, :, vel]] = -2.0 * self._V_diag * velocities
         self._dirty_vec = True
 
     def update_initial_state(self, initial_states: np.ndarray) -> None:

@@ -290,6 +290,11 @@ class Contribution:
         ``(m, N)`` new speeds of the linearization point (``"guess"`` hooks); the
         pipeline applies a contribution at once, so a rule may hand out a buffer it
         reuses at the next sample.
+    motions
+        ``(rows (k,), poses (k, N+1, 3), velocities (k, N+1, 2))``: the linearization point
+        of the own robots ``rows`` becomes these motions (``"guess"`` hooks;
+        :meth:`~sqpmpc.models.base.RobotModel.motion_states` gives the model's states and
+        inputs).
     iterate
         Iterate this sample to convergence (SQP) after the RTI step
         (``"after_solve"`` hooks).
@@ -298,6 +303,7 @@ class Contribution:
     references: np.ndarray | None = None
     position_weight_scale: np.ndarray | None = None
     guess_speeds: np.ndarray | None = None
+    motions: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     iterate: bool = False
 
 

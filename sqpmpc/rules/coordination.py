@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sqpmpc.coordination.fleet import FleetPlan, fleet_plan, replan
+from sqpmpc.coordination.motion import path_motion
 from sqpmpc.coordination.schedule import Execution
 from sqpmpc.problem.references import PointReference
 from sqpmpc.rules.base import Contribution, Rule, RuleContext, RuleInstance, SampleView
@@ -60,16 +61,16 @@ class _Instance(RuleInstance):
         self.execution = Execution(plan.schedule, plan.roadmap, plan.robots, window)
         where = {int(r): k for k, r in enumerate(plan.robots)}
         self.rows = np.array([where.get(int(i), -1) for i in c.own], dtype=np.int64)
-        self._stages = c.max_speed * c.sample_time * np.arange(1, c.horizon + 1)
+        bounds = c.scenario.bounds
+        self._speed = float(bounds.v[1])
+        self._turn = float(min(-bounds.omega[0], bounds.omega[1]))
+        self._accel = None if bounds.acceleration is None else float(
+            min(-bounds.acceleration[0], bounds.acceleration[1]))
         self._window = window
-        # the fastest a robot at rest can go along its path at stages 0..N-1 (the
-        # linearization speeds of a robot whose guess stands: v = 0 cannot steer)
-        accel = c.scenario.bounds.acceleration
-        ramp = np.full(c.horizon, c.max_speed) if accel is None else np.minimum(
-            c.max_speed, min(-accel[0], accel[1]) * c.sample_time * np.arange(c.horizon))
-        self._ramp = ramp
-        self._moving = np.zeros(c.own.size, dtype=bool)
-        self._speeds = np.zeros((c.own.size, c.horizon))
+        m, N = c.own.size, c.horizon
+        self._tracked = np.zeros(m, dtype=bool)
+        self._poses = np.zeros((m, N + 1, 3))
+        self._velocities = np.zeros((m, N + 1, 2))
 
     def references_changed(self) -> None:
         plan, execution = self.plan, self.execution
@@ -96,76 +97,49 @@ class _Instance(RuleInstance):
         progress = execution.advance(view.positions)
         permitted = execution.permitted_all()
         out = np.array(view.references)
-        self._moving[:] = False
-        positions = view.positions
+        self._tracked[:] = False
+        reach = plan.roadmap.reach
+        c = self.context
         for m, row in enumerate(self.rows):
             if row < 0:
                 continue
             p = int(progress[row])
             last = int(plan.schedule.lengths[row]) - 1
-            goal = plan.goals[row]
-            if p >= last:
-                out[m] = goal
-                continue
-            k = int(permitted[row])
-            if k <= p:
+            k = min(int(permitted[row]), last)
+            if k <= p and p < last:
                 self.counts["coordination_holds"] += 1
-                out[m] = execution.path_points(row, p, p)[0]
-                continue
-            here = positions[self.context.own[m]]
-            back = max(p - 1, 0)  # from the segment into the progress vertex: no corner cut
-            ahead = execution.path_points(row, back, k)
-            first = back + _nearest_segment(here, ahead[:self._window + 2])
-            pts = [here[None], execution.path_points(row, first, k)]
-            if k >= last:
-                pts.append(goal[None])
-            out[m] = _along(np.concatenate(pts), self._stages)
-            self._moving[m] = True
+            here = view.own_states[m]
+            if k <= p:  # at the end of its open path: its progress vertex, or its goal
+                end = plan.goals[row] if p >= last else execution.path_points(row, p, p)[0]
+                if math.hypot(end[0] - here[0], end[1] - here[1]) <= reach:
+                    out[m] = end  # there, within the reach: the NMPC's own final approach
+                    continue
+                points = np.stack((execution.path_points(row, max(p - 1, 0), p)[0], end))
+            else:
+                back = max(p - 1, 0)  # from the segment into the progress vertex
+                stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
+                points = execution.path_points(row, back, stop)
+                if stop == last:
+                    points = np.concatenate((points, plan.goals[row][None]))
+            motion = path_motion(points, here, float(view.applied[m, 0]), reach,
+                                 c.sample_time, c.horizon, self._speed, self._turn, self._accel,
+                                 stop=k <= p or stop == k,
+                                 within=1 if k <= p else p + 1 - max(p - 1, 0))
+            out[m] = motion.poses[1:, :2]
+            self._poses[m] = motion.poses
+            self._velocities[m] = motion.velocities
+            self._tracked[m] = True
         return Contribution(references=out)
 
     def shape_guess(self, view: SampleView) -> Contribution | None:
-        """A robot that may move along its path but whose linearization point stands (it
-        would move less than the roadmap's reach over the horizon) is linearized at the
-        fastest motion its bounds allow from rest, forwards when its path lies ahead of
-        its heading, else backwards: at ``v = 0`` the linearized unicycle cannot turn."""
-        if self.plan is None or view.guess_speeds is None or not self._moving.any():
+        """The linearization point of every robot on its way becomes its motion
+        (:mod:`sqpmpc.coordination.motion`): the QP sees the headings and speeds that make
+        the motion possible (at ``v = 0`` the linearized unicycle cannot turn)."""
+        if self.plan is None or not self._tracked.any():
             return None
-        reach = self.plan.roadmap.reach
-        guess = view.guess_speeds
-        repaired = 0
-        self._speeds[:] = guess
-        for m in np.flatnonzero(self._moving):
-            if np.abs(guess[m]).sum() * self.context.sample_time >= reach:
-                continue
-            pose = view.own_states[m]
-            ahead = view.references[m, 0] - pose[:2]
-            forward = ahead[0] * math.cos(pose[2]) + ahead[1] * math.sin(pose[2]) >= 0.0
-            self._speeds[m] = self._ramp if forward else -self._ramp
-            repaired += 1
-        if not repaired:
-            return None
-        self.counts["coordination_linearized"] += repaired
-        return Contribution(guess_speeds=self._speeds)
-
-
-def _nearest_segment(point: np.ndarray, points: np.ndarray) -> int:
-    """``s >= 1``: the segment ``points[s - 1] -> points[s]`` of the polyline ``points (K, 2)``
-    nearest to ``point`` (the robot heads for its end: never back to a vertex it cut)."""
-    a, b = points[:-1], points[1:]
-    d = b - a
-    dd = np.einsum("ij,ij->i", d, d)
-    t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
-    gap = np.hypot(*(a + t[:, None] * d - point).T)
-    return int(np.argmin(gap)) + 1
-
-
-def _along(points: np.ndarray, distances: np.ndarray) -> np.ndarray:
-    """Points at arc lengths ``distances`` along the polyline ``points (K, 2)``, held at
-    its end."""
-    steps = np.hypot(*np.diff(points, axis=0).T)
-    arc = np.concatenate(([0.0], np.cumsum(steps)))
-    s = np.minimum(distances, arc[-1])
-    return np.column_stack((np.interp(s, arc, points[:, 0]), np.interp(s, arc, points[:, 1])))
+        rows = np.flatnonzero(self._tracked)
+        self.counts["coordination_linearized"] += rows.size
+        return Contribution(motions=(rows, self._poses[rows], self._velocities[rows]))
 
 
 @dataclass(frozen=True)
