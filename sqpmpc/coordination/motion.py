@@ -22,10 +22,11 @@ corner vertex,
 half of each segment), so the path stays within :math:`\rho` of the roadmap's
 vertices and edges, the tube in which the roadmap's separation argument holds. A
 half-turn (:math:`R \to 0`) is a turn in place. The robot starts at its
-projection on this path, its own heading's error :math:`e_0` to the path
-decaying along the first :math:`R_0 |e_0|` metres with
-:math:`R_0 = \rho / (1 - \cos e_0)`: the arc of that radius drifts at most
-:math:`\rho` sideways.
+projection on this path (on the segments into and out of its progress vertex,
+the furthest of equally near points, so a path that steps back is followed in
+its order), its own heading's error :math:`e_0` to the path turned away along
+the first :math:`|e_0| v_0 / \omega_{\max}` metres: the tightest turn at its
+present speed :math:`v_0`, in place at rest.
 
 **Timing: within the bounds.** Along the path the speed is the largest that
 keeps :math:`|v| \le v_{\max}`, :math:`|\omega| \le \omega_{\max}` (so
@@ -214,7 +215,7 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     q = a[i] + f[i] * d[i]
     xy = np.concatenate((q[None], xy[i + 1:]))
     psi = np.concatenate(([psi[i] + f[i] * (psi[i + 1] - psi[i])], psi[i + 1:]))
-    # headings on the robot's branch, its error decaying along R0 |e0| (an arc of drift rho)
+    # headings on the robot's branch, its error turned away at its speed (in place at rest)
     psi = psi + (theta0 + _wrap(psi[0] - theta0) - psi[0])
     error = theta0 - psi[0]
     ds = np.hypot(*np.diff(xy, axis=0).T)

@@ -1,0 +1,151 @@
+"""The motion a robot tracks along its roadmap path (sqpmpc.coordination.motion): within
+the roadmap's reach and the robot's bounds, turning in place at rest, following a path
+that steps back in its order; and the QP that tracks it (input references, the motion as
+the linearization point) reproduces a feasible motion exactly."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sqpmpc.control.centralized import CentralizedController
+from sqpmpc.coordination.motion import path_motion, smooth_path
+from sqpmpc.models.acceleration import AccelerationUnicycle
+from sqpmpc.models.paper import UnicycleModel
+from tests.rule_helpers import fleet, only
+
+T, N = 0.2, 12
+V_MAX, W_MAX, ACCEL = 1.0, math.pi / 2, 2.0
+
+
+def _grid_walk(rng: np.random.Generator, steps: int, h: float = 0.5) -> np.ndarray:
+    """A random walk on a grid of spacing ``h`` (turns, straights and steps back)."""
+    moves = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=float) * h
+    points = [np.zeros(2)]
+    for _ in range(steps):
+        points.append(points[-1] + moves[rng.integers(4)])
+    return np.array(points)
+
+
+def _distance_to_polyline(p: np.ndarray, points: np.ndarray) -> float:
+    a, b = points[:-1], points[1:]
+    d = b - a
+    dd = np.einsum("ij,ij->i", d, d)
+    f = np.clip(np.einsum("ij,ij->i", p - a, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+    return float(np.hypot(*(a + f[:, None] * d - p).T).min())
+
+
+@pytest.mark.parametrize("reach", [0.0, 0.03, 0.06, 0.2])
+def test_rounded_corners_stay_within_the_reach_and_headings_follow_the_path(
+        reach: float) -> None:
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        points = _grid_walk(rng, 8)
+        xy, psi, marks = smooth_path(points, reach, 0.05)
+        assert marks.shape == (points.shape[0],)
+        for p in xy:
+            assert _distance_to_polyline(p, points) <= reach + 1e-9
+        step = np.diff(xy, axis=0)
+        moving = np.hypot(*step.T) > 1e-9
+        # on the lines and arcs the heading is the direction of travel (an arc's chord: half
+        # of the sample's turn away)
+        direction = np.arctan2(step[moving, 1], step[moving, 0])
+        mid = 0.5 * (psi[:-1] + psi[1:])[moving]
+        gap = np.abs((direction - mid + np.pi) % (2 * np.pi) - np.pi)
+        assert gap.max() <= 0.5 * np.pi / 16 + 1e-9
+        assert np.abs(np.diff(psi)).max() <= np.pi + 1e-9  # continuous (a half-turn at most)
+
+
+@pytest.mark.parametrize("acceleration", [ACCEL, None])
+def test_the_motion_keeps_the_bounds_and_stays_on_the_path(acceleration: float | None) -> None:
+    rng = np.random.default_rng(2)
+    reach = 0.06
+    for trial in range(60):
+        points = _grid_walk(rng, 6)
+        heading = float(rng.uniform(-np.pi, np.pi))
+        pose = np.array([*(points[0] + rng.uniform(-0.03, 0.03, 2)), heading])
+        speed = 0.0 if trial % 2 else float(rng.uniform(0.0, V_MAX))
+        m = path_motion(points, pose, speed, reach, T, N, V_MAX, W_MAX, acceleration)
+        assert m.poses.shape == (N + 1, 3) and m.velocities.shape == (N + 1, 2)
+        np.testing.assert_array_equal(m.poses[0], pose)
+        v, w = m.velocities.T
+        assert v.min() >= 0.0 and v.max() <= V_MAX + 1e-9
+        assert np.abs(np.diff(m.poses[:, 2])).max() <= W_MAX * T + 1e-9
+        travel = np.hypot(*np.diff(m.poses[1:, :2], axis=0).T)
+        assert travel.max() <= V_MAX * T + 1e-9
+        if acceleration is not None and speed == 0.0:
+            assert np.abs(np.diff(v)).max() <= acceleration * T + 1e-9
+        for p in m.poses[1:, :2]:
+            assert _distance_to_polyline(p, points) <= reach + 1e-9
+
+
+def test_a_robot_at_rest_facing_away_turns_in_place_then_goes() -> None:
+    points = np.array([[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [1.5, 0.0]])
+    m = path_motion(points, np.array([0.0, 0.0, 3.0]), 0.0, 0.06, T, 20, V_MAX, W_MAX, ACCEL)
+    turning = math.ceil(3.0 / (W_MAX * T))  # samples to turn 3 rad
+    np.testing.assert_allclose(m.poses[:turning, :2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.diff(m.poses[:turning, 2]), -W_MAX * T, rtol=1e-9)
+    assert m.poses[-1, 0] > 0.5 and abs(m.poses[-1, 2]) < 1e-9
+
+
+def test_the_motion_stops_at_the_end_of_the_open_path() -> None:
+    points = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.5]])
+    m = path_motion(points, np.array([0.0, 0.0, 0.0]), 0.0, 0.06, T, 40, V_MAX, W_MAX, ACCEL)
+    np.testing.assert_allclose(m.poses[-1, :2], [0.5, 0.5], atol=1e-12)
+    assert m.velocities[-1, 0] == 0.0
+    going = path_motion(points, np.array([0.0, 0.0, 0.0]), 0.0, 0.06, T, 40, V_MAX, W_MAX,
+                        ACCEL, stop=False)
+    assert going.velocities[-1, 0] > 0.0 or np.allclose(going.poses[-1, :2], [0.5, 0.5])
+
+
+def test_a_step_back_is_followed_in_order_without_turning_twice() -> None:
+    """A plan that steps back (A, B, A): a robot at B facing the way it came turns half a
+    turn once and heads back, however its projection ties between the two segments."""
+    points = np.array([[0.0, 0.0], [0.5, 0.0], [0.0, 0.0]])
+    m = path_motion(points, np.array([0.5, 0.0, 0.0]), 0.0, 0.06, T, 30, V_MAX, W_MAX, ACCEL,
+                    within=2)
+    total = m.poses[-1, 2] - m.poses[0, 2]
+    assert abs(abs(total) - np.pi) < 1e-9
+    assert np.all(np.diff(m.poses[:, 2]) * np.sign(total) >= -1e-12)  # one way
+    np.testing.assert_allclose(m.poses[-1, :2], [0.0, 0.0], atol=1e-12)
+
+
+def test_the_models_states_of_a_motion_roll_out_to_its_velocities() -> None:
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    m = path_motion(points, np.array([0.0, 0.0, 0.0]), 0.0, 0.06, T, N, V_MAX, W_MAX, ACCEL)
+    accel = AccelerationUnicycle(np.array([-V_MAX, -W_MAX]), np.array([V_MAX, W_MAX]),
+                                 np.array([-ACCEL, -10.0]), np.array([ACCEL, 10.0]))
+    states, inputs = accel.motion_states(m.poses, m.velocities, T)
+    assert states.shape == (N + 1, 5) and inputs.shape == (N, 2)
+    np.testing.assert_allclose(states[0, 3:] + T * np.cumsum(inputs, axis=0), states[1:, 3:],
+                               atol=1e-12)
+    paper = UnicycleModel(np.array([-V_MAX, -W_MAX]), np.array([V_MAX, W_MAX]))
+    poses, velocities = paper.motion_states(m.poses, m.velocities, T)
+    np.testing.assert_array_equal(poses, m.poses)
+    np.testing.assert_allclose(velocities, 0.5 * (m.velocities[:-1] + m.velocities[1:]))
+
+
+def test_tracking_a_feasible_motion_reproduces_it_and_clearing_restores_the_paper_cost(
+        ) -> None:
+    """Reference solution: linearized at a rollout whose positions are the references and
+    whose inputs are the input references, the QP's optimum is that rollout (cost 0)."""
+    sc = fleet([[0.0, 0.0, 0.0]], [[3.0, 1.0]], horizon=N, sample_time=T)
+    ctrl = CentralizedController(sc, only())
+    ctrl.step(0.0, sc.initial_states())
+    engine = ctrl.engine
+    x0 = np.array([[0.1, 0.0, 0.2]])
+    rng = np.random.default_rng(3)
+    u = np.column_stack((rng.uniform(0.1, 0.5, N), rng.uniform(-0.5, 0.5, N)))[None]
+    states = engine.rollout(x0, u)
+    engine.start_sample(x0)
+    engine.update_motion(np.array([0]), states, u)
+    report = engine.solve(x0, states[:, 1:, :2], started=True)
+    assert report.success
+    np.testing.assert_allclose(engine.inputs(), u, atol=2e-3)
+    L = engine.layout
+    np.testing.assert_allclose(engine.qp.q[L.input_index[0]],
+                               -2.0 * np.asarray(sc.weights.R) * u[0], rtol=1e-12)
+    engine.clear_motion()
+    np.testing.assert_array_equal(engine.qp.q[L.input_index], 0.0)
