@@ -37,12 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
+from sqpmpc.control.settings import SolverSettings
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid, random_crossings
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.routes import route_lengths
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import builtin_scenario_names, load_scenario
+from sqpmpc.rules.registry import select_rules
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation
 
@@ -154,11 +156,11 @@ def classify(record: RunRecord, metrics: dict) -> dict:
             "obstacle_clearance": metrics["min_obstacle_clearance"]}
 
 
-def _run(sc: Scenario, scheme: str) -> dict:
+def _run(sc: Scenario, scheme: str, settings: SolverSettings | None = None) -> dict:
     """One closed loop, stopped early once every robot has stayed within the tolerance of
     its goal at rest for 10 s (nothing moves any more: every rule is quiet)."""
     t0 = time.perf_counter()
-    sim = ClosedLoopSimulation(sc, scheme)
+    sim = ClosedLoopSimulation(sc, scheme, settings)
     goals = sc.reference_positions(sc.t_end)
     at_rest = all(type(r.reference).__name__ == "PointReference" for r in sc.robots)
     settle = int(round(10.0 / sc.sample_time))
@@ -264,7 +266,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", default="docs/maps.md")
     parser.add_argument("--budget", type=float, default=0.0,
                         help="stop starting rounds after this many seconds (0: no limit)")
+    parser.add_argument("--rules", default=None,
+                        help="comma-separated rules (default: the default rules; 'none': no rule)")
     args = parser.parse_args(argv)
+    settings = None if args.rules is None else SolverSettings(rules=select_rules(
+        [] if args.rules == "none" else args.rules.split(",")))
 
     def schemes(sc: Scenario) -> list[str]:
         return ["decentralized"] + (["centralized"] if sc.n_robots <= args.centralized_max
@@ -281,7 +287,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if sc.n_robots > args.max_robots:
             continue
         for scheme in schemes(sc):
-            rows.append(_run(sc, scheme) | {"family": "built-in"})
+            rows.append(_run(sc, scheme, settings) | {"family": "built-in"})
             print(rows[-1], flush=True)
     report()
     families = args.families.split(",")
@@ -295,7 +301,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 (k - k // 10) % (len(sizes) - 1)]
             sc = family_scenario(family, size, seed=k)
             for scheme in schemes(sc):
-                rows.append(_run(sc, scheme) | {"family": family})
+                rows.append(_run(sc, scheme, settings) | {"family": family})
                 print(rows[-1], flush=True)
         report()
     print(f"wrote {args.out}")

@@ -82,14 +82,20 @@ class _PIBT:
     """PIBT's one-step configuration generator over a fixed roadmap."""
 
     def __init__(self, neighbours: list[list[int]], dist: list[list[float]],
-                 rng: np.random.Generator, size: int) -> None:
+                 rng: np.random.Generator, size: int, straight: dict[tuple[int, int], int]
+                 ) -> None:
         self.neighbours = neighbours
         self.dist = dist
+        self.straight = straight
+        self.previous: tuple[int, ...] = ()
         self.rng = rng
         self.occupied_now: list[int] = [-1] * size
         self.occupied_next: list[int] = [-1] * size
 
-    def step(self, config: tuple[int, ...], order: list[int], low: _Low) -> list[int] | None:
+    def step(self, config: tuple[int, ...], order: list[int], low: _Low,
+             previous: tuple[int, ...]) -> list[int] | None:
+        """The successor of ``config`` (reached from ``previous``) under ``low``."""
+        self.previous = previous
         n = len(config)
         nxt = [-1] * n
         now, after = self.occupied_now, self.occupied_next
@@ -124,9 +130,11 @@ class _PIBT:
         here = config[i]
         d = self.dist[i]
         candidates = [*self.neighbours[here], here]
-        # best first by distance to the goal; ties broken by a fixed per-robot shuffle
+        # best first by distance to the goal; among equals straight on (a unicycle turns at
+        # a corner, not on a line), then a fixed per-robot shuffle
         self.rng.shuffle(candidates)
-        candidates.sort(key=d.__getitem__)
+        ahead = self.straight.get((self.previous[i], here), -1)
+        candidates.sort(key=lambda u: (d[u], u != ahead))
         now, after = self.occupied_now, self.occupied_next
         for u in candidates:
             if after[u] >= 0:
@@ -202,7 +210,7 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
     dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
     neighbours = roadmap.neighbour_lists()
     rng = np.random.default_rng(seed)
-    pibt = _PIBT(neighbours, dist, rng, roadmap.size)
+    pibt = _PIBT(neighbours, dist, rng, roadmap.size, _straight_on(roadmap, neighbours))
     goal = tuple(goals.tolist())
     start = tuple(starts.tolist())
     priorities = [dist[i][start[i]] / (roadmap.size + 1.0) for i in range(n)]
@@ -227,7 +235,8 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
             rng.shuffle(choices)
             for v in choices:
                 node.tree.append(_Low((*low.who, i), (*low.where, v)))
-        nxt = pibt.step(node.config, node.order, low)
+        nxt = pibt.step(node.config, node.order, low,
+                        node.config if node.parent is None else node.parent.config)
         if nxt is None:
             continue
         config = tuple(nxt)
@@ -246,6 +255,23 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
         stack.append(child)
     raise PlanningError(f"roadmap: the goals of the {n} robots cannot be reached together "
                         "(every configuration reachable from the starts was explored)")
+
+
+def _straight_on(roadmap: Roadmap, neighbours: list[list[int]]) -> dict[tuple[int, int], int]:
+    """``(u, v) -> w``: the neighbour ``w`` of ``v`` straight on from the edge ``u -> v``
+    (``w - v`` parallel to ``v - u``), where there is one."""
+    pos = roadmap.positions
+    out: dict[tuple[int, int], int] = {}
+    for v, around in enumerate(neighbours):
+        for u in around:
+            back = pos[v] - pos[u]
+            for w in around:
+                step = pos[w] - pos[v]
+                if w != u and abs(back[0] * step[1] - back[1] * step[0]) <= 1e-9 * (
+                        1.0 + float(back @ back)) and float(back @ step) > 0.0:
+                    out[(u, v)] = w
+                    break
+    return out
 
 
 def _order(priorities: list[float]) -> list[int]:
