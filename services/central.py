@@ -62,7 +62,7 @@ class CentralNode(ControllerNode):
     """
 
     def __init__(self, scenario: Scenario, args: argparse.Namespace) -> None:
-        self.controller = CentralizedController(scenario, controller_settings(args))
+        self.controller = CentralizedController(scenario, controller_settings(args, scenario))
         super().__init__(scenario, args, "central", "centralized")
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:

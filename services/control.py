@@ -68,15 +68,17 @@ def add_controller_arguments(parser: argparse.ArgumentParser, timeout_help: str,
                            overrides=False)
 
 
-def controller_settings(args: argparse.Namespace) -> SolverSettings:
+def controller_settings(args: argparse.Namespace, scenario: Scenario | None = None
+                        ) -> SolverSettings:
     """The settings of the run's options (:func:`services.node.options_of`);
     ``--qp-time-limit`` bounds each QP and the sample.
 
     The same value is the sample's ``time_budget``: iterations (the first
     sample's SQP, a sample a rule asks to converge) start no new QP once it is spent.
+    The default rules are ``scenario``'s (:func:`sqpmpc.rules.registry.default_names`).
     """
     limit = float(args.qp_time_limit) or None
-    return options_of(args).solver_settings(limit)
+    return options_of(args).solver_settings(limit, scenario)
 
 
 @dataclass

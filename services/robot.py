@@ -93,7 +93,7 @@ class RobotNode(ControllerNode):
                  robot_id: int | None = None) -> None:
         if robot_id is None:
             robot_id = args.id[0] if isinstance(args.id, list) else args.id
-        settings = controller_settings(args)
+        settings = controller_settings(args, scenario)
         options = options_of(args)
         self.controller = DecentralizedController(scenario, robot_id, settings,
                                                   options.decentralized_mode)

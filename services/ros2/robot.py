@@ -115,7 +115,7 @@ class Ros2Robot(StartUp, Node):
         scenario = replace(scenario, plant=replace(scenario.plant, model="exact"))
         ros_config = ros2_config(args)  # a bad file: one error before any session opens
         self.robot_id = int(args.id[0])
-        settings = controller_settings(args)
+        settings = controller_settings(args, scenario)
         # the QP keeps more room than the check asks for (the check is continuous, the
         # QP's rows are at the stage instants)
         self.check_margin = check_margin(args.ros2_margin, scenario)

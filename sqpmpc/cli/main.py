@@ -246,8 +246,8 @@ def main(argv: list[str] | None = None) -> int:
         sim_options = SimulationOptions(decentralized_mode=options.decentralized_mode,
                                         message_drop_probability=args.message_drop or 0.0,
                                         progress=terminal and not args.quiet)
-        sim = ClosedLoopSimulation(scenario, args.scheme, options.solver_settings(),
-                                   sim_options)
+        sim = ClosedLoopSimulation(scenario, args.scheme,
+                                   options.solver_settings(scenario=scenario), sim_options)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         out = args.out or Path("runs") / f"{scenario.name}-{args.scheme}-{stamp}"
         try:

@@ -325,8 +325,9 @@ class RunOptions:
         source = self.sources.get(key)
         return source is not None and (not on_command_line or source.startswith("--"))
 
-    def rules_chosen(self) -> tuple[Rule, ...]:
-        """The rules of ``rules``/``without``/``rule_param``, errors naming their source."""
+    def rules_chosen(self, scenario: Scenario | None = None) -> tuple[Rule, ...]:
+        """The rules of ``rules``/``without``/``rule_param``, errors naming their source
+        (the defaults: ``scenario``'s, :func:`sqpmpc.rules.registry.default_names`)."""
         v, src = self.values, self.sources
         names = None if v["rules"] is None else v["rules"].split(",")
         for name in v["without"]:
@@ -334,12 +335,15 @@ class RunOptions:
                 raise ProblemError(f"{src.get('without', '--without')}: unknown rule "
                                    f"{name.strip()!r}; the rules are {', '.join(RULES)} "
                                    "(see 'sqpmpc rules')")
-        rules = select_rules(names, v["without"], option=src.get("rules", "--rules"))
+        rules = select_rules(names, v["without"], option=src.get("rules", "--rules"),
+                             scenario=scenario)
         return set_rule_parameters(rules, v["rule_param"],
                                    option=src.get("rule_param", "--rule-param"))
 
-    def solver_settings(self, time_limit: float | None = None) -> SolverSettings:
-        """The :class:`SolverSettings` (``time_limit``: a bound on each QP and sample, s)."""
+    def solver_settings(self, time_limit: float | None = None,
+                        scenario: Scenario | None = None) -> SolverSettings:
+        """The :class:`SolverSettings` (``time_limit``: a bound on each QP and sample, s;
+        the default rules: ``scenario``'s)."""
         v = self.values
         extra: dict[str, Any] = {}
         if time_limit:
@@ -347,7 +351,7 @@ class RunOptions:
         return SolverSettings(iteration_scheme=v["iteration"], hessian=v["hessian"],
                               discretization=v["discretization"],
                               collision_margin=v["collision_margin"],
-                              slack_penalty=v["slack_penalty"], rules=self.rules_chosen(),
+                              slack_penalty=v["slack_penalty"], rules=self.rules_chosen(scenario),
                               qp_solver=v["qp_solver"],
                               neighbour_slots=None if v["neighbour_slots"] == "all"
                               else v["neighbour_slots"],

@@ -17,6 +17,7 @@ from sqpmpc.ocp.obstacle_rows import scenario_map_slots
 from sqpmpc.problem.plant import acceleration_path_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
+from sqpmpc.rules.registry import default_rules
 
 __all__ = ["CentralizedController", "has_position_bounds"]
 
@@ -41,7 +42,8 @@ class CentralizedController(ControllerPipeline):
     scheme = "centralized"
 
     def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
-        settings = (settings or SolverSettings()).resolved(scenario.n_robots, "centralized")
+        settings = (settings or SolverSettings(rules=default_rules(scenario))).resolved(
+            scenario.n_robots, "centralized")
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs,

@@ -50,6 +50,7 @@ from sqpmpc.ocp.obstacle_rows import StackedRows, scenario_map_slots
 from sqpmpc.problem.plant import acceleration_path_deviation, largest_deviation
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.qp.layout import QPLayout
+from sqpmpc.rules.registry import default_rules
 
 __all__ = [
     "ControlOutput", "DecentralizedController", "NeighbourSlots", "PlanAges", "PlanMessage",
@@ -104,7 +105,8 @@ class DecentralizedController(ControllerPipeline):
     def __init__(self, scenario: Scenario, robot_id: int,
                  settings: SolverSettings | None = None,
                  mode: DecentralizedMode = "shared") -> None:
-        settings = (settings or SolverSettings()).resolved(scenario.n_robots)
+        settings = (settings or SolverSettings(rules=default_rules(scenario))).resolved(
+            scenario.n_robots)
         if mode not in ("shared", "paper"):
             raise ProblemError(f"decentralized mode must be 'shared' or 'paper', got {mode!r}")
         index = scenario.index_of(robot_id)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.rules.base import Rule
@@ -26,6 +27,9 @@ from sqpmpc.rules.liveness import (
 )
 from sqpmpc.rules.roundabout import Roundabout
 from sqpmpc.rules.routes import RouteFollowing
+
+if TYPE_CHECKING:
+    from sqpmpc.problem.scenario import Scenario
 
 __all__ = [
     "OPT_IN",
@@ -70,14 +74,19 @@ def rule_names() -> list[str]:
     return list(RULES)
 
 
-def default_names() -> list[str]:
-    """Names of the rules on by default (every built-in but :data:`OPT_IN`), in order."""
+def default_names(scenario: Scenario | None = None) -> list[str]:
+    """Names of the rules on by default, in order: for a scenario that declares the roadmap
+    its robots move on (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`) the
+    ``coordination`` rule alone; for any other (and without a scenario) every built-in
+    rule but :data:`OPT_IN`."""
+    if scenario is not None and getattr(scenario, "roadmap", None) is not None:
+        return ["coordination"]
     return [name for name in RULES if name not in OPT_IN]
 
 
-def default_rules() -> tuple[Rule, ...]:
-    """The rules on by default, with their default parameters."""
-    return tuple(RULES[name]() for name in default_names())
+def default_rules(scenario: Scenario | None = None) -> tuple[Rule, ...]:
+    """The rules on by default (:func:`default_names`), with their default parameters."""
+    return tuple(RULES[name]() for name in default_names(scenario))
 
 
 def check_rules(rules: Sequence[Rule]) -> tuple[Rule, ...]:
@@ -105,13 +114,15 @@ def check_rules(rules: Sequence[Rule]) -> tuple[Rule, ...]:
 
 
 def select_rules(names: Iterable[str] | None = None, without: Iterable[str] = (),
-                 option: str = "--rules") -> tuple[Rule, ...]:
+                 option: str = "--rules", scenario: Scenario | None = None
+                 ) -> tuple[Rule, ...]:
     """The default-parameter rules named in ``names`` (all if ``None``) minus ``without``.
 
     ``option`` names the user-facing option in error messages. ``"none"`` as
-    the only name selects no rule. ``None`` selects the rules on by default.
+    the only name selects no rule. ``None`` selects the rules on by default (for
+    ``scenario``: :func:`default_names`).
     """
-    chosen = default_names() if names is None else [n.strip() for n in names if n.strip()]
+    chosen = default_names(scenario) if names is None else [n.strip() for n in names if n.strip()]
     if chosen == ["none"]:
         chosen = []
     without = [n.strip() for n in without if n.strip()]
@@ -181,10 +192,11 @@ def add_rule_arguments(parser: argparse.ArgumentParser) -> None:
                        help="set a rule's parameter, e.g. keep-right.angle=0.1 (repeatable)")
 
 
-def rules_from_arguments(args: argparse.Namespace) -> tuple[Rule, ...]:
-    """The rules chosen by :func:`add_rule_arguments`' options."""
+def rules_from_arguments(args: argparse.Namespace, scenario: Scenario | None = None
+                         ) -> tuple[Rule, ...]:
+    """The rules chosen by :func:`add_rule_arguments`' options (defaults: for ``scenario``)."""
     names = None if args.rules is None else args.rules.split(",")
-    rules = select_rules(names, args.without, option="--rules")
+    rules = select_rules(names, args.without, option="--rules", scenario=scenario)
     return set_rule_parameters(rules, args.rule_param)
 
 

@@ -33,6 +33,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.problem.plant import Plant
 from sqpmpc.problem.scenario import Scenario
+from sqpmpc.rules.registry import default_rules
 from sqpmpc.sim.record import RunRecord
 
 __all__ = ["ClosedLoopSimulation", "SimulationOptions", "simulate"]
@@ -104,7 +105,7 @@ class ClosedLoopSimulation:
             raise ProblemError(f"scheme must be 'centralized' or 'decentralized', got {scheme!r}")
         self.scenario = scenario
         self.scheme = scheme
-        self.settings = settings or SolverSettings()
+        self.settings = settings or SolverSettings(rules=default_rules(scenario))
         self.options = options or SimulationOptions()
         n, K = scenario.n_robots, scenario.steps
         spec = scenario.plant
