@@ -138,7 +138,7 @@ def test_a_goal_cut_off_or_shared_is_refused_by_name() -> None:
 
 def test_a_two_robot_swap_in_a_corridor_with_one_pocket_is_solved() -> None:
     """A line of 5 cells with a pocket above the middle: the robots at both ends swap
-    (PIBT alone cannot, LaCAM's search does)."""
+    (PIBT alone cannot, nor prioritized planning: LaCAM's search does)."""
     walls = [PolygonObstacle(((x - 0.45, 0.55), (x + 0.45, 0.55), (x + 0.45, 1.45),
                               (x - 0.45, 1.45))) for x in (0.0, 1.0, 3.0, 4.0)]
     ends = np.array([[0.0, 0.0], [4.0, 0.0]])
