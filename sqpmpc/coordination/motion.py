@@ -255,10 +255,18 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
         forward = two_a * s + np.minimum.accumulate(head - two_a * s)
         backward = -two_a * s + np.minimum.accumulate((head + two_a * s)[::-1])[::-1]
         v = np.sqrt(np.clip(np.minimum(np.minimum(forward, backward), cap ** 2), 0.0, None))
-    mean = 0.5 * (v[:-1] + v[1:])
+    # the time of each interval: from v[i] to v[i+1] over ds at most its cap, |a| <= a_max
     with np.errstate(divide="ignore", invalid="ignore"):
-        dt = np.where(ds > 0, ds / mean, 0.0)
-    dt = np.maximum(np.where(np.isfinite(dt), dt, 1e9), dpsi / w_max)
+        if acceleration is None:
+            dt = np.where(ds > 0, ds / interval.clip(max=v_max), 0.0)
+        else:
+            a = float(acceleration)
+            va, vb = v[:-1], v[1:]
+            top = np.minimum(np.sqrt(0.5 * (2.0 * a * ds + va ** 2 + vb ** 2)),
+                             np.minimum(interval, v_max))
+            ramps = (2.0 * top ** 2 - va ** 2 - vb ** 2) / (2.0 * a)
+            dt = (2.0 * top - va - vb) / a + np.where(top > 0, (ds - ramps) / top, 0.0)
+    dt = np.maximum(np.where(np.isfinite(dt), dt, 0.0), dpsi / w_max)
     t = np.concatenate(([0.0], np.cumsum(dt)))
     stages = T * np.arange(N + 1)
     x = np.interp(stages, t, xy[:, 0])

@@ -111,10 +111,14 @@ class _Instance(RuleInstance):
             here = view.own_states[m]
             if k <= p:  # at the end of its open path: its progress vertex, or its goal
                 end = plan.goals[row] if p >= last else execution.path_points(row, p, p)[0]
-                if math.hypot(end[0] - here[0], end[1] - here[1]) <= reach:
-                    out[m] = end  # there, within the reach: the NMPC's own final approach
+                gap = math.hypot(end[0] - here[0], end[1] - here[1])
+                if gap <= 0.5 * reach:
+                    out[m] = end  # there: the NMPC's own final approach
                     continue
-                points = np.stack((execution.path_points(row, max(p - 1, 0), p)[0], end))
+                # within the reach straight at it (facing it first: a unicycle does not
+                # close a sideways gap by itself), from farther along its path
+                points = np.stack((here[:2] if gap <= reach else execution.path_points(
+                    row, max(p - 1, 0), p)[0], end))
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
                 stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
