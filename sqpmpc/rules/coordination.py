@@ -115,10 +115,9 @@ class _Instance(RuleInstance):
                 if gap <= 0.5 * reach:
                     out[m] = end  # there: the NMPC's own final approach
                     continue
-                # within the reach straight at it (facing it first: a unicycle does not
-                # close a sideways gap by itself), from farther along its path
-                points = np.stack((here[:2] if gap <= reach else execution.path_points(
-                    row, max(p - 1, 0), p)[0], end))
+                # straight at it (facing it first: a unicycle does not close a sideways gap
+                # by itself); it is nearer to it than to the vertex before
+                points = np.stack((here[:2], end))
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
                 stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
