@@ -4,11 +4,15 @@ Every robot with a ``point`` reference gets its path of the fleet's conflict-fre
 roadmap plan (:func:`sqpmpc.coordination.fleet.fleet_plan`) and executes it in
 the plan's order at every vertex (:class:`sqpmpc.coordination.schedule.Execution`):
 at each sample the controller counts every robot's progress from the measured
-positions, and its own robots' references of stages 1..N become the points at
-arc length :math:`v_{\max} T_s i` along the polyline from the robot's position
-through the path vertices it may head for now, held at the last of them (at its
-own goal point once the whole path is open). A robot that may not move yet is
-held at its progress vertex.
+positions, and each of its own robots tracks the motion along the open part of
+its path (:func:`sqpmpc.coordination.motion.path_motion`): from the vertex behind
+it to the last vertex it may enter now (its goal once the whole path is open),
+stopping there. The motion's positions are the references of stages 1..N
+(``"references"`` hook) and its poses and velocities the linearization point and
+the reference of the inputs (``"guess"`` hook). At the end of its open path a
+robot heads straight at the end, facing it first (a unicycle does not close a
+sideways gap by itself), until it is within half the roadmap's reach, where the
+NMPC's own final approach takes over.
 
 The plan is a function of the scenario and the margins, so every controller of a
 run, in one process or in many, computes the same plan and counts the same
@@ -155,6 +159,6 @@ class Coordination(Rule):
     """
 
     name = "coordination"
-    summary = ("robots with goals at rest follow a conflict-free roadmap plan (LaCAM), "
-               "entering each vertex in the plan's order")
+    summary = ("robots with goals at rest follow a conflict-free roadmap plan, entering "
+               "each vertex in the plan's order, along a motion a unicycle can make")
     instance = _Instance

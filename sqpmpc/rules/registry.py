@@ -136,7 +136,8 @@ def select_rules(names: Iterable[str] | None = None, without: Iterable[str] = ()
 def describe_rules() -> str:
     """One line per rule and per safety row (``sqpmpc rules``)."""
     width = max(map(len, list(RULES) + list(SAFETY_ROWS)))
-    lines = ["rules (on by default but those marked opt-in; remove one with --without NAME, "
+    lines = ["rules (on by default but those marked opt-in; a scenario that declares its "
+             "[roadmap] runs with coordination alone; remove one with --without NAME, "
              "choose with --rules A,B):"]
     lines += [f"  {name:<{width}}  {'(opt-in) ' if name in OPT_IN else ''}{cls.summary}"
               for name, cls in RULES.items()]
