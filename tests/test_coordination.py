@@ -7,13 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.sparse.csgraph import connected_components
 
 from sqpmpc.coordination.fleet import fleet_plan
 from sqpmpc.coordination.mapf import PlanningError, plan_paths
 from sqpmpc.coordination.roadmap import build_roadmap
 from sqpmpc.coordination.schedule import Execution, Schedule
 from sqpmpc.errors import ProblemError, ScenarioError
-from sqpmpc.problem.fleets import antipodal_swap
+from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid
 from sqpmpc.problem.grid import GridSpec
 from sqpmpc.problem.movingai import blocked_rectangles, mapf_scenario, read_map, read_scen
 from sqpmpc.problem.polygons import PolygonObstacle
@@ -98,6 +99,28 @@ def test_every_free_cell_is_a_vertex_and_only_neighbours_are_joined() -> None:
     for v, u in _edges(roadmap):
         assert np.isclose(np.hypot(*(roadmap.positions[v] - roadmap.positions[u])), 0.5)
     assert np.allclose(roadmap.positions[roadmap.starts], sc.initial_states()[:, :2])
+
+
+@pytest.mark.parametrize("offset", [(0.5, 0.5), (0.3, 0.7), (0.0, 0.5)])
+def test_a_point_anywhere_in_a_cell_is_joined_to_the_grid(offset: tuple[float, float]) -> None:
+    """A start or goal at a cell's centre removes the cell's corners: it is joined to the
+    ring beyond (the 5 x 5 grid formation's robot 15 was cut off with a 1.5 h radius)."""
+    h = 1.0
+    point = np.array([[2.0 + offset[0] * h, 2.0 + offset[1] * h]])
+    goal = np.array([[0.0, 0.0]])
+    roadmap = build_roadmap((), (), (np.array([0.0, 0.0]), np.array([5.0, 5.0])), point, goal,
+                            np.array([True]), 0.0, 0.5, 0.3, GridSpec(h, (0.0, 0.0)))
+    start = int(roadmap.starts[0])
+    assert roadmap.neighbours(start).size >= 1
+    configs = plan_paths(roadmap, roadmap.starts, roadmap.goals)
+    check_plan(_edges(roadmap), configs, roadmap.starts, roadmap.goals)
+
+
+def test_a_grid_formation_is_one_connected_roadmap() -> None:
+    sc = grid_to_grid(5, 5)
+    plan = fleet_plan(sc, 0.151, 0.301)
+    assert connected_components(plan.roadmap.adjacency(), directed=False)[0] == 1
+    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
 
 
 def test_a_cell_no_wider_than_the_kept_distance_is_refused() -> None:

@@ -8,8 +8,10 @@ neighbours (4-connected) and the segment between them keeps the same clearance.
 The robots' own starts and goals are vertices too: a start or goal point within
 :math:`\rho` of a grid vertex *is* that vertex (its robot still ends on its own
 point), any other one replaces the grid vertices nearer than :math:`h` and joins
-every vertex within :math:`1.5 h` that it sees with clearance; points nearer
-than :math:`h` to each other are one vertex.
+every vertex within :math:`\sqrt{5/2}\, h` that it sees with clearance (the
+farthest its nearest kept grid vertex can be: from the centre of a cell, whose
+corners it removed), else the nearest vertex it sees; points nearer than
+:math:`h` to each other are one vertex.
 
 Why this graph
 --------------
@@ -291,12 +293,16 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
         extra: list[tuple[int, int]] = []
         for k, p in enumerate(new):
             v = base + k
-            near = tree.query(Point(ends[p]), predicate="dwithin", distance=1.5 * h + 1e-9)
+            near = tree.query(Point(ends[p]), predicate="dwithin",
+                              distance=math.sqrt(2.5) * h + 1e-9)
             near = np.asarray([u for u in near if u != v], dtype=np.int64)
-            if near.size == 0:
-                continue
             ok = _free_segments(np.repeat(positions[v][None], near.size, axis=0),
-                                positions[near], footprint)
+                                positions[near], footprint) if near.size else near.astype(bool)
+            if not ok.any():  # others' points took its ring: the nearest vertex it sees
+                order = np.argsort(np.hypot(*(positions - positions[v]).T))[1:]
+                free = _free_segments(np.repeat(positions[v][None], order.size, axis=0),
+                                      positions[order], footprint)
+                near, ok = order[free][:1], np.ones(min(1, int(free.sum())), dtype=bool)
             extra += [(v, int(u)) for u in near[ok]]
         if extra:
             pairs.append(np.asarray(extra, dtype=np.int64))
