@@ -1,0 +1,80 @@
+"""The coordination rule in the distributed runtime: a maze scenario that declares its
+roadmap, run as real processes over real Zenoh sessions on 127.0.0.1 (peers, multicast
+scouting off, nothing mocked), equals the in-process run.
+
+No process coordinates the others: every controller process computes the fleet's plan
+from the scenario and counts every robot's progress from the states the plant sends,
+so the robot processes enter every roadmap vertex in the plan's order exactly as one
+process does.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.movingai import mapf_scenario
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.registry import default_rules
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+
+# a guard against a hang only (no budget on how long a right run takes on a busy machine)
+pytestmark = pytest.mark.timeout(900)
+
+REPO = Path(__file__).resolve().parent.parent
+DATA = Path(__file__).parent / "data"
+ROBOTS = 5
+T_END = 10.0  # 50 samples: every robot has arrived (in process from sample 47 on)
+
+
+def _maze(tmp_path: Path) -> Path:
+    """Five robots between random free cells (seed 1) of the one-cell maze: two of them
+    wait for others at a vertex on the way (the plan's order is kept, not only the paths)."""
+    scenario = mapf_scenario(DATA / "maze-12-8.map", ROBOTS, cell=0.5, diameter=0.3,
+                             acceleration=2.0, angular_acceleration=10.0, seed=1)
+    path = tmp_path / "maze-12-8-5.toml"
+    path.write_text(scenario.to_toml())
+    return path
+
+
+@pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
+def test_lockstep_coordination_run_reproduces_the_in_process_run(tmp_path, scheme):
+    path = _maze(tmp_path)
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "services.launch", "--scenario", str(path), "--out", str(out),
+           "--no-plots", "--scheme", scheme, "--t-end", str(T_END)]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+
+    scenario = load_scenario(path).with_changes(t_end=T_END)  # the file the processes read
+    assert scenario.roadmap is not None  # so coordination alone is on by default
+    reference = ClosedLoopSimulation(
+        scenario, scheme, SolverSettings(rules=default_rules(scenario)),
+        SimulationOptions(decentralized_mode="shared")).run()
+    counters = reference.extra["counters"]
+    traj = np.load(out / "trajectory.npz")
+    steps = round(T_END / scenario.sample_time)
+    assert traj["states"].shape == reference.states.shape == (steps + 1, ROBOTS, 3)
+    assert list(traj["ids"]) == list(range(1, ROBOTS + 1))
+    assert np.max(np.abs(traj["states"] - reference.states)) <= 1e-9
+
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["completed"] is True and m["scheme"] == scheme and m["mode"] == "lockstep"
+    assert m["missed_deadlines"] == 0 and m["invalid_messages"] == 0
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
+    # the controllers' counters (the rule's among them) reach the plant's metrics
+    assert m["counters"] == counters
+    assert counters["samples"] == steps * (1 if scheme == "centralized" else ROBOTS)
+    assert counters["coordination_linearized"] > 0  # the rule steered every robot's way
+    assert counters["coordination_holds"] > 0  # and held robots for others, in plan order
+    goals = scenario.reference_positions(T_END)
+    final = np.hypot(*(traj["states"][-1, :, :2] - goals).T)
+    assert np.all(final <= 0.05), final  # every robot arrived
+    assert m["all_arrived"] is True
