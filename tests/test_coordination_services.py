@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from services.messages import decode
+from services.testing import Probe, free_ports, start_service, stop_processes
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.scenario_file import load_scenario
@@ -78,3 +80,55 @@ def test_lockstep_coordination_run_reproduces_the_in_process_run(tmp_path, schem
     final = np.hypot(*(traj["states"][-1, :, :2] - goals).T)
     assert np.all(final <= 0.05), final  # every robot arrived
     assert m["all_arrived"] is True
+
+
+def test_a_robot_killed_and_restarted_mid_run_rejoins_in_plan_order_and_arrives(tmp_path):
+    """kill -9 of robot 2's controller at sample 15 of a lockstep run, then its command
+    again: there is no coordinating process to lose; the restarted controller plans anew
+    from the scenario, counts every robot's progress from the states of the sample it
+    joins at (``Execution.resume``) and every robot arrives, 0 collisions."""
+    path = _maze(tmp_path)
+    run = "coordination-rejoin"
+    ports = free_ports(2 + ROBOTS)
+    probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
+    probe = Probe(run, [], (("plant", "state"),), listen=[probe_ep])
+    common = ["--scenario", str(path), "--t-end", str(T_END), "--run", run]
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
+                                    "--out", str(tmp_path / "out"), "--no-plots",
+                                    "--rejoin-timeout", "90"], tmp_path / "logs")
+    robots = {
+        i: start_service("robot", ["--id", str(i), *common, "--listen",
+                                   f"tcp/127.0.0.1:{port}", "--connect", plant_ep],
+                         tmp_path / "logs", name=f"robot-{i}")
+        for i, port in zip(range(1, ROBOTS + 1), ports[2:], strict=True)
+    }
+    procs = [plant, *robots.values()]
+
+    def newest() -> int:
+        return max((decode(e.payload, 8).sample for e in probe.events), default=-1)
+
+    try:
+        assert probe.wait_for(lambda: newest() >= 15, 60), plant.output()
+        robots[2].proc.kill()
+        robots[2].wait(10)
+        assert probe.wait_for(lambda: "robot/2" not in probe.alive, 10)
+        robots[2] = start_service("robot", robots[2].argv[3:], tmp_path / "logs",
+                                  name="robot-2-again")
+        procs.append(robots[2])
+        assert plant.wait(90) == 0, plant.output()
+        for r in robots.values():
+            assert r.wait(30) == 0, r.output()
+    finally:
+        probe.close()
+        stop_processes(procs)
+    assert "robot/2 left at sample" in plant.output()
+    assert "robot/2 joined at sample" in plant.output()
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert m["completed"] is True and m["missed_deadlines"] <= 1  # the sample it was killed in
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0
+    assert m["counters"]["coordination_linearized"] > 0
+    scenario = load_scenario(path)
+    final = np.load(tmp_path / "out" / "trajectory.npz")["states"][-1]
+    error = np.hypot(*(final[:, :2] - scenario.reference_positions(T_END)).T)
+    assert np.all(error <= 0.05), error  # every robot arrived
