@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sqpmpc.control.settings import SolverSettings
+from sqpmpc.coordination.schedule import Execution
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.scenario_file import load_scenario
@@ -48,6 +49,19 @@ def test_in_a_one_cell_maze_every_robot_arrives_and_keeps_every_distance_and_bou
     for controller in sim.controllers:  # every controller has the same plan: no coordinator
         assert controller.rule("coordination").plan is plan
     assert _arrived(sim).all(), f"arrived: {_arrived(sim)}"
+    _a_controller_joining_at_any_sample_counts_the_same_progress(sim)
+
+
+def _a_controller_joining_at_any_sample_counts_the_same_progress(sim) -> None:
+    """A controller started (or restarted) at sample k has only that sample's positions:
+    :meth:`Execution.resume` gives it the progress the running controllers counted."""
+    rule = sim.controllers[0].rule("coordination")
+    plan, window = rule.plan, rule.execution.window
+    history = Execution(plan.schedule, plan.roadmap, plan.robots, window)
+    for k, states in enumerate(sim.states):
+        counted = history.advance(states[:, :2])
+        joined = Execution(plan.schedule, plan.roadmap, plan.robots, window)
+        assert np.array_equal(joined.resume(states[:, :2]), counted), k
 
 
 def test_the_corridor_arrives_with_coordination_decentralized() -> None:

@@ -153,6 +153,42 @@ class Execution:
         np.maximum(self.progress, ahead[np.arange(n), best], out=self.progress)
         return self.progress
 
+    def resume(self, positions: np.ndarray) -> np.ndarray:
+        """Count progress from one measurement, for a controller that joins an execution
+        under way (started late, or restarted mid-run) without the positions before it.
+
+        :meth:`advance` counts from the history (a robot's way back over a vertex it
+        passed, a window of vertices per sample); from a progress of zero, one
+        measurement of robots far along their paths leaves it stuck behind them, and
+        the controller then holds its own robot for robots that have long passed.
+        Here each robot's *target* is the last visit on its path of the vertex nearest
+        to it; every robot's progress moves up to its target as far as the plan's order
+        allows (the order of the robots it waits for, also moved up), repeated until
+        nothing moves, and ends on its last visit of that vertex within what it
+        reached. On the runs of the test mazes this is the progress counted from the
+        history at every sample; a robot back on a vertex it passed before can be counted
+        at its later visit (ahead of the history's count) until the others' counts
+        catch up, which :meth:`advance` then keeps (progress never decreases).
+        Returns the progress ``(n,)`` (read it, do not write it)."""
+        now = np.asarray(positions, dtype=float)[self.robots]
+        n, width = self._points.shape[:2]
+        index = np.arange(width)[None, :]
+        valid = index <= self._last[:, None]
+        gap = np.where(valid, np.hypot(*(self._points - now[:, None, :]).transpose(2, 0, 1)),
+                       np.inf)
+        nearest = valid & (gap <= gap.min(axis=1, keepdims=True) + 1e-9)
+        target = width - 1 - np.argmax(nearest[:, ::-1], axis=1)  # last visit
+        start = self.progress.copy()
+        while True:  # at most one pass per robot that moves
+            moved = np.maximum(self.progress, np.minimum(target, self.permitted_all()))
+            if np.array_equal(moved, self.progress):
+                break
+            self.progress[:] = moved
+        within = nearest & (index <= self.progress[:, None])
+        last = np.where(within.any(axis=1), width - 1 - np.argmax(within[:, ::-1], axis=1), 0)
+        self.progress[:] = np.maximum(start, last)
+        return self.progress
+
     def permitted_all(self) -> np.ndarray:
         """``(n,)`` the last path index every robot may head for now."""
         s = self.schedule

@@ -21,6 +21,9 @@ process can make robots collide (the collision rows and the verified first input
 are untouched: this plug-in only chooses where each robot heads). A goal changed
 by :meth:`~sqpmpc.control.pipeline.ControllerPipeline.update_reference` re-plans
 from every robot's progress vertex (a valid start: :mod:`sqpmpc.coordination.schedule`).
+A controller that joins a run under way (started late, or restarted after a crash)
+has no earlier positions: at its first sample it counts the progress from that one
+measurement (:meth:`~sqpmpc.coordination.schedule.Execution.resume`).
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ class _Instance(RuleInstance):
         self.separation = float(scenario.required_distances().max(initial=0.0)) \
             + context.pair_margin if scenario.n_robots > 1 else 0.0
         self.plan: FleetPlan | None = fleet_plan(scenario, self.clearance, self.separation)
+        self._joined = False  # whether this controller counted progress at an earlier sample
         self.idle = self.plan is None
         self._start(self.plan)
 
@@ -98,7 +102,11 @@ class _Instance(RuleInstance):
         execution, plan = self.execution, self.plan
         if execution is None or plan is None:
             return None
-        progress = execution.advance(view.positions)
+        if self._joined or view.sample == 0:
+            progress = execution.advance(view.positions)
+        else:  # a controller started (or restarted) mid-run: no history of the positions
+            progress = execution.resume(view.positions)
+        self._joined = True
         permitted = execution.permitted_all()
         out = np.array(view.references)
         self._tracked[:] = False

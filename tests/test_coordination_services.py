@@ -1,0 +1,134 @@
+"""The coordination rule in the distributed runtime: a maze scenario that declares its
+roadmap, run as real processes over real Zenoh sessions on 127.0.0.1 (peers, multicast
+scouting off, nothing mocked), equals the in-process run.
+
+No process coordinates the others: every controller process computes the fleet's plan
+from the scenario and counts every robot's progress from the states the plant sends,
+so the robot processes enter every roadmap vertex in the plan's order exactly as one
+process does.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from services.messages import decode
+from services.testing import Probe, free_ports, start_service, stop_processes
+from sqpmpc.control.settings import SolverSettings
+from sqpmpc.problem.movingai import mapf_scenario
+from sqpmpc.problem.scenario_file import load_scenario
+from sqpmpc.rules.registry import default_rules
+from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+
+# a guard against a hang only (no budget on how long a right run takes on a busy machine)
+pytestmark = pytest.mark.timeout(900)
+
+REPO = Path(__file__).resolve().parent.parent
+DATA = Path(__file__).parent / "data"
+ROBOTS = 5
+T_END = 10.0  # 50 samples: every robot has arrived (in process from sample 47 on)
+
+
+def _maze(tmp_path: Path) -> Path:
+    """Five robots between random free cells (seed 1) of the one-cell maze: two of them
+    wait for others at a vertex on the way (the plan's order is kept, not only the paths)."""
+    scenario = mapf_scenario(DATA / "maze-12-8.map", ROBOTS, cell=0.5, diameter=0.3,
+                             acceleration=2.0, angular_acceleration=10.0, seed=1)
+    path = tmp_path / "maze-12-8-5.toml"
+    path.write_text(scenario.to_toml())
+    return path
+
+
+@pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
+def test_lockstep_coordination_run_reproduces_the_in_process_run(tmp_path, scheme):
+    path = _maze(tmp_path)
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "services.launch", "--scenario", str(path), "--out", str(out),
+           "--no-plots", "--scheme", scheme, "--t-end", str(T_END)]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+
+    scenario = load_scenario(path).with_changes(t_end=T_END)  # the file the processes read
+    assert scenario.roadmap is not None  # so coordination alone is on by default
+    reference = ClosedLoopSimulation(
+        scenario, scheme, SolverSettings(rules=default_rules(scenario)),
+        SimulationOptions(decentralized_mode="shared")).run()
+    counters = reference.extra["counters"]
+    traj = np.load(out / "trajectory.npz")
+    steps = round(T_END / scenario.sample_time)
+    assert traj["states"].shape == reference.states.shape == (steps + 1, ROBOTS, 3)
+    assert list(traj["ids"]) == list(range(1, ROBOTS + 1))
+    assert np.max(np.abs(traj["states"] - reference.states)) <= 1e-9
+
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["completed"] is True and m["scheme"] == scheme and m["mode"] == "lockstep"
+    assert m["missed_deadlines"] == 0 and m["invalid_messages"] == 0
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
+    # the controllers' counters (the rule's among them) reach the plant's metrics
+    assert m["counters"] == counters
+    assert counters["samples"] == steps * (1 if scheme == "centralized" else ROBOTS)
+    assert counters["coordination_linearized"] > 0  # the rule steered every robot's way
+    assert counters["coordination_holds"] > 0  # and held robots for others, in plan order
+    goals = scenario.reference_positions(T_END)
+    final = np.hypot(*(traj["states"][-1, :, :2] - goals).T)
+    assert np.all(final <= 0.05), final  # every robot arrived
+    assert m["all_arrived"] is True
+
+
+def test_a_robot_killed_and_restarted_mid_run_rejoins_in_plan_order_and_arrives(tmp_path):
+    """kill -9 of robot 2's controller at sample 15 of a lockstep run, then its command
+    again: there is no coordinating process to lose; the restarted controller plans anew
+    from the scenario, counts every robot's progress from the states of the sample it
+    joins at (``Execution.resume``) and every robot arrives, 0 collisions."""
+    path = _maze(tmp_path)
+    run = "coordination-rejoin"
+    ports = free_ports(2 + ROBOTS)
+    probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
+    probe = Probe(run, [], (("plant", "state"),), listen=[probe_ep])
+    common = ["--scenario", str(path), "--t-end", str(T_END), "--run", run]
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
+                                    "--out", str(tmp_path / "out"), "--no-plots",
+                                    "--rejoin-timeout", "90"], tmp_path / "logs")
+    robots = {
+        i: start_service("robot", ["--id", str(i), *common, "--listen",
+                                   f"tcp/127.0.0.1:{port}", "--connect", plant_ep],
+                         tmp_path / "logs", name=f"robot-{i}")
+        for i, port in zip(range(1, ROBOTS + 1), ports[2:], strict=True)
+    }
+    procs = [plant, *robots.values()]
+
+    def newest() -> int:
+        return max((decode(e.payload, 8).sample for e in probe.events), default=-1)
+
+    try:
+        assert probe.wait_for(lambda: newest() >= 15, 60), plant.output()
+        robots[2].proc.kill()
+        robots[2].wait(10)
+        assert probe.wait_for(lambda: "robot/2" not in probe.alive, 10)
+        robots[2] = start_service("robot", robots[2].argv[3:], tmp_path / "logs",
+                                  name="robot-2-again")
+        procs.append(robots[2])
+        assert plant.wait(90) == 0, plant.output()
+        for r in robots.values():
+            assert r.wait(30) == 0, r.output()
+    finally:
+        probe.close()
+        stop_processes(procs)
+    assert "robot/2 left at sample" in plant.output()
+    assert "robot/2 joined at sample" in plant.output()
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert m["completed"] is True and m["missed_deadlines"] <= 1  # the sample it was killed in
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0
+    assert m["counters"]["coordination_linearized"] > 0
+    scenario = load_scenario(path)
+    final = np.load(tmp_path / "out" / "trajectory.npz")["states"][-1]
+    error = np.hypot(*(final[:, :2] - scenario.reference_positions(T_END)).T)
+    assert np.all(error <= 0.05), error  # every robot arrived
