@@ -237,7 +237,7 @@ at any moment.)
 So at every instant the robot of a pair that decided last kept the distance from what
 the other does. The assumptions: every robot follows its published arc (odometry and
 command latency within the margins), the fleet shares `--lead`, clocks agree within
-`--ros2-guard` (0.02 s). A robot whose odometry is older than `--odom-timeout` (0.2 s)
+`--ros2-guard` (0.02 s). A robot whose odometry is older than `--odom-timeout` (0.6 Ts)
 commands zero at once (checked between samples too) and publishes a plan standing where
 the odometry and its commands put it; the others keep their distance from it.
 

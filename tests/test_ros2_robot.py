@@ -6,8 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from services.robot import build_parser
 from services.robot import main as robot_main
+from services.ros2.options import odom_timeout, ros2_problem
 from services.ros2.timing import TimedPlan, arc, committed, plan_position
+from sqpmpc.problem.scenario_file import load_scenario
 
 
 @pytest.mark.parametrize(("args", "message"), [
@@ -26,6 +29,16 @@ def test_bad_ros2_options_are_one_clear_error(capsys, args, message):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
+
+
+def test_the_default_odometry_timeout_follows_the_sample_time():
+    """0.6 Ts: a scenario of Ts = 0.2 s (every one `sqpmpc generate mapf` writes) is not
+    refused for a default it cannot change (the default was a fixed 0.3 s)."""
+    sc = load_scenario("paper-s2").with_changes(sample_time=0.2)
+    args = build_parser().parse_args(["--id", "1", "--scenario", "paper-s2", "--ros2"])
+    assert odom_timeout(args, sc) == pytest.approx(0.12)
+    problem = ros2_problem(args, sc)
+    assert problem is None or "odom-timeout" not in problem
 
 
 def test_committed_motion_is_the_first_arc_then_held_or_bounded():

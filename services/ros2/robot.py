@@ -78,7 +78,7 @@ from . import msgs
 from .controller import Ros2Controller
 from .graph import Received, Ros2Node
 from .neighbours import MIN_SPACING, Neighbours
-from .options import check_margin, ros2_config, ros2_problem
+from .options import check_margin, odom_timeout, ros2_config, ros2_problem
 from .startup import PUBLISH_SLACK, StartUp
 from .stream import CommandStream
 from .timing import own_motion
@@ -149,7 +149,7 @@ class Ros2Robot(StartUp, Node):
                        scenario.bounds.acceleration_upper()) \
             if scenario.bounds.dynamic_limits else None
         """Acceleration limits ``(lower, upper)`` of ``(v, omega)`` (CONTRACT 1c), or ``None``."""
-        self.odom_timeout = float(args.odom_timeout)
+        self.odom_timeout = odom_timeout(args, scenario)
         self.timeout = float(args.timeout)
         self.startup_timeout = args.startup_timeout
         self.epoch = args.epoch
