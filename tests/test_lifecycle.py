@@ -23,6 +23,7 @@ import pytest
 from services.priority import Priority, parse_priority, raise_priority
 from services.testing import REPO, child_pids, free_ports, start_service, stop_processes
 from sqpmpc.cli.main import main as sqpmpc_main
+from sqpmpc.problem.movingai import mapf_scenario
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -145,6 +146,27 @@ def _cmdlines(pid: int) -> list[list[str]]:
         except OSError:
             pass
     return out
+
+
+def test_the_ros2_demo_ends_when_its_controllers_refuse_to_run(tmp_path):
+    """A controller that ends before the fleet is up (here: the scenario's declared grid is
+    too fine for the ROS 2 mode's margins) ends the demo with one error naming it, not a
+    wait of ``--startup`` (600 s) for nodes that will never come."""
+    pytest.importorskip("zenoh_ros2_sdk")
+    scenario = tmp_path / "maze.toml"
+    data = Path(__file__).parent / "data"
+    scenario.write_text(mapf_scenario(
+        data / "maze-12-8.map", 2, scen_path=data / "maze-12-8.scen", cell=0.5, diameter=0.3,
+        acceleration=2.0, angular_acceleration=10.0).to_toml())
+    out = tmp_path / "demo"
+    demo = start_service("launch", ["--ros2-demo", "--scenario", str(scenario), "--out",
+                                    str(out)], tmp_path / "logs")
+    try:
+        assert demo.proc.wait() == 1, demo.output()
+    finally:
+        stop_processes([demo])
+    assert "controllers ended before the fleet was up: robot/1" in demo.output(), demo.output()
+    assert "Traceback" not in demo.output()
 
 
 def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):

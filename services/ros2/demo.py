@@ -46,7 +46,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 
@@ -138,10 +138,11 @@ def robot_side_priority(children: Sequence[Child]) -> str:
 
 
 def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
-                stop: threading.Event) -> bool:
+                stop: threading.Event, gone: Callable[[], list[str]] = list) -> bool:
     """Once every controller's ROS 2 node is in the graph (seen on the ROS 2 router at
     ``endpoint``), write the epoch (2 s from then) into ``epoch_file``; ``False`` if not all
-    came in time (the epoch is written all the same)."""
+    came in time or a controller ended before (``gone``: the names of the controllers that
+    ended; the epoch is written all the same)."""
     import zenoh
 
     from ..transport import make_config
@@ -173,7 +174,7 @@ def start_clock(endpoint: str, ids: list[int], epoch_file: Path, timeout: float,
         with zenoh.open(make_config((), [endpoint], "client")) as session:
             sub = session.liveliness().declare_subscriber("@ros2_lv/**", on_token,
                                                           history=True)
-            while not stop.is_set() and time.time() < deadline:
+            while not stop.is_set() and time.time() < deadline and not gone():
                 with lock:
                     if wanted <= seen:
                         break
@@ -332,7 +333,14 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                                 f"robot-{rid}"))
         children.extend(robots)
         log.info("%d robots, t_end %g s; logs in %s", len(ids), t_end, logs)
-        if not start_clock(ros_ep, ids, epoch_file, args.startup, stop):
+        def ended() -> list[str]:
+            return [r.name for r in robots if r.poll() is not None]
+
+        if not start_clock(ros_ep, ids, epoch_file, args.startup, stop, ended):
+            if ended():  # a controller refused to run: its log says why
+                log.error("controllers ended before the fleet was up: %s (see %s)",
+                          ", ".join(ended()), logs)
+                return 1
             log.error("the controllers were not all up within %g s (see %s)", args.startup,
                       logs)
         epoch = float(epoch_file.read_text())
