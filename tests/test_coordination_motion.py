@@ -90,6 +90,19 @@ def test_a_robot_at_rest_facing_away_turns_in_place_then_goes() -> None:
     assert m.poses[-1, 0] > 0.5 and abs(m.poses[-1, 2]) < 1e-9
 
 
+def test_a_robot_out_of_the_tube_goes_straight_back_to_its_path_first() -> None:
+    """Pushed 0.1 m off a path with 0.06 m of reach (a robot pinned at a wall's corner
+    after cutting a turn): back to its projection, facing it, then along the path."""
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    m = path_motion(points, np.array([0.5, 0.1, -0.3]), 0.0, 0.06, T, 30, V_MAX, W_MAX, ACCEL)
+    off = np.abs(m.poses[:, 1])
+    assert np.all(np.diff(off) <= 1e-12)  # the offset only shrinks
+    back = np.flatnonzero(off > 1e-9)
+    np.testing.assert_allclose(m.poses[back, 0], 0.5, atol=1e-9)  # straight down to (0.5, 0)
+    assert m.poses[-1, 0] > 1.5 and abs(m.poses[-1, 1]) < 1e-9
+    assert np.abs(np.diff(m.poses[:, 2])).max() <= W_MAX * T + 1e-9
+
+
 def test_the_motion_stops_at_the_end_of_the_open_path() -> None:
     points = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.5]])
     m = path_motion(points, np.array([0.0, 0.0, 0.0]), 0.0, 0.06, T, 40, V_MAX, W_MAX, ACCEL)

@@ -26,7 +26,9 @@ projection on this path (on the segments into and out of its progress vertex,
 the furthest of equally near points, so a path that steps back is followed in
 its order), its own heading's error :math:`e_0` to the path turned away along
 the first :math:`|e_0| v_0 / \omega_{\max}` metres: the tightest turn at its
-present speed :math:`v_0`, in place at rest.
+present speed :math:`v_0`, in place at rest. A robot farther than :math:`\rho`
+from the path (pushed out of the tube) first goes straight back to its
+projection, facing it, and turns onto the path there.
 
 **Timing: within the bounds.** Along the path the speed is the largest that
 keeps :math:`|v| \le v_{\max}`, :math:`|\omega| \le \omega_{\max}` (so
@@ -213,8 +215,18 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     gap = np.hypot(*(a + f[:, None] * d - here).T)
     i = int(np.flatnonzero(gap <= gap.min() + 1e-9)[-1])
     q = a[i] + f[i] * d[i]
-    xy = np.concatenate((q[None], xy[i + 1:]))
-    psi = np.concatenate(([psi[i] + f[i] * (psi[i + 1] - psi[i])], psi[i + 1:]))
+    psi_q = psi[i] + f[i] * (psi[i + 1] - psi[i])
+    if gap[i] > reach:  # out of the tube: straight back to the path first, then along it
+        lead = math.atan2(q[1] - here[1], q[0] - here[0])
+        turn = _wrap(psi_q - lead)
+        n = max(1, math.ceil(float(gap[i]) / step))
+        back = here + np.linspace(0.0, 1.0, n + 1)[:, None] * (q - here)
+        xy = np.concatenate((back, q[None], xy[i + 1:]))
+        psi = np.concatenate((np.full(n + 1, lead), [lead + turn],
+                              psi[i + 1:] + (lead + turn - psi_q)))
+    else:
+        xy = np.concatenate((q[None], xy[i + 1:]))
+        psi = np.concatenate(([psi_q], psi[i + 1:]))
     # headings on the robot's branch, its error turned away at its speed (in place at rest)
     psi = psi + (theta0 + _wrap(psi[0] - theta0) - psi[0])
     error = theta0 - psi[0]
@@ -231,7 +243,7 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
             ds = np.diff(s)
         weight = np.clip(1.0 - s / span, 0.0, 1.0) if span > 0 else np.zeros_like(s)
         # the robot's own heading first: a turn in place when nothing may drift
-        xy = np.concatenate((q[None], xy))
+        xy = np.concatenate((xy[:1], xy))
         psi = np.concatenate(([theta0], psi + error * weight))
         s = np.concatenate(([0.0], s))
         ds = np.concatenate(([0.0], ds))
