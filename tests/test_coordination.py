@@ -36,6 +36,14 @@ def check_plan(adjacency: set[tuple[int, int]], configs: np.ndarray, starts: np.
             assert u == v or (int(u), int(v)) in adjacency, "not an edge"
         moves = {(int(u), int(v)) for u, v in zip(a, b, strict=True) if u != v}
         assert not any((v, u) in moves for u, v in moves), "swap conflict"
+        # no rotation: following the robots onto the vertices others leave never closes
+        at = {int(v): r for r, v in enumerate(a)}
+        for r in range(a.size):
+            seen, j = {r}, r
+            while b[j] != a[j] and int(b[j]) in at and at[int(b[j])] != j:
+                j = at[int(b[j])]
+                assert j not in seen, "rotation"
+                seen.add(j)
 
 
 def _edges(roadmap) -> set[tuple[int, int]]:
@@ -157,6 +165,18 @@ def test_a_goal_cut_off_or_shared_is_refused_by_name() -> None:
         plan_paths(roadmap, np.array([roadmap.starts[0]]), isolated)
     with pytest.raises(PlanningError, match="share the goal vertex"):
         plan_paths(roadmap, roadmap.starts, roadmap.starts[[0, 0]])
+
+
+def test_a_full_ring_is_not_rotated() -> None:
+    """Four robots on the four vertices of a ring, each to go to the next: the only plan
+    rotates them all at once, which executed in order would deadlock: no plan."""
+    ends = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    roadmap = build_roadmap((), (), (np.array([-0.2, -0.2]), np.array([1.2, 1.2])), ends,
+                            ends[[1, 2, 3, 0]], np.ones(4, dtype=bool), 0.0, 0.5, 0.3,
+                            GridSpec(1.0, (0.0, 0.0)))
+    assert roadmap.size == 4
+    with pytest.raises(PlanningError, match="cannot be reached together"):
+        plan_paths(roadmap, roadmap.starts, roadmap.goals)
 
 
 def test_a_two_robot_swap_in_a_corridor_with_one_pocket_is_solved() -> None:

@@ -4,8 +4,11 @@ A *configuration* gives every robot a vertex, no two the same. A plan is a
 sequence of configurations :math:`Q_0, Q_1, \dots, Q_T` from the starts to the
 goals in which every robot stays or moves to a neighbour from one to the next,
 never onto a vertex another robot holds in the next configuration (vertex
-conflict) and never along an edge another robot takes the other way (swap
-conflict). Robots that reach their goals stay in the plan: moving off a goal to
+conflict), never along an edge another robot takes the other way (swap
+conflict) and never round a cycle of robots each moving onto the vertex the next
+one leaves (rotation: valid in MAPF, but its robots would have to move at once,
+and executed in order, :mod:`sqpmpc.coordination.schedule`, each would wait for
+the next). Robots that reach their goals stay in the plan: moving off a goal to
 let another robot by and back is part of it, so a robot that has finished is
 never in another's way in the final configuration.
 
@@ -130,11 +133,32 @@ class _PIBT:
                 if nxt[i] < 0 and not self._pibt(i, config, nxt, touched):
                     ok = False
                     break
+        if ok:  # the constraints' robots too: nobody follows round a cycle
+            ok = not any(self._closes_cycle(i, now[nxt[i]], nxt) for i in range(n)
+                         if now[nxt[i]] >= 0 and now[nxt[i]] != i)
         for v in touched:
             after[v] = -1
         for v in config:
             now[v] = -1
         return nxt if ok else None
+
+    def _closes_cycle(self, i: int, k: int, nxt: list[int]) -> bool:
+        """Whether robot ``i`` moving to robot ``k``'s vertex closes a rotation: ``k`` moves
+        to a vertex whose robot moves on, and so on, round to ``i``'s own vertex. A
+        rotation is a valid MAPF step, but its robots could only move at once; executed
+        one after the other (:mod:`sqpmpc.coordination.schedule`) each would wait for the
+        next."""
+        now, j = self.occupied_now, k
+        for _ in range(len(nxt)):
+            if nxt[j] < 0:
+                return False
+            o = now[nxt[j]]
+            if o < 0 or o == j:
+                return False
+            if o == i:
+                return True
+            j = o
+        return False
 
     def _pibt(self, i: int, config: tuple[int, ...], nxt: list[int], touched: list[int]
               ) -> bool:
@@ -151,8 +175,8 @@ class _PIBT:
             if after[u] >= 0:
                 continue
             k = now[u]
-            if k >= 0 and k != i and nxt[k] == here:  # k comes here: no swap
-                continue
+            if k >= 0 and k != i and (nxt[k] == here or self._closes_cycle(i, k, nxt)):
+                continue  # k comes here (a swap) or round to here (a rotation)
             after[u] = i
             touched.append(u)
             nxt[i] = u
@@ -274,14 +298,16 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
 def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: list[int],
                  goals: list[int], effort: int = 100) -> np.ndarray | None:
     """Prioritized planning (robots with farther goals first), each robot's path a space-time
-    A* around the robots planned before it (their vertices, their edges the other way, and
-    their goals from their arrival on); ``None`` when a robot's search expands more than
+    A* around the robots planned before it (their vertices, their edges the other way, the
+    vertices they leave or enter at the next step: no robot follows another, and their goals
+    from their arrival on); ``None`` when a robot's search expands more than
     ``effort`` times (its distance + 1) nodes (the caller then runs LaCAM, which is
     complete): the work is at most ``effort`` times the sum of the distances."""
     n = len(starts)
     order = sorted(range(n), key=lambda i: (-dist[i][starts[i]], i))
     occupied: set[tuple[int, int]] = set()  # (vertex, time)
     moves: set[tuple[int, int, int]] = set()  # (from, to, time): a move from t to t + 1
+    entered: set[tuple[int, int]] = set()  # (vertex, time): a robot enters it then
     parked: dict[int, int] = {}  # vertex -> time from which a robot stays there
     last_use: dict[int, int] = {}  # vertex -> last time a planned robot is there
     paths: list[list[int]] = [[] for _ in range(n)]
@@ -308,7 +334,9 @@ def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: l
             for u in (*neighbours[v], v):
                 if (u, t2) in parent or (u, t2) in occupied or parked.get(u, t2 + 1) <= t2:
                     continue
-                if u != v and (u, v, t) in moves:  # a robot comes the other way
+                if u != v and ((u, v, t) in moves or (u, t) in occupied):
+                    continue  # a robot comes the other way, or is leaving u: no following
+                if (u, t2 + 1) in entered:  # a robot enters u next: it would follow
                     continue
                 if t2 == 1 and u in others and u != v:
                     continue  # a robot not planned yet still stands there
@@ -329,6 +357,8 @@ def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: l
                 last_use[v] = t
             if t + 1 < len(path):
                 moves.add((v, path[t + 1], t))
+                if path[t + 1] != v:
+                    entered.add((path[t + 1], t + 1))
         parked[goal] = len(path) - 1
     horizon = max(len(p) for p in paths)
     return np.array([p + [p[-1]] * (horizon - len(p)) for p in paths], dtype=np.int64).T

@@ -18,7 +18,9 @@ controller counts it for every robot from the same measurements, so the
 decentralized controllers agree without a coordinator.
 
 **No deadlock.** The dependencies point from an earlier step of the plan to a
-later one, so the graph of *waiting for* is acyclic: among the robots not at the
+later one, or to the same step where a robot follows another onto the vertex it
+leaves; plans have no rotation (:mod:`sqpmpc.coordination.mapf`), so no chain of
+following closes, and the graph of *waiting for* is acyclic: among the robots not at the
 end of their paths, the one whose next vertex comes first in the plan waits for
 nobody. It is free to move, and the robot it moves to has left its vertex (is
 within :math:`\rho` of the next one), so the two keep the collision rows'
