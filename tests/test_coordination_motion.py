@@ -1,7 +1,7 @@
 """The motion a robot tracks along its roadmap path (sqpmpc.coordination.motion): within
 the roadmap's reach and the robot's bounds, turning in place at rest, following a path
-that steps back in its order; and the QP that tracks it (input references, the motion as
-the linearization point) reproduces a feasible motion exactly."""
+that steps back in its order; and the QP that tracks it (its positions and inputs as
+references) has a feasible motion, linearized there, as its optimum."""
 
 from __future__ import annotations
 
@@ -152,6 +152,7 @@ def test_tracking_a_feasible_motion_reproduces_it_and_clearing_restores_the_pape
     rng = np.random.default_rng(3)
     u = np.column_stack((rng.uniform(0.1, 0.5, N), rng.uniform(-0.5, 0.5, N)))[None]
     states = engine.rollout(x0, u)
+    engine.set_guess(x0, u, converge_first=False)  # linearized at the motion itself
     engine.start_sample(x0)
     engine.update_motion(np.array([0]), states, u)
     report = engine.solve(x0, states[:, 1:, :2], started=True)

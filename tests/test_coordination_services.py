@@ -74,7 +74,7 @@ def test_lockstep_coordination_run_reproduces_the_in_process_run(tmp_path, schem
     # the controllers' counters (the rule's among them) reach the plant's metrics
     assert m["counters"] == counters
     assert counters["samples"] == steps * (1 if scheme == "centralized" else ROBOTS)
-    assert counters["coordination_linearized"] > 0  # the rule steered every robot's way
+    assert counters["coordination_tracked"] > 0  # the rule steered every robot's way
     goals = scenario.reference_positions(T_END)
     final = np.hypot(*(traj["states"][-1, :, :2] - goals).T)
     assert np.all(final <= 0.05), final  # every robot arrived
@@ -126,7 +126,7 @@ def test_a_robot_killed_and_restarted_mid_run_rejoins_in_plan_order_and_arrives(
     assert m["completed"] is True and m["missed_deadlines"] <= 1  # the sample it was killed in
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["obstacle_collisions"] == 0
-    assert m["counters"]["coordination_linearized"] > 0
+    assert m["counters"]["coordination_tracked"] > 0
     scenario = load_scenario(path)
     final = np.load(tmp_path / "out" / "trajectory.npz")["states"][-1]
     error = np.hypot(*(final[:, :2] - scenario.reference_positions(T_END)).T)

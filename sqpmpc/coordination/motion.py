@@ -7,9 +7,9 @@ the robot across the corner into the wall, where its heading points into the
 wall and its position-only tracking cost gives it no reason to turn (at
 :math:`v = 0` the linearized unicycle's position does not depend on its
 heading). :func:`path_motion` gives the motion a unicycle can make instead, and
-the controller uses it twice: its positions are the references of stages
-:math:`1..N`, and its poses and velocities the linearization point, so the QP sees
-the heading that makes the motion possible.
+the controller tracks it: its positions are the references of stages
+:math:`1..N` and its velocities the references of the inputs, so a robot that
+must turn in place is asked to (:meth:`sqpmpc.ocp.iteration.Iteration.update_motion`).
 
 **Geometry: within the reach.** Every corner of deflection :math:`\varphi` is
 replaced by the circular arc tangent to both segments whose middle is

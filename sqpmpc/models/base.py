@@ -184,7 +184,7 @@ class RobotModel(ABC):
                       ) -> tuple[np.ndarray, np.ndarray]:
         """The model's states ``(..., N+1, nx)`` and inputs ``(..., N, nu)`` of a motion given by
         its poses ``(..., N+1, 3)`` and velocities ``(v, omega)`` ``(..., N+1, 2)`` at the stages
-        (a linearization point: :mod:`sqpmpc.coordination.motion`)."""
+        (the references of a tracked motion: :mod:`sqpmpc.coordination.motion`)."""
 
     @abstractmethod
     def commands(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:

@@ -246,16 +246,13 @@ class MultipleShootingSQP:
 
     def update_motion(self, robots: np.ndarray, states: np.ndarray, inputs: np.ndarray) -> None:
         """The own robots ``robots (k,)`` track a motion of ``states (k, N+1, nx)`` and
-        ``inputs (k, N, nu)`` at this sample: it becomes their linearization point (stages
-        1..N; stage 0 stays the measured state; inputs clipped to their bounds) and the
-        reference of their inputs and velocity states (:meth:`SparseQP.update_input_references`;
-        the other robots' are 0, the paper's cost, until :meth:`clear_motion`)."""
-        L = self.layout
+        ``inputs (k, N, nu)`` at this sample: its inputs (clipped to their bounds) and its
+        velocity states of stages 1..N become the references of theirs
+        (:meth:`SparseQP.update_input_references`; the other robots' are 0, the paper's
+        cost, until :meth:`clear_motion`). The linearization point stays the iterate."""
         rows = np.asarray(robots, dtype=np.int64)
         states = np.asarray(states, dtype=float)
         inputs = np.clip(inputs, self.model.input_lower, self.model.input_upper)
-        self.z[L.state_index[rows, 1:]] = states[:, 1:]
-        self.z[L.input_index[rows]] = inputs
         if self._motion:
             self.clear_motion()
         vel = list(self.model.velocity_states)

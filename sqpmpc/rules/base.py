@@ -291,10 +291,11 @@ class Contribution:
         pipeline applies a contribution at once, so a rule may hand out a buffer it
         reuses at the next sample.
     motions
-        ``(rows (k,), poses (k, N+1, 3), velocities (k, N+1, 2))``: the linearization point
-        of the own robots ``rows`` becomes these motions (``"guess"`` hooks;
+        ``(rows (k,), poses (k, N+1, 3), velocities (k, N+1, 2))``: the own robots ``rows``
+        track these motions at this sample: their inputs and velocity states become the
+        references of the robots' (``"references"`` hooks;
         :meth:`~sqpmpc.models.base.RobotModel.motion_states` gives the model's states and
-        inputs).
+        inputs; :meth:`~sqpmpc.ocp.iteration.Iteration.update_motion`).
     iterate
         Iterate this sample to convergence (SQP) after the RTI step
         (``"after_solve"`` hooks).

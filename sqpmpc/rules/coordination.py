@@ -7,9 +7,11 @@ at each sample the controller counts every robot's progress from the measured
 positions, and each of its own robots tracks the motion along the open part of
 its path (:func:`sqpmpc.coordination.motion.path_motion`): from the vertex behind
 it to the last vertex it may enter now (its goal once the whole path is open),
-stopping there. The motion's positions are the references of stages 1..N
-(``"references"`` hook) and its poses and velocities the linearization point and
-the reference of the inputs (``"guess"`` hook). At the end of its open path a
+stopping there. The motion's positions are the references of stages 1..N and its
+velocities the references of the inputs (and velocity states): the cost is
+:math:`\|u - u^{\mathrm{ref}}\|_R`, so a robot at rest that must turn is asked to
+turn (at :math:`v = 0` the linearized unicycle's position does not depend on its
+heading: a cost on positions alone gave it no reason to). At the end of its open path a
 robot heads straight at the end, facing it first (a unicycle does not close a
 sideways gap by itself), until it is within half the roadmap's reach, where the
 NMPC's own final approach takes over.
@@ -43,8 +45,8 @@ __all__ = ["Coordination"]
 
 
 class _Instance(RuleInstance):
-    hooks = ("references", "guess")
-    counter_names = ("coordination_holds", "coordination_replans", "coordination_linearized")
+    hooks = ("references",)
+    counter_names = ("coordination_holds", "coordination_replans", "coordination_tracked")
 
     def __init__(self, rule: Rule, context: RuleContext) -> None:
         super().__init__(rule, context)
@@ -144,18 +146,12 @@ class _Instance(RuleInstance):
             self._poses[m] = motion.poses
             self._velocities[m] = motion.velocities
             self._tracked[m] = True
-        return Contribution(references=out)
-
-    def shape_guess(self, view: SampleView) -> Contribution | None:
-        """The linearization point of every robot on its way becomes its motion
-        (:mod:`sqpmpc.coordination.motion`): the QP sees the headings and speeds that make
-        the motion possible (at ``v = 0`` the linearized unicycle cannot turn)."""
-        if self.plan is None or not self._tracked.any():
-            return None
+        if not self._tracked.any():
+            return Contribution(references=out)
         rows = np.flatnonzero(self._tracked)
-        self.counts["coordination_linearized"] += rows.size
-        return Contribution(motions=(rows, self._poses[rows], self._velocities[rows]))
-
+        self.counts["coordination_tracked"] += rows.size
+        return Contribution(references=out,
+                            motions=(rows, self._poses[rows], self._velocities[rows]))
 
 @dataclass(frozen=True)
 class Coordination(Rule):
