@@ -29,6 +29,7 @@ REPORTS: dict[str, str] = {
     "liveness.md": "python -m benchmarks.liveness",
     "random-scenarios.md": "python -m benchmarks.random_scenarios",
     "maps.md": "python -m benchmarks.maps",
+    "mapf-maps.md": "python -m benchmarks.mapf_maps --maps-dir DIR",
     "qp-backends.md": "python -m benchmarks.qp_backends",
     "fleet.md": "python -m benchmarks.fleet",
     "fleet-services.md": "python -m benchmarks.fleet_services",
