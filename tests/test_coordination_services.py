@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.messages import decode
-from services.testing import Probe, free_ports, start_service, stop_processes
+from services.testing import stop_processes
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.registry import default_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+from tests.service_helpers import kill_and_restart, start_run
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
 pytestmark = pytest.mark.timeout(900)
@@ -88,35 +88,12 @@ def test_a_robot_killed_and_restarted_mid_run_rejoins_in_plan_order_and_arrives(
     joins at (``Execution.resume``) and every robot arrives, 0 collisions."""
     path = _maze(tmp_path)
     run = "coordination-rejoin"
-    ports = free_ports(2 + ROBOTS)
-    probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
-    probe = Probe(run, [], (("plant", "state"),), listen=[probe_ep])
-    common = ["--scenario", str(path), "--t-end", str(T_END), "--run", run]
-    plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
-                                    "--out", str(tmp_path / "out"), "--no-plots",
-                                    "--rejoin-timeout", "90"], tmp_path / "logs")
-    robots = {
-        i: start_service("robot", ["--id", str(i), *common, "--listen",
-                                   f"tcp/127.0.0.1:{port}", "--connect", plant_ep],
-                         tmp_path / "logs", name=f"robot-{i}")
-        for i, port in zip(range(1, ROBOTS + 1), ports[2:], strict=True)
-    }
+    probe, plant, robots, _ = start_run(
+        tmp_path, run, list(range(1, ROBOTS + 1)), T_END, scenario=str(path),
+        plant_args=("--rejoin-timeout", "90"), subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
-
-    def newest() -> int:
-        return max((decode(e.payload, 8).sample for e in probe.events), default=-1)
-
     try:
-        assert probe.wait_for(lambda: newest() >= 15, 60), plant.output()
-        robots[2].proc.kill()
-        robots[2].wait(10)
-        assert probe.wait_for(lambda: "robot/2" not in probe.alive, 10)
-        robots[2] = start_service("robot", robots[2].argv[3:], tmp_path / "logs",
-                                  name="robot-2-again")
-        procs.append(robots[2])
-        assert plant.wait(90) == 0, plant.output()
-        for r in robots.values():
-            assert r.wait(30) == 0, r.output()
+        kill_and_restart(probe, plant, robots, procs, 2, 15, tmp_path / "logs")
     finally:
         probe.close()
         stop_processes(procs)

@@ -31,6 +31,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+from tests.service_helpers import kill_and_restart, newest_sample, start_run
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
 pytestmark = pytest.mark.timeout(900)
@@ -119,24 +120,9 @@ def test_sigterm_to_the_launcher_leaves_no_child(tmp_path):
     assert m["completed"] is False and m["interrupted"] == "SIGINT"
 
 
-def _start_run(tmp_path: Path, run: str, ids: list[int], t_end: float,
-               plant_args: tuple[str, ...] = (), robot_args: tuple[str, ...] = (),
-               subscriptions: tuple[tuple[object, ...], ...] = ()):
-    """A probe (listening first, so the plant connects to it at once), the plant, robots."""
-    ports = free_ports(2 + len(ids))
-    probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
-    probe = Probe(run, [], subscriptions, listen=[probe_ep])
-    common = ["--scenario", SCENARIO, "--t-end", str(t_end), "--run", run]
-    plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
-                                    "--out", str(tmp_path / "out"), "--no-plots", *plant_args],
-                          tmp_path / "logs")
-    robots = {
-        i: start_service("robot", ["--id", str(i), *common, "--listen",
-                                   f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *robot_args],
-                         tmp_path / "logs", name=f"robot-{i}")
-        for i, port in zip(ids, ports[2:], strict=True)
-    }
-    return probe, plant, robots, plant_ep
+def _start_run(tmp_path: Path, run: str, ids: list[int], t_end: float, **kwargs):
+    """:func:`tests.service_helpers.start_run` of this file's scenario."""
+    return start_run(tmp_path, run, ids, t_end, scenario=SCENARIO, **kwargs)
 
 
 def test_invalid_messages_are_dropped_and_counted(tmp_path):
@@ -250,7 +236,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
 
         assert probe.wait_for(lambda: joined() is not None, 150), plant.output()
         k = int(joined().group(1))
-        assert probe.wait_for(lambda: _newest(probe) >= k + 100, 120), plant.output()
+        assert probe.wait_for(lambda: newest_sample(probe) >= k + 100, 120), plant.output()
         plant.proc.send_signal(signal.SIGINT)  # the plant writes what it simulated
         assert plant.wait(90) == 128 + signal.SIGINT, plant.output()
         for r in robots.values():
@@ -334,10 +320,6 @@ def test_a_run_no_controller_ever_answered_is_not_a_success(tmp_path):
     assert "Traceback" not in plant.output()
 
 
-def _newest(probe: Probe) -> int:
-    return max((decode(e.payload, 8).sample for e in probe.events), default=-1)
-
-
 def test_a_robot_killed_and_restarted_rejoins_the_lockstep_run(tmp_path):
     """kill -9 of robot 2 at sample 20 of a lockstep run, then its command again: the plant
     waits for it (``--rejoin-timeout``) and it rejoins at the sample where it left."""
@@ -347,16 +329,7 @@ def test_a_robot_killed_and_restarted_rejoins_the_lockstep_run(tmp_path):
         subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
-        assert probe.wait_for(lambda: _newest(probe) >= 20, 60), plant.output()
-        robots[2].proc.kill()
-        robots[2].wait(10)
-        assert probe.wait_for(lambda: "robot/2" not in probe.alive, 10)
-        robots[2] = start_service("robot", robots[2].argv[3:], tmp_path / "logs",
-                                  name="robot-2-again")
-        procs.append(robots[2])
-        assert plant.wait(90) == 0, plant.output()
-        for r in robots.values():
-            assert r.wait(30) == 0, r.output()
+        kill_and_restart(probe, plant, robots, procs, 2, 20, tmp_path / "logs")
     finally:
         probe.close()
         stop_processes(procs)
@@ -385,7 +358,7 @@ def test_every_process_ends_with_one_line_when_the_others_are_gone(tmp_path):
     procs = [alone, plant, *robots.values()]
     try:
         assert alone.wait(60) == 1, alone.output()
-        assert probe.wait_for(lambda: _newest(probe) >= 5, 60), plant.output()
+        assert probe.wait_for(lambda: newest_sample(probe) >= 5, 60), plant.output()
         for r in robots.values():
             r.proc.kill()
         assert plant.wait(60) == 1, plant.output()

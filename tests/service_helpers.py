@@ -1,0 +1,54 @@
+"""Set-ups shared by the services tests: a run's processes over Zenoh on loopback and a
+robot controller killed and started again."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from services.messages import decode
+from services.testing import Probe, ServiceProcess, free_ports, start_service
+
+__all__ = ["kill_and_restart", "newest_sample", "start_run"]
+
+
+def start_run(tmp_path: Path, run: str, ids: list[int], t_end: float, *, scenario: str,
+              plant_args: tuple[str, ...] = (), robot_args: tuple[str, ...] = (),
+              subscriptions: tuple[tuple[object, ...], ...] = ()
+              ) -> tuple[Probe, ServiceProcess, dict[int, ServiceProcess], str]:
+    """A probe (listening first, so the plant connects to it at once), the plant, robots."""
+    ports = free_ports(2 + len(ids))
+    probe_ep, plant_ep = (f"tcp/127.0.0.1:{p}" for p in ports[:2])
+    probe = Probe(run, [], subscriptions, listen=[probe_ep])
+    common = ["--scenario", scenario, "--t-end", str(t_end), "--run", run]
+    plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
+                                    "--out", str(tmp_path / "out"), "--no-plots", *plant_args],
+                          tmp_path / "logs")
+    robots = {
+        i: start_service("robot", ["--id", str(i), *common, "--listen",
+                                   f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *robot_args],
+                         tmp_path / "logs", name=f"robot-{i}")
+        for i, port in zip(ids, ports[2:], strict=True)
+    }
+    return probe, plant, robots, plant_ep
+
+
+def newest_sample(probe: Probe) -> int:
+    """The newest sample of the plant's states the probe received (-1: none yet)."""
+    return max((decode(e.payload, 8).sample for e in probe.events), default=-1)
+
+
+def kill_and_restart(probe: Probe, plant: ServiceProcess, robots: dict[int, ServiceProcess],
+                     procs: list[ServiceProcess], robot: int, sample: int, logs: Path) -> None:
+    """``kill -9`` of robot ``robot``'s controller once the plant is at ``sample``, its
+    command started again (added to ``procs``), then every process of the lockstep run
+    waited for: each must end with status 0."""
+    assert probe.wait_for(lambda: newest_sample(probe) >= sample, 60), plant.output()
+    robots[robot].proc.kill()
+    robots[robot].wait(10)
+    assert probe.wait_for(lambda: f"robot/{robot}" not in probe.alive, 10)
+    robots[robot] = start_service("robot", robots[robot].argv[3:], logs,
+                                  name=f"robot-{robot}-again")
+    procs.append(robots[robot])
+    assert plant.wait(90) == 0, plant.output()
+    for r in robots.values():
+        assert r.wait(30) == 0, r.output()
