@@ -59,6 +59,7 @@ from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
+from .report import publish
 
 __all__ = ["CASES", "AcadosPeer", "CaseResult", "build_parser", "import_acados", "load_case",
            "main", "render", "run_case"]
@@ -367,9 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.acados_peer " + " ".join(argv if argv is not None
                                                               else sys.argv[1:])
     text = render(results, machine_info(), command.strip(), time.perf_counter() - started)
-    print(text)
-    if not args.no_write:
-        DOC_PATH.write_text(text)
+    publish(text, None if args.no_write else DOC_PATH)
     return 0
 
 

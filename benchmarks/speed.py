@@ -61,6 +61,7 @@ from sqpmpc.rules.registry import select_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation
 
 from .compare_ipopt import machine_info
+from .report import publish
 
 __all__ = ["fleets", "main", "maze", "maze_scenario", "paper", "profile", "qp_tail"]
 
@@ -365,9 +366,7 @@ def main(argv: list[str] | None = None) -> int:
                                                         else sys.argv[1:])
     text = render(tail, maze_rows, fleet_rows, prof, acados, command.strip(),
                   time.perf_counter() - started, paper_rows, verdicts)
-    print(text)
-    if not args.no_write:
-        DOC_PATH.write_text(text)
+    publish(text, None if args.no_write else DOC_PATH)
     return 0
 
 
