@@ -131,17 +131,17 @@ class _Instance(RuleInstance):
                     continue
                 # straight at it (facing it first: a unicycle does not close a sideways gap
                 # by itself); it is nearer to it than to the vertex before
-                points = np.stack((here[:2], end))
+                points, halt, within = np.stack((here[:2], end)), True, 1
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
                 stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
                 points = execution.path_points(row, back, stop)
                 if stop == last:
                     points = np.concatenate((points, plan.goals[row][None]))
+                halt, within = stop == k, p + 1 - back  # projected up to the next vertex
             motion = path_motion(points, here, float(view.applied[m, 0]), reach,
                                  c.sample_time, c.horizon, self._speed, self._turn, self._accel,
-                                 stop=k <= p or stop == k,
-                                 within=1 if k <= p else p + 1 - max(p - 1, 0))
+                                 stop=halt, within=within)
             out[m] = motion.poses[1:, :2]
             self._poses[m] = motion.poses
             self._velocities[m] = motion.velocities
