@@ -248,7 +248,7 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
     if first is not None:
         return first
     rng = np.random.default_rng(seed)
-    pibt = _PIBT(neighbours, dist, rng, roadmap.size, _straight_on(roadmap, neighbours))
+    pibt = _PIBT(neighbours, dist, rng, roadmap.size, _straight_on(roadmap))
     goal = tuple(goals.tolist())
     start = tuple(starts.tolist())
     priorities = [dist[i][start[i]] / (roadmap.size + 1.0) for i in range(n)]
@@ -364,21 +364,28 @@ def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: l
     return np.array([p + [p[-1]] * (horizon - len(p)) for p in paths], dtype=np.int64).T
 
 
-def _straight_on(roadmap: Roadmap, neighbours: list[list[int]]) -> dict[tuple[int, int], int]:
-    """``(u, v) -> w``: the neighbour ``w`` of ``v`` straight on from the edge ``u -> v``
-    (``w - v`` parallel to ``v - u``), where there is one."""
-    pos = roadmap.positions
-    out: dict[tuple[int, int], int] = {}
-    for v, around in enumerate(neighbours):
-        for u in around:
-            back = pos[v] - pos[u]
-            for w in around:
-                step = pos[w] - pos[v]
-                if w != u and abs(back[0] * step[1] - back[1] * step[0]) <= 1e-9 * (
-                        1.0 + float(back @ back)) and float(back @ step) > 0.0:
-                    out[(u, v)] = w
-                    break
-    return out
+def _straight_on(roadmap: Roadmap) -> dict[tuple[int, int], int]:
+    """``(u, v) -> w``: the first neighbour ``w`` of ``v`` straight on from the edge
+    ``u -> v`` (``w - v`` parallel to ``v - u``, same way), where there is one."""
+    ptr, idx, pos = roadmap.indptr, roadmap.indices, roadmap.positions
+    degree = np.diff(ptr)
+    u = np.repeat(np.arange(roadmap.size), degree)  # the directed edges u -> v
+    v = idx
+    # every continuation v -> w of every edge, in v's neighbour order
+    count = degree[v]
+    edge = np.repeat(np.arange(v.size), count)
+    offset = np.arange(edge.size) - np.repeat(np.cumsum(count) - count, count)
+    w = idx[np.repeat(ptr[v], count) + offset]
+    back = (pos[v] - pos[u])[edge]
+    step = pos[w] - pos[v][edge]
+    cross = np.abs(back[:, 0] * step[:, 1] - back[:, 1] * step[:, 0])
+    ok = (w != u[edge]) & (cross <= 1e-9 * (1.0 + np.einsum("ij,ij->i", back, back))) & (
+        np.einsum("ij,ij->i", back, step) > 0.0)
+    first = np.unique(edge[ok], return_index=True)[1]  # the first straight one per edge
+    chosen = np.flatnonzero(ok)[first]
+    e = edge[chosen]
+    return dict(zip(zip(u[e].tolist(), v[e].tolist(), strict=True), w[chosen].tolist(),
+                    strict=True))
 
 
 def _order(priorities: list[float]) -> list[int]:
