@@ -31,10 +31,11 @@ from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.rules.registry import select_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation
 
+from .maps import TOLERANCE, run_until_home
+
 __all__ = ["main", "run_one"]
 
 MAPS = ("warehouse-10-20-10-2-1", "room-32-32-4", "random-32-32-10", "maze-32-32-2")
-TOLERANCE = 0.05
 V_MAX = 1.0
 
 
@@ -49,18 +50,11 @@ def run_one(map_path: Path, scen_path: Path | None, robots: int, scheme: str, ce
     coordination = sim.controllers[0].rule("coordination")
     plan = None if coordination is None else coordination.plan
     cpu0 = time.process_time()
-    goals = sc.reference_positions(0.0)
-    settle = int(round(10.0 / sc.sample_time))
-    inside_for = 0
-    while sim.k < sc.steps:  # stopped once every robot has stayed home for 10 s
-        sim.step()
-        home = np.hypot(*(sim.states[sim.k, :, :2] - goals).T).max() <= TOLERANCE
-        inside_for = inside_for + 1 if home else 0
-        if inside_for > settle:
-            break
+    run_until_home(sim)  # stopped once every robot has stayed home for 10 s
     cpu = time.process_time() - cpu0
     record = sim.record()
     m = compute_metrics(record)
+    goals = sc.reference_positions(0.0)
     err = np.hypot(*(record.states[:, :, :2] - goals[None]).transpose(2, 0, 1))
     inside = err <= TOLERANCE
     arrival = np.full(sc.n_robots, math.inf)

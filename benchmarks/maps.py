@@ -48,7 +48,7 @@ from sqpmpc.rules.registry import select_rules
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation
 
-__all__ = ["classify", "family_scenario", "main"]
+__all__ = ["classify", "family_scenario", "main", "run_until_home"]
 
 V_MAX = 0.6
 TOLERANCE = 0.05
@@ -156,11 +156,10 @@ def classify(record: RunRecord, metrics: dict) -> dict:
             "obstacle_clearance": metrics["min_obstacle_clearance"]}
 
 
-def _run(sc: Scenario, scheme: str, settings: SolverSettings | None = None) -> dict:
-    """One closed loop, stopped early once every robot has stayed within the tolerance of
-    its goal at rest for 10 s (nothing moves any more: every rule is quiet)."""
-    t0 = time.perf_counter()
-    sim = ClosedLoopSimulation(sc, scheme, settings)
+def run_until_home(sim: ClosedLoopSimulation) -> None:
+    """Step ``sim`` to its scenario's end, or until every robot, all with goals at rest, has
+    stayed within :data:`TOLERANCE` of its goal for 10 s (nothing moves any more)."""
+    sc = sim.scenario
     goals = sc.reference_positions(sc.t_end)
     at_rest = all(type(r.reference).__name__ == "PointReference" for r in sc.robots)
     settle = int(round(10.0 / sc.sample_time))
@@ -172,6 +171,14 @@ def _run(sc: Scenario, scheme: str, settings: SolverSettings | None = None) -> d
             inside_for = inside_for + 1 if err <= TOLERANCE else 0
             if inside_for > settle:
                 break
+
+
+def _run(sc: Scenario, scheme: str, settings: SolverSettings | None = None) -> dict:
+    """One closed loop, stopped early once every robot has stayed within the tolerance of
+    its goal at rest for 10 s (nothing moves any more: every rule is quiet)."""
+    t0 = time.perf_counter()
+    sim = ClosedLoopSimulation(sc, scheme, settings)
+    run_until_home(sim)
     record = sim.record()
     out = classify(record, compute_metrics(record))
     out.update(name=sc.name, robots=sc.n_robots, scheme=scheme,
