@@ -79,7 +79,7 @@ def default_names(scenario: Scenario | None = None) -> list[str]:
     its robots move on (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`) the
     ``coordination`` rule alone; for any other (and without a scenario) every built-in
     rule but :data:`OPT_IN`."""
-    if scenario is not None and getattr(scenario, "roadmap", None) is not None:
+    if scenario is not None and scenario.roadmap is not None:
         return ["coordination"]
     return [name for name in RULES if name not in OPT_IN]
 
