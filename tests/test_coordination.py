@@ -10,7 +10,7 @@ import pytest
 from scipy.sparse.csgraph import connected_components
 
 from sqpmpc.coordination.fleet import fleet_plan
-from sqpmpc.coordination.mapf import PlanningError, plan_paths
+from sqpmpc.coordination.mapf import PlanningError, distance_tables, plan_paths
 from sqpmpc.coordination.roadmap import build_roadmap
 from sqpmpc.coordination.schedule import Execution, Schedule
 from sqpmpc.errors import ProblemError, ScenarioError
@@ -142,16 +142,44 @@ def test_the_maze_plan_is_conflict_free() -> None:
     check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
 
 
+@pytest.mark.parametrize("method", ["auto", "lacam"])
 @pytest.mark.parametrize("seed", range(6))
-def test_random_instances_are_planned_conflict_free(seed: int) -> None:
+def test_random_instances_are_planned_conflict_free(seed: int, method: str) -> None:
     rng = np.random.default_rng(seed)
     sc, plan = _maze_plan()
     roadmap = plan.roadmap
     k = int(rng.integers(2, 10))
     starts = rng.choice(roadmap.size, k, replace=False)
     goals = rng.choice(roadmap.size, k, replace=False)
-    configs = plan_paths(roadmap, starts, goals, seed=seed)
+    configs = plan_paths(roadmap, starts, goals, seed=seed, method=method)
     check_plan(_edges(roadmap), configs, starts, goals)
+
+
+def test_prioritized_plans_are_conflict_free_and_no_shorter_than_the_lower_bound() -> None:
+    """Dense instances (a sixth of the maze's vertices) where the first order of
+    prioritized planning can fail: what it returns is a valid plan, and what it cannot
+    plan is refused by name (LaCAM then plans it, in ``auto``)."""
+    sc, plan = _maze_plan()
+    roadmap = plan.roadmap
+    solved = 0
+    for seed in range(12):
+        rng = np.random.default_rng(100 + seed)
+        k = roadmap.size // 6
+        starts = rng.choice(roadmap.size, k, replace=False)
+        goals = rng.choice(roadmap.size, k, replace=False)
+        table = distance_tables(roadmap, goals)
+        bound = int(table[np.arange(k), starts].max())
+        try:
+            configs = plan_paths(roadmap, starts, goals, method="prioritized")
+        except PlanningError as error:
+            assert "prioritized planning found no plan" in str(error)
+            continue
+        solved += 1
+        check_plan(_edges(roadmap), configs, starts, goals)
+        assert configs.shape[0] - 1 >= bound
+    assert solved > 0
+    with pytest.raises(PlanningError, match="unknown planning method"):
+        plan_paths(roadmap, roadmap.starts, roadmap.goals, method="cbs")
 
 
 def test_a_goal_cut_off_or_shared_is_refused_by_name() -> None:

@@ -165,10 +165,23 @@ def smooth_path(points: np.ndarray, reach: float, step: float
     return np.concatenate(xy), np.concatenate(psi), marks[kept]
 
 
+def _nearest(points: np.ndarray, here: np.ndarray) -> tuple[float, np.ndarray, int]:
+    """The distance from ``here`` to the polyline ``points (K >= 2, 2)``, the nearest point
+    and its segment (the last of equally near ones)."""
+    a, b = points[:-1], points[1:]
+    d = b - a
+    dd = np.einsum("ij,ij->i", d, d)
+    f = np.clip(np.einsum("ij,ij->i", here - a, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+    near = a + f[:, None] * d
+    gaps = np.hypot(*(near - here).T)
+    i = int(np.flatnonzero(gaps <= gaps.min() + 1e-9)[-1])
+    return float(gaps[i]), near[i], i
+
+
 def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float,
                 sample_time: float, horizon: int, max_speed: float, max_turn_rate: float,
-                acceleration: float | None, stop: bool = True, within: int | None = None
-                ) -> Motion:
+                acceleration: float | None, stop: bool = True, within: int | None = None,
+                reverse: bool = False) -> Motion:
     r"""The motion along ``points (K, 2)`` (``K >= 2``: the path from the vertex behind
     the robot to the end of its open part) of a robot at ``pose (3,)`` moving at
     ``speed`` (module docstring).
@@ -196,37 +209,58 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
         The robot is projected on the path up to ``points[within]`` (default: the whole
         path), the furthest of equally near points: a path that comes back over itself
         (a plan's step back) is followed in its order.
+    reverse
+        Drive backwards (``speed`` is then the forward speed, negative when reversing):
+        the motion of the robot turned by a half-turn, its speeds negated.
     """
     T, N = float(sample_time), int(horizon)
     v_max, w_max = float(max_speed), float(max_turn_rate)
+    if reverse:  # backwards is forwards with the heading turned by a half-turn
+        flipped = np.array([pose[0], pose[1], float(pose[2]) + math.pi])
+        motion = path_motion(points, flipped, -float(speed), reach, sample_time, horizon,
+                             max_speed, max_turn_rate, acceleration, stop=stop, within=within)
+        poses = motion.poses.copy()
+        poses[:, 2] -= math.pi
+        velocities = motion.velocities.copy()
+        velocities[:, 0] *= -1.0
+        return Motion(poses, velocities)
     step = 0.25 * v_max * T
-    xy, psi, marks = smooth_path(points, reach, step)
-    if xy.shape[0] < 2:  # a path of one point
-        xy, psi = np.concatenate((xy, xy)), np.full(2, float(pose[2]))
-        marks = np.ones(len(points), dtype=np.int64)
-    last = max(int(marks[len(points) - 1 if within is None else within]), 1)
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
     here = np.asarray(pose[:2], dtype=float)
     theta0 = float(pose[2])
-    # the robot's projection on the path: the nearest point of the sampled polyline
-    a, b = xy[:last], xy[1:last + 1]
-    d = b - a
-    dd = np.einsum("ij,ij->i", d, d)
-    f = np.clip(np.einsum("ij,ij->i", here - a, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
-    gap = np.hypot(*(a + f[:, None] * d - here).T)
-    i = int(np.flatnonzero(gap <= gap.min() + 1e-9)[-1])
-    q = a[i] + f[i] * d[i]
-    psi_q = psi[i] + f[i] * (psi[i + 1] - psi[i])
-    if gap[i] > reach:  # out of the tube: straight back to the path first, then along it
-        lead = math.atan2(q[1] - here[1], q[0] - here[0])
-        turn = _wrap(psi_q - lead)
-        n = max(1, math.ceil(float(gap[i]) / step))
-        back = here + np.linspace(0.0, 1.0, n + 1)[:, None] * (q - here)
-        xy = np.concatenate((back, q[None], xy[i + 1:]))
-        psi = np.concatenate((np.full(n + 1, lead), [lead + turn],
-                              psi[i + 1:] + (lead + turn - psi_q)))
+    xy, psi, marks = smooth_path(pts, reach, step)
+    if xy.shape[0] < 2:  # a path of one point
+        xy, psi = np.concatenate((xy, xy)), np.full(2, theta0)
+        marks = np.ones(len(pts), dtype=np.int64)
+    w = len(pts) - 1 if within is None else min(int(within), len(pts) - 1)
+    last = max(int(marks[w]), 1)
+    # the robot's projection on the path (up to points[within]): the furthest of the
+    # nearest points, so that a path that steps back is followed in its order
+    gap, q, i = _nearest(xy[:last + 1], here)
+    ds = np.hypot(*np.diff(xy, axis=0).T)
+    s = np.concatenate(([0.0], np.cumsum(ds)))
+    s_q = s[i] + float(np.hypot(*(q - xy[i])))
+    if gap > reach:  # out of the tube: straight back to the path first
+        s_join = s_q
+    else:  # in it: straight to the path 2 rho ahead (not past a turn in place or the end)
+        still = np.flatnonzero(ds[i + 1:] <= 1e-12)
+        s_join = min(s_q + 2.0 * reach, s[i + 1 + still[0]] if still.size else s[-1])
+    j = min(int(np.searchsorted(s, s_join, side="right")) - 1, xy.shape[0] - 2)
+    f = (s_join - s[j]) / ds[j] if ds[j] > 0 else 0.0
+    target = xy[j] + f * (xy[j + 1] - xy[j])
+    psi_t = psi[j] + f * (psi[j + 1] - psi[j])
+    span = float(np.hypot(*(target - here)))
+    lead = math.atan2(target[1] - here[1], target[0] - here[0]) if span > 1e-9 else psi_t
+    lead = psi_t + _wrap(lead - psi_t)
+    n = max(1, math.ceil(span / step))
+    line = here + np.linspace(0.0, 1.0, n + 1)[:, None] * (target - here)
+    rest = slice(j + 1, None)
+    if span > 1e-9:  # along the line, turning onto the path's heading on the way
+        xy = np.concatenate((line, xy[rest]))
+        psi = np.concatenate((lead + (psi_t - lead) * np.linspace(0.0, 1.0, n + 1), psi[rest]))
     else:
-        xy = np.concatenate((q[None], xy[i + 1:]))
-        psi = np.concatenate(([psi_q], psi[i + 1:]))
+        xy = np.concatenate((target[None], xy[rest]))
+        psi = np.concatenate(([psi_t], psi[rest]))
     # headings on the robot's branch, its error turned away at its speed (in place at rest)
     psi = psi + (theta0 + _wrap(psi[0] - theta0) - psi[0])
     error = theta0 - psi[0]

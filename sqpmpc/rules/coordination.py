@@ -44,6 +44,10 @@ from sqpmpc.rules.base import Contribution, Rule, RuleContext, RuleInstance, Sam
 __all__ = ["Coordination"]
 
 
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
 class _Instance(RuleInstance):
     hooks = ("references",)
     counter_names = ("coordination_holds", "coordination_replans", "coordination_tracked")
@@ -73,6 +77,8 @@ class _Instance(RuleInstance):
         self.rows = np.array([where.get(int(i), -1) for i in c.own], dtype=np.int64)
         bounds = c.scenario.bounds
         self._speed = float(bounds.v[1])
+        self._reverse = float(bounds.v[0]) < 0.0
+        self._back = min(-float(bounds.v[0]), self._speed)  # the speed bound backwards
         self._turn = float(min(-bounds.omega[0], bounds.omega[1]))
         self._accel = None if bounds.acceleration is None else float(
             min(-bounds.acceleration[0], bounds.acceleration[1]))
@@ -123,15 +129,20 @@ class _Instance(RuleInstance):
             if k <= p and p < last:
                 self.counts["coordination_holds"] += 1
             here = view.own_states[m]
+            reverse = False
             if k <= p:  # at the end of its open path: its progress vertex, or its goal
                 end = plan.goals[row] if p >= last else execution.path_points(row, p, p)[0]
                 gap = math.hypot(end[0] - here[0], end[1] - here[1])
-                if gap <= 0.5 * reach:
-                    out[m] = end  # there: the NMPC's own final approach
+                # at a vertex it waits within the reach; its goal it closes to half of it,
+                # where the NMPC's own final approach takes over
+                if gap <= (0.5 * reach if p >= last else reach):
+                    out[m] = end
                     continue
-                # straight at it (facing it first: a unicycle does not close a sideways gap
-                # by itself); it is nearer to it than to the vertex before
+                # straight at it, facing it first (a unicycle does not close a sideways gap
+                # by itself), backwards when it is behind and the bounds allow
                 points, halt, within = np.stack((here[:2], end)), True, 1
+                bearing = math.atan2(end[1] - here[1], end[0] - here[0])
+                reverse = self._reverse and abs(_wrap(bearing - here[2])) > 0.5 * math.pi
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
                 stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
@@ -140,8 +151,9 @@ class _Instance(RuleInstance):
                     points = np.concatenate((points, plan.goals[row][None]))
                 halt, within = stop == k, p + 1 - back  # projected up to the next vertex
             motion = path_motion(points, here, float(view.applied[m, 0]), reach,
-                                 c.sample_time, c.horizon, self._speed, self._turn, self._accel,
-                                 stop=halt, within=within)
+                                 c.sample_time, c.horizon, self._back if reverse else self._speed,
+                                 self._turn, self._accel,
+                                 stop=halt, within=within, reverse=reverse)
             out[m] = motion.poses[1:, :2]
             self._poses[m] = motion.poses
             self._velocities[m] = motion.velocities
