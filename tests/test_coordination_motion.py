@@ -103,6 +103,33 @@ def test_a_robot_out_of_the_tube_goes_straight_back_to_its_path_first() -> None:
     assert np.abs(np.diff(m.poses[:, 2])).max() <= W_MAX * T + 1e-9
 
 
+def test_a_robot_beside_its_path_starts_from_where_it_is() -> None:
+    """At rest 0.05 m beside the path (inside a 0.06 m reach), facing along it: the first
+    stage is a move it can make (no sideways jump onto the path: at most a_max T^2 / 2 of
+    travel from rest), and it joins the path within the reach."""
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    pose = np.array([0.3, 0.05, 0.0])
+    m = path_motion(points, pose, 0.0, 0.06, T, 30, V_MAX, W_MAX, ACCEL)
+    assert math.hypot(*(m.poses[1, :2] - pose[:2])) <= 0.5 * ACCEL * T ** 2 + 1e-9
+    assert np.all(np.diff(m.poses[:, 1]) <= 1e-12)  # the offset only shrinks
+    assert abs(m.poses[-1, 1]) < 1e-9 and m.poses[-1, 0] > 1.5
+
+
+def test_backwards_is_forwards_turned_by_a_half_turn() -> None:
+    """A point 0.3 m behind a robot that may reverse: it backs up to it, never turning."""
+    here = np.array([1.0, 0.0, 0.0])
+    m = path_motion(np.array([[1.0, 0.0], [0.7, 0.0]]), here, 0.0, 0.06, T, 20, V_MAX,
+                    W_MAX, ACCEL, reverse=True)
+    np.testing.assert_array_equal(m.poses[0], here)
+    assert m.velocities[:, 0].max() <= 0.0 and m.velocities[:, 0].min() < 0.0
+    np.testing.assert_allclose(m.poses[:, 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(m.poses[-1, :2], [0.7, 0.0], atol=1e-12)
+    ahead = path_motion(np.array([[1.0, 0.0], [0.7, 0.0]]), np.array([1.0, 0.0, math.pi]),
+                        0.0, 0.06, T, 20, V_MAX, W_MAX, ACCEL)
+    np.testing.assert_allclose(m.poses[:, :2], ahead.poses[:, :2], atol=1e-12)
+    np.testing.assert_allclose(m.velocities[:, 0], -ahead.velocities[:, 0], atol=1e-12)
+
+
 def test_the_motion_stops_at_the_end_of_the_open_path() -> None:
     points = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.5]])
     m = path_motion(points, np.array([0.0, 0.0, 0.0]), 0.0, 0.06, T, 40, V_MAX, W_MAX, ACCEL)

@@ -21,14 +21,20 @@ corner vertex,
 (the arc's tangent points, :math:`R\tan(\varphi/2)` from the vertex, are kept to
 half of each segment), so the path stays within :math:`\rho` of the roadmap's
 vertices and edges, the tube in which the roadmap's separation argument holds. A
-half-turn (:math:`R \to 0`) is a turn in place. The robot starts at its
+half-turn (:math:`R \to 0`) is a turn in place. The motion starts at the robot's
+own pose, so that its first stage is a move the robot can make: from the robot's
 projection on this path (on the segments into and out of its progress vertex,
-the furthest of equally near points, so a path that steps back is followed in
-its order), its own heading's error :math:`e_0` to the path turned away along
-the first :math:`|e_0| v_0 / \omega_{\max}` metres: the tightest turn at its
-present speed :math:`v_0`, in place at rest. A robot farther than :math:`\rho`
-from the path (pushed out of the tube) first goes straight back to its
-projection, facing it, and turns onto the path there.
+the furthest of equally near points, so a path that steps back is followed in its
+order) it heads straight for the point :math:`2\rho` further along the path (not
+past a turn in place or the path's end), which closes a sideways offset within the
+tube over :math:`2\rho` (a heading change of at most :math:`\arctan\frac12`)
+and joins the path there; its own heading's error :math:`e_0` to that line is
+turned away along the first :math:`|e_0| v_0 / \omega_{\max}` metres: the
+tightest turn at its present speed :math:`v_0`, in place at rest. A robot farther
+than :math:`\rho` from the path (pushed out of the tube) first goes straight back
+to its projection. Backwards (``reverse``) the motion is the one of the robot
+turned by a half-turn, its speeds negated (the plug-in backs up to a vertex behind
+a robot that may drive backwards).
 
 **Timing: within the bounds.** Along the path the speed is the largest that
 keeps :math:`|v| \le v_{\max}`, :math:`|\omega| \le \omega_{\max}` (so
