@@ -131,6 +131,24 @@ def test_a_grid_formation_is_one_connected_roadmap() -> None:
     check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
 
 
+def test_a_formation_gets_a_grid_through_its_points_and_a_circle_the_finest() -> None:
+    """A 4 x 4 formation 1 m apart (h = 0.45 m at least): the fitted grid of 0.5 m has every
+    start and goal on a vertex; an antipodal swap's points fit no lattice: the finest grid."""
+    sc = grid_to_grid(4, 4)
+    plan = fleet_plan(sc, 0.15 + 0.001, 0.3 + 0.001)
+    roadmap = plan.roadmap
+    assert roadmap.spacing == pytest.approx(0.5)
+    ends = np.concatenate((sc.initial_states()[:, :2], sc.reference_positions(0.0)))
+    vertices = roadmap.positions[np.concatenate((roadmap.starts, roadmap.goals))]
+    assert np.hypot(*(vertices - ends).T).max() <= roadmap.reach
+    # each vertex of the lattice is 0.5 m from its grid neighbours: no point was added
+    step = np.hypot(*(roadmap.positions[roadmap.indices]
+                      - np.repeat(roadmap.positions, np.diff(roadmap.indptr), axis=0)).T)
+    np.testing.assert_allclose(step, 0.5, atol=1e-9)
+    swap = fleet_plan(antipodal_swap(8), 0.15 + 0.001, 0.3 + 0.001)
+    assert swap.roadmap.spacing == pytest.approx(0.301 + 2 * 0.3 / 4)
+
+
 def test_a_cell_no_wider_than_the_kept_distance_is_refused() -> None:
     sc = mapf_scenario(MAP, 2, cell=0.5, diameter=0.3)
     with pytest.raises(ProblemError, match="not wider than the distance the robots keep"):
