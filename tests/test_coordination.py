@@ -25,15 +25,22 @@ MAP, SCEN = DATA / "maze-12-8.map", DATA / "maze-12-8.scen"
 
 
 def check_plan(adjacency: set[tuple[int, int]], configs: np.ndarray, starts: np.ndarray,
-               goals: np.ndarray) -> None:
-    """A plan is valid: from the starts to the goals, one edge or a wait per step, no two
-    robots on a vertex, no two robots swapping along an edge."""
+               goals: np.ndarray,
+               corners: dict[tuple[int, int], tuple[int, int]] | None = None) -> None:
+    """A plan is valid: from the starts to the goals, one edge (or diagonal, ``corners``) or a
+    wait per step, no two robots on a vertex, no two robots swapping along an edge, no
+    other robot on a diagonal move's corners at either end of the move."""
+    corners = corners or {}
     assert np.array_equal(configs[0], starts)
     assert np.array_equal(configs[-1], goals)
     for a, b in zip(configs[:-1], configs[1:], strict=True):
         assert len(set(b.tolist())) == b.size, "vertex conflict"
-        for u, v in zip(a, b, strict=True):
-            assert u == v or (int(u), int(v)) in adjacency, "not an edge"
+        for r, (u, v) in enumerate(zip(a, b, strict=True)):
+            move = (int(u), int(v))
+            assert u == v or move in adjacency or move in corners, "not an edge"
+            for x in corners.get(move, ()):
+                others = np.delete(np.arange(a.size), r)
+                assert x not in a[others] and x not in b[others], "a diagonal's corner held"
         moves = {(int(u), int(v)) for u, v in zip(a, b, strict=True) if u != v}
         assert not any((v, u) in moves for u, v in moves), "swap conflict"
         # no rotation: following the robots onto the vertices others leave never closes
@@ -245,6 +252,7 @@ def _execute(schedule: Schedule, roadmap, rng: np.random.Generator, slow: float)
     checks that no two robots share a vertex and that the execution never stalls."""
     n = schedule.size
     execution = Execution(schedule, roadmap, np.arange(n), window=1)
+    corners = roadmap.corners()
     rounds = 0
     while not all(execution.finished(i) for i in range(n)):
         rounds += 1
@@ -257,10 +265,15 @@ def _execute(schedule: Schedule, roadmap, rng: np.random.Generator, slow: float)
             if may[i] > p and rng.random() > slow:
                 positions[i] = roadmap.positions[schedule.paths[i, p + 1]]
         before = execution.progress.copy()
+        held = execution.configuration()
         execution.advance(positions)
         assert np.all(execution.progress - before <= 1)
         occupied = execution.configuration()
         assert len(set(occupied.tolist())) == n, "two robots on one vertex"
+        for i in np.flatnonzero(occupied != held):  # a diagonal passes free corners
+            for x in corners.get((int(held[i]), int(occupied[i])), ()):
+                others = np.delete(np.arange(n), i)
+                assert x not in held[others] and x not in occupied[others], "corner held"
     return rounds
 
 
@@ -283,11 +296,37 @@ def test_execution_of_a_large_random_plan_with_delays() -> None:
     _execute(schedule, roadmap, rng, 0.6)
 
 
+@pytest.mark.parametrize("slow", [0.0, 0.7])
+def test_plans_over_diagonals_keep_corners_free_when_executed_with_delays(slow: float) -> None:
+    """Open space with the grid squares' diagonals: random instances are planned by
+    prioritized planning over them (a diagonal move keeps the square's other corners free)
+    and executed with delays without a deadlock, a shared vertex or a held corner."""
+    rng = np.random.default_rng(11)
+    sc = antipodal_swap(12)
+    roadmap = build_roadmap((), (), None, sc.initial_states()[:, :2],
+                            sc.reference_positions(0.0), np.ones(12, dtype=bool), 0.151,
+                            0.302, 0.3, diagonal=True)
+    assert roadmap.diagonals.shape[0] > 0
+    used = 0
+    for _ in range(4):
+        starts = rng.choice(roadmap.size, 24, replace=False)
+        goals = rng.choice(roadmap.size, 24, replace=False)
+        configs = plan_paths(roadmap, starts, goals, method="prioritized")
+        corners = roadmap.corners()
+        check_plan(_edges(roadmap), configs, starts, goals, corners)
+        steps = zip(configs[:-1], configs[1:], strict=True)
+        used += sum((int(a), int(b)) in corners for row in steps
+                    for a, b in zip(*row, strict=True))
+        _execute(Schedule.from_plan(configs, corners), roadmap, rng, slow)
+    assert used > 0
+
+
 def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> None:
     sc = antipodal_swap(16)
     plan = fleet_plan(sc, 0.16, 0.31)
     assert plan is not None and plan.robots.size == 16
     assert np.isclose(plan.roadmap.spacing, 0.31 + 2 * plan.roadmap.reach)
-    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
+    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals,
+               plan.roadmap.corners())
     # the robots' own points are vertices: they start and end exactly there
     assert np.allclose(plan.roadmap.positions[plan.roadmap.starts], sc.initial_states()[:, :2])

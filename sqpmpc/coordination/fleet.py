@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -117,12 +117,19 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
         roadmap = build_roadmap(
             scenario.polygons, scenario.obstacles, scenario_box(scenario), starts, goals,
             has_goal, clearance, separation, float(scenario.diameters().max()),
-            scenario.roadmap)
+            scenario.roadmap, diagonal=scenario.roadmap is None)
     s = roadmap.starts[robots] if start_vertices is None else start_vertices
     g = roadmap.goals[robots]
     names = [f"robot {scenario.robots[i].id}" for i in robots]
     configs = plan_paths(roadmap, s, g, seed=0, names=names)
-    schedule = Schedule.from_plan(configs)
+    if roadmap.diagonals.size:
+        # with and without the diagonals: the plan of fewer steps (its dependency chains
+        # are shorter; diagonals shorten crossings and lengthen dense formations)
+        square = replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
+        other = plan_paths(square, s, g, seed=0, names=names)
+        if other.shape[0] <= configs.shape[0]:
+            roadmap, configs = square, other
+    schedule = Schedule.from_plan(configs, roadmap.corners())
     return FleetPlan(roadmap, robots, goals[robots], configs, schedule,
                      time.process_time() - t0)
 
@@ -139,7 +146,7 @@ def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,
     goal_v = roadmap.goals.copy()
     goal_v[previous.robots] = vertex
     moved = Roadmap(roadmap.positions, roadmap.indptr, roadmap.indices, roadmap.spacing,
-                    roadmap.reach, roadmap.starts, goal_v)
+                    roadmap.reach, roadmap.starts, goal_v, roadmap.diagonals)
     n = scenario.n_robots
     has_goal = np.zeros(n, dtype=bool)
     has_goal[previous.robots] = True

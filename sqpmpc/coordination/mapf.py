@@ -38,6 +38,13 @@ asking a robot standing there to move first (priority inheritance) and trying it
 next choice when that one cannot. A configuration met before is not expanded
 again (its node goes back on the stack).
 
+On a roadmap with diagonals (:attr:`~sqpmpc.coordination.roadmap.Roadmap.diagonals`)
+prioritized planning may move along them: a diagonal move from :math:`t` to
+:math:`t+1` needs both other corners of its square free of the robots planned
+before from :math:`t-1` to :math:`t+1`, not entered at :math:`t+2`, not parked on,
+and not a start of a robot not planned yet at :math:`t = 0`; it then holds them over
+the move. LaCAM plans on the 4-connected grid only.
+
 **Completeness** (LaCAM's theorem 1): the constraints of a node enumerate, over
 the visits, every assignment of next vertices to the robots, so every
 configuration reachable in one step is eventually generated from every visited
@@ -58,6 +65,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from sqpmpc.coordination.roadmap import Roadmap
@@ -73,13 +81,27 @@ class PlanningError(ProblemError):
     """No conflict-free plan: a goal that cannot be reached, or the search's budget spent."""
 
 
-def distance_tables(roadmap: Roadmap, goals: np.ndarray) -> np.ndarray:
+def distance_tables(roadmap: Roadmap, goals: np.ndarray, diagonal: bool = False
+                    ) -> np.ndarray:
     """``(n, V)`` hop distances from every vertex to each robot's goal (``inf`` where the goal
-    cannot be reached)."""
+    cannot be reached), along the roadmap's diagonals too when ``diagonal``."""
     unique, inverse = np.unique(goals, return_inverse=True)
-    table = shortest_path(roadmap.adjacency(), directed=False, unweighted=True,
+    table = shortest_path(_graph(roadmap, diagonal), directed=False, unweighted=True,
                           indices=unique)
     return np.asarray(table)[inverse]
+
+
+def _graph(roadmap: Roadmap, diagonal: bool) -> csr_matrix:
+    """The roadmap's adjacency, with its diagonal edges when ``diagonal``."""
+    adjacency = roadmap.adjacency()
+    if not diagonal or not roadmap.diagonals.size:
+        return adjacency
+    a, d = roadmap.diagonals[:, 0], roadmap.diagonals[:, 1]
+    extra = csr_matrix((np.ones(2 * a.size), (np.concatenate((a, d)), np.concatenate((d, a)))),
+                       shape=adjacency.shape)
+    out = (adjacency + extra).tocsr()
+    out.sort_indices()
+    return out
 
 
 @dataclass
@@ -261,7 +283,14 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
     neighbours = roadmap.neighbour_lists()
     straight = _straight_on(roadmap)
     if method != "lacam":
-        first = _prioritized(neighbours, dist, starts.tolist(), goals.tolist(), straight)
+        diagonal = roadmap.diagonal_lists()
+        near = dist
+        if roadmap.diagonals.size:  # the A*'s bound counts diagonal steps
+            near = distance_tables(roadmap, goals, diagonal=True)
+            near = [row.tolist() for row in np.where(np.isfinite(near), near, 1e18)]
+        first = _prioritized(neighbours, near, starts.tolist(), goals.tolist(),
+                             _straight_on(roadmap, diagonal=True), diagonal,
+                             roadmap.corners())
         if first is not None:
             return first
         if method == "prioritized":
@@ -317,6 +346,8 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
 
 def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: list[int],
                  goals: list[int], straight: dict[tuple[int, int], int],
+                 diagonal: list[list[tuple[int, int, int]]],
+                 corners: dict[tuple[int, int], tuple[int, int]],
                  effort: int = 10_000) -> np.ndarray | None:
     """Prioritized planning (:func:`_prioritized_once`), first in the order of farther goals
     first; when a robot finds no path, again with that robot moved to the front of the
@@ -327,7 +358,7 @@ def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: l
     moved: set[int] = set()
     while True:
         plan, failed = _prioritized_once(neighbours, dist, starts, goals, order, effort,
-                                         straight)
+                                         straight, diagonal, corners)
         if plan is not None:
             return plan
         if failed in moved:
@@ -338,7 +369,10 @@ def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: l
 
 def _prioritized_once(neighbours: list[list[int]], dist: list[list[float]], starts: list[int],
                       goals: list[int], order: list[int], effort: int,
-                      straight: dict[tuple[int, int], int]) -> tuple[np.ndarray | None, int]:
+                      straight: dict[tuple[int, int], int],
+                      diagonal: list[list[tuple[int, int, int]]],
+                      corners: dict[tuple[int, int], tuple[int, int]]
+                      ) -> tuple[np.ndarray | None, int]:
     """One prioritized planning in ``order``: each robot's path a space-time
     A* around the robots planned before it (their vertices, their edges the other way, the
     vertices they leave or enter at the next step: no robot follows another, and their goals
@@ -383,7 +417,7 @@ def _prioritized_once(neighbours: list[list[int]], dist: list[list[float]], star
                 break
             t2 = t + 1
             last = came[(v, t)]
-            for u in (*neighbours[v], v):
+            for u, b, c in (*((w, -1, -1) for w in neighbours[v]), (v, -1, -1), *diagonal[v]):
                 if (u, t2) in closed or (u, t2) in occupied or parked.get(u, t2 + 1) <= t2:
                     continue
                 if u != v and ((u, v, t) in moves or (u, t) in occupied):
@@ -392,6 +426,9 @@ def _prioritized_once(neighbours: list[list[int]], dist: list[list[float]], star
                     continue
                 if t2 == 1 and u in others and u != v:
                     continue  # a robot not planned yet still stands there
+                if b >= 0 and not all(_corner_free(x, t, occupied, entered, parked, others)
+                                      for x in (b, c)):
+                    continue  # a diagonal passes the square's other corners: kept free
                 move = last if u == v else (v, u)
                 bend = int(u != v and last is not None and straight.get(last) != u)
                 count = k + bend
@@ -419,15 +456,36 @@ def _prioritized_once(neighbours: list[list[int]], dist: list[list[float]], star
                 moves.add((v, path[t + 1], t))
                 if path[t + 1] != v:
                     entered.add((path[t + 1], t + 1))
+                for x in corners.get((v, path[t + 1]), ()):  # held over the diagonal move
+                    occupied.update(((x, t), (x, t + 1)))
+                    entered.add((x, t))
+                    if last_use.get(x, -1) < t + 1:
+                        last_use[x] = t + 1
         parked[goal] = len(path) - 1
     horizon = max(len(p) for p in paths)
     return np.array([p + [p[-1]] * (horizon - len(p)) for p in paths], dtype=np.int64).T, -1
 
 
-def _straight_on(roadmap: Roadmap) -> dict[tuple[int, int], int]:
+def _corner_free(x: int, t: int, occupied: set[tuple[int, int]],
+                 entered: set[tuple[int, int]], parked: dict[int, int], others: set[int]
+                 ) -> bool:
+    """Whether corner ``x`` of a diagonal move from ``t`` to ``t + 1`` is free: no robot
+    planned before is there from ``t - 1`` to ``t + 1`` (there, leaving, arriving), enters
+    it at ``t + 2`` or is parked on it by then, and no robot not planned yet stands there
+    at the start."""
+    if (x, t - 1) in occupied or (x, t) in occupied or (x, t + 1) in occupied:
+        return False
+    if (x, t + 2) in entered or parked.get(x, t + 2) <= t + 1:
+        return False
+    return not (t == 0 and x in others)
+
+
+def _straight_on(roadmap: Roadmap, diagonal: bool = False) -> dict[tuple[int, int], int]:
     """``(u, v) -> w``: the first neighbour ``w`` of ``v`` straight on from the edge
-    ``u -> v`` (``w - v`` parallel to ``v - u``, same way), where there is one."""
-    ptr, idx, pos = roadmap.indptr, roadmap.indices, roadmap.positions
+    ``u -> v`` (``w - v`` parallel to ``v - u``, same way), where there is one (over the
+    diagonals too when ``diagonal``)."""
+    graph = _graph(roadmap, diagonal)
+    ptr, idx, pos = graph.indptr, graph.indices, roadmap.positions
     degree = np.diff(ptr)
     u = np.repeat(np.arange(roadmap.size), degree)  # the directed edges u -> v
     v = idx

@@ -28,6 +28,13 @@ distance (:mod:`sqpmpc.coordination.roadmap`): heading for its next vertex is a
 motion the NMPC can make. A robot held up (slow, pushed, braked by the safety
 layer) only delays the robots that wait for it; progress resumes when it does.
 
+**Diagonal moves** (:attr:`~sqpmpc.coordination.roadmap.Roadmap.diagonals`) *pass*
+the two other corners of their square: each pass is a visit of the corner at the
+step the robot enters the diagonal's end, ordered with the corner's other visits,
+and the robot has left it once it has reached that end. So a robot crosses a square
+only after the robots planned on its corners before it have left them, and the
+robots planned there after it wait until it is across.
+
 **Between robots that keep the order, distinct vertices.** Two robots' progress
 vertices are never the same vertex: the later one may head there only after the
 earlier one reached its next vertex; so the configuration of progress vertices is
@@ -73,8 +80,14 @@ class Schedule:
     dep_need: np.ndarray
 
     @classmethod
-    def from_plan(cls, configs: np.ndarray) -> Schedule:
-        """The schedule of a plan ``(T + 1, n)`` (vertex of every robot at every step)."""
+    def from_plan(cls, configs: np.ndarray,
+                  corners: dict[tuple[int, int], tuple[int, int]] | None = None) -> Schedule:
+        """The schedule of a plan ``(T + 1, n)`` (vertex of every robot at every step).
+
+        ``corners`` gives the two corners ``(b, c)`` of each diagonal move ``(a, d)``
+        (:attr:`sqpmpc.coordination.roadmap.Roadmap.diagonals`): the move *passes* them,
+        a visit at the step it enters ``d``, which the robot has left once it has
+        reached ``d`` (not the vertex after it)."""
         configs = np.asarray(configs, dtype=np.int64)
         steps, n = configs.shape
         paths: list[np.ndarray] = []
@@ -93,17 +106,30 @@ class Schedule:
             padded[i, lengths[i]:] = paths[i][-1]
             entry[i, :lengths[i]] = entries[i]
             entry[i, lengths[i]:] = steps
-        # visits of every vertex: (vertex, entry step, robot, index), in plan order
+        # visits of every vertex: (vertex, entry step, robot, index, progress that
+        # leaves it), in plan order
         robot = np.repeat(np.arange(n), lengths)
         index = np.concatenate([np.arange(k) for k in lengths]) if n else np.zeros(0, int)
         vertex = np.concatenate(paths) if n else np.zeros(0, int)
         enter = np.concatenate(entries) if n else np.zeros(0, int)
+        leave = index + 1
+        if corners:
+            passes = [(x, int(entries[i][k]), i, k) for i in range(n)
+                      for k in range(1, int(lengths[i]))
+                      for x in corners.get((int(paths[i][k - 1]), int(paths[i][k])), ())]
+            if passes:
+                extra = np.asarray(passes, dtype=np.int64)
+                vertex = np.concatenate((vertex, extra[:, 0]))
+                enter = np.concatenate((enter, extra[:, 1]))
+                robot = np.concatenate((robot, extra[:, 2]))
+                index = np.concatenate((index, extra[:, 3]))
+                leave = np.concatenate((leave, extra[:, 3]))
         order = np.lexsort((enter, vertex))
-        v, r, k = vertex[order], robot[order], index[order]
+        v, r, k, out = vertex[order], robot[order], index[order], leave[order]
         same = np.flatnonzero(v[1:] == v[:-1])  # visit same+1 follows visit same
         # the same robot back on a vertex it left waits for nobody
         same = same[r[same + 1] != r[same]]
-        return cls(padded, entry, lengths, r[same + 1], k[same + 1], r[same], k[same] + 1)
+        return cls(padded, entry, lengths, r[same + 1], k[same + 1], r[same], out[same])
 
     @property
     def size(self) -> int:
