@@ -76,7 +76,7 @@ class Motion:
     poses
         ``(N+1, 3)`` ``(x, y, psi)``; stage 0 is the robot's own pose.
     velocities
-        ``(N+1, 2)`` ``(v, omega)`` at the stages.
+        ``(N+1, 2)`` ``(v, omega)`` at the stages (stage 0: the robot's own).
     """
 
     poses: np.ndarray
@@ -187,7 +187,7 @@ def _nearest(points: np.ndarray, here: np.ndarray) -> tuple[float, np.ndarray, i
 def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float,
                 sample_time: float, horizon: int, max_speed: float, max_turn_rate: float,
                 acceleration: float | None, stop: bool = True, within: int | None = None,
-                reverse: bool = False) -> Motion:
+                reverse: bool = False, turn_rate: float = 0.0) -> Motion:
     r"""The motion along ``points (K, 2)`` (``K >= 2``: the path from the vertex behind
     the robot to the end of its open part) of a robot at ``pose (3,)`` moving at
     ``speed`` (module docstring).
@@ -218,13 +218,18 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     reverse
         Drive backwards (``speed`` is then the forward speed, negative when reversing):
         the motion of the robot turned by a half-turn, its speeds negated.
+    turn_rate
+        The robot's present turn rate, rad/s: with ``speed`` the motion's velocity at
+        stage 0 (the velocities of a model with velocity states start where the robot's
+        are, so the accelerations of its first sample are the ones it needs).
     """
     T, N = float(sample_time), int(horizon)
     v_max, w_max = float(max_speed), float(max_turn_rate)
     if reverse:  # backwards is forwards with the heading turned by a half-turn
         flipped = np.array([pose[0], pose[1], float(pose[2]) + math.pi])
         motion = path_motion(points, flipped, -float(speed), reach, sample_time, horizon,
-                             max_speed, max_turn_rate, acceleration, stop=stop, within=within)
+                             max_speed, max_turn_rate, acceleration, stop=stop, within=within,
+                             turn_rate=turn_rate)
         poses = motion.poses.copy()
         poses[:, 2] -= math.pi
         velocities = motion.velocities.copy()
@@ -333,4 +338,5 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     rate[-1] = mean_rate[-1]
     poses = np.column_stack((x, y, heading))
     poses[0] = (here[0], here[1], theta0)
+    speeds[0], rate[0] = float(speed), float(turn_rate)  # where the robot's velocities are
     return Motion(poses, np.column_stack((speeds, rate)))

@@ -150,10 +150,14 @@ class _Instance(RuleInstance):
                 if stop == last:
                     points = np.concatenate((points, plan.goals[row][None]))
                 halt, within = stop == k, p + 1 - back  # projected up to the next vertex
-            motion = path_motion(points, here, float(view.applied[m, 0]), reach,
+            # the robot's velocities: its measured ones (a model with velocity states),
+            # else the command it was last sent
+            speed, rate = (here[3], here[4]) if here.size >= 5 else view.applied[m]
+            motion = path_motion(points, here, float(speed), reach,
                                  c.sample_time, c.horizon, self._back if reverse else self._speed,
                                  self._turn, self._accel,
-                                 stop=halt, within=within, reverse=reverse)
+                                 stop=halt, within=within, reverse=reverse,
+                                 turn_rate=float(rate))
             out[m] = motion.poses[1:, :2]
             self._poses[m] = motion.poses
             self._velocities[m] = motion.velocities
