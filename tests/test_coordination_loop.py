@@ -12,6 +12,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.coordination.schedule import Execution
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.movingai import mapf_scenario
+from sqpmpc.problem.scenario import Bounds
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.registry import select_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation
@@ -64,8 +65,18 @@ def _a_controller_joining_at_any_sample_counts_the_same_progress(sim) -> None:
         assert np.array_equal(joined.resume(states[:, :2]), counted), k
 
 
-def test_the_corridor_arrives_with_coordination_decentralized() -> None:
-    m, sim = _run(load_scenario("corridor"), "decentralized")
+@pytest.mark.parametrize("acceleration", [None, 3.0])
+def test_the_corridor_arrives_with_coordination_decentralized(acceleration) -> None:
+    """The corridor built-in (goals 0.8 m apart), also with acceleration limits of 3 m/s^2
+    whose centralized rows keep 0.75 m beyond the diameter: the decentralized rows keep
+    less, and the roadmap is laid for what this scheme's rows keep."""
+    sc = load_scenario("corridor")
+    if acceleration is not None:
+        b = sc.bounds
+        sc = sc.with_changes(bounds=Bounds(
+            v=b.v, omega=b.omega, x=b.x, y=b.y, acceleration=(-acceleration, acceleration),
+            angular_acceleration=(-10.0, 10.0)))
+    m, sim = _run(sc, "decentralized")
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["obstacle_collisions"] == 0
     goals = sim.scenario.reference_positions(0.0)

@@ -140,10 +140,10 @@ class ControllerPipeline:
         self.model_margin = self.margins.model_margin
         obstacle_margin = settings.collision_margin + 0.5 * self.model_margin  # walls, pillars
         # the rules measure "near" beyond RowMargins.rules (problem.margins)
+        kept = self.model_margin if limits is None else self.margins.kept  # between two at rest
         self.context = RuleContext(scenario, self.indices, self.scheme, settings.iteration_scheme,
                                    self.counts, self.margins.rules, 0.5 * self.model_margin,
-                                   settings.collision_margin + self.model_margin,
-                                   obstacle_margin)
+                                   settings.collision_margin + kept, obstacle_margin)
         self.rules = [rule.bind(self.context) for rule in settings.rules]
         geometry = RowGeometry.plain(self.horizon)
         for rule in self.rules_with("rows"):
