@@ -308,37 +308,27 @@ def paper() -> list[tuple[str, str, str, dict]]:
 # ---------------------------------------------------------------------------- report
 def _verdicts(acados: list, paper_rows: list | None, split_rows: list | None = None
               ) -> list[str]:
-    """The issue's acados and per-robot targets, computed from the results (with the split:
-    how many OSQP iterations would fit in acados's C time)."""
+    """The issue's acados and per-robot targets (:func:`benchmarks.acados_peer.verdicts`,
+    the per-robot median from the paper part's metrics), computed from the results; with
+    the split, how many OSQP iterations would fit in acados's C time."""
+    from .acados_peer import PER_ROBOT_TARGET_MS, verdicts
+
+    out = verdicts(acados, None)
     by = {r.label: r for r in acados}
-    out = []
-
-    def line(text: str, ok: bool) -> None:
-        out.append(f"- {text}: {'met' if ok else 'NOT met'}")
-
-    for label in ("paper-s2 N 8", "paper-s2 N 40"):
-        if label in by:
-            r = by[label]
-            a, b = np.median(r.sqpmpc), np.median(r.acados_c)
-            line(f"{label}: sqpmpc median {_ms(a):.3f} ms <= acados C median {_ms(b):.3f} ms",
-                 a <= b)
-            for r in split_rows or []:
-                if r["label"] == label and not np.isnan(r["fixed"]):
-                    fit = (_ms(b) - r["rest"] - r["fixed"]) / r["per_iteration"]
-                    out.append(f"  - with this run's split, OSQP would have to stop within "
-                               f"{fit:.0f} iterations at the median to fit in it (its median: "
-                               f"{r['iterations']:.0f})")
-    for label in ("paper-s2 N 40", "swap-16"):
-        if label in by:
-            r = by[label]
-            a, b = np.percentile(r.sqpmpc, 99), np.percentile(r.acados_total, 99)
-            line(f"{label}: sqpmpc p99 {_ms(a):.3f} ms <= acados p99 {_ms(b):.3f} ms", a <= b)
+    for r in split_rows or []:
+        if r["label"] in by and not np.isnan(r["fixed"]):
+            c = _ms(np.median(by[r["label"]].acados_c))
+            fit = (c - r["rest"] - r["fixed"]) / r["per_iteration"]
+            out.append(f"- {r['label']}: with this run's split, OSQP would have to stop within "
+                       f"{fit:.0f} iterations at the median to fit in acados's C median "
+                       f"(its median: {r['iterations']:.0f})")
     for name, scheme, solver, m in paper_rows or []:
         if (name, scheme, solver) == ("paper-s2", "decentralized", "auto"):
             per = float(np.median([v for v in m["solve_time"]["cpu"][
                 "per_robot_median_ms"].values()]))
-            line(f"paper-s2 decentralized: per-robot CPU median {per:.3f} ms <= 0.1 ms",
-                 per <= 0.1)
+            ok = per <= PER_ROBOT_TARGET_MS
+            out.append(f"- paper-s2 decentralized: per-robot CPU median {per:.3f} ms <= "
+                       f"{PER_ROBOT_TARGET_MS} ms: {'met' if ok else 'NOT met'}")
     return out
 
 
