@@ -31,6 +31,17 @@ from sample to sample. The first sample (sqpmpc: up to 30 SQP iterations;
 acados: 30 RTI iterations) is reported on its own and left out of the
 medians.
 
+Decentralized. The paper-s2 case also runs decentralized (sqpmpc alone: acados
+has no counterpart of the robots' own QPs with the neighbours' exchanged plans):
+each robot's thread CPU per sample, reported as the issue's per-robot median
+(the median over robots of each robot's median over the samples after the
+first) and the p99 over every robot and sample after the first.
+
+Targets. The page ends with issue 34's verdicts computed from the run: sqpmpc's
+median at most acados's C median at N = 8 and N = 40, its p99 at most acados's
+(total) p99 at N = 40 and at 16 robots, and the decentralized per-robot median
+at most :data:`PER_ROBOT_TARGET_MS`.
+
 Times. ``time.thread_time`` around sqpmpc's ``controller.step`` (the whole
 sample: references, linearization, QP, checks) and around acados's whole
 Python call (state and references set, ``solve``, first input read): the
@@ -61,8 +72,9 @@ from sqpmpc.sim.simulation import ClosedLoopSimulation
 from .compare_ipopt import machine_info
 from .report import publish
 
-__all__ = ["CASES", "AcadosPeer", "CaseResult", "build_parser", "import_acados", "load_case",
-           "main", "render", "run_case"]
+__all__ = ["CASES", "DECENTRALIZED_CASE", "PER_ROBOT_TARGET_MS", "AcadosPeer", "CaseResult",
+           "DecentralizedResult", "build_parser", "import_acados", "load_case", "main", "render",
+           "run_case", "run_decentralized", "verdicts"]
 
 DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "acados-peer.md"
 
@@ -75,6 +87,10 @@ CASES: tuple[tuple[str, str, int | None, float | None], ...] = (
     ("swap-8", "swap:8", None, None),
     ("swap-16", "swap:16", None, None),
 )
+#: ``(label, scenario, t_end)`` of the decentralized case (sqpmpc alone).
+DECENTRALIZED_CASE: tuple[str, str, float] = ("paper-s2 decentralized", "paper-s2", 100.0)
+#: Issue 34's goal for the decentralized per-robot median, ms.
+PER_ROBOT_TARGET_MS = 0.1
 _FIRST_SAMPLE_ITERATIONS = 30
 
 
@@ -252,6 +268,34 @@ class CaseResult:
     qp_solver: str
 
 
+@dataclass
+class DecentralizedResult:
+    """Each robot's CPU time per sample of a decentralized closed loop (s), ``(K, n)``,
+    without the first sample, and the first sample's ``(n,)``."""
+
+    label: str
+    n_robots: int
+    horizon: int
+    cpu: np.ndarray
+    first: np.ndarray
+    qp_solver: str
+
+    @property
+    def per_robot_median(self) -> float:
+        """The median over robots of each robot's median (s)."""
+        return float(np.median(np.median(self.cpu, axis=0)))
+
+
+def run_decentralized(label: str, scenario: Scenario, settings: SolverSettings
+                      ) -> DecentralizedResult:
+    """sqpmpc's decentralized closed loop on ``scenario``: each robot's CPU per sample."""
+    sim = ClosedLoopSimulation(scenario, "decentralized", settings)
+    sim.run()
+    cpu = sim.cpu_times[:sim.k]
+    return DecentralizedResult(label, scenario.n_robots, scenario.horizon, cpu[1:], cpu[0],
+                               settings.qp_solver_for(scenario.n_robots, "decentralized"))
+
+
 def _stats(x: np.ndarray) -> tuple[float, float]:
     return float(np.median(x)) * 1e3, float(np.percentile(x, 99)) * 1e3
 
@@ -297,7 +341,33 @@ def run_case(label: str, scenario: Scenario, settings: SolverSettings, template:
                       settings.qp_solver_for(scenario.n_robots, "centralized"))
 
 
-def render(results: list[CaseResult], info: dict[str, str], command: str, wall: float) -> str:
+def verdicts(results: list[CaseResult], decentralized: DecentralizedResult | None) -> list[str]:
+    """Issue 34's targets against acados and per robot, computed from the run (lines)."""
+    by = {r.label: r for r in results}
+    out = []
+
+    def line(text: str, ok: bool) -> None:
+        out.append(f"- {text}: {'met' if ok else 'NOT met'}")
+
+    for label in ("paper-s2 N 8", "paper-s2 N 40"):
+        if label in by:
+            a, b = np.median(by[label].sqpmpc), np.median(by[label].acados_c)
+            line(f"{label}: sqpmpc median {a * 1e3:.3f} ms <= acados C median {b * 1e3:.3f} ms",
+                 a <= b)
+    for label in ("paper-s2 N 40", "swap-16"):
+        if label in by:
+            a = np.percentile(by[label].sqpmpc, 99)
+            b = np.percentile(by[label].acados_total, 99)
+            line(f"{label}: sqpmpc p99 {a * 1e3:.3f} ms <= acados p99 {b * 1e3:.3f} ms", a <= b)
+    if decentralized is not None:
+        per = decentralized.per_robot_median * 1e3
+        line(f"{decentralized.label}: per-robot median {per:.3f} ms <= {PER_ROBOT_TARGET_MS} ms",
+             per <= PER_ROBOT_TARGET_MS)
+    return out
+
+
+def render(results: list[CaseResult], info: dict[str, str], command: str, wall: float,
+           decentralized: DecentralizedResult | None = None) -> str:
     """The markdown page."""
     lines = [
         "# acados (SQP-RTI, HPIPM) and sqpmpc on the same OCPs",
@@ -334,6 +404,20 @@ def render(results: list[CaseResult], info: dict[str, str], command: str, wall: 
               "too (sqpmpc keeps them hard and verifies the first input). The first-input "
               "differences say how close the two closed loops' decisions are from the same "
               "state.", ""]
+    if decentralized is not None:
+        d = decentralized
+        lines += [f"## {d.label} (sqpmpc alone)", "",
+                  "Each robot's thread CPU per sample, ms: the per-robot median (median over "
+                  "robots of each robot's median) and the p99 over every robot and sample, "
+                  "after the first sample.", "",
+                  "| case | robots | N | sqpmpc QP | per-robot median | p99 | first sample, "
+                  "largest robot |", "|---|---|---|---|---|---|---|",
+                  f"| {d.label} | {d.n_robots} | {d.horizon} | {d.qp_solver} | "
+                  f"{d.per_robot_median * 1e3:.4f} | {np.percentile(d.cpu, 99) * 1e3:.4f} | "
+                  f"{d.first.max() * 1e3:.2f} |", ""]
+    targets = verdicts(results, decentralized)
+    if targets:
+        lines += ["## Targets of issue 34", "", *targets, ""]
     return "\n".join(lines)
 
 
@@ -344,7 +428,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--acados-path", default=os.environ.get("SQPMPC_ACADOS_PATH"),
                    help="a folder to append to sys.path that holds the 'acados' package")
     p.add_argument("--quick", action="store_true", help="20 s of each case")
-    p.add_argument("--cases", nargs="*", help="labels of CASES to run (default: all)")
+    p.add_argument("--cases", nargs="*", help="labels of CASES (and DECENTRALIZED_CASE) to run "
+                   "(default: all)")
     p.add_argument("--qp-solver", default="auto", help="sqpmpc's qp_solver (default auto)")
     p.add_argument("--no-write", action="store_true", help="print only")
     return p
@@ -365,9 +450,17 @@ def main(argv: list[str] | None = None) -> int:
         r = results[-1]
         print(f"{label}: sqpmpc {_stats(r.sqpmpc)} acados total {_stats(r.acados_total)} "
               f"C {_stats(r.acados_c)} ms", file=sys.stderr, flush=True)
+    label, name, t_end = DECENTRALIZED_CASE
+    decentralized = None
+    if not args.cases or label in args.cases:
+        decentralized = run_decentralized(label, load_case(name, None, 20.0 if args.quick
+                                                           else t_end), settings)
+        print(f"{label}: per-robot median {decentralized.per_robot_median * 1e3:.4f} ms",
+              file=sys.stderr, flush=True)
     command = "python -m benchmarks.acados_peer " + " ".join(argv if argv is not None
                                                               else sys.argv[1:])
-    text = render(results, machine_info(), command.strip(), time.perf_counter() - started)
+    text = render(results, machine_info(), command.strip(), time.perf_counter() - started,
+                  decentralized)
     publish(text, None if args.no_write else DOC_PATH)
     return 0
 

@@ -25,6 +25,14 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    the first), the first sample, and the process's peak RSS after each size.
 4. **Profile** -- cProfile of a paper-s2 decentralized closed loop: where a
    sample's CPU goes (the QP solver against the Python pipeline).
+   **Split** -- without a profiler: the controller step's CPU against its QP
+   backend's (the backend's ``solve``: OSQP's update, warm start and solve),
+   the rest being the Python pipeline and its kernels, per sample, for
+   paper-s2 centralized at N = 8 and N = 40 and decentralized per robot; and
+   OSQP's cost model on the centralized QPs (every QP replayed with 1 and 30
+   iterations and no termination checks: the fixed cost of a QP and the cost
+   of one iteration), from which the iterations that would fit in acados's C
+   time are computed when acados runs too.
 5. **Paper scenarios** -- paper-s1 and paper-s2, both schemes, with
    ``qp_solver="osqp"`` (the former default) and ``"auto"`` (OSQP capped at the
    hand-over, PIQP for the rest): closed-loop cost, collisions, final errors.
@@ -45,6 +53,7 @@ import pstats
 import resource
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -55,7 +64,14 @@ from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.problem.scenario import Scenario
 from sqpmpc.problem.scenario_file import load_scenario, parse_scenario
-from sqpmpc.qp.backend import ALL_CHANGED, HANDOVER_ITERATIONS, make_backend
+from sqpmpc.qp.backend import (
+    ALL_CHANGED,
+    HANDOVER_ITERATIONS,
+    BackendSolution,
+    OSQPSettings,
+    make_backend,
+)
+from sqpmpc.qp.layout import QPLayout
 from sqpmpc.qp.policies import HandOver
 from sqpmpc.rules.registry import select_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation
@@ -63,7 +79,7 @@ from sqpmpc.sim.simulation import ClosedLoopSimulation
 from .compare_ipopt import machine_info
 from .report import publish
 
-__all__ = ["fleets", "main", "maze", "maze_scenario", "paper", "profile", "qp_tail"]
+__all__ = ["fleets", "main", "maze", "maze_scenario", "paper", "profile", "qp_tail", "split"]
 
 DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "speed.md"
 
@@ -194,6 +210,87 @@ def profile(t_end: float = 100.0) -> tuple[float, list[tuple[str, float]]]:
     return _ms(total / calls), [(name, t / total) for name, t in top]
 
 
+# ---------------------------------------------------------------------------- split
+#: ``(label, scheme, horizon)`` of the split (``None``: the scenario's own horizon).
+SPLIT_CASES: tuple[tuple[str, str, int | None], ...] = (
+    ("paper-s2 N 8", "centralized", None),
+    ("paper-s2 N 40", "centralized", 40),
+    ("paper-s2 decentralized, per robot", "decentralized", None),
+)
+
+
+def _osqp_cost_model(captured: list[tuple], backend_settings: OSQPSettings, layout: QPLayout
+                     ) -> tuple[float, float]:
+    """``(fixed, per iteration)`` CPU s of OSQP on the ``captured`` QPs: each replayed (set
+    up once, updated in place, warm-started as recorded) with 1 and with 30 iterations and
+    no termination checks, interleaved QP by QP; medians."""
+    runs = {k: make_backend("osqp", layout, replace(backend_settings, max_iter=k,
+                                                    check_termination=0)) for k in (1, 30)}
+    times: dict[int, list[float]] = {k: [] for k in runs}
+    for args in captured:
+        for k, backend in runs.items():
+            t0 = time.thread_time()
+            backend.solve(*args[:5], ALL_CHANGED, *args[5:])
+            times[k].append(time.thread_time() - t0)
+    one, thirty = (float(np.median(times[k][1:])) for k in (1, 30))
+    per = (thirty - one) / 29.0
+    return one - per, per
+
+
+def _split_case(label: str, scheme: str, horizon: int | None, t_end: float
+                ) -> dict[str, float | str]:
+    """One row of :func:`split`."""
+    changes: dict[str, object] = {"t_end": t_end}
+    if horizon is not None:
+        changes["horizon"] = horizon
+    sc = load_scenario("paper-s2").with_changes(**changes)
+    sim = ClosedLoopSimulation(sc, scheme)
+    qp_cpu = np.zeros((sc.steps + 1, len(sim.controllers)))
+    iterations = np.zeros_like(qp_cpu)
+    copying = np.zeros_like(qp_cpu)  # the capture's own CPU, taken off the step
+    captured: list[tuple] = []
+    keep = scheme == "centralized"  # the QPs as the backend gets them, for the replay
+
+    def timing(solve: Callable[..., BackendSolution], j: int) -> Callable[..., BackendSolution]:
+        def timed(*args: object) -> BackendSolution:
+            if keep:
+                t0 = time.thread_time()
+                captured.append(tuple(None if a is None else np.array(a, copy=True)
+                                      for i, a in enumerate(args) if i != 5))
+                copying[sim.k, j] += time.thread_time() - t0
+            t0 = time.thread_time()
+            sol = solve(*args)
+            qp_cpu[sim.k, j] += time.thread_time() - t0
+            iterations[sim.k, j] += sol.iterations
+            return sol
+        return timed
+
+    for j, ctrl in enumerate(sim.controllers):
+        backend = ctrl.engine.qp.backend
+        backend.solve = timing(backend.solve, j)  # this benchmark's timing only
+    sim.run()
+    step = sim.cpu_times[1:sim.k] - copying[1:sim.k]
+    qp = qp_cpu[1:sim.k]
+    row: dict[str, float | str] = {
+        "label": label, "step": _ms(np.median(step.mean(axis=1))),
+        "qp": _ms(np.median(qp.mean(axis=1))),
+        "rest": _ms(np.median((step - qp).mean(axis=1))),
+        "iterations": float(np.median(iterations[1:sim.k])),
+        "fixed": float("nan"), "per_iteration": float("nan")}
+    if captured:
+        qp_obj = sim.controllers[0].engine.qp
+        fixed, per = _osqp_cost_model(captured, qp_obj.backend.settings, qp_obj.layout)
+        row["fixed"], row["per_iteration"] = _ms(fixed), _ms(per)
+    return row
+
+
+def split(t_end: float = 100.0) -> list[dict[str, float | str]]:
+    """Per :data:`SPLIT_CASES`: medians over the samples after the first of the controller
+    step's CPU, its QP backend's and the rest (ms per robot), OSQP's median iterations and,
+    centralized, OSQP's fixed and per-iteration cost (module docstring)."""
+    return [_split_case(label, scheme, horizon, t_end) for label, scheme, horizon in SPLIT_CASES]
+
+
 # ---------------------------------------------------------------------------- paper
 def paper() -> list[tuple[str, str, str, dict]]:
     """``(scenario, scheme, qp_solver, metrics)`` of the paper scenarios (module docstring)."""
@@ -209,37 +306,36 @@ def paper() -> list[tuple[str, str, str, dict]]:
 
 
 # ---------------------------------------------------------------------------- report
-def _verdicts(acados: list, paper_rows: list | None) -> list[str]:
-    """The issue's acados and per-robot targets, computed from the results."""
+def _verdicts(acados: list, paper_rows: list | None, split_rows: list | None = None
+              ) -> list[str]:
+    """The issue's acados and per-robot targets (:func:`benchmarks.acados_peer.verdicts`,
+    the per-robot median from the paper part's metrics), computed from the results; with
+    the split, how many OSQP iterations would fit in acados's C time."""
+    from .acados_peer import PER_ROBOT_TARGET_MS, verdicts
+
+    out = verdicts(acados, None)
     by = {r.label: r for r in acados}
-    out = []
-
-    def line(text: str, ok: bool) -> None:
-        out.append(f"- {text}: {'met' if ok else 'NOT met'}")
-
-    for label in ("paper-s2 N 8", "paper-s2 N 40"):
-        if label in by:
-            r = by[label]
-            a, b = np.median(r.sqpmpc), np.median(r.acados_c)
-            line(f"{label}: sqpmpc median {_ms(a):.3f} ms <= acados C median {_ms(b):.3f} ms",
-                 a <= b)
-    for label in ("paper-s2 N 40", "swap-16"):
-        if label in by:
-            r = by[label]
-            a, b = np.percentile(r.sqpmpc, 99), np.percentile(r.acados_total, 99)
-            line(f"{label}: sqpmpc p99 {_ms(a):.3f} ms <= acados p99 {_ms(b):.3f} ms", a <= b)
+    for r in split_rows or []:
+        if r["label"] in by and not np.isnan(r["fixed"]):
+            c = _ms(np.median(by[r["label"]].acados_c))
+            fit = (c - r["rest"] - r["fixed"]) / r["per_iteration"]
+            out.append(f"- {r['label']}: with this run's split, OSQP would have to stop within "
+                       f"{fit:.0f} iterations at the median to fit in acados's C median "
+                       f"(its median: {r['iterations']:.0f})")
     for name, scheme, solver, m in paper_rows or []:
         if (name, scheme, solver) == ("paper-s2", "decentralized", "auto"):
             per = float(np.median([v for v in m["solve_time"]["cpu"][
                 "per_robot_median_ms"].values()]))
-            line(f"paper-s2 decentralized: per-robot CPU median {per:.3f} ms <= 0.1 ms",
-                 per <= 0.1)
+            ok = per <= PER_ROBOT_TARGET_MS
+            out.append(f"- paper-s2 decentralized: per-robot CPU median {per:.3f} ms <= "
+                       f"{PER_ROBOT_TARGET_MS} ms: {'met' if ok else 'NOT met'}")
     return out
 
 
 def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
            prof: tuple | None, acados: str | None, command: str, wall: float,
-           paper_rows: list | None = None, verdicts: list[str] | None = None) -> str:
+           paper_rows: list | None = None, verdicts: list[str] | None = None,
+           split_rows: list | None = None) -> str:
     """The markdown page."""
     info = machine_info()
     lines = ["# Speed and scale", "", f"Reproduce: `{command}` (module docstring of "
@@ -305,6 +401,22 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
                   "", "| function | share |", "|---|---|"]
         lines += [f"| `{name}` | {share * 100:.1f} % |" for name, share in top]
         lines.append("")
+    if split_rows:
+        lines += ["## Split: where a sample's CPU goes (no profiler)", "",
+                  "Medians over the samples after the first, ms per robot and sample: the "
+                  "controller step, its QP backend (OSQP's update, warm start and solve, "
+                  "with the backend's Python) and the rest (the Python pipeline and its "
+                  "kernels). *OSQP fixed / per iteration*: every centralized QP replayed "
+                  "with 1 and 30 iterations and no termination checks.", "",
+                  "| case | step | QP backend | rest | QP share | OSQP iterations | OSQP fixed "
+                  "ms | OSQP per iteration ms |", "|---|---|---|---|---|---|---|---|"]
+        for r in split_rows:
+            fixed = "-" if np.isnan(r["fixed"]) else f"{r['fixed']:.4f}"
+            per = "-" if np.isnan(r["per_iteration"]) else f"{r['per_iteration']:.4f}"
+            lines.append(f"| {r['label']} | {r['step']:.4f} | {r['qp']:.4f} | {r['rest']:.4f} "
+                         f"| {r['qp'] / r['step'] * 100:.0f} % | {r['iterations']:.0f} | "
+                         f"{fixed} | {per} |")
+        lines.append("")
     if paper_rows:
         lines += ["## Paper scenarios: the former default (OSQP) against auto", "",
                   "| scenario | scheme | qp_solver | closed-loop cost | cost / OSQP's | "
@@ -333,7 +445,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.speed", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="shorter runs")
-    p.add_argument("--parts", default="tail,maze,fleets,profile,paper,acados")
+    p.add_argument("--parts", default="tail,maze,fleets,profile,split,paper,acados")
     p.add_argument("--acados-path", default=os.environ.get("SQPMPC_ACADOS_PATH"))
     p.add_argument("--no-write", action="store_true")
     args = p.parse_args(argv)
@@ -344,6 +456,7 @@ def main(argv: list[str] | None = None) -> int:
     maze_rows = maze(40.0 if q else 80.0) if "maze" in parts else None
     fleet_rows = fleets((16, 64, 256), 8 if q else 20) if "fleets" in parts else None
     prof = profile(30.0 if q else 100.0) if "profile" in parts else None
+    split_rows = split(30.0 if q else 100.0) if "split" in parts else None
     paper_rows = paper() if "paper" in parts else None
     acados, verdicts = None, None
     if "acados" in parts:
@@ -361,11 +474,11 @@ def main(argv: list[str] | None = None) -> int:
             table = acados_peer.render(results, {}, "", 0.0).split("\n")
             acados = "\n".join(line for line in table if line.startswith("|") or (
                 line.startswith("CPU") or line.startswith("The OCPs")))
-            verdicts = _verdicts(results, paper_rows)
+            verdicts = _verdicts(results, paper_rows, split_rows)
     command = "python -m benchmarks.speed " + " ".join(argv if argv is not None
                                                         else sys.argv[1:])
     text = render(tail, maze_rows, fleet_rows, prof, acados, command.strip(),
-                  time.perf_counter() - started, paper_rows, verdicts)
+                  time.perf_counter() - started, paper_rows, verdicts, split_rows)
     publish(text, None if args.no_write else DOC_PATH)
     return 0
 
