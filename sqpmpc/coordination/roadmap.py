@@ -31,7 +31,10 @@ lets a robot head for a vertex only when the robot that held it before is within
 to a vertex to have *reached* it. A scenario written from a grid map
 (``sqpmpc generate mapf``) declares its cell size and origin (``[roadmap]``),
 which are then the grid's: :math:`\rho = (h - s) / 2` must be positive, i.e. a
-cell wider than the robots' kept distance. Without a declared grid,
+cell wider than the robots' kept distance, and it is at most :math:`h/2 - c`, the room a
+robot has beside its path in a one-cell corridor (a wider tube lets its motion cut a
+corner into the walls' margin, where the obstacle rows pin it: room-32-32-4, random-1,
+64 robots, one robot stood at a wall's corner from 42 s on). Without a declared grid,
 :math:`\rho = d_{\max}/4` and :math:`h = s + 2\rho`; of the nine grid origins
 offset by :math:`0, h/3, 2h/3` in each axis the one that joins the most robots'
 starts to their goals is taken. Before those, a grid *fitted* to the robots' own
@@ -286,6 +289,8 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
                 f"roadmap: the declared cell {h:.6g} m is not wider than the distance the "
                 f"robots keep, {separation:.6g} m (their diameter plus the margins): robots on "
                 "neighbouring cells would touch; use a larger cell or smaller robots")
+        if 0.5 * h > clearance:  # the tube fits a one-cell corridor's room
+            reach = min(reach, 0.5 * h - clearance)
         grids = [(h, reach, np.asarray(grid.origin))]
     else:
         reach = 0.25 * diameter
