@@ -26,11 +26,7 @@ every corner: on the four MovingAI maps with 32 robots, 30-57 % fewer turns than
 the first-found path, the same makespans). Its plans are short (on
 the MovingAI maps with 32 robots, 20 of 20 plans at the lower bound, the
 longest distance of a robot alone) and cheap, but it is not complete: where the
-last attempt fails, the plan is LaCAM's. Where it succeeds, LaCAM is run too
-with work for a few descents (4 times the prioritized plan's steps in nodes) and
-the plan of fewer steps is kept: where robots must take turns, e.g. a one-lane
-aisle crossed both ways, LaCAM's is the shorter one (aisle-20-7, 16 robots: 58
-steps against 133).
+last attempt fails, the plan is LaCAM's.
 
 LaCAM (Okumura, *LaCAM: Search-Based Algorithm for Quick
 Multi-Agent Pathfinding*, AAAI 2023): a depth-first search over configurations
@@ -297,17 +293,8 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
         first = _prioritized(neighbours, near, starts.tolist(), goals.tolist(),
                              _straight_on(roadmap, diagonal=True), diagonal,
                              roadmap.corners())
-        if first is not None and method == "prioritized":
-            return first
         if first is not None:
-            # LaCAM too, with work for a few descents: where robots must take turns (a
-            # one-lane aisle crossed both ways), its plan can be the shorter one
-            try:
-                other = _lacam(roadmap, neighbours, dist, starts, goals, straight, seed,
-                               min(max_nodes, 4 * first.shape[0]))
-            except PlanningError:
-                return first
-            return other if other.shape[0] < first.shape[0] else first
+            return first
         if method == "prioritized":
             raise PlanningError(f"roadmap: prioritized planning found no plan for {n} robots "
                                 f"(in {n + 1} orders at most)")

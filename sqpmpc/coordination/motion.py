@@ -187,7 +187,7 @@ def _nearest(points: np.ndarray, here: np.ndarray) -> tuple[float, np.ndarray, i
 def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float,
                 sample_time: float, horizon: int, max_speed: float, max_turn_rate: float,
                 acceleration: float | None, stop: bool = True, within: int | None = None,
-                reverse: bool = False, turn_rate: float = 0.0) -> Motion:
+                reverse: bool = False, turn_rate: float | None = None) -> Motion:
     r"""The motion along ``points (K, 2)`` (``K >= 2``: the path from the vertex behind
     the robot to the end of its open part) of a robot at ``pose (3,)`` moving at
     ``speed`` (module docstring).
@@ -219,9 +219,11 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
         Drive backwards (``speed`` is then the forward speed, negative when reversing):
         the motion of the robot turned by a half-turn, its speeds negated.
     turn_rate
-        The robot's present turn rate, rad/s: with ``speed`` the motion's velocity at
-        stage 0 (the velocities of a model with velocity states start where the robot's
-        are, so the accelerations of its first sample are the ones it needs).
+        The robot's present turn rate, rad/s, for a model with velocity states: with
+        ``speed`` it is then the motion's velocity at stage 0 (its velocities start where
+        the robot's are, so the accelerations of its first sample are the ones it needs);
+        ``None`` (a model whose inputs are the velocities): stage 0's velocity is the
+        motion's own over its first sample.
     """
     T, N = float(sample_time), int(horizon)
     v_max, w_max = float(max_speed), float(max_turn_rate)
@@ -338,5 +340,6 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     rate[-1] = mean_rate[-1]
     poses = np.column_stack((x, y, heading))
     poses[0] = (here[0], here[1], theta0)
-    speeds[0], rate[0] = float(speed), float(turn_rate)  # where the robot's velocities are
+    if turn_rate is not None:  # where the robot's velocities are
+        speeds[0], rate[0] = float(speed), float(turn_rate)
     return Motion(poses, np.column_stack((speeds, rate)))

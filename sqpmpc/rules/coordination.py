@@ -151,13 +151,13 @@ class _Instance(RuleInstance):
                     points = np.concatenate((points, plan.goals[row][None]))
                 halt, within = stop == k, p + 1 - back  # projected up to the next vertex
             # the robot's velocities: its measured ones (a model with velocity states),
-            # else the command it was last sent
-            speed, rate = (here[3], here[4]) if here.size >= 5 else view.applied[m]
+            # else the command it was last sent (and stage 0's rate is the motion's own)
+            speed, rate = (here[3], here[4]) if here.size >= 5 else (view.applied[m, 0], None)
             motion = path_motion(points, here, float(speed), reach,
                                  c.sample_time, c.horizon, self._back if reverse else self._speed,
                                  self._turn, self._accel,
                                  stop=halt, within=within, reverse=reverse,
-                                 turn_rate=float(rate))
+                                 turn_rate=None if rate is None else float(rate))
             out[m] = motion.poses[1:, :2]
             self._poses[m] = motion.poses
             self._velocities[m] = motion.velocities
