@@ -150,9 +150,12 @@ class _Instance(RuleInstance):
                 if stop == last:
                     points = np.concatenate((points, plan.goals[row][None]))
                 halt, within = stop == k, p + 1 - back  # projected up to the next vertex
-            # the robot's velocities: its measured ones (a model with velocity states),
-            # else the command it was last sent (and stage 0's rate is the motion's own)
-            speed, rate = (here[3], here[4]) if here.size >= 5 else (view.applied[m, 0], None)
+            # the robot's velocities (the command it was last sent, as the model takes them
+            # when none are measured); a model without velocity states starts its motion
+            # at the motion's own rate (its inputs are the sample's velocities)
+            speed, rate = (here[3], here[4]) if here.size >= 5 else view.applied[m]
+            if self._accel is None:
+                rate = None
             motion = path_motion(points, here, float(speed), reach,
                                  c.sample_time, c.horizon, self._back if reverse else self._speed,
                                  self._turn, self._accel,
