@@ -47,10 +47,6 @@ from sqpmpc.rules.base import Contribution, Rule, RuleContext, RuleInstance, Sam
 __all__ = ["Coordination"]
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 class _Instance(RuleInstance):
     hooks = ("references",)
     counter_names = ("coordination_holds", "coordination_replans", "coordination_tracked")
@@ -145,7 +141,7 @@ class _Instance(RuleInstance):
                 # by itself), backwards when it is behind and the bounds allow
                 points, halt, within = np.stack((here[:2], end)), True, 1
                 bearing = math.atan2(end[1] - here[1], end[0] - here[0])
-                reverse = self._reverse and abs(_wrap(bearing - here[2])) > 0.5 * math.pi
+                reverse = self._reverse and math.cos(bearing - here[2]) < 0.0  # behind it
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
                 stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
