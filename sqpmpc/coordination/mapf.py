@@ -283,7 +283,6 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                             "roadmap vertices joins them at the robots' footprint")
     dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
     neighbours = roadmap.neighbour_lists()
-    straight = _straight_on(roadmap)
     if method != "lacam":
         diagonal = roadmap.diagonal_lists()
         near = dist
@@ -298,16 +297,16 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
         if method == "prioritized":
             raise PlanningError(f"roadmap: prioritized planning found no plan for {n} robots "
                                 f"(in {n + 1} orders at most)")
-    return _lacam(roadmap, neighbours, dist, starts, goals, straight, seed, max_nodes)
+    return _lacam(roadmap, neighbours, dist, starts, goals, seed, max_nodes)
 
 
 def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]],
-           starts: np.ndarray, goals: np.ndarray, straight: dict[tuple[int, int], int],
-           seed: int, max_nodes: int) -> np.ndarray:
-    """LaCAM with PIBT (module docstring) within ``max_nodes`` search nodes."""
+           starts: np.ndarray, goals: np.ndarray, seed: int, max_nodes: int) -> np.ndarray:
+    """LaCAM with PIBT (module docstring) within ``max_nodes`` search nodes, on the
+    4-connected grid."""
     n = starts.size
     rng = np.random.default_rng(seed)
-    pibt = _PIBT(neighbours, dist, rng, roadmap.size, straight)
+    pibt = _PIBT(neighbours, dist, rng, roadmap.size, _straight_on(roadmap))
     goal = tuple(goals.tolist())
     start = tuple(starts.tolist())
     priorities = [dist[i][start[i]] / (roadmap.size + 1.0) for i in range(n)]
