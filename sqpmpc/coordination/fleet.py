@@ -145,8 +145,7 @@ def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,
                                 roadmap.positions[None, :, 1] - points[:, None, 1]), axis=1)
     goal_v = roadmap.goals.copy()
     goal_v[previous.robots] = vertex
-    moved = Roadmap(roadmap.positions, roadmap.indptr, roadmap.indices, roadmap.spacing,
-                    roadmap.reach, roadmap.starts, goal_v, roadmap.diagonals)
+    moved = replace(roadmap, goals=goal_v)
     n = scenario.n_robots
     has_goal = np.zeros(n, dtype=bool)
     has_goal[previous.robots] = True
