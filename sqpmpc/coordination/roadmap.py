@@ -340,13 +340,16 @@ def _aligned(points: np.ndarray, h: float, reach: float) -> tuple[int, np.ndarra
     return int(near[best].sum()), points[best]
 
 
-def _closest(points: np.ndarray) -> float:
-    """The smallest distance between two of ``points (k, 2)`` (inf for fewer than two)."""
-    if points.shape[0] < 2:
-        return math.inf
+def _pair_gaps(points: np.ndarray) -> np.ndarray:
+    """``(k, k)`` distances between ``points (k, 2)``, inf on the diagonal."""
     gaps = np.hypot(*(points[:, None, :] - points[None, :, :]).transpose(2, 0, 1))
     gaps[np.diag_indices_from(gaps)] = math.inf
-    return float(gaps.min())
+    return gaps
+
+
+def _closest(points: np.ndarray) -> float:
+    """The smallest distance between two of ``points (k, 2)`` (inf for fewer than two)."""
+    return float(_pair_gaps(points).min()) if points.shape[0] >= 2 else math.inf
 
 
 def _fitted_grid(points: np.ndarray, h_min: float, separation: float, closest: float
@@ -359,9 +362,7 @@ def _fitted_grid(points: np.ndarray, h_min: float, separation: float, closest: f
     than its spacing (``closest``: they would be one vertex)."""
     if points.shape[0] < 2 or points.shape[0] > 1024:
         return None
-    gaps = np.hypot(*(points[:, None, :] - points[None, :, :]).transpose(2, 0, 1))
-    gaps[np.diag_indices_from(gaps)] = np.inf
-    nearest = np.argmin(gaps, axis=1)
+    nearest = np.argmin(_pair_gaps(points), axis=1)
     offsets = np.abs(points - points[nearest]).ravel()
     offsets = np.round(offsets[offsets >= h_min], 6)
     if offsets.size == 0:
