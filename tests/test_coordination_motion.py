@@ -90,17 +90,26 @@ def test_a_robot_at_rest_facing_away_turns_in_place_then_goes() -> None:
     assert m.poses[-1, 0] > 0.5 and abs(m.poses[-1, 2]) < 1e-9
 
 
-def test_a_robot_out_of_the_tube_goes_straight_back_to_its_path_first() -> None:
-    """Pushed 0.1 m off a path with 0.06 m of reach (a robot pinned at a wall's corner
-    after cutting a turn): back to its projection, facing it, then along the path."""
-    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
-    m = path_motion(points, np.array([0.5, 0.1, -0.3]), 0.0, 0.06, T, 30, V_MAX, W_MAX, ACCEL)
+@pytest.mark.parametrize(("pose", "speed"), [((0.5, 0.1, -0.3), 0.0),
+                                           ((0.1, -0.127, 0.083), 0.26),
+                                           ((0.5, 0.2, 0.0), 0.8)])
+def test_a_robot_out_of_the_tube_rejoins_its_path_turning_towards_it(
+        pose: tuple[float, float, float], speed: float) -> None:
+    """Pushed farther off its path than the 0.06 m reach, at rest or moving along it: the
+    offset only shrinks, the heading stays between the robot's own and the join's, which
+    is at most 45 degrees off the path (a unicycle moves where it faces: a motion that
+    slides sideways while it turns away from the path is one it cannot make), within the
+    turn-rate bound, and it ends on the path going along it."""
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    m = path_motion(points, np.array(pose), speed, 0.06, T, 30, V_MAX, W_MAX, ACCEL)
     off = np.abs(m.poses[:, 1])
     assert np.all(np.diff(off) <= 1e-12)  # the offset only shrinks
-    back = np.flatnonzero(off > 1e-9)
-    np.testing.assert_allclose(m.poses[back, 0], 0.5, atol=1e-9)  # straight down to (0.5, 0)
-    assert m.poses[-1, 0] > 1.5 and abs(m.poses[-1, 1]) < 1e-9
+    towards = -math.copysign(1.0, pose[1])  # the side of the path
+    low, high = sorted((min(towards * pose[2], 0.0), math.pi / 4))
+    turned = towards * m.poses[:, 2]
+    assert turned.min() >= low - 1e-9 and turned.max() <= high + 1e-9
     assert np.abs(np.diff(m.poses[:, 2])).max() <= W_MAX * T + 1e-9
+    assert m.poses[-1, 0] > 1.5 and abs(m.poses[-1, 1]) < 1e-9 and abs(m.poses[-1, 2]) < 1e-9
 
 
 def test_a_robot_beside_its_path_starts_from_where_it_is() -> None:

@@ -25,16 +25,19 @@ half-turn (:math:`R \to 0`) is a turn in place. The motion starts at the robot's
 own pose, so that its first stage is a move the robot can make: from the robot's
 projection on this path (on the segments into and out of its progress vertex,
 the furthest of equally near points, so a path that steps back is followed in its
-order) it heads straight for the point :math:`2\rho` further along the path (not
-past a turn in place or the path's end), which closes a sideways offset within the
-tube over :math:`2\rho` (a heading change of at most :math:`\arctan\frac12`)
-and joins the path there; its own heading's error :math:`e_0` to that line is
-turned away along the first :math:`|e_0| v_0 / \omega_{\max}` metres: the
-tightest turn at its present speed :math:`v_0`, in place at rest. A robot farther
-than :math:`\rho` from the path (pushed out of the tube) first goes straight back
-to its projection. Backwards (``reverse``) the motion is the one of the robot
-turned by a half-turn, its speeds negated (the plug-in backs up to a vertex behind
-a robot that may drive backwards).
+order) it heads straight for the point :math:`\max(2\rho, e)` further along the path
+(:math:`e` its distance to the path; not past a turn in place or the path's end),
+which closes a sideways offset within the tube over :math:`2\rho` (a heading change
+of at most :math:`\arctan\frac12`) and one from outside it (a robot pushed out of
+the tube) at 45 degrees at most, and joins the path there; its own heading's error
+:math:`e_0` to that line is turned away along the first
+:math:`|e_0| v_0 / \omega_{\max}` metres, within the line: the tightest turn at its
+present speed :math:`v_0`, in place at rest. (Going back at right angles, the robot
+would have to turn by 90 degrees and back within a few centimetres: a moving robot's
+turn then ran past the line and its headings turned away from the path while its
+positions slid onto it, a motion a unicycle cannot make.) Backwards (``reverse``) the
+motion is the one of the robot turned by a half-turn, its speeds negated (the plug-in
+backs up to a vertex behind a robot that may drive backwards).
 
 **Timing: within the bounds.** Along the path the speed is the largest that
 keeps :math:`|v| \le v_{\max}`, :math:`|\omega| \le \omega_{\max}` (so
@@ -253,11 +256,10 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     ds = np.hypot(*np.diff(xy, axis=0).T)
     s = np.concatenate(([0.0], np.cumsum(ds)))
     s_q = s[i] + float(np.hypot(*(q - xy[i])))
-    if gap > reach:  # out of the tube: straight back to the path first
-        s_join = s_q
-    else:  # in it: straight to the path 2 rho ahead (not past a turn in place or the end)
-        still = np.flatnonzero(ds[i + 1:] <= 1e-12)
-        s_join = min(s_q + 2.0 * reach, s[i + 1 + still[0]] if still.size else s[-1])
+    # straight to the path max(2 rho, gap) ahead (not past a turn in place or the end): a
+    # join of at most arctan(1/2) in the tube, at most 45 degrees out of it
+    still = np.flatnonzero(ds[i + 1:] <= 1e-12)
+    s_join = min(s_q + max(2.0 * reach, gap), s[i + 1 + still[0]] if still.size else s[-1])
     j = min(int(np.searchsorted(s, s_join, side="right")) - 1, xy.shape[0] - 2)
     f = (s_join - s[j]) / ds[j] if ds[j] > 0 else 0.0
     target = xy[j] + f * (xy[j + 1] - xy[j])
@@ -268,7 +270,8 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     n = max(1, math.ceil(span / step))
     line = here + np.linspace(0.0, 1.0, n + 1)[:, None] * (target - here)
     rest = slice(j + 1, None)
-    if span > 1e-9:  # along the line, turning onto the path's heading on the way
+    span_line = span > 1e-9
+    if span_line:  # along the line, turning onto the path's heading on the way
         xy = np.concatenate((line, xy[rest]))
         psi = np.concatenate((lead + (psi_t - lead) * np.linspace(0.0, 1.0, n + 1), psi[rest]))
     else:
@@ -281,7 +284,7 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
     s = np.concatenate(([0.0], np.cumsum(ds)))
     if abs(error) > 1e-9:
         # the turn at the robot's speed: radius v0 / w_max (in place at rest)
-        span = min(max(float(speed), 0.0) / w_max * abs(error), s[-1])
+        span = min(max(float(speed), 0.0) / w_max * abs(error), s[n] if span_line else s[-1])
         if span > 0:  # sampled as an arc is
             fine = np.linspace(0.0, span, max(2, math.ceil(abs(error) / _ARC_STEP)) + 1)
             grid = np.union1d(s, fine)
