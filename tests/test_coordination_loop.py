@@ -65,18 +65,19 @@ def _a_controller_joining_at_any_sample_counts_the_same_progress(sim) -> None:
         assert np.array_equal(joined.resume(states[:, :2]), counted), k
 
 
-@pytest.mark.parametrize("acceleration", [None, 3.0])
-def test_the_corridor_arrives_with_coordination_decentralized(acceleration) -> None:
-    """The corridor built-in (goals 0.8 m apart), also with acceleration limits of 3 m/s^2
-    whose centralized rows keep 0.75 m beyond the diameter: the decentralized rows keep
-    less, and the roadmap is laid for what this scheme's rows keep."""
+@pytest.mark.parametrize(("acceleration", "scheme"), [
+    (None, "decentralized"), (3.0, "decentralized"), (3.0, "centralized")])
+def test_the_corridor_arrives_with_coordination(acceleration, scheme) -> None:
+    """The corridor built-in (goals 0.8 m apart), also with acceleration limits of 3 m/s^2,
+    where the old margin kept 0.75 m beyond the diameter: the pair rows of either scheme
+    keep 2 L (sqpmpc.problem.margins), and the roadmap is laid for what they keep."""
     sc = load_scenario("corridor")
     if acceleration is not None:
         b = sc.bounds
         sc = sc.with_changes(bounds=Bounds(
             v=b.v, omega=b.omega, x=b.x, y=b.y, acceleration=(-acceleration, acceleration),
             angular_acceleration=(-10.0, 10.0)))
-    m, sim = _run(sc, "decentralized")
+    m, sim = _run(sc, scheme)
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["obstacle_collisions"] == 0
     goals = sim.scenario.reference_positions(0.0)

@@ -86,12 +86,13 @@ def _beside_a_parked_robot() -> sqpmpc.Scenario:
         ]}, source="<test>")
 
 
-def test_robot_reaches_a_goal_beside_a_parked_robot() -> None:
+@pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
+def test_robot_reaches_a_goal_beside_a_parked_robot(scheme: str) -> None:
     """corridor's ending: a goal 0.80 m beside a parked robot, under the declared bounds,
-    in the library loop (decentralized, default rules with keep-right): the old margin
-    kept 0.801 m, the shared rows now 0.3 + 2 L; 0 collisions at and between samples."""
+    in the library loop (default rules with keep-right): the old margin kept 0.801 m, the
+    pair rows of either scheme now 0.3 + 2 L; 0 collisions at and between samples."""
     sc = _beside_a_parked_robot()
-    sim = sqpmpc.ClosedLoopSimulation(sc, "decentralized")
+    sim = sqpmpc.ClosedLoopSimulation(sc, scheme)
     margins: RowMargins = sim.controllers[0].margins
     assert 0.3 + sim.controllers[0].pair_margin > 0.8      # the old rows: unreachable
     assert margins.kept == pytest.approx(2 * 2.0 * H * H / 8)  # 2 L, L = |a| Ts^2 / 8

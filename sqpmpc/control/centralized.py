@@ -52,8 +52,9 @@ class CentralizedController(ControllerPipeline):
         super().__init__(scenario, np.arange(scenario.n_robots), layout, settings)
         self.pairs = pairs
         self.required = required
-        self.collisions = PairwiseCollisionModel(pairs, required, self.pair_margin,
-                                                 self.geometry, self.recovery_tolerance)
+        self.collisions = PairwiseCollisionModel(
+            pairs, required, self.pair_margin, self.geometry, self.recovery_tolerance,
+            deviation=self.margins.deviation, base_margin=settings.collision_margin)
         self._rows = {"internal": self.collisions}
         if self.obstacle_rows is not None:
             self._rows["external"] = self.obstacle_rows

@@ -135,8 +135,7 @@ class ControllerPipeline:
         plant = scenario.plant
         limits = None if self._unicycle else (self.model.input_lower, self.model.input_upper)
         self.margins = RowMargins(self.input_lower, self.input_upper, self.sample_time,
-                                  settings.discretization, plant, limits,
-                                  self.scheme == "decentralized")
+                                  settings.discretization, plant, limits)
         self.model_margin = self.margins.model_margin
         obstacle_margin = settings.collision_margin + 0.5 * self.model_margin  # walls, pillars
         # the rules measure "near" beyond RowMargins.rules (problem.margins)

@@ -104,14 +104,37 @@ class PairwiseCollisionModel:
     recovery
         The ``overlap-recovery`` rule's tolerance, m (see :meth:`first_input_safe`);
         negative: off (a pair inside its distance fails every check).
+    deviation
+        ``(alpha_max, beta_max)`` of :func:`sqpmpc.problem.margins.row_deviation` (robots
+        with velocity states), or ``None``. With it the rows keep, beyond the check line
+        ``required + base_margin`` (:mod:`sqpmpc.problem.margins`), twice what a robot's
+        row keeps in the decentralized scheme: :math:`2L` at stages 2..N and
+        :math:`\max(2L, m_2(h_0))` at stage 1, :math:`h_0` the pair's current height above
+        the line and :math:`m_2` the required height of a pair whose two paths each
+        stray by up to :math:`\alpha s + \beta s(1-s)` (:math:`2\alpha`, :math:`2\beta`),
+        never more than the current gap; a pair inside its check line keeps ``margin``
+        at stages 2..N.
+    base_margin
+        See ``deviation`` (the solver's margin).
     """
 
     def __init__(self, pairs: np.ndarray, required: np.ndarray, margin: float,
-                 geometry: RowGeometry, recovery: float = -1.0) -> None:
+                 geometry: RowGeometry, recovery: float = -1.0,
+                 deviation: tuple[float, float] | None = None,
+                 base_margin: float = 0.0) -> None:
         self.recovery = float(recovery)
         self.pairs = np.ascontiguousarray(np.asarray(pairs, dtype=np.int64).reshape(-1, 2))
         self.safe_distance = np.asarray(required, dtype=float)
-        self.required = self.safe_distance + float(margin)
+        self.deviation = None if deviation is None else (2.0 * float(deviation[0]),
+                                                         2.0 * float(deviation[1]))
+        #: ``(P,)`` the pair's check line: the true distance plus the solver's margin
+        self.check_line = self.safe_distance + float(base_margin)
+        #: ``(P,)`` the rows' distance with the old margin (``margin``)
+        self.old_required = self.safe_distance + float(margin)
+        if self.deviation is None:
+            self.required = self.old_required
+        else:  # stages 2..N keep the pair's fixed point 2 L (stage 1: write_rows)
+            self.required = self.check_line + float(largest_deviation(*self.deviation))
         self.geometry = geometry
         self.current_positions = np.zeros((0, 2))
         self.stage_one_overrides = 0
@@ -137,6 +160,33 @@ class PairwiseCollisionModel:
         self.stage_one_overrides = pair_rows(
             self.pairs, self.current_positions, states, self.required, self.geometry.rotation,
             self.geometry.kernel_max_turn, A_out, lower_out, self._scratch, self.stages)
+        if self.deviation is not None:
+            self._keep_stage_one(A_out, lower_out)
+
+    def _keep_stage_one(self, A_out: np.ndarray, lower_out: np.ndarray) -> None:
+        r"""Stage 1 of every pair keeps :math:`\max(2L, m_2(h_0))` beyond its check line,
+        never more than the pair's current gap along the row (``deviation``)."""
+        on = self.stages > 0
+        if not on.any():
+            return
+        p = self.current_positions
+        a, b = self.pairs[on, 0], self.pairs[on, 1]
+        normal = A_out[on, 0, :2]
+        gap = np.einsum("ij,ij->i", normal, p[a] - p[b])  # along the stage-1 row
+        line = self.check_line[on]
+        alpha, beta = self.deviation
+        own = np.maximum(required_height(gap - line, alpha, beta),
+                         largest_deviation(alpha, beta))
+        first = lower_out[on, 0]
+        lower_out[on, 0] = np.maximum(first, np.minimum(line + own, gap))
+        # a pair inside its check line (pushed, slipped) keeps the old margin at stages
+        # 2..N: its plan then separates it at once, as the overlap-recovery check needs
+        # (with 2 L a pushed head-on pair's plans failed the check sample after sample)
+        inside = np.flatnonzero(on)[gap < line]
+        if inside.size:
+            later = lower_out[inside, 1:]
+            lower_out[inside, 1:] = np.where(np.isfinite(later),
+                                             self.old_required[inside, None], later)
 
     def first_input_safe(self, now: np.ndarray, nxt: np.ndarray,
                          growth: np.ndarray | None = None) -> bool:

@@ -51,8 +51,16 @@ this choice, only which plans the QP proposes does. :math:`\alpha` and
 :math:`\beta^+` are their largest values over the velocity and acceleration
 boxes (:func:`row_deviation`; :math:`m` and :math:`L` grow with both). The
 centralized rows (both robots' positions are variables of one QP, each pair's row
-at the same stage) and the rows against obstacles and missing neighbours keep the
-old margin (:func:`~sqpmpc.problem.plant.model_margin`).
+at the same stage) keep the same for the pair as a whole: the pair's two paths stray
+by up to :math:`2\alpha s + 2\beta s(1-s)` from its predicted segments, so stage 1
+keeps :math:`\max(2L, m_2(h_0))` (:math:`m_2` the required height for
+:math:`2\alpha, 2\beta`, :math:`h_0` the pair's current height above its check
+line; :math:`m_2(h_0) = 2 m(h_0/2)`, each robot's half) and stages 2..N :math:`2L`
+(:class:`sqpmpc.ocp.collision_rows.PairwiseCollisionModel`). They kept the old margin
+until the roadmap coordination needed robots at neighbouring vertices: 0.75 m beyond
+the required distance at :math:`|a| \le 3` m/s^2 and :math:`T_s` = 0.5 s, more than the
+corridor built-in's starts leave. The rows against obstacles and missing neighbours
+keep the old margin (:func:`~sqpmpc.problem.plant.model_margin`).
 """
 
 from __future__ import annotations
@@ -112,23 +120,20 @@ class RowMargins:
     acceleration_bounds
         ``(lower, upper)`` of the accelerations (robots with velocity states), or
         ``None`` (the paper's robot).
-    shared
-        Whether the rows are the decentralized shared ones (which keep
-        :attr:`steady` instead of half :attr:`model_margin`).
 
     Attributes
     ----------
     model_margin
         :func:`~sqpmpc.problem.plant.model_margin`: the old margin between two robots.
     deviation
-        ``(alpha_max, beta_max)`` of :func:`row_deviation` for shared rows of robots
-        with velocity states, else ``None``.
+        ``(alpha_max, beta_max)`` of :func:`row_deviation` for robots with velocity
+        states, else ``None``.
     steady
         :math:`L`, the largest deviation of ``deviation`` (0 without it).
     kept
-        What the rows keep between two robots at rest beyond the required distance
-        (the solver's margin aside): ``2 steady`` for shared rows, else
-        ``model_margin``; 0 for the paper's robot.
+        What the pair rows of either scheme keep between two robots at rest beyond the
+        required distance (the solver's margin aside): ``2 steady``; 0 for the paper's
+        robot.
     rules
         Beyond the required distance the rules measure *near* from
         (:attr:`sqpmpc.rules.base.RuleContext.model_margin`): ``model_margin`` for
@@ -142,15 +147,13 @@ class RowMargins:
 
     def __init__(self, input_lower: np.ndarray, input_upper: np.ndarray,
                  sample_time: float, prediction: str, plant: PlantSpec,
-                 acceleration_bounds: tuple[np.ndarray, np.ndarray] | None,
-                 shared: bool) -> None:
+                 acceleration_bounds: tuple[np.ndarray, np.ndarray] | None) -> None:
         args = (input_lower, input_upper, sample_time, prediction, plant)
         self.model_margin = model_margin(*args, acceleration_bounds)
-        self.deviation = None if acceleration_bounds is None or not shared else \
+        self.deviation = None if acceleration_bounds is None else \
             row_deviation(*args, acceleration_bounds)
         self.steady = 0.0 if self.deviation is None else float(
             largest_deviation(*self.deviation))
-        self.kept = 0.0 if acceleration_bounds is None else (
-            self.model_margin if self.deviation is None else 2.0 * self.steady)
+        self.kept = 2.0 * self.steady
         self.rules = 0.0 if acceleration_bounds is None else self.model_margin
 

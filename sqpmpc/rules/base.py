@@ -98,9 +98,8 @@ class RuleContext:
         Distance, m, the collision rows between two robots at rest keep beyond the
         required distance: the solver's ``collision_margin`` plus the plant's model
         margin, or for robots with velocity states what this scheme's rows keep
-        (:attr:`sqpmpc.problem.margins.RowMargins.kept`: the decentralized shared rows
-        keep less than the centralized ones, 0.19 m against 0.75 m at accelerations of
-        3 m/s^2 and ``Ts`` = 0.5 s).
+        (:attr:`sqpmpc.problem.margins.RowMargins.kept`, the same in both schemes:
+        0.19 m at accelerations of 3 m/s^2 and ``Ts`` = 0.5 s).
     wall_margin
         Distance, m, the rows against the static map keep beyond the robot's radius
         (the solver's ``collision_margin`` plus :attr:`obstacle_margin`).
