@@ -55,7 +55,7 @@ same hyperplane from the same exchanged predictions and each keeps half the
 distance on its own side of the mid-line: :math:`n^\top p_j \ge c + d/2` and
 :math:`-n^\top p_l \ge -c + d/2` imply :math:`n^\top(p_j - p_l) \ge d`. On
 stage 1 the offset :math:`c` is clipped so that each current position stays on
-its side. The row geometry (rotation, turn limit, holding) comes from the
+its side. The row geometry (rotation, turn limit) comes from the
 rules through :class:`sqpmpc.ocp.geometry.RowGeometry`; the rows are built by the
 compiled kernels of :mod:`sqpmpc.kernels.collision`.
 """
