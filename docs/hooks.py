@@ -27,6 +27,7 @@ REPORTS: dict[str, str] = {
     "before-after.md": "python -m benchmarks.compare_ipopt --baseline PATH",
     "decomposition.md": "python -m benchmarks.decomposition",
     "liveness.md": "python -m benchmarks.liveness",
+    "ablation.md": "python -m benchmarks.ablation --large",
     "random-scenarios.md": "python -m benchmarks.random_scenarios",
     "maps.md": "python -m benchmarks.maps",
     "mapf-maps.md": "python -m benchmarks.mapf_maps --maps-dir DIR",

@@ -22,7 +22,6 @@ from sqpmpc.rules.liveness import (
     KeepRight,
     Parking,
     StallRepair,
-    TouchingPairs,
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout
@@ -50,7 +49,7 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, TouchingPairs, Coordination, RouteFollowing, Yield,
+    for cls in (TurnLimit, KeepRight, Coordination, RouteFollowing, Yield,
                 Roundabout, Detour, Parking, StallRepair, GearCycle)
 }
 
