@@ -11,7 +11,6 @@ import pytest
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.coordination.schedule import Execution
 from sqpmpc.io.metrics import compute_metrics
-from sqpmpc.problem.fleets import grid_to_grid
 from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.scenario import Bounds
 from sqpmpc.problem.scenario_file import load_scenario
@@ -83,40 +82,3 @@ def test_the_corridor_arrives_with_coordination(acceleration, scheme) -> None:
     assert m["obstacle_collisions"] == 0
     goals = sim.scenario.reference_positions(0.0)
     assert np.hypot(*(sim.states[-1, :, :2] - goals).T).max() <= 0.05
-
-
-@pytest.mark.parametrize("name", ["aisle", "formation"])
-def test_a_robot_follows_the_robot_ahead_without_entering_its_vertex(name: str) -> None:
-    """Robots that wait for the robots the plan has on their next vertex go on along the
-    edge while those leave it (``coordination_follows``), never into the vertex itself:
-    a robot is never nearer than half the reach to a vertex it may not enter yet
-    (tracking error aside), and every robot arrives with every distance kept. A
-    one-cell aisle (16 robots swapping sides through it) and a 4x4 grid formation."""
-    if name == "aisle":
-        sc = mapf_scenario(DATA / "aisle-20-7.map", 16, scen_path=DATA / "aisle-20-7.scen",
-                           cell=0.5, diameter=0.3, acceleration=2.0,
-                           angular_acceleration=10.0)
-        sc = sc.with_changes(t_end=round(150.0 / sc.sample_time) * sc.sample_time)
-    else:
-        sc = grid_to_grid(4, 4)
-    sim = ClosedLoopSimulation(sc, "decentralized", SolverSettings(
-        rules=select_rules(["coordination"])))
-    rule = sim.controllers[0].rule("coordination")
-    plan, execution = rule.plan, rule.execution
-    schedule, reach = plan.schedule, plan.roadmap.reach
-    nearest = np.inf
-    while sim.k < sc.steps:
-        sim.step()
-        progress, permitted = execution.progress, execution.permitted_all()
-        waiting = np.flatnonzero(permitted <= progress)
-        waiting = waiting[progress[waiting] < schedule.lengths[waiting] - 1]
-        if waiting.size:
-            ahead = plan.roadmap.positions[schedule.paths[waiting, progress[waiting] + 1]]
-            here = sim.states[sim.k, plan.robots[waiting], :2]
-            nearest = min(nearest, float(np.hypot(*(here - ahead).T).min()))
-    m = compute_metrics(sim.record())
-    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
-    assert m["obstacle_collisions"] == 0
-    assert _arrived(sim).all(), f"arrived: {_arrived(sim)}"
-    assert sim.counters()["coordination_follows"] > 0
-    assert nearest >= 0.5 * reach, nearest

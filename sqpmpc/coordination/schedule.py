@@ -167,27 +167,19 @@ class Execution:
         """Count progress from the measured ``positions (N, 2)`` of all robots (scenario
         order): a robot is at the path vertex nearest to it among its progress vertex
         and the next ``window`` ones (ties: the later one); progress never decreases.
-        Counted until nothing moves: a robot whose progress opens the next robot's vertex
-        lets that one be counted at the same sample (a robot that follows another along an
-        edge is nearest to the vertex ahead as soon as the other has left it).
         Returns the progress ``(n,)`` (read it, do not write it)."""
         now = np.asarray(positions, dtype=float)[self.robots]
         n, width = self._points.shape[:2]
-        rows = np.arange(n)
-        while True:  # at most one pass per robot that moves
-            ahead = self.progress[:, None] + np.arange(0, self.window + 1)[None, :]
-            valid = ahead <= self._last[:, None]
-            ahead = np.minimum(ahead, width - 1)
-            pts = self._points[rows[:, None], ahead]  # (n, W + 1, 2)
-            valid &= ahead <= self.permitted_all()[:, None]  # never past what it may enter
-            gap = np.where(valid, np.hypot(*(pts - now[:, None, :]).transpose(2, 0, 1)),
-                           np.inf)
-            # the later of equally near vertices: argmin over the reversed window
-            best = gap.shape[1] - 1 - np.argmin(gap[:, ::-1], axis=1)
-            counted = np.maximum(self.progress, ahead[rows, best])
-            if np.array_equal(counted, self.progress):
-                return self.progress
-            self.progress[:] = counted
+        ahead = self.progress[:, None] + np.arange(0, self.window + 1)[None, :]
+        valid = ahead <= self._last[:, None]
+        ahead = np.minimum(ahead, width - 1)
+        pts = self._points[np.arange(n)[:, None], ahead]  # (n, W + 1, 2)
+        valid &= ahead <= self.permitted_all()[:, None]  # never past what it may enter
+        gap = np.where(valid, np.hypot(*(pts - now[:, None, :]).transpose(2, 0, 1)), np.inf)
+        # the later of equally near vertices: argmin over the reversed window
+        best = gap.shape[1] - 1 - np.argmin(gap[:, ::-1], axis=1)
+        np.maximum(self.progress, ahead[np.arange(n), best], out=self.progress)
+        return self.progress
 
     def resume(self, positions: np.ndarray) -> np.ndarray:
         """Count progress from one measurement, for a controller that joins an execution
@@ -221,10 +213,7 @@ class Execution:
                 break
             self.progress[:] = moved
         within = nearest & (index <= self.progress[:, None])
-        # a robot nearest to a vertex it may not enter yet (it follows the robots the plan
-        # has there before it along the edge) is at the last vertex the order lets it count
-        last = np.where(within.any(axis=1), width - 1 - np.argmax(within[:, ::-1], axis=1),
-                        self.progress)
+        last = np.where(within.any(axis=1), width - 1 - np.argmax(within[:, ::-1], axis=1), 0)
         self.progress[:] = np.maximum(start, last)
         return self.progress
 

@@ -49,8 +49,7 @@ __all__ = ["Coordination"]
 
 class _Instance(RuleInstance):
     hooks = ("references",)
-    counter_names = ("coordination_holds", "coordination_replans", "coordination_tracked",
-                     "coordination_follows")
+    counter_names = ("coordination_holds", "coordination_replans", "coordination_tracked")
 
     def __init__(self, rule: Rule, context: RuleContext) -> None:
         super().__init__(rule, context)
@@ -106,53 +105,6 @@ class _Instance(RuleInstance):
         self._start(self.plan)  # the new paths start at the progress vertices
         self.counts["coordination_replans"] += 1
 
-    def _creep(self, row: int, k: int, last: int, positions: np.ndarray
-               ) -> np.ndarray | None:
-        """How far robot ``row`` may go on from its last open vertex ``k`` towards the next
-        one while the robots it waits for there are on it, leaving (``None``: not at all).
-
-        The robots the plan has on vertex ``k + 1`` before it are all there (their
-        progress vertex is it: they only leave it, and never towards vertex ``k``, which
-        this robot holds: that would be a swap) or it does not go on. It goes along the
-        edge to the farthest point that keeps the roadmap's separation from each of them
-        (what the collision rows keep between two robots anyway), so that when they have
-        left it is nearer and it does not stop and start again (in a chain of waiting
-        robots each started from rest a sample after the one ahead of it had left: grid
-        formations of 16 to 64 robots, 13 seeded runs, median makespan 2.01 -> 1.86 times
-        the straight trip). The vertex itself (within the reach) it never enters, the
-        progress it counts is unchanged, and the collision rows keep every distance as
-        always.
-        """
-        execution, plan = self.execution, self.plan
-        if k >= last:
-            return None
-        s = plan.schedule
-        progress = execution.progress
-        unmet = (s.dep_owner == row) & (s.dep_index == k + 1) & (progress[s.dep_robot]
-                                                                  < s.dep_need)
-        if not unmet.any():
-            return None
-        waits = s.dep_robot[unmet]
-        vertex = s.paths[row, k + 1]
-        if np.any(s.paths[waits, progress[waits]] != vertex):
-            return None  # one is still coming, or passes a corner: wait at the vertex
-        a = plan.roadmap.positions[s.paths[row, k]]
-        d = plan.roadmap.positions[vertex] - a
-        keep = self.separation  # what the rows keep between two robots anyway
-        others = positions[plan.robots[waits]] - a  # (q, 2)
-        # the smallest f in [0, 1] with |f d - q| = keep: f^2 |d|^2 - 2 f d.q + |q|^2 - keep^2
-        dd = float(d @ d)
-        dq = others @ d
-        c = np.einsum("ij,ij->i", others, others) - keep ** 2
-        if np.any(c <= 0.0) or dd <= 0.0:
-            return None  # already within the kept distance of the vertex behind
-        disc = dq ** 2 - dd * c
-        f = np.where(disc >= 0.0, (dq - np.sqrt(np.maximum(disc, 0.0))) / dd, 1.0)
-        f = float(np.clip(f.min(), 0.0, 1.0))
-        if f * math.sqrt(dd) <= plan.roadmap.reach:
-            return None  # nothing to gain beyond the vertex's own reach
-        return a + min(f, 1.0 - plan.roadmap.reach / math.sqrt(dd)) * d
-
     def shape_references(self, view: SampleView) -> Contribution | None:
         execution, plan = self.execution, self.plan
         if execution is None or plan is None:
@@ -177,8 +129,7 @@ class _Instance(RuleInstance):
                 self.counts["coordination_holds"] += 1
             here = view.own_states[m]
             reverse = False
-            creep = self._creep(row, k, last, view.positions)
-            if k <= p and creep is None:  # at the end of its open path: its vertex or goal
+            if k <= p:  # at the end of its open path: its progress vertex, or its goal
                 end = plan.goals[row] if p >= last else execution.path_points(row, p, p)[0]
                 gap = math.hypot(end[0] - here[0], end[1] - here[1])
                 # at a vertex it waits within the reach; its goal it closes to half of it,
@@ -193,14 +144,11 @@ class _Instance(RuleInstance):
                 reverse = self._reverse and math.cos(bearing - here[2]) < 0.0  # behind it
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
-                stop = min(max(k, p), back + self._window + 1)  # beyond the horizon: open
+                stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
                 points = execution.path_points(row, back, stop)
                 if stop == last:
                     points = np.concatenate((points, plan.goals[row][None]))
-                elif stop == max(k, p) and creep is not None:  # on towards the next vertex
-                    points = np.concatenate((points, creep[None]))
-                    self.counts["coordination_follows"] += 1
-                halt, within = stop == max(k, p), p + 1 - back  # projected to the next vertex
+                halt, within = stop == k, p + 1 - back  # projected up to the next vertex
             # the robot's velocities (the command it was last sent, as the model takes them
             # when none are measured); a model without velocity states starts its motion
             # at the motion's own rate (its inputs are the sample's velocities)
