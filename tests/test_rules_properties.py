@@ -165,8 +165,10 @@ def test_every_rule_parameter_is_refused_by_rule_and_field(rule: str, field: str
 
 
 def test_every_rule_has_parameters_or_none_to_check() -> None:
-    """The parametrization above covers each rule with fields; coordination has none."""
-    assert {name for name, _ in _FIELDS} == set(RULES) - {"coordination"}
+    """The parametrization above covers each rule with fields; touching-pairs and
+    coordination have none."""
+    assert {name for name, _ in _FIELDS} == set(RULES) - {"touching-pairs", "coordination"}
+    assert RULES["touching-pairs"]().parameters() == {}
     assert RULES["coordination"]().parameters() == {}
 
 

@@ -310,7 +310,7 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
                 other_pred: np.ndarray, shared: np.ndarray, required: np.ndarray,
                 true_distance: np.ndarray, rotation: np.ndarray, max_turn: float,
                 A_out: np.ndarray, lower_out: np.ndarray, check_normals: np.ndarray,
-                check_rhs: np.ndarray) -> int:
+                check_rhs: np.ndarray, touching: np.ndarray) -> int:
     r"""Shared-responsibility rows of one robot against its neighbours (decentralized).
 
     For every slot ``e`` with ``shared[e]``: the common hyperplane of the two
@@ -337,6 +337,8 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
     check_normals, check_rhs
         ``(E, 2)``, ``(E,)``: the first-stage check of the true distance
         (``n^T p >= rhs``); ``-inf`` for slots that are not shared.
+    touching
+        ``(E,)`` bool out: the pair is inside the margin band.
 
     Returns
     -------
@@ -347,6 +349,7 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
     E, N = shared.shape[0], A_out.shape[1]
     mx, my = me[0], me[1]
     for e in range(E):
+        touching[e] = False
         if not shared[e]:
             for i in range(N):
                 A_out[e, i, 0] = 0.0
@@ -377,6 +380,7 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
         for i in range(N):
             lower_out[e, i] = lower_out[e, i] + half
         lower_out[e, 0] = min(lower_out[e, 0], n1_me)
+        touching[e] = gap < d
         D = true_distance[e]
         check_normals[e, 0], check_normals[e, 1] = n1x, n1y
         if gap >= d:

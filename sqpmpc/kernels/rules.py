@@ -1,4 +1,4 @@
-"""Compiled kernels of the liveness rules (:mod:`sqpmpc.rules`): turn limits,
+"""Compiled kernels of the liveness rules (:mod:`sqpmpc.rules`): turn limits, held rows,
 stall and parking repairs, gear cycles, detours and the roundabout's directions.
 
 They live in the kernel layer so that the collision kernels and the warm-up never import
@@ -13,7 +13,7 @@ import numba
 import numpy as np
 
 __all__ = [
-    "detour_step", "gear_streak", "idle", "inside_pairs",
+    "detour_step", "gear_streak", "hold_touching_rows", "idle", "inside_pairs",
     "limit_turning", "parking_mask",
     "repair_guess", "repair_speeds", "reversing", "roundabout_directions",
     "stall_repair", "standing_still",
@@ -67,6 +67,18 @@ def limit_turning(n0x: float, n0y: float, normals: np.ndarray, max_turn: float) 
                 cx, cy = c * px - s * py, s * px + c * py
             normals[i, 0], normals[i, 1] = cx, cy
         px, py = cx, cy
+
+
+@_jit
+def hold_touching_rows(me: np.ndarray, touching: np.ndarray, A_out: np.ndarray,
+                     lower_out: np.ndarray) -> None:
+    """Touching pairs (``touching (E,)``) repeat the stage-1 row on stage 2, in place."""
+    if A_out.shape[1] < 2:
+        return
+    for e in range(touching.shape[0]):
+        if touching[e]:
+            A_out[e, 1, 0], A_out[e, 1, 1] = A_out[e, 0, 0], A_out[e, 0, 1]
+            lower_out[e, 1] = A_out[e, 0, 0] * me[0] + A_out[e, 0, 1] * me[1]
 
 
 @_jit
@@ -256,6 +268,9 @@ def warm_up_rules() -> None:
                      np.empty((2, 2)))
         repair_guess(guess, references, own, mask, 0.05, 0.01, 0.05, -0.05, np.empty((2, 2)))
     limit_turning(1.0, 0.0, np.zeros((2, 2)), 0.6)
+    for me in (np.zeros(2), _read_only(np.zeros(2))):
+        hold_touching_rows(me, np.zeros(1, dtype=np.bool_), np.zeros((1, 2, 2)),
+                           np.zeros((1, 2)))
     reversing(_read_only(np.zeros(2)), applied, applied, 0.005, np.zeros(2, dtype=np.bool_))
     detour_step(_read_only(np.zeros((3, 2))), np.arange(2), applied, applied, references,
                 np.ones((2, 3)), np.array([0.05, 0.3, 0.2, 2, 6, 4]),

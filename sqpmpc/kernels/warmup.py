@@ -33,7 +33,7 @@ from sqpmpc.kernels.pair_paths import warm_up_pair_paths
 from sqpmpc.kernels.polygons import path_keeps_pieces, piece_distances, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
 from sqpmpc.kernels.rings import warm_up_rings
-from sqpmpc.kernels.rules import inside_pairs, warm_up_roundabout, warm_up_rules
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
 
 __all__ = ["warm_up"]
 
@@ -92,12 +92,14 @@ def warm_up() -> float:
     ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2))
     ck.pairs_keep_distance(pairs, x[:, :2].copy(), x[:, :2].copy(), np.ones(1), np.zeros(2),
                            1e-3)
+    touching = np.zeros(1, dtype=np.bool_)
     A = np.empty((1, 2, 2))
     lo = np.empty((1, 2))
     for me in (np.zeros(2), _read_only(np.zeros(2))):
         ck.shared_rows(me, np.ones((1, 2)), np.zeros((1, 2, 3)), np.ones((1, 2, 3)),
                        np.ones(1, dtype=np.bool_), np.ones(1), np.ones(1), rot, 0.6, A, lo,
-                       np.empty((1, 2)), np.empty(1))
+                       np.empty((1, 2)), np.empty(1), touching)
+        hold_touching_rows(me, touching, A, lo)
         inside_pairs(me, np.ones((1, 2)), np.ones(1, dtype=np.bool_), np.ones(1),
                      np.zeros(1, dtype=np.bool_))
         ck.obstacle_rows(me, np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),

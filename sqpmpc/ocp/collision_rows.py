@@ -55,7 +55,7 @@ same hyperplane from the same exchanged predictions and each keeps half the
 distance on its own side of the mid-line: :math:`n^\top p_j \ge c + d/2` and
 :math:`-n^\top p_l \ge -c + d/2` imply :math:`n^\top(p_j - p_l) \ge d`. On
 stage 1 the offset :math:`c` is clipped so that each current position stays on
-its side. The row geometry (rotation, turn limit) comes from the
+its side. The row geometry (rotation, turn limit, holding) comes from the
 rules through :class:`sqpmpc.ocp.geometry.RowGeometry`; the rows are built by the
 compiled kernels of :mod:`sqpmpc.kernels.collision`.
 """
@@ -75,7 +75,7 @@ from sqpmpc.kernels.collision import (
     select_pairs,
     shared_rows,
 )
-from sqpmpc.kernels.rules import inside_pairs
+from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.problem.margins import required_height
 from sqpmpc.problem.plant import largest_deviation
@@ -281,6 +281,7 @@ class ExternalCollisionModel:
         self.check_rhs = np.full(E, -np.inf)
         self.current_self = np.zeros(2)
         self.current_others = np.zeros((E, 2))
+        self.touching = np.zeros(E, dtype=np.bool_)
         self.stage_one_overrides = 0
         self._shared_overrides = 0
         self._shared_mask = np.zeros(E, dtype=np.bool_)
@@ -367,9 +368,12 @@ class ExternalCollisionModel:
             self.safe_distance + self._shared_margin if own else self.required,
             self.safe_distance, g.rotation,
             g.kernel_max_turn, self.fixed_normals, self.fixed_rhs, self.check_normals,
-            self.check_rhs)
+            self.check_rhs, self.touching)
         if own:
             self._keep_own_margin()
+        if g.hold_touching:
+            hold_touching_rows(self.current_self, self.touching, self.fixed_normals,
+                               self.fixed_rhs)
 
     def _keep_own_margin(self) -> None:
         """The shared rows keep :attr:`own_margin` beyond what the kernel wrote; stage 1

@@ -23,14 +23,18 @@ class RowGeometry:
     max_turn
         Largest turn of a pair's normal between consecutive stages, rad, or
         ``None`` (no limit).
+    hold_touching
+        Decentralized shared rows: pairs inside the margin band repeat their
+        stage-1 row on stage 2.
     """
 
     rotation: np.ndarray
     max_turn: float | None = None
+    hold_touching: bool = False
 
     @classmethod
     def plain(cls, horizon: int) -> RowGeometry:
-        """Unrotated Taylor normals, no turn limit."""
+        """Unrotated Taylor normals, no turn limit, no holding."""
         return cls(np.tile([1.0, 0.0], (horizon, 1)))
 
     @property

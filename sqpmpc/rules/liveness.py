@@ -16,6 +16,9 @@ rule               what it does
 ``turn-limit``     a pair's normal turns at most ``max_turn`` between stages:
                    predictions that tunnel through each other between two
                    samples would otherwise flip the hyperplane
+``touching-pairs`` decentralized: a pair inside the margin band repeats its
+                   stage-1 row on stage 2, so the plan turns first instead of
+                   "wait, then go" every sample
 ``stall-repair``   a robot whose guess has every ``|v| < speed`` while its goal is
                    farther than ``distance`` is linearized at ``v = +-speed``:
                    at ``v = 0`` the linearized unicycle cannot move sideways
@@ -56,7 +59,7 @@ from sqpmpc.rules.base import (
 )
 
 __all__ = [
-    "Detour", "GearCycle", "KeepRight", "Parking", "StallRepair", "TurnLimit",
+    "Detour", "GearCycle", "KeepRight", "Parking", "StallRepair", "TouchingPairs", "TurnLimit",
 ]
 
 _jit = numba.njit(cache=True, nogil=True)
@@ -122,6 +125,22 @@ class TurnLimit(Rule):
         if self.max_turn >= np.pi:
             raise ProblemError(f"rule 'turn-limit': max_turn must be below pi, "
                                f"got {self.max_turn}")
+
+
+class _TouchingInstance(RuleInstance):
+    hooks = ("rows",)
+
+    def configure_rows(self, geometry: RowGeometry) -> RowGeometry:
+        return dataclasses.replace(geometry, hold_touching=True)
+
+
+@dataclass(frozen=True)
+class TouchingPairs(Rule):
+    """Decentralized: a pair inside the margin band keeps its stage-1 row on stage 2."""
+
+    name = "touching-pairs"
+    summary = "decentralized: touching pairs repeat the stage-1 row on stage 2 (turn, then go)"
+    instance = _TouchingInstance
 
 
 # ----------------------------------------------------------------- linearization point

@@ -22,6 +22,7 @@ from sqpmpc.rules.liveness import (
     KeepRight,
     Parking,
     StallRepair,
+    TouchingPairs,
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout
@@ -49,7 +50,7 @@ __all__ = [
 #: Built-in rules in the order the pipeline applies them within a hook.
 RULES: dict[str, type[Rule]] = {
     cls.name: cls
-    for cls in (TurnLimit, KeepRight, Coordination, RouteFollowing, Yield,
+    for cls in (TurnLimit, KeepRight, TouchingPairs, Coordination, RouteFollowing, Yield,
                 Roundabout, Detour, Parking, StallRepair, GearCycle)
 }
 
