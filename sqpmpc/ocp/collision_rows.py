@@ -131,10 +131,13 @@ class PairwiseCollisionModel:
         self.check_line = self.safe_distance + float(base_margin)
         #: ``(P,)`` the rows' distance with the old margin (``margin``)
         self.old_required = self.safe_distance + float(margin)
+        #: the pair's fixed point 2 L (``deviation``; 0 without it), m
+        self.steady = 0.0 if self.deviation is None else float(
+            largest_deviation(*self.deviation))
         if self.deviation is None:
             self.required = self.old_required
-        else:  # stages 2..N keep the pair's fixed point 2 L (stage 1: write_rows)
-            self.required = self.check_line + float(largest_deviation(*self.deviation))
+        else:  # stages 2..N keep 2 L (stage 1: write_rows)
+            self.required = self.check_line + self.steady
         self.geometry = geometry
         self.current_positions = np.zeros((0, 2))
         self.stage_one_overrides = 0
@@ -175,8 +178,7 @@ class PairwiseCollisionModel:
         gap = np.einsum("ij,ij->i", normal, p[a] - p[b])  # along the stage-1 row
         line = self.check_line[on]
         alpha, beta = self.deviation
-        own = np.maximum(required_height(gap - line, alpha, beta),
-                         largest_deviation(alpha, beta))
+        own = np.maximum(required_height(gap - line, alpha, beta), self.steady)
         first = lower_out[on, 0]
         lower_out[on, 0] = np.maximum(first, np.minimum(line + own, gap))
         # a pair inside its check line (pushed, slipped) keeps the old margin at stages
