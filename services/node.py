@@ -233,6 +233,8 @@ class Node:
                                         getattr(args, "max_rate", None)))
         except ValueError as exc:
             raise ProblemError(str(exc)) from exc
+        self.insecure = config is None
+        """This process's Zenoh session runs without credentials (plain, unauthenticated)."""
         if config is None:
             log.warning("no --credentials: unauthenticated Zenoh traffic, any process that "
                         "reaches the endpoints can publish on the run's keys")
