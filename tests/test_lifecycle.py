@@ -49,7 +49,7 @@ def test_a_robot_alive_but_silent_does_not_stall_the_lockstep_run(tmp_path):
     robots = {}
     for i, port in zip((1, 2, 3, 4), ports[1:], strict=True):
         env = {**os.environ, "SQPMPC_FAULTS": "mute=10"} if i == 2 else None
-        robots[i] = start_service("robot", ["--id", str(i), *common, "--listen",
+        robots[i] = start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                             f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                             "--timeout", "3"], tmp_path / "logs",
                                   name=f"robot-{i}", env=env)

@@ -150,7 +150,8 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         time.sleep(0.5)
         # now the last robot: the run starts
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--t-end",
-                                            "10.0", "--run", run, "--connect", plant_ep],
+                                            "10.0", "--run", run, "--connect", plant_ep,
+                                            "--insecure"],
                                   tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
         assert plant.wait(60) == 0, plant.output()
@@ -226,7 +227,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     try:
         assert probe.wait_for(lambda: bool(probe.events), 60), plant.output()  # running
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--run", run,
-                                            "--t-end", t_end, "--connect", plant_ep,
+                                            "--t-end", t_end, "--connect", plant_ep, "--insecure",
                                             "--startup-timeout", "120"],
                                   tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
@@ -263,7 +264,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     ("robot", ["--id", "1", "--scenario", "no-such-scenario"]),
     ("robot", ["--id", "9", "--scenario", SCENARIO]),
     ("central", ["--scenario", SCENARIO, "--t-end", "0.3"]),
-    ("robot", ["--id", "1", "--scenario", SCENARIO, "--listen", "not-an-endpoint"]),
+    ("robot", ["--id", "1", "--scenario", SCENARIO, "--insecure", "--listen", "not-an-endpoint"]),
     ("router", ["--listen", "tcp/127.0.0.1:not-a-port"]),
     ("plant", ["--scenario", SCENARIO, "--credentials-fd", "99"]),
     ("launch", ["--scenario", "no-such-scenario", "--scheme", "centralized"]),
@@ -348,6 +349,7 @@ def test_every_process_ends_with_one_line_when_the_others_are_gone(tmp_path):
     left gives up after --rejoin-timeout and writes what it has."""
     (port,) = free_ports(1)
     alone = start_service("robot", ["--id", "1", "--scenario", SCENARIO, "--run", "nobody",
+                                    "--insecure",
                                     "--connect", f"tcp/127.0.0.1:{port}",
                                     "--startup-timeout", "2"], tmp_path / "logs",
                           name="robot-alone")
