@@ -212,6 +212,10 @@ def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):
         assert (out / name).exists(), name
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["scenario"] == "head-on" and metrics["steps"] == 6
+    # secured (not --insecure), and the controllers' counts added up from their logs
+    assert metrics["insecure"] is False
+    assert metrics["controller_counts"]["samples"] > 0
+    assert metrics["controller_counts"]["odometry_future"] == 0
     assert sqpmpc_main(["metrics", str(out)]) == 0
 
 

@@ -87,6 +87,7 @@ def test_realtime_run_completes(tmp_path):
     assert res.returncode == 0, res.stderr
     m = _metrics(out)
     assert m["completed"] is True and m["mode"] == "realtime" and m["steps"] == 30
+    assert m["insecure"] is False  # the launcher's credentials, handed over in memory
     assert isinstance(m["missed_deadlines"], int)
     assert m["sample_time"] == 0.05
 
@@ -162,6 +163,7 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     by_process = m["invalid_messages_by_process"]
+    assert m["insecure"] is True  # plain TCP, the robots started with --insecure
     assert by_process["plant"] == 7, plant.output()
     assert by_process["robot/1"] == 2 and by_process["robot/3"] == 2
     assert by_process["robot/2"] == 1 and by_process["robot/4"] == 0
