@@ -91,6 +91,8 @@ def test_a_robot_inside_a_departed_neighbours_disc_may_leave_it_but_not_approach
     (["--ros2", "--insecure", "--ros2-zenoh-config", "no-such.json5"],
      "--ros2-zenoh-config no-such.json5: no such file"),
     (["--ros2", "--insecure", "--cmd-rate", "1"], "--cmd-rate: must be above 1/Ts"),
+    (["--ros2", "--insecure", "--cmd-rate", "1000"], "--cmd-rate: at most 100 Hz"),
+    (["--ros2", "--insecure", "--cmd-rate", "-5"], "--cmd-rate: expected a number >= 0"),
 ])
 def test_a_robot_without_credentials_refuses_to_start(capsys, extra, message):
     with pytest.raises(SystemExit) as exc:
