@@ -122,6 +122,23 @@ def test_a_simulated_base_stops_on_its_command_timeout_and_counts_it():
     assert not robot.expire(104.0) and robot.timeouts == 2
 
 
+def test_a_simulated_base_takes_back_a_timeout_its_own_lag_caused():
+    robot = SimRobot(1, 0.3, np.zeros(3), 100.0, timeout=0.5)
+    robot.command(0.4, 0.0, 100.0, sent=100.0)
+    assert robot.expire(100.6) and robot.timeouts == 1  # nothing processed for 0.6 s
+    # the next command had been sent 0.05 s after the last (the simulator lagged): not
+    # the controller's timeout
+    robot.command(0.4, 0.0, 100.7, sent=100.05)
+    assert robot.timeouts == 0 and robot.lagged == 1 and robot.timed_out == 0.0
+    # processed late again, but judged when it comes: the lag alone is no timeout
+    robot.command(0.4, 0.0, 101.5, sent=100.1)
+    assert robot.timeouts == 0 and robot.lagged == 1
+    # a gap in what the controller sent is one
+    robot.command(0.4, 0.0, 102.2, sent=102.2)
+    assert robot.timeouts == 1 and robot.lagged == 1
+    assert robot.timed_out == pytest.approx(102.2 - 102.0)
+
+
 @pytest.mark.parametrize("lazy", [False, True])
 def test_plant_mode_refuses_a_plan_not_starting_at_its_robots_state(lazy):
     from services.messages import encode

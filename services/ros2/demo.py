@@ -409,6 +409,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
           f"{result.certified_clearance:.4f} m), {result.arrived}/{result.robots} within "
           f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m), "
           f"{sum(result.command_timeouts.values())} command timeouts"
+          f" ({sum(result.lagged_timeouts.values())} more judged on the simulator's lag "
+          "and taken back)"
           + "".join(f"; robot {r}: zero {d:.3f} s after its odometry stopped"
                     if d is not None else f"; robot {r}: no zero after its odometry stopped"
                     for r, d in result.stop_to_zero.items()))
