@@ -354,18 +354,18 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         "geometry_msgs/msg/Twist"
     endpoints = []
 
-    sent = threading.local()  # the source timestamp of the sample being handled
+    source = threading.local()  # the source timestamp of the sample being handled
 
     class StampedSubscriber(sdk.ROS2Subscriber):
         """The SDK's subscriber; its callback also learns the sample's source timestamp
         (the rmw_zenoh attachment, read by the SDK's own :class:`Attachment`)."""
 
         def _process_sample(self, sample: object) -> None:
-            sent.stamp = None
+            source.stamp = None
             raw = getattr(sample, "attachment", None)
             if raw is not None:
                 try:
-                    sent.stamp = Attachment.from_bytes(raw.to_bytes()).timestamp_ns * 1e-9
+                    source.stamp = Attachment.from_bytes(raw.to_bytes()).timestamp_ns * 1e-9
                 except (TypeError, ValueError, struct.error):
                     pass
             super()._process_sample(sample)
@@ -375,7 +375,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
             t = time.time()
             twist = msg.twist if args.twist_stamped else msg
             robot.command(float(twist.linear.x), float(twist.angular.z), t,
-                          getattr(sent, "stamp", None))
+                          getattr(source, "stamp", None))
         return callback
 
     pubs = {}
