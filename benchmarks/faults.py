@@ -167,7 +167,7 @@ def run_case(name: str, fault: dict[str, object], scenario_name: str, work: Path
     plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
                                     "--out", str(out), "--no-plots", "--timeout", "2",
                                     "--quiet"], work / "logs", env=env)
-    robots = {i: start_service("robot", ["--id", str(i), *common, "--listen",
+    robots = {i: start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                          f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                          "--timeout", "0.1"],
                                work / "logs", name=f"robot-{i}", env=env)

@@ -82,7 +82,7 @@ def restart_case(mode: str, work: Path, t_end: float | None) -> dict:
                                     "--out", str(out), "--no-plots", "--quiet", "--mode", mode,
                                     "--timeout", "2"], work / "logs")
     extra = ["--qp-time-limit", repr(0.4 * scenario.sample_time)] if mode == "realtime" else []
-    robots = {i: start_service("robot", ["--id", str(i), *common, "--listen",
+    robots = {i: start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                          f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                          "--timeout", "0.1", *extra],
                                work / "logs", name=f"robot-{i}")
@@ -134,7 +134,7 @@ def silent_case(work: Path) -> dict:
     out = work / "out"
     plant = start_service("plant", [*common, "--listen", plant_ep, "--out", str(out),
                                     "--no-plots", "--quiet", "--timeout", "2"], work / "logs")
-    robots = [start_service("robot", ["--id", str(i), *common, "--listen",
+    robots = [start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                       f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                       "--timeout", "1"], work / "logs", name=f"robot-{i}",
                             env={**os.environ, "SQPMPC_FAULTS": "mute=20"} if i == ids[1]
@@ -167,6 +167,7 @@ def no_plant(work: Path) -> dict:
     (port,) = free_ports(1)
     t0 = time.monotonic()
     robot = start_service("robot", ["--id", "1", "--scenario", SCENARIO, "--run", "alone",
+                                    "--insecure",
                                     "--connect", f"tcp/127.0.0.1:{port}",
                                     "--startup-timeout", "5"], work / "logs", name="alone")
     status = robot.wait(300)

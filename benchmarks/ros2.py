@@ -24,6 +24,7 @@ from tempfile import TemporaryDirectory
 
 from benchmarks.faults import arrival_tolerance
 from services.ros2 import demo
+from services.ros2.record import controller_counts
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "ros2.md"
@@ -66,16 +67,8 @@ def run_case(name: str, folder: Path, tolerance: float) -> dict:
 
 def log_counts(logs: Path) -> dict[str, int]:
     """Every controller's final counts (``samples``, ``brakes``, ...) added up, from the
-    ``robot-*.log`` files in ``logs``."""
-    counts: dict[str, int] = {}
-    for log in sorted(logs.glob("robot-*.log")):
-        for line in log.read_text(errors="replace").splitlines():
-            if " samples, " in line and "invalid messages dropped" in line:
-                for part in line.split(": ", 2)[-1].split(", "):
-                    value, _, key = part.partition(" ")
-                    if value.isdigit():
-                        counts[key] = counts.get(key, 0) + int(value)
-    return counts
+    ``robot-*.log`` files in ``logs`` (:func:`services.ros2.record.controller_counts`)."""
+    return controller_counts(logs)
 
 
 def section(text: str, name: str) -> str | None:

@@ -61,7 +61,9 @@ each command at once and again every `1 / --cmd-rate` s (default 20 Hz) until th
 (`services.ros2.stream`): the sample's input, or zero when the odometry is stale, when the
 plan exchange has lost its last link (a watchdog looks every 0.1 s) and at the end (given
 50 ms to leave before the session closes). The simulated bases (`services.ros2.simfleet`)
-stop on `--cmd-timeout` (default 0.5 s) as diff_drive_controller does and count it.
+stop on `--cmd-timeout` (default 0.5 s) as diff_drive_controller does and count it; a
+timeout judged while the commands were only late in the simulator itself (the next one's
+source timestamp within the timeout of the one before) is taken back and counted apart.
 
 **Plans are claims, checked** (`services.ros2.neighbours.Neighbours.add`). A neighbour's
 plan is kept only if its stamp is at least 0.2 Ts after the neighbour's previous plan and at
@@ -134,7 +136,9 @@ new credentials over a new socket.
 bases stop on a 0.5 s command timeout; plans with credentials, mutual TLS and access
 control; this machine, 2 cores shared with other sessions). *Honest arrived*: robot 2 left
 out in the attack rows; *command timeouts*: times a base stopped on its timeout while its
-command was not zero (and the seconds it stood on them); *false plans refused*: added up
+command was not zero and no command had been sent for the timeout (and the seconds it stood
+on them; *lagged*: timeouts the simulated fleet judged while the commands were on their way,
+its own lag, taken back); *false plans refused*: added up
 over the controllers; *named untrusted*: the robots named, with how many controllers named
 them; *attacker sent*: the forger's plans.
 
@@ -194,13 +198,15 @@ def render(rows: list[dict]) -> str:
         ok = sum(e <= r["tolerance"] for e in honest.values())
         timeouts = sum(r.get("command_timeouts", {}).values())
         stood = sum(r.get("timed_out", {}).values())
+        lagged = sum(r.get("lagged_timeouts", {}).values())
+        lag = f"; {lagged} lagged" if lagged else ""
         named = ", ".join(f"robot {k} ({v})" for k, v in sorted(r["named"].items())) or "-"
         sent = ", ".join(f"{k} {v}" for k, v in r.get("forger", {}).items() if v) or "-"
         c = r["counts"]
         out.append(
             f"| {r['name']} | {r['collisions']} | {r['min_clearance']:.3f} "
             f"({r['certified_clearance']:.3f}) | {r['arrived']}/{r['robots']} | "
-            f"{ok}/{len(honest)} | {last} | {timeouts} ({stood:.1f}) | "
+            f"{ok}/{len(honest)} | {last} | {timeouts} ({stood:.1f}{lag}) | "
             f"{c.get('false_plans', 0)} | {named} | {sent} | {c.get('samples', 0)} | "
             f"{c.get('brakes', 0)} | {r['wall']:.0f} |")
     return head + "\n".join(out) + "\n"

@@ -114,7 +114,8 @@ def run_attacked(work: Path, probe: Probe | None, t_end: float) -> dict:
     for j, rid in enumerate(load_scenario(SCENARIO).ids, start=1):
         procs.append(start_service("robot", ["--id", str(rid), *common, "--listen",
                                              f"{proto}/127.0.0.1:{ports[j]}", "--connect",
-                                             plant_ep], logs, name=f"robot-{rid}"))
+                                             plant_ep, *([] if secured else ["--insecure"])],
+                                   logs, name=f"robot-{rid}"))
     try:
         procs[0].wait(600)
     finally:

@@ -233,7 +233,13 @@ class Node:
                                         getattr(args, "max_rate", None)))
         except ValueError as exc:
             raise ProblemError(str(exc)) from exc
-        if config is None:
+        self.insecure = config is None
+        """This process's Zenoh session runs without credentials (plain, unauthenticated)."""
+        if config is None and getattr(args, "insecure", False):  # sqpmpc robot --insecure
+            log.warning("INSECURE (--insecure): the plan exchange runs without credentials "
+                        "on plain TCP; any process that reaches its endpoints can publish as "
+                        "any robot")
+        elif config is None:
             log.warning("no --credentials: unauthenticated Zenoh traffic, any process that "
                         "reaches the endpoints can publish on the run's keys")
 

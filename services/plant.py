@@ -62,6 +62,8 @@ At the end, also on SIGINT/SIGTERM (then as far as it got), it writes
 plots into ``--out``. As it goes it appends every sample to ``--out``/``record.msgpack``
 (:mod:`sqpmpc.io.runlog`, flushed every sample): after a ``kill -9`` of the plant,
 ``sqpmpc metrics DIR`` writes ``metrics.json`` and ``trajectory.npz`` from it.
+``metrics.json``'s ``insecure`` is true when the plant ran without credentials (plain
+TCP: then so did the run's plan exchange, ``sqpmpc launch --insecure``).
 """
 
 from __future__ import annotations
@@ -341,6 +343,7 @@ class PlantNode(Presence, FaultyInputs, Node):
         extra: dict[str, Any] = {
             "distributed": True,
             "mode": self.mode,
+            "insecure": self.insecure,  # the run's plans without credentials (plain TCP)
             "run": self.bus.prefix.rsplit("/", 1)[-1],
             "missed_deadlines": int(sum(self.missed.values())),
             "missed_deadlines_by_robot": {str(i): int(v) for i, v in self.missed.items()},

@@ -342,10 +342,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     problem = credentials_problem(args)
     if problem:
         fail(prog, problem)
-    if args.insecure:
-        log.warning("INSECURE (--insecure): the plan exchange runs without credentials on "
-                    "plain TCP; any process that reaches its endpoints can publish as any "
-                    "robot")
+    # with --insecure, the node logs INSECURE once its session is open (services.node)
     if args.ros2:  # a ROS 2 robot on its own clock, no plant (services.ros2.robot)
         return main_ros2(args, scenario, prog)
     if len(ids) > 1 and args.listen:

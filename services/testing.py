@@ -18,6 +18,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from sqpmpc.errors import ProblemError
+
 from .children import free_ports
 from .node import POLL
 from .transport import Bus, Event
@@ -35,10 +37,10 @@ __all__ = [
 ]
 
 REPO = Path(__file__).resolve().parent.parent
-INSECURE_FLAGS = frozenset({"--insecure", "--credentials", "--credentials-fd", "--zenoh-config"})
-"""A robot started by :func:`start_service` with none of these gets ``--insecure`` (its
-plan exchange refuses to start without credentials otherwise)."""
 """The project's root (services run with it as working directory)."""
+INSECURE_FLAGS = frozenset({"--insecure", "--credentials", "--credentials-fd", "--zenoh-config"})
+"""A robot started by :func:`start_service` must be given one of these: credentials, or
+``--insecure`` named by its caller (as ``sqpmpc robot`` itself requires)."""
 
 
 class ServiceProcess:
@@ -69,13 +71,22 @@ class ServiceProcess:
 
 def start_service(module: str, args: Sequence[str], log_dir: Path, name: str | None = None,
                   env: dict[str, str] | None = None) -> ServiceProcess:
-    """Start ``python -m services.<module> <args>`` with its output in ``log_dir`` (a robot
-    without credentials with ``--insecure``: :data:`INSECURE_FLAGS`)."""
+    """Start ``python -m services.<module> <args>`` with its output in ``log_dir``.
+
+    A robot must be given credentials or ``--insecure`` (:data:`INSECURE_FLAGS`): an
+    insecure run is named where it is started, never added here.
+
+    Raises
+    ------
+    ProblemError
+        A robot given none of :data:`INSECURE_FLAGS`.
+    """
     name = name or module
-    log_dir.mkdir(parents=True, exist_ok=True)
     args = list(args)
     if module == "robot" and not INSECURE_FLAGS.intersection(args):
-        args.append("--insecure")  # a robot refuses to start without credentials otherwise
+        raise ProblemError(f"start_service('robot', ...) needs credentials or --insecure, "
+                         f"named by the caller (one of {sorted(INSECURE_FLAGS)}); got {args}")
+    log_dir.mkdir(parents=True, exist_ok=True)
     argv = [sys.executable, "-m", f"services.{module}", *args]
     return ServiceProcess(name, argv, log_dir / f"{name.replace('/', '-')}.log", env)
 

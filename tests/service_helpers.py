@@ -24,7 +24,7 @@ def start_run(tmp_path: Path, run: str, ids: list[int], t_end: float, *, scenari
                                     "--out", str(tmp_path / "out"), "--no-plots", *plant_args],
                           tmp_path / "logs")
     robots = {
-        i: start_service("robot", ["--id", str(i), *common, "--listen",
+        i: start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                    f"tcp/127.0.0.1:{port}", "--connect", plant_ep, *robot_args],
                          tmp_path / "logs", name=f"robot-{i}")
         for i, port in zip(ids, ports[2:], strict=True)

@@ -131,7 +131,7 @@ def test_services_with_plans_two_samples_late_arrive_without_collision(tmp_path)
     plant = start_service("plant", [*common, "--listen", plant_ep, "--out",
                                     str(tmp_path / "out"), "--no-plots", "--timeout", "5"],
                           tmp_path / "logs", env=env)
-    robots = [start_service("robot", ["--id", str(i), *common, "--listen",
+    robots = [start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                       f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                       "--timeout", "0.2"],
                             tmp_path / "logs", name=f"robot-{i}", env=env)

@@ -49,7 +49,7 @@ def test_a_robot_alive_but_silent_does_not_stall_the_lockstep_run(tmp_path):
     robots = {}
     for i, port in zip((1, 2, 3, 4), ports[1:], strict=True):
         env = {**os.environ, "SQPMPC_FAULTS": "mute=10"} if i == 2 else None
-        robots[i] = start_service("robot", ["--id", str(i), *common, "--listen",
+        robots[i] = start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                             f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                             "--timeout", "3"], tmp_path / "logs",
                                   name=f"robot-{i}", env=env)
@@ -212,6 +212,10 @@ def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):
         assert (out / name).exists(), name
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["scenario"] == "head-on" and metrics["steps"] == 6
+    # secured (not --insecure), and the controllers' counts added up from their logs
+    assert metrics["insecure"] is False
+    assert metrics["controller_counts"]["samples"] > 0
+    assert metrics["controller_counts"]["odometry_future"] == 0
     assert sqpmpc_main(["metrics", str(out)]) == 0
 
 

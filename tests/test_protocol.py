@@ -167,7 +167,7 @@ def _run(tmp_path, t_end: float, env: dict[str, str] | None = None,
     plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
                                     "--out", str(tmp_path / "out"), "--no-plots", *plant_args],
                           tmp_path / "logs", env=full_env)
-    robots = [start_service("robot", ["--id", str(i), *common, "--listen",
+    robots = [start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                       f"tcp/127.0.0.1:{port}", "--connect", plant_ep,
                                       *robot_args],
                             tmp_path / "logs", name=f"robot-{i}", env=full_env)

@@ -91,6 +91,8 @@ def test_a_robot_inside_a_departed_neighbours_disc_may_leave_it_but_not_approach
     (["--ros2", "--insecure", "--ros2-zenoh-config", "no-such.json5"],
      "--ros2-zenoh-config no-such.json5: no such file"),
     (["--ros2", "--insecure", "--cmd-rate", "1"], "--cmd-rate: must be above 1/Ts"),
+    (["--ros2", "--insecure", "--cmd-rate", "1000"], "--cmd-rate: at most 100 Hz"),
+    (["--ros2", "--insecure", "--cmd-rate", "-5"], "--cmd-rate: expected a number >= 0"),
 ])
 def test_a_robot_without_credentials_refuses_to_start(capsys, extra, message):
     with pytest.raises(SystemExit) as exc:
@@ -118,6 +120,23 @@ def test_a_simulated_base_stops_on_its_command_timeout_and_counts_it():
     # standing still (zero held), a timeout does not count
     robot.command(0.0, 0.0, 103.1)
     assert not robot.expire(104.0) and robot.timeouts == 2
+
+
+def test_a_simulated_base_takes_back_a_timeout_its_own_lag_caused():
+    robot = SimRobot(1, 0.3, np.zeros(3), 100.0, timeout=0.5)
+    robot.command(0.4, 0.0, 100.0, sent=100.0)
+    assert robot.expire(100.6) and robot.timeouts == 1  # nothing processed for 0.6 s
+    # the next command had been sent 0.05 s after the last (the simulator lagged): not
+    # the controller's timeout
+    robot.command(0.4, 0.0, 100.7, sent=100.05)
+    assert robot.timeouts == 0 and robot.lagged == 1 and robot.timed_out == 0.0
+    # processed late again, but judged when it comes: the lag alone is no timeout
+    robot.command(0.4, 0.0, 101.5, sent=100.1)
+    assert robot.timeouts == 0 and robot.lagged == 1
+    # a gap in what the controller sent is one
+    robot.command(0.4, 0.0, 102.2, sent=102.2)
+    assert robot.timeouts == 1 and robot.lagged == 1
+    assert robot.timed_out == pytest.approx(102.2 - 102.0)
 
 
 @pytest.mark.parametrize("lazy", [False, True])

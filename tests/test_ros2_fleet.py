@@ -102,7 +102,7 @@ def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robo
     robots = [start_service("robot", [
         "--id", str(i), "--scenario", str(scenario_file), "--ros2", "--ros2-connect", ros_ep,
         "--zenoh-mode", "client", "--connect", sq_ep, "--run", "ros2test",
-        "--epoch-file", str(epoch_file)], logs, f"robot-{i}") for i in (1, 2, 3)]
+        "--epoch-file", str(epoch_file), "--insecure"], logs, f"robot-{i}") for i in (1, 2, 3)]
     procs += robots
     session = None
     try:
@@ -207,7 +207,7 @@ def test_ros2_robots_with_acceleration_limits_ramp_within_them_and_arrive(tmp_pa
     robots = [start_service("robot", [
         "--id", str(i), "--scenario", str(scenario_file), "--ros2", "--ros2-connect", ros_ep,
         "--zenoh-mode", "client", "--connect", sq_ep, "--run", "ros2accel",
-        "--epoch-file", str(epoch_file)], logs, f"robot-{i}") for i in (1, 2)]
+        "--epoch-file", str(epoch_file), "--insecure"], logs, f"robot-{i}") for i in (1, 2)]
     procs += robots
     try:
         assert _wait_for_nodes(ros_port, {"sqpmpc_robot1", "sqpmpc_robot2"}, 120.0), \

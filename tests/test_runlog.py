@@ -104,7 +104,7 @@ def test_kill_9_of_the_plant_leaves_a_readable_record(tmp_path):
     out = tmp_path / "out"
     plant = start_service("plant", [*common, "--listen", plant_ep, "--connect", probe_ep,
                                     "--out", str(out), "--no-plots"], tmp_path / "logs")
-    robots = [start_service("robot", ["--id", str(i), *common, "--listen",
+    robots = [start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                       f"tcp/127.0.0.1:{port}", "--connect", plant_ep],
                             tmp_path / "logs", name=f"robot-{i}")
               for i, port in zip((1, 2, 3, 4), ports[2:], strict=True)]

@@ -192,6 +192,7 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
             assert not s["opened"], (name, s)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["completed"] is True and metrics["steps"] == 40
+    assert metrics["insecure"] is False  # the plant had its credentials
     assert metrics["collisions"] == 0 and metrics["missed_deadlines"] == 0
     assert metrics["lockstep_timeouts"] == 0
     assert metrics["invalid_messages"] == 0  # nothing forged reached a validator

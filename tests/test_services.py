@@ -87,6 +87,7 @@ def test_realtime_run_completes(tmp_path):
     assert res.returncode == 0, res.stderr
     m = _metrics(out)
     assert m["completed"] is True and m["mode"] == "realtime" and m["steps"] == 30
+    assert m["insecure"] is False  # the launcher's credentials, handed over in memory
     assert isinstance(m["missed_deadlines"], int)
     assert m["sample_time"] == 0.05
 
@@ -150,7 +151,8 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         time.sleep(0.5)
         # now the last robot: the run starts
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--t-end",
-                                            "10.0", "--run", run, "--connect", plant_ep],
+                                            "10.0", "--run", run, "--connect", plant_ep,
+                                            "--insecure"],
                                   tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
         assert plant.wait(60) == 0, plant.output()
@@ -161,6 +163,7 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
         stop_processes(procs)
     m = _metrics(tmp_path / "out")
     by_process = m["invalid_messages_by_process"]
+    assert m["insecure"] is True  # plain TCP, the robots started with --insecure
     assert by_process["plant"] == 7, plant.output()
     assert by_process["robot/1"] == 2 and by_process["robot/3"] == 2
     assert by_process["robot/2"] == 1 and by_process["robot/4"] == 0
@@ -226,7 +229,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     try:
         assert probe.wait_for(lambda: bool(probe.events), 60), plant.output()  # running
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--run", run,
-                                            "--t-end", t_end, "--connect", plant_ep,
+                                            "--t-end", t_end, "--connect", plant_ep, "--insecure",
                                             "--startup-timeout", "120"],
                                   tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
@@ -263,7 +266,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
     ("robot", ["--id", "1", "--scenario", "no-such-scenario"]),
     ("robot", ["--id", "9", "--scenario", SCENARIO]),
     ("central", ["--scenario", SCENARIO, "--t-end", "0.3"]),
-    ("robot", ["--id", "1", "--scenario", SCENARIO, "--listen", "not-an-endpoint"]),
+    ("robot", ["--id", "1", "--scenario", SCENARIO, "--insecure", "--listen", "not-an-endpoint"]),
     ("router", ["--listen", "tcp/127.0.0.1:not-a-port"]),
     ("plant", ["--scenario", SCENARIO, "--credentials-fd", "99"]),
     ("launch", ["--scenario", "no-such-scenario", "--scheme", "centralized"]),
@@ -348,6 +351,7 @@ def test_every_process_ends_with_one_line_when_the_others_are_gone(tmp_path):
     left gives up after --rejoin-timeout and writes what it has."""
     (port,) = free_ports(1)
     alone = start_service("robot", ["--id", "1", "--scenario", SCENARIO, "--run", "nobody",
+                                    "--insecure",
                                     "--connect", f"tcp/127.0.0.1:{port}",
                                     "--startup-timeout", "2"], tmp_path / "logs",
                           name="robot-alone")

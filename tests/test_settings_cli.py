@@ -84,7 +84,7 @@ def test_a_process_with_other_settings_is_braked_and_named(tmp_path: Path, schem
                                                  plant_ep], tmp_path / "logs")]
     else:
         controllers = [
-            start_service("robot", ["--id", str(i), *common, "--listen",
+            start_service("robot", ["--id", str(i), *common, "--insecure", "--listen",
                                     f"tcp/127.0.0.1:{p}", "--connect", plant_ep,
                                     *(odd if i == 2 else ["--t-end", "20"])],
                           tmp_path / "logs", name=f"robot-{i}")

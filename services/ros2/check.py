@@ -83,6 +83,9 @@ class FleetCheck:
     simulated fleet's ``--cmd-timeout``) while its command was not zero."""
     timed_out: dict[str, float] = field(default_factory=dict)
     """Per robot: seconds it stood on a command timeout."""
+    lagged_timeouts: dict[str, int] = field(default_factory=dict)
+    """Per robot: timeouts the simulated fleet judged on its own lag and took back (the next
+    command had been sent within the timeout of the one before)."""
     arrival_times: dict[str, float | None] = field(default_factory=dict)
     """Per robot: the scenario time (s from the epoch) from which it stayed within
     ``tolerance`` of its reference to the end, on a grid of :data:`ARRIVAL_STEP`
@@ -154,7 +157,9 @@ def check_fleet(data: dict, scenario: Scenario, tolerance: float = 0.05,
         stop_to_zero=stop_to_zero, moved_after_zero=moved, arrival_times=arrival,
         command_timeouts={rid: int(data["robots"][rid].get("command_timeouts", 0))
                           for rid in ids},
-        timed_out={rid: float(data["robots"][rid].get("timed_out", 0.0)) for rid in ids})
+        timed_out={rid: float(data["robots"][rid].get("timed_out", 0.0)) for rid in ids},
+        lagged_timeouts={rid: int(data["robots"][rid].get("lagged_timeouts", 0))
+                         for rid in ids})
 
 
 def build_parser(prog: str = "services.ros2.check") -> argparse.ArgumentParser:

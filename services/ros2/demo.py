@@ -29,7 +29,10 @@ fleet writes the true poses and :mod:`services.ros2.check` measures them
 (``DIR/poses.json``, ``DIR/check.json``, the processes' logs in ``DIR/logs``); the folder
 also holds what every runner writes (``metrics.json``, ``trajectory.npz``,
 ``record.msgpack``, ``recording.mcap``, the plots after the summary:
-:mod:`services.ros2.record`). A non-empty ``--out`` is refused unless ``--overwrite``.
+:mod:`services.ros2.record`); its ``metrics.json`` also holds ``insecure`` (true with
+``--insecure``) and ``controller_counts`` (every controller's final counts added up, e.g.
+``odometry_future``, ``stale_odometry``, ``plan_network_lost``). A non-empty ``--out`` is
+refused unless ``--overwrite``.
 Exit status 0 when no robot collided and every one arrived, 1 otherwise, 2 for
 bad input.
 """
@@ -64,7 +67,7 @@ from ..handover import Handover, make_private
 from ..node import install_signal_handlers
 from ..priority import NICE, RT_PRIORITY
 from .check import check_fleet
-from .record import fleet_record
+from .record import controller_counts, fleet_record
 
 __all__ = ["Credentials", "LoggedChild", "add_fleet_arguments", "build_parser", "main",
            "robot_side_priority", "start_clock"]
@@ -396,12 +399,18 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
     result = check_fleet(data, scenario, args.tolerance)
     (out / "check.json").write_text(json.dumps(asdict(result), indent=1))
     record = fleet_record(data, scenario, t_end)  # the run folder of every runner
+    # extra keys (CONTRACT's keys unchanged): the plans without credentials, if so, and the
+    # controllers' counts (odometry_future: future-stamped odometry refused, ...)
+    record.extra["insecure"] = bool(args.insecure)
+    record.extra["controller_counts"] = controller_counts(logs)
     print(summarize(write_run(out, record, plots=False)), flush=True)
     write_plots(out, record)
     print(f"{result.robots} robots: {result.collisions} collisions (certified clearance "
           f"{result.certified_clearance:.4f} m), {result.arrived}/{result.robots} within "
           f"{result.tolerance:g} m (largest {max(result.final_errors.values()):.3f} m), "
           f"{sum(result.command_timeouts.values())} command timeouts"
+          f" ({sum(result.lagged_timeouts.values())} more judged on the simulator's lag "
+          "and taken back)"
           + "".join(f"; robot {r}: zero {d:.3f} s after its odometry stopped"
                     if d is not None else f"; robot {r}: no zero after its odometry stopped"
                     for r, d in result.stop_to_zero.items()))

@@ -16,7 +16,12 @@ from sqpmpc.problem.scenario import Scenario
 from ..node import options_of
 from .graph import check_name
 
-__all__ = ["add_ros2_arguments", "check_margin", "odom_timeout", "ros2_config", "ros2_problem"]
+__all__ = ["MAX_CMD_RATE", "add_ros2_arguments", "check_margin", "odom_timeout", "ros2_config",
+           "ros2_problem"]
+
+MAX_CMD_RATE = 100.0
+"""Highest ``--cmd-rate``, Hz: the watchdog thread that republishes looks this often."""
+
 
 
 def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,7 +48,8 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
                         "its connect endpoints unless --ros2-connect is given)")
     g.add_argument("--cmd-rate", type=nonnegative_float, default=20.0, metavar="HZ",
                    help="republish the command in force on cmd_vel at this rate (default 20: "
-                        "well inside a base's 0.5 s command timeout; 0: once per sample)")
+                        "well inside a base's 0.5 s command timeout; above 1/Ts, at most 100; 0: "
+                        "once per sample)")
     g.add_argument("--odom-future", type=nonnegative_float, default=0.05, metavar="S",
                    help="refuse (and count) an odometry stamped more than this after its "
                         "arrival, s (default 0.05; clocks must agree within it)")
@@ -100,6 +106,9 @@ def ros2_problem(args: argparse.Namespace, scenario: Scenario) -> str | None:
         return "give --epoch or --epoch-file, not both"
     if args.ros2_zenoh_config is not None and not args.ros2_zenoh_config.is_file():
         return f"--ros2-zenoh-config {args.ros2_zenoh_config}: no such file"
+    if args.cmd_rate > MAX_CMD_RATE:
+        return (f"--cmd-rate: at most {MAX_CMD_RATE:g} Hz (the controller's watchdog, which "
+                f"republishes, looks every {1.0 / MAX_CMD_RATE:g} s), got {args.cmd_rate:g}")
     if args.cmd_rate > 0.0 and 1.0 / args.cmd_rate >= scenario.sample_time:
         return (f"--cmd-rate: must be above 1/Ts = {1.0 / scenario.sample_time:g} Hz (or 0: "
                 f"once per sample), got {args.cmd_rate:g}")

@@ -9,12 +9,14 @@ then holds ``metrics.json``, ``trajectory.npz``, ``record.msgpack`` and
 ``recording.mcap`` as for ``sqpmpc run`` and ``sqpmpc launch``, and ``sqpmpc metrics``,
 ``sqpmpc animate`` read it. The collision check between the samples along these
 straight segments is an approximation: ``check.json`` (:mod:`services.ros2.check`) holds
-the exact one along the logged arcs.
+the exact one along the logged arcs. :func:`controller_counts` reads every controller's
+final counts (``samples``, ``odometry_future``, ...) from its log, for ``metrics.json``.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,7 +27,7 @@ from sqpmpc.sim.record import RunRecord
 
 from .check import poses_at
 
-__all__ = ["fleet_record"]
+__all__ = ["controller_counts", "counts_in_log", "fleet_record"]
 
 
 def _velocities_at(segments: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -65,3 +67,38 @@ def fleet_record(data: dict[str, Any], scenario: Scenario, t_end: float) -> RunR
     recorder.extra["solve_time_source"] = ("each controller runs on its own clock; its "
                                            "compute times are in its log, logs/robot-<id>.log")
     return recorder.record()
+
+
+def counts_in_log(text: str) -> dict[str, int]:
+    """A controller's final counts from its log's text (the line ``robot/<id>: 12 samples,
+    0 brakes, ..., 0 invalid messages dropped`` that :class:`services.ros2.robot.Ros2Robot`
+    writes when it ends); empty if the log has none (the controller did not end)."""
+    counts: dict[str, int] = {}
+    for line in text.splitlines():
+        if " samples, " in line and "invalid messages dropped" in line:
+            for part in line.split(": ", 2)[-1].split(", "):
+                value, _, key = part.partition(" ")
+                if value.isdigit():
+                    counts[key] = counts.get(key, 0) + int(value)
+    return counts
+
+
+def controller_counts(logs: Path) -> dict[str, int]:
+    """Every controller's final counts added up, from the ``robot-*.log`` files in ``logs``
+    (a restarted controller's log too).
+
+    Parameters
+    ----------
+    logs
+        The run's log folder (``DIR/logs`` of :mod:`services.ros2.demo`).
+
+    Returns
+    -------
+    dict
+        Count name (``samples``, ``stale_odometry``, ``odometry_future``, ...) -> total.
+    """
+    total: dict[str, int] = {}
+    for log in sorted(logs.glob("robot-*.log")):
+        for key, value in counts_in_log(log.read_text(errors="replace")).items():
+            total[key] = total.get(key, 0) + value
+    return total

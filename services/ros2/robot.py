@@ -78,7 +78,7 @@ from . import msgs
 from .controller import Ros2Controller
 from .graph import Received, Ros2Node
 from .neighbours import MIN_SPACING, Neighbours
-from .options import check_margin, odom_timeout, ros2_config, ros2_problem
+from .options import MAX_CMD_RATE, check_margin, odom_timeout, ros2_config, ros2_problem
 from .startup import PUBLISH_SLACK, StartUp
 from .stream import CommandStream
 from .timing import own_motion
@@ -90,8 +90,8 @@ log = logging.getLogger(__name__)
 ROW_MARGIN_FACTOR = 3.0
 """The QP's collision margin is at least this many times ``--ros2-margin`` (plus, under
 acceleration limits, what :func:`services.ros2.options.check_margin` adds)."""
-WATCH_PERIOD = 0.01
-"""How often the watchdog thread looks at the odometry's age, s."""
+WATCH_PERIOD = 1.0 / MAX_CMD_RATE
+"""How often the watchdog thread looks at the odometry's age (and republishes), s."""
 STOP_GRACE = 0.01
 """Seconds after a sample's instant without its command before the robot is stopped."""
 CLOSE_GRACE = 0.05

@@ -26,8 +26,13 @@ timeout stopped the robot at its end; not judged within ``STALL`` s after the
 simulator itself did not run for ``STALL`` s, when commands may still be queued:
 a real base does not stall with its controller), as such a base does, and
 counts it (a *command timeout*, counted when the command it held was not zero)
-and how long it stood on it, until the next command. A command equal to the one
-in force changes nothing (under acceleration limits its ramp goes on).
+and how long it stood on it, until the next command. A timeout judged while the
+controller kept sending is the simulator's own lag, not the controller's: each
+command's source timestamp (its rmw_zenoh attachment) is compared with the one
+before it, and a timeout that a command sent within ``--cmd-timeout`` of the
+previous one reveals as such is taken back (counted as ``lagged_timeouts``). A
+command equal to the one in force changes nothing (under acceleration limits its ramp
+goes on).
 
 ``--odom-stop ID:T`` stops robot ``ID``'s odometry at ``t = T`` (s after the
 epoch) while it keeps obeying its commands (a failed sensor). On SIGINT,
@@ -44,6 +49,7 @@ import json
 import logging
 import math
 import random
+import struct
 import sys
 import tempfile
 import threading
@@ -105,9 +111,13 @@ class SimRobot:
     Attributes
     ----------
     timeouts
-        Command timeouts that stopped the robot (the command in force was not zero).
+        Command timeouts that stopped the robot (the command in force was not zero) and
+        that the controller caused: no command was sent for ``timeout`` s.
     timed_out
         Seconds the robot stood on its command timeout (until the next command).
+    lagged
+        Timeouts judged on the simulator's lag and taken back: the next command had been
+        sent within ``timeout`` of the one before (its source timestamp).
     """
 
     def __init__(self, robot_id: int, diameter: float, state: np.ndarray, start: float,
@@ -131,8 +141,11 @@ class SimRobot:
         self.timeout = float(timeout)
         self.timeouts = 0
         self.timed_out = 0.0
+        self.lagged = 0
         self.judge_from = -math.inf  # no timeout is judged before (a stalled simulator)
         self._last_command: float | None = None  # when the last command came
+        self._last_sent: float | None = None  # its source timestamp, if known
+        self._counted = False  # the expiry in force was counted as a timeout
         self._expired_at: float | None = None  # when the timeout stopped it (until a command)
 
     def _advance(self, t: float) -> None:
@@ -158,15 +171,36 @@ class SimRobot:
             self._advance(t)
             return self._state.copy(), (float(self._vel[0]), float(self._vel[1]))
 
-    def command(self, v: float, omega: float, t: float) -> None:
+    def command(self, v: float, omega: float, t: float, sent: float | None = None) -> None:
         """The command ``(v, omega)`` from wall time ``t`` on (one equal to the command in
-        force changes nothing but the time of the last command)."""
+        force changes nothing but the time of the last command).
+
+        Parameters
+        ----------
+        v, omega
+            The commanded velocities.
+        t
+            Wall time it is applied from (its arrival), Unix s.
+        sent
+            Its source timestamp (the publisher's clock, Unix s), if known: sent within
+            ``timeout`` of the previous command's, a timeout since is this simulator's lag
+            (the command was on its way), not the controller's, and is not counted.
+        """
         with self._lock:
-            self._expire(t)  # it may have timed out since the last (checked at odometry)
+            lag = (sent is not None and self._last_sent is not None
+                   and sent - self._last_sent <= self.timeout)
+            if not lag:
+                self._expire(t)  # it may have timed out since the last (checked at odometry)
             self._advance(t)
             self._last_command = t
+            if sent is not None:
+                self._last_sent = max(sent, self._last_sent or -math.inf)
             if self._expired_at is not None:
-                self.timed_out += max(0.0, t - self._expired_at)
+                if lag and self._counted:  # the controller kept sending: taken back
+                    self.timeouts -= 1
+                    self.lagged += 1
+                elif not lag:
+                    self.timed_out += max(0.0, t - self._expired_at)
                 self._expired_at = None
             self.commands += 1
             cmd = np.array([float(v), float(omega)])
@@ -191,7 +225,8 @@ class SimRobot:
         when = max(self._last_command + self.timeout, self._t)
         self._advance(when)
         self._expired_at = when
-        if not self._cmd.any():
+        self._counted = bool(self._cmd.any())
+        if not self._counted:
             return False
         self.timeouts += 1
         self._set(np.zeros(2))
@@ -294,6 +329,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         return 2
     use_local_definitions(Path(tempfile.mkdtemp(prefix="sqpmpc-msgs-")))
     import zenoh_ros2_sdk as sdk
+    from zenoh_ros2_sdk.attachment import Attachment
 
     # the SDK keeps one session per process, opened by whichever call comes first
     sdk.ZenohSession.get_instance(*router)
@@ -318,17 +354,34 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
         "geometry_msgs/msg/Twist"
     endpoints = []
 
+    source = threading.local()  # the source timestamp of the sample being handled
+
+    class StampedSubscriber(sdk.ROS2Subscriber):
+        """The SDK's subscriber; its callback also learns the sample's source timestamp
+        (the rmw_zenoh attachment, read by the SDK's own :class:`Attachment`)."""
+
+        def _process_sample(self, sample: object) -> None:
+            source.stamp = None
+            raw = getattr(sample, "attachment", None)
+            if raw is not None:
+                try:
+                    source.stamp = Attachment.from_bytes(raw.to_bytes()).timestamp_ns * 1e-9
+                except (TypeError, ValueError, struct.error):
+                    pass
+            super()._process_sample(sample)
+
     def on_cmd(robot: SimRobot):
         def callback(msg: object) -> None:
             t = time.time()
             twist = msg.twist if args.twist_stamped else msg
-            robot.command(float(twist.linear.x), float(twist.angular.z), t)
+            robot.command(float(twist.linear.x), float(twist.angular.z), t,
+                          getattr(source, "stamp", None))
         return callback
 
     pubs = {}
     for rid, robot in robots.items():
         ns = f"/robot{rid}"
-        endpoints.append(sdk.ROS2Subscriber(f"{ns}/cmd_vel", cmd_type, callback=on_cmd(robot),
+        endpoints.append(StampedSubscriber(f"{ns}/cmd_vel", cmd_type, callback=on_cmd(robot),
                                             node_name=f"sim_robot{rid}", namespace=ns,
                                             domain_id=args.domain, router_ip=router[0],
                                             router_port=router[1]))
@@ -375,6 +428,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> int:
                "robots": {str(rid): {"diameter": r.diameter, "segments": r.segments,
                                      "odometry_sent": sent[rid],
                                      "command_timeouts": r.timeouts,
+                                     "lagged_timeouts": r.lagged,
                                      "timed_out": r.timed_out}
                           for rid, r in robots.items()}}
         args.out.mkdir(parents=True, exist_ok=True)

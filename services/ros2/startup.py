@@ -103,6 +103,9 @@ class StartUp:
         lost = self.plan_network_lost()
         if lost and not self._lost:
             with self._cmd_lock:
+                # lost before the zero, under the lock: a sample about to send its command
+                # sees it and leaves the zero standing (else its input followed the zero)
+                self._lost = True
                 self.counts["plan_network_lost"] += 1
                 if not self._done:
                     self.command(0.0, 0.0, time.time())

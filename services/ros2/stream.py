@@ -71,8 +71,18 @@ class CommandStream:
         self.held_at = at
 
     def command(self, v: float, omega: float, at: float, since: float) -> None:
-        """Publish ``(v, omega)`` now (wall time ``at``) and hold it; ``since``: the newest
-        odometry's time (the commands before it are dropped, all but the last few)."""
+        """Publish ``(v, omega)`` now and hold it (republished until the next command).
+
+        Parameters
+        ----------
+        v, omega
+            Linear (m/s) and angular (rad/s) velocity.
+        at
+            Wall time of the command (Unix s; a ``TwistStamped``'s stamp).
+        since
+            The newest odometry's time: the commands before it are dropped, all but the
+            last :data:`KEPT_COMMANDS`.
+        """
         with self.lock:
             self._publish(v, omega, at)
             self.held = (float(v), float(omega))
@@ -83,8 +93,18 @@ class CommandStream:
                 self.zero_commands += 1
 
     def republish(self, now: float) -> bool:
-        """The command in force again if it was last published a period ago (not after
-        :meth:`finish`); whether it was."""
+        """Publish the command in force again if it was last published ``period`` ago.
+
+        Parameters
+        ----------
+        now
+            Wall time, Unix s.
+
+        Returns
+        -------
+        bool
+            Whether it was published (never without a period nor after :meth:`finish`).
+        """
         if self.period is None:
             return False
         with self.lock:
@@ -95,7 +115,13 @@ class CommandStream:
             return True
 
     def finish(self, at: float) -> None:
-        """Zero, and no repeat after it (the controller ends)."""
+        """Publish zero, and no repeat after it (the controller ends).
+
+        Parameters
+        ----------
+        at
+            Wall time, Unix s.
+        """
         with self.lock:
             self.done = True
             self.command(0.0, 0.0, at, -math.inf)
