@@ -12,9 +12,7 @@ import os
 import stat
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -292,12 +290,16 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
     command line or environment, while running and after a SIGKILL of the launcher; every
     process is non-dumpable (another unprivileged process of the user cannot read its
     memory or descriptors)."""
-    before = set(os.listdir(tempfile.gettempdir()))
+    # the launcher's temporary folder under a TMPDIR of its own: what other tests or runs on
+    # the machine create meanwhile in the shared one is not mistaken for the launcher's
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     out = tmp_path / "out"
     launcher = subprocess.Popen(
         [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
          "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots"],
-        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        env={**os.environ, "TMPDIR": str(tmp)})
     try:
         deadline = time.monotonic() + 240  # a loaded machine: imports take long
         record = out / "record.msgpack"
@@ -326,8 +328,7 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
         if launcher.poll() is None:
             launcher.kill()
             launcher.wait()
-    created = [Path(tempfile.gettempdir()) / n for n in set(os.listdir(tempfile.gettempdir()))
-               - before]
+    created = list(tmp.iterdir())
     for root in [out, *[p for p in created if p.name.startswith("sqpmpc")]]:
         for path in [root, *root.rglob("*")] if root.is_dir() else [root]:
             if path.is_file():
