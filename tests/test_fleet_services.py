@@ -27,6 +27,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.kernels.collision import nearest_within
 from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.sim.simulation import simulate
+from tests import HANG
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
 pytestmark = pytest.mark.timeout(900)
@@ -124,7 +125,7 @@ def test_sigterm_stops_hosted_robots_and_the_plant_writes(tmp_path):
 def test_bad_robots_per_process_is_refused():
     res = subprocess.run([sys.executable, "-m", "services.launch", "--scenario", "paper-s2",
                           "--scheme", "decentralized", "--robots-per-process", "0"],
-                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+                         capture_output=True, text=True, timeout=HANG, cwd=ROOT)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("services.launch: error: "), res.stderr
