@@ -85,7 +85,9 @@ def test_a_stop_early_in_the_launch_leaves_a_readable_run_without_samples(tmp_pa
     """SIGTERM to the launcher early: *before-first-line* sends it the moment the launcher
     is exec'd (its interpreter not even started), the launcher started with SIGINT/SIGTERM
     blocked as a supervisor can, so the signal is held and honoured at its first line;
-    *during-start-up* sends it 0.5 s in, while every process still imports its modules.
+    *during-start-up* sends it once the launcher has started its first child (not after a
+    fixed 0.5 s, which on a loaded machine can come before the launcher's first line), while
+    the processes still import their modules.
     Either way: no traceback, every child gone, a folder `sqpmpc metrics` reads, with no
     samples."""
     out = tmp_path / "early"
@@ -95,8 +97,8 @@ def test_a_stop_early_in_the_launch_leaves_a_readable_run_without_samples(tmp_pa
     launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 cwd=REPO, preexec_fn=_block_stops if early else None)
     try:
-        if not early:
-            time.sleep(0.5)
+        while not early and launcher.poll() is None and not child_pids(launcher.pid):
+            time.sleep(0.01)
         launcher.send_signal(signal.SIGTERM)
         stdout, err = launcher.communicate(timeout=HANG)
     finally:
