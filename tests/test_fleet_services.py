@@ -7,6 +7,7 @@ checked without Zenoh against the controller's own neighbour selection.
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import signal
@@ -49,10 +50,17 @@ def _plan_counts(stderr: str) -> dict[int, tuple[int, int, int]]:
     return {int(r): (int(a), int(b), int(c)) for r, a, b, c in found}
 
 
+@functools.cache
+def _swap_12_in_process():
+    """The in-process run both hosted fleets (peers, router) must equal: computed once."""
+    scenario = antipodal_swap(12).with_changes(t_end=12.0)
+    return scenario, simulate(scenario, "decentralized", SolverSettings(neighbour_slots=3))
+
+
 @pytest.mark.parametrize("router", [False, True], ids=["peers", "router"])
 def test_hosted_filtered_fleet_equals_the_in_process_run(tmp_path, router):
     """12 robots, 3 per process, 3 slots: each robot decodes only the plans it reads."""
-    scenario = antipodal_swap(12).with_changes(t_end=12.0)
+    scenario, reference = _swap_12_in_process()
     path = tmp_path / "swap-12.toml"
     path.write_text(scenario.to_toml())
     out = tmp_path / "run"
@@ -60,7 +68,6 @@ def test_hosted_filtered_fleet_equals_the_in_process_run(tmp_path, router):
                   "--robots-per-process", "3", "--log-level", "INFO",
                   *(["--router"] if router else []))
     assert res.returncode == 0, res.stderr[-3000:]
-    reference = simulate(scenario, "decentralized", SolverSettings(neighbour_slots=3))
     traj = np.load(out / "trajectory.npz")
     assert np.array_equal(traj["states"], reference.states)
     assert np.array_equal(traj["inputs"], reference.inputs)
