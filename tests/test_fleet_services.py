@@ -115,7 +115,13 @@ def test_sigterm_stops_hosted_robots_and_the_plant_writes(tmp_path):
             children = child_pids(launcher.pid)
             time.sleep(0.1)
         assert len(children) == 3, "plant and 2 processes of 2 robots should be running"
-        time.sleep(3.0)
+        # the run going (the plant's record growing), not a fixed 3 s that on a loaded
+        # machine ends while the processes still import and leaves the plant less than its
+        # grace to write: however long the start takes
+        record = out / "record.msgpack"
+        while launcher.poll() is None and not (record.exists() and record.stat().st_size > 0):
+            time.sleep(0.1)
+        time.sleep(1.0)  # two more samples of the real-time run (Ts = 0.5 s)
         launcher.send_signal(signal.SIGTERM)
         _, err = launcher.communicate()
     finally:
