@@ -326,7 +326,7 @@ def test_a_robot_killed_and_restarted_rejoins_the_lockstep_run(tmp_path):
     waits for it (``--rejoin-timeout``) and it rejoins at the sample where it left."""
     run = "rejoin"
     probe, plant, robots, plant_ep = _start_run(
-        tmp_path, run, [1, 2, 3, 4], T_END, plant_args=("--rejoin-timeout", "90"),
+        tmp_path, run, [1, 2, 3, 4], T_END, plant_args=("--rejoin-timeout", str(HANG)),
         subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
