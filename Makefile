@@ -33,11 +33,12 @@ demo: $(STAMP)
 	$(call STEP,the demo: paper-s2 as a plant and 4 robot processes over Zenoh,\
 		$(BIN)/python -m services.launch --scenario paper-s2 --scheme decentralized)
 
+# the tests in one worker per core (pytest-xdist): most wait on a process or use one core
 test: $(STAMP)
 	$(BIN)/ruff check sqpmpc services tests benchmarks examples docs
 	$(BIN)/python docs/build.py --quiet --site-dir site
 	$(call STEP,compiling the bounds-checked kernels,$(CHECKED) $(BIN)/python -m sqpmpc.kernels)
-	$(CHECKED) $(BIN)/pytest -q
+	$(CHECKED) $(BIN)/pytest -q -n auto
 
 # the site (tutorial, how-to guides, reference, explanation and reports) into site/;
 # docs/build.py fails on any warning, also with --quiet

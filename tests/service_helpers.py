@@ -7,6 +7,7 @@ from pathlib import Path
 
 from services.messages import decode
 from services.testing import Probe, ServiceProcess, free_ports, start_service
+from tests import HANG
 
 __all__ = ["kill_and_restart", "newest_sample", "start_run"]
 
@@ -42,13 +43,13 @@ def kill_and_restart(probe: Probe, plant: ServiceProcess, robots: dict[int, Serv
     """``kill -9`` of robot ``robot``'s controller once the plant is at ``sample``, its
     command started again (added to ``procs``), then every process of the lockstep run
     waited for: each must end with status 0."""
-    assert probe.wait_for(lambda: newest_sample(probe) >= sample, 60), plant.output()
+    assert probe.wait_for(lambda: newest_sample(probe) >= sample, HANG), plant.output()
     robots[robot].proc.kill()
     robots[robot].wait(10)
-    assert probe.wait_for(lambda: f"robot/{robot}" not in probe.alive, 10)
+    assert probe.wait_for(lambda: f"robot/{robot}" not in probe.alive, HANG)
     robots[robot] = start_service("robot", robots[robot].argv[3:], logs,
                                   name=f"robot-{robot}-again")
     procs.append(robots[robot])
-    assert plant.wait(90) == 0, plant.output()
+    assert plant.wait(HANG) == 0, plant.output()
     for r in robots.values():
-        assert r.wait(30) == 0, r.output()
+        assert r.wait(HANG) == 0, r.output()

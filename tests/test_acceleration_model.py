@@ -32,6 +32,7 @@ from sqpmpc.problem.scenario_file import parse_scenario
 from sqpmpc.qp.backend import OSQPSettings
 from sqpmpc.qp.layout import QPLayout
 from sqpmpc.qp.sparse import SparseQP
+from tests import HANG
 
 EPS = 1e-6
 MODEL = AccelerationUnicycle(np.array([-0.6, -0.8]), np.array([0.6, 0.8]),
@@ -453,7 +454,6 @@ def test_braking_robots_keep_clear_of_obstacles() -> None:
     assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
 
 
-@pytest.mark.timeout(120)
 def test_services_plant_respects_the_limits(tmp_path: Path) -> None:
     """The distributed run (plant and robot processes, poses only over the wire: each
     controller takes its robot to move at what it last commanded): the plant changes the
@@ -464,7 +464,7 @@ def test_services_plant_respects_the_limits(tmp_path: Path) -> None:
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "services.launch", "--scenario", str(path), "--scheme",
            "decentralized", "--out", str(out), "--no-plots"]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=110,
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=HANG,
                          cwd=Path(__file__).resolve().parent.parent)
     assert res.returncode == 0, res.stderr
     traj = np.load(out / "trajectory.npz")

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from sqpmpc.problem.scenario_file import load_scenario
+from tests import HANG
 
 CONTRACT_KEYS = {
     "scenario", "scheme", "steps", "sample_time", "horizon", "min_distance", "min_clearance",
@@ -20,7 +21,7 @@ CONTRACT_KEYS = {
 }
 
 
-def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+def run_cli(*args: str, timeout: float = HANG) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "sqpmpc", *args], capture_output=True,
                           text=True, timeout=timeout)
 
@@ -124,7 +125,7 @@ def test_interrupted_run_keeps_what_it_had(tmp_path: Path) -> None:
     # one Ctrl-C is enough, also when it lands inside an OSQP solve (sqpmpc.cli.interrupts)
     proc.send_signal(signal.SIGINT)
     try:
-        _, err = proc.communicate(timeout=120)
+        _, err = proc.communicate(timeout=HANG)
     except subprocess.TimeoutExpired:
         proc.kill()
         _, err = proc.communicate()

@@ -24,6 +24,7 @@ from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.registry import default_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+from tests import HANG
 from tests.service_helpers import kill_and_restart, start_run
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
@@ -93,7 +94,7 @@ def test_a_robot_killed_and_restarted_mid_run_rejoins_in_plan_order_and_arrives(
     run = "coordination-rejoin"
     probe, plant, robots, _ = start_run(
         tmp_path, run, list(range(1, ROBOTS + 1)), T_END, scenario=str(path),
-        plant_args=("--rejoin-timeout", "90"), subscriptions=(("plant", "state"),))
+        plant_args=("--rejoin-timeout", str(HANG)), subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
         kill_and_restart(probe, plant, robots, procs, 2, 15, tmp_path / "logs")

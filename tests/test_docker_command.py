@@ -8,14 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
 import yaml
 
 from services.docker import PORT
 from sqpmpc.cli.main import main as sqpmpc_main
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
-pytestmark = pytest.mark.timeout(600)
 
 
 def _generate(tmp_path: Path, *args: str) -> dict:

@@ -13,6 +13,7 @@ import pytest
 
 import sqpmpc
 from sqpmpc.cli.main import main as cli_main
+from tests import HANG
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -21,7 +22,7 @@ EXAMPLES = ROOT / "examples"
 def _run(script: str, *args: str) -> str:
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     done = subprocess.run([sys.executable, str(EXAMPLES / script), *args], capture_output=True,
-                          text=True, env=env, cwd=ROOT, timeout=120)
+                          text=True, env=env, cwd=ROOT, timeout=HANG)
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
     return done.stdout
@@ -82,6 +83,6 @@ def test_record_own_loop(tmp_path: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     again = subprocess.run([sys.executable, str(EXAMPLES / "record_own_loop.py"), "--steps", "2",
                             "--out", str(out)], capture_output=True, text=True, env=env,
-                           cwd=ROOT, timeout=120)
+                           cwd=ROOT, timeout=HANG)
     assert again.returncode == 2 and "not empty" in again.stderr
     assert "Traceback" not in again.stderr

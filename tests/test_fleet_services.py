@@ -7,6 +7,7 @@ checked without Zenoh against the controller's own neighbour selection.
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import signal
@@ -27,6 +28,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.kernels.collision import nearest_within
 from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.sim.simulation import simulate
+from tests import HANG
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
 pytestmark = pytest.mark.timeout(900)
@@ -48,10 +50,17 @@ def _plan_counts(stderr: str) -> dict[int, tuple[int, int, int]]:
     return {int(r): (int(a), int(b), int(c)) for r, a, b, c in found}
 
 
+@functools.cache
+def _swap_12_in_process():
+    """The in-process run both hosted fleets (peers, router) must equal: computed once."""
+    scenario = antipodal_swap(12).with_changes(t_end=12.0)
+    return scenario, simulate(scenario, "decentralized", SolverSettings(neighbour_slots=3))
+
+
 @pytest.mark.parametrize("router", [False, True], ids=["peers", "router"])
 def test_hosted_filtered_fleet_equals_the_in_process_run(tmp_path, router):
     """12 robots, 3 per process, 3 slots: each robot decodes only the plans it reads."""
-    scenario = antipodal_swap(12).with_changes(t_end=12.0)
+    scenario, reference = _swap_12_in_process()
     path = tmp_path / "swap-12.toml"
     path.write_text(scenario.to_toml())
     out = tmp_path / "run"
@@ -59,7 +68,6 @@ def test_hosted_filtered_fleet_equals_the_in_process_run(tmp_path, router):
                   "--robots-per-process", "3", "--log-level", "INFO",
                   *(["--router"] if router else []))
     assert res.returncode == 0, res.stderr[-3000:]
-    reference = simulate(scenario, "decentralized", SolverSettings(neighbour_slots=3))
     traj = np.load(out / "trajectory.npz")
     assert np.array_equal(traj["states"], reference.states)
     assert np.array_equal(traj["inputs"], reference.inputs)
@@ -107,7 +115,13 @@ def test_sigterm_stops_hosted_robots_and_the_plant_writes(tmp_path):
             children = child_pids(launcher.pid)
             time.sleep(0.1)
         assert len(children) == 3, "plant and 2 processes of 2 robots should be running"
-        time.sleep(3.0)
+        # the run going (the plant's record growing), not a fixed 3 s that on a loaded
+        # machine ends while the processes still import and leaves the plant less than its
+        # grace to write: however long the start takes
+        record = out / "record.msgpack"
+        while launcher.poll() is None and not (record.exists() and record.stat().st_size > 0):
+            time.sleep(0.1)
+        time.sleep(1.0)  # two more samples of the real-time run (Ts = 0.5 s)
         launcher.send_signal(signal.SIGTERM)
         _, err = launcher.communicate()
     finally:
@@ -124,7 +138,7 @@ def test_sigterm_stops_hosted_robots_and_the_plant_writes(tmp_path):
 def test_bad_robots_per_process_is_refused():
     res = subprocess.run([sys.executable, "-m", "services.launch", "--scenario", "paper-s2",
                           "--scheme", "decentralized", "--robots-per-process", "0"],
-                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+                         capture_output=True, text=True, timeout=HANG, cwd=ROOT)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("services.launch: error: "), res.stderr

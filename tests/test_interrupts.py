@@ -13,6 +13,8 @@ import sys
 
 import pytest
 
+from tests import HANG
+
 LOOP = """
 import sys
 from sqpmpc.cli.interrupts import forward_interrupts
@@ -51,7 +53,7 @@ def test_every_ctrl_c_during_solves_reaches_the_main_thread(handler: str, status
         assert proc.stdout is not None and proc.stdout.readline() == "solving\n"
         proc.send_signal(signal.SIGINT)
         try:
-            _, err = proc.communicate(timeout=60)
+            _, err = proc.communicate(timeout=HANG)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.communicate()
@@ -65,6 +67,6 @@ def test_forwarding_is_off_where_it_cannot_work() -> None:
             "t.start(); t.join()\nprint(out[0], forwarding(), forward_interrupts(), forwarding(),"
             " forward_interrupts())")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=60)
+                          timeout=HANG)
     # not from another thread; once from the main thread; not twice
     assert proc.stdout.split() == ["False", "False", "True", "True", "False"], proc.stderr

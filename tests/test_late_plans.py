@@ -18,6 +18,7 @@ from sqpmpc.models.unicycle import discrete_dynamics
 from sqpmpc.ocp.collision_rows import SHARED
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+from tests import HANG
 
 
 def test_the_margin_grows_with_the_age_of_the_newest_plan():
@@ -119,7 +120,6 @@ def test_both_robots_of_a_pair_build_the_same_row_whatever_the_delays():
     assert shared_pairs > 100 and older > 0
 
 
-@pytest.mark.timeout(180)
 def test_services_with_plans_two_samples_late_arrive_without_collision(tmp_path):
     # the plant and one process per robot over Zenoh on loopback, every plan held back 2
     # samples by the transport's fault injector: the plan ages ride on the inputs and the
@@ -137,9 +137,9 @@ def test_services_with_plans_two_samples_late_arrive_without_collision(tmp_path)
                             tmp_path / "logs", name=f"robot-{i}", env=env)
               for i, port in zip((1, 2), ports[1:], strict=True)]
     try:
-        assert plant.wait(150) == 0, plant.output()
+        assert plant.wait(HANG) == 0, plant.output()
         for r in robots:
-            assert r.wait(30) == 0, r.output()
+            assert r.wait(HANG) == 0, r.output()
     finally:
         stop_processes([plant, *robots])
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())

@@ -19,8 +19,6 @@ from sqpmpc.problem.fleets import antipodal_swap
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.scenario_file import load_scenario
 
-pytestmark = pytest.mark.timeout(60)
-
 
 def _node(path: str, robot_id: int, run: str) -> RobotNode:
     args = build_parser().parse_args(

@@ -25,6 +25,7 @@ from sqpmpc.io.files import load_trajectory
 from sqpmpc.io.recording import POSE_TOPIC, write_recording
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.record import RunRecord
+from tests import HANG
 from tests.scenarios import circle_scenario
 
 REPO = Path(__file__).resolve().parent.parent
@@ -89,7 +90,6 @@ def check_recording(run_dir: Path, missing_plans: int = 0) -> dict[str, list[tup
     return topics
 
 
-@pytest.mark.timeout(120)
 @pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
 def test_sqpmpc_run_writes_the_recording(tmp_path: Path, scheme: str) -> None:
     scenario = tmp_path / "s2.toml"
@@ -105,12 +105,11 @@ def test_sqpmpc_run_writes_the_recording(tmp_path: Path, scheme: str) -> None:
     assert all(m["budget_ms"] == 500.0 for _, m in topics["/solve_time"])
 
 
-@pytest.mark.timeout(120)
 def test_distributed_lockstep_plant_writes_the_recording(tmp_path: Path) -> None:
     out = tmp_path / "dist"
     res = subprocess.run([sys.executable, "-m", "services.launch", "--scenario", "paper-s2",
                           "--scheme", "decentralized", "--t-end", "5", "--out", str(out),
-                          "--no-plots"], capture_output=True, text=True, timeout=100, cwd=REPO)
+                          "--no-plots"], capture_output=True, text=True, timeout=HANG, cwd=REPO)
     assert res.returncode == 0, res.stderr
     check_recording(out, missing_plans=1)
 

@@ -24,6 +24,7 @@ from services.ros2.sdk import use_local_definitions
 from services.testing import free_ports, start_service, stop_processes
 from services.transport import make_config
 from sqpmpc.problem.scenario_file import load_scenario
+from tests import HANG
 
 sdk = pytest.importorskip("zenoh_ros2_sdk")
 
@@ -84,7 +85,6 @@ def _wait_for_nodes(port: int, names: set[str], timeout: float) -> bool:
     return names <= seen
 
 
-@pytest.mark.timeout(240)
 def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robot(tmp_path):
     scenario_file = tmp_path / "three.toml"
     scenario_file.write_text(SCENARIO)
@@ -106,7 +106,7 @@ def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robo
     procs += robots
     session = None
     try:
-        assert _wait_for_nodes(ros_port, {f"sqpmpc_robot{i}" for i in (1, 2, 3)}, 120.0), \
+        assert _wait_for_nodes(ros_port, {f"sqpmpc_robot{i}" for i in (1, 2, 3)}, HANG), \
             [p.output()[-500:] for p in robots]
         use_local_definitions(tmp_path / "msgs")
         session = sdk.ZenohSession.get_instance("127.0.0.1", ros_port)
@@ -121,7 +121,7 @@ def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robo
         info = sdk.get_topic_info("/robot1/cmd_vel", router_port=ros_port, timeout=1.0,
                                   verbose=True)
         for rob in robots:
-            assert rob.wait(60.0) == 0, rob.output()[-2000:]
+            assert rob.wait(HANG) == 0, rob.output()[-2000:]
         for sub in subs:
             sub.close()
     finally:
@@ -130,7 +130,7 @@ def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robo
         sim = procs[2]
         if sim.proc.poll() is None:
             sim.proc.send_signal(signal.SIGINT)
-            sim.wait(30.0)
+            sim.wait(HANG)
         stop_processes(procs)
     # the independent subscriber saw the controller's commands and plans, the graph its node
     assert topics["/robot1/cmd_vel"] == ["geometry_msgs/msg/Twist"]
@@ -187,7 +187,6 @@ reference = { type = "point", position = [-1.2, -0.7] }
 # beside the other's goal
 
 
-@pytest.mark.timeout(240)
 def test_ros2_robots_with_acceleration_limits_ramp_within_them_and_arrive(tmp_path):
     scenario_file = tmp_path / "accel.toml"
     scenario_file.write_text(ACCEL_SCENARIO)
@@ -210,15 +209,15 @@ def test_ros2_robots_with_acceleration_limits_ramp_within_them_and_arrive(tmp_pa
         "--epoch-file", str(epoch_file), "--insecure"], logs, f"robot-{i}") for i in (1, 2)]
     procs += robots
     try:
-        assert _wait_for_nodes(ros_port, {"sqpmpc_robot1", "sqpmpc_robot2"}, 120.0), \
+        assert _wait_for_nodes(ros_port, {"sqpmpc_robot1", "sqpmpc_robot2"}, HANG), \
             [p.output()[-500:] for p in robots]
         epoch_file.write_text(repr(time.time() + 1.0))
         for rob in robots:
-            assert rob.wait(60.0) == 0, rob.output()[-2000:]
+            assert rob.wait(HANG) == 0, rob.output()[-2000:]
     finally:
         if sim.proc.poll() is None:
             sim.proc.send_signal(signal.SIGINT)
-            sim.wait(30.0)
+            sim.wait(HANG)
         stop_processes(procs)
     data = json.loads((tmp_path / "poses.json").read_text())
     limit = np.maximum(np.abs(scenario.bounds.acceleration_lower()),

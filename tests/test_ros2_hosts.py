@@ -16,6 +16,7 @@ import pytest
 from services.netns import HostLab, lab_problem
 from services.ros2.hosts import merge_poses
 from sqpmpc.errors import ProblemError
+from tests import HANG
 
 
 def test_merge_poses_takes_the_time_every_host_covers():
@@ -31,7 +32,6 @@ def test_merge_poses_takes_the_time_every_host_covers():
         merge_poses(parts)
 
 
-@pytest.mark.timeout(120)
 def test_lab_links_lose_packets_the_relay_delays_and_close_removes_everything():
     problem = lab_problem()
     if problem:
@@ -51,7 +51,7 @@ def test_lab_links_lose_packets_the_relay_delays_and_close_removes_everything():
             out = subprocess.run(host.argv(*py, "probe", "--tcp", f"{host.hub_address}:9003",
                                            "--udp", f"{host.hub_address}:9002", "--count",
                                            "60", "--interval", "0.005"),
-                                 capture_output=True, text=True, timeout=90, check=False)
+                                 capture_output=True, text=True, timeout=HANG, check=False)
             packets = lab.packets()
         finally:
             for p in procs:

@@ -10,7 +10,6 @@ import queue
 import time
 from pathlib import Path
 
-import pytest
 import zenoh
 
 from services.ros2 import msgs
@@ -19,9 +18,10 @@ from services.ros2.options import ros2_config
 from services.ros2.secure import write_ros2_configs
 from services.testing import free_ports, start_service, stop_processes
 from services.transport import make_config
+from tests import HANG
 
 TWIST, ODOM = "geometry_msgs/msg/Twist", "nav_msgs/msg/Odometry"
-PATIENCE = 120.0
+PATIENCE = HANG
 """Longest wait for a message that must come (a cap on a failure, not a measured time)."""
 
 
@@ -52,7 +52,6 @@ def _until(got: queue.SimpleQueue, send, good: float) -> list[float]:
     return seen
 
 
-@pytest.mark.timeout(300)
 def test_a_secured_ros2_router_lets_through_each_robots_own_participants_only(tmp_path):
     port = free_ports(1)[0]
     keys = tmp_path / "keys"

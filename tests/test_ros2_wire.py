@@ -24,6 +24,7 @@ from services.ros2.graph import (
     topic_key,
 )
 from services.ros2.sdk import SDK_TYPES, use_local_definitions
+from tests import HANG
 
 sdk = pytest.importorskip("zenoh_ros2_sdk")
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
@@ -212,7 +213,7 @@ def test_an_independent_node_reads_what_a_node_of_this_encoder_sends(tmp_path):
         sent_path = msgs.Path(msgs.Header(msgs.Time(3, 4), "odom"), tuple(
             msgs.PoseStamped(msgs.Header(msgs.Time(3 + i, 0), "odom"), _mine_pose(i, -i, 0.1))
             for i in range(9)))
-        deadline = time.time() + 20.0
+        deadline = time.time() + HANG
         while time.time() < deadline and not all(got.values()):
             cmd.publish(sent_cmd)
             path.publish(sent_path)

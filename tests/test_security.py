@@ -12,9 +12,7 @@ import os
 import stat
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,8 +34,7 @@ from sqpmpc.cli.main import main as sqpmpc_main
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
-
-pytestmark = pytest.mark.timeout(400)
+from tests import HANG
 
 SCENARIO = "paper-s2"
 T_END = 20.0  # 40 samples
@@ -167,12 +164,12 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
                 name=f"forger-{name}")
             procs.append(forgers[name])
         for proc in forgers.values():
-            _wait_ready(proc, 60.0)
+            _wait_ready(proc, HANG)
         for j, rid in enumerate(scenario.ids, start=1):
             own = [] if topology == "router" else ["--listen", eps[j]]
             procs.append(start_service("robot", ["--id", str(rid), *common, *own, *net], logs,
                                        name=f"robot-{rid}"))
-        assert plant.wait(90) == 0, plant.output()
+        assert plant.wait(HANG) == 0, plant.output()
     finally:
         stop_processes(procs)
     summaries = {name: _summary(p) for name, p in forgers.items()}
@@ -217,7 +214,7 @@ def test_a_service_refuses_credentials_of_another_run_or_plain_endpoints(tmp_pat
     ]
     for args, message in cases:
         proc = start_service("plant", ["--scenario", SCENARIO, *args], tmp_path / "logs")
-        assert proc.wait(60) == 2, proc.output()
+        assert proc.wait(HANG) == 2, proc.output()
         lines = [ln for ln in proc.output().splitlines() if "error" in ln]
         assert len(lines) == 1 and message in lines[0], proc.output()
 
@@ -250,12 +247,12 @@ def test_one_inconsistent_input_on_a_robots_own_key_cannot_stop_the_run(tmp_path
                        "--duration", "120", "--connect", eps[0], "--listen", eps[5]], logs,
             name="forger")
         procs.append(forger)
-        _wait_ready(forger, 60.0)
+        _wait_ready(forger, HANG)
         for j, rid in enumerate(scenario.ids, start=1):
             procs.append(start_service("robot", ["--id", str(rid), *common, "--listen", eps[j],
                                                  "--connect", eps[0]], logs,
                                        name=f"robot-{rid}"))
-        status = plant.wait(90)
+        status = plant.wait(HANG)
     finally:
         stop_processes(procs)
     assert _summary(forger)["sent"]["settings"] == 1, forger.output()
@@ -293,14 +290,18 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
     command line or environment, while running and after a SIGKILL of the launcher; every
     process is non-dumpable (another unprivileged process of the user cannot read its
     memory or descriptors)."""
-    before = set(os.listdir(tempfile.gettempdir()))
+    # the launcher's temporary folder under a TMPDIR of its own: what other tests or runs on
+    # the machine create meanwhile in the shared one is not mistaken for the launcher's
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     out = tmp_path / "out"
     launcher = subprocess.Popen(
         [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
          "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots"],
-        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        env={**os.environ, "TMPDIR": str(tmp)})
     try:
-        deadline = time.monotonic() + 240  # a loaded machine: imports take long
+        deadline = time.monotonic() + HANG  # a loaded machine: imports take long
         record = out / "record.msgpack"
         children: list[int] = []
         while time.monotonic() < deadline and len(children) < 5:
@@ -319,7 +320,7 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
                 assert not _key_material(fh.read())
         launcher.kill()  # SIGKILL: the children get SIGTERM (parent death signal)
         launcher.wait(10)
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + HANG
         while any(pid_alive(pid) for pid in children) and time.monotonic() < deadline:
             time.sleep(0.1)
         assert not any(pid_alive(pid) for pid in children)
@@ -327,8 +328,7 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
         if launcher.poll() is None:
             launcher.kill()
             launcher.wait()
-    created = [Path(tempfile.gettempdir()) / n for n in set(os.listdir(tempfile.gettempdir()))
-               - before]
+    created = list(tmp.iterdir())
     for root in [out, *[p for p in created if p.name.startswith("sqpmpc")]]:
         for path in [root, *root.rglob("*")] if root.is_dir() else [root]:
             if path.is_file():
@@ -339,5 +339,5 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
     probe = subprocess.run(
         [sys.executable, "-c", "import ctypes; from services.handover import make_private; "
          "print(make_private(), ctypes.CDLL(None).prctl(3, 0, 0, 0, 0))"],
-        cwd=REPO, capture_output=True, text=True, timeout=60)
+        cwd=REPO, capture_output=True, text=True, timeout=HANG)
     assert probe.stdout.split() == ["True", "0"], probe.stderr

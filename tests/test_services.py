@@ -31,6 +31,7 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
+from tests import HANG
 from tests.service_helpers import kill_and_restart, newest_sample, start_run
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
@@ -155,9 +156,9 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
                                             "--insecure"],
                                   tmp_path / "logs", name="robot-4")
         procs.append(robots[4])
-        assert plant.wait(60) == 0, plant.output()
+        assert plant.wait(HANG) == 0, plant.output()
         for r in robots.values():
-            assert r.wait(30) == 0, r.output()
+            assert r.wait(HANG) == 0, r.output()
     finally:
         probe.close()
         stop_processes(procs)
@@ -186,14 +187,14 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
         def reached(k: int) -> bool:
             return any(decode(e.payload, 8).sample >= k for e in probe.events)
 
-        assert probe.wait_for(lambda: reached(20), 60), plant.output()
+        assert probe.wait_for(lambda: reached(20), HANG), plant.output()
         robots[2].proc.send_signal(signal.SIGSTOP)  # silent: the plant times out on it
         time.sleep(1.0)
         robots[2].proc.kill()  # then gone: its liveliness token disappears
         robots[2].wait(10)
-        assert plant.wait(60) == 0, plant.output()
+        assert plant.wait(HANG) == 0, plant.output()
         for i in (1, 3, 4):
-            assert robots[i].wait(30) == 0, robots[i].output()
+            assert robots[i].wait(HANG) == 0, robots[i].output()
     finally:
         probe.close()
         stop_processes(procs)
@@ -227,7 +228,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
         subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
-        assert probe.wait_for(lambda: bool(probe.events), 60), plant.output()  # running
+        assert probe.wait_for(lambda: bool(probe.events), HANG), plant.output()  # running
         robots[4] = start_service("robot", ["--id", "4", "--scenario", SCENARIO, "--run", run,
                                             "--t-end", t_end, "--connect", plant_ep, "--insecure",
                                             "--startup-timeout", "120"],
@@ -237,13 +238,13 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
         def joined() -> re.Match[str] | None:
             return re.search(r"robot/4 joined at sample (\d+)", plant.output())
 
-        assert probe.wait_for(lambda: joined() is not None, 150), plant.output()
+        assert probe.wait_for(lambda: joined() is not None, HANG), plant.output()
         k = int(joined().group(1))
-        assert probe.wait_for(lambda: newest_sample(probe) >= k + 100, 120), plant.output()
+        assert probe.wait_for(lambda: newest_sample(probe) >= k + 100, HANG), plant.output()
         plant.proc.send_signal(signal.SIGINT)  # the plant writes what it simulated
-        assert plant.wait(90) == 128 + signal.SIGINT, plant.output()
+        assert plant.wait(HANG) == 128 + signal.SIGINT, plant.output()
         for r in robots.values():
-            r.wait(60)
+            r.wait(HANG)
     finally:
         probe.close()
         stop_processes(procs)
@@ -274,7 +275,7 @@ def test_a_robot_started_late_joins_the_running_loop(tmp_path):
 ])
 def test_bad_input_gives_one_message_and_status_2(module, args):
     res = subprocess.run([sys.executable, "-m", f"services.{module}", *args],
-                         capture_output=True, text=True, timeout=60,
+                         capture_output=True, text=True, timeout=HANG,
                          cwd=Path(__file__).resolve().parent.parent)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
@@ -293,7 +294,7 @@ def test_lockstep_fleet_with_neighbour_slots_reproduces_the_in_process_run(tmp_p
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "services.launch", "--scenario", str(path), "--out", str(out),
            "--no-plots", "--scheme", "decentralized", "--neighbour-slots", "2"]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120,
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=HANG,
                          cwd=Path(__file__).resolve().parent.parent)
     assert res.returncode == 0, res.stderr
     reference = simulate(scenario, "decentralized", SolverSettings(neighbour_slots=2))
@@ -313,7 +314,7 @@ def test_a_run_no_controller_ever_answered_is_not_a_success(tmp_path):
                                     "--out", str(tmp_path / "out"), "--no-plots"],
                           tmp_path / "logs")
     try:
-        assert plant.wait(60) == 3, plant.output()
+        assert plant.wait(HANG) == 3, plant.output()
     finally:
         stop_processes([plant])
     m = _metrics(tmp_path / "out")
@@ -328,7 +329,7 @@ def test_a_robot_killed_and_restarted_rejoins_the_lockstep_run(tmp_path):
     waits for it (``--rejoin-timeout``) and it rejoins at the sample where it left."""
     run = "rejoin"
     probe, plant, robots, plant_ep = _start_run(
-        tmp_path, run, [1, 2, 3, 4], T_END, plant_args=("--rejoin-timeout", "90"),
+        tmp_path, run, [1, 2, 3, 4], T_END, plant_args=("--rejoin-timeout", str(HANG)),
         subscriptions=(("plant", "state"),))
     procs = [plant, *robots.values()]
     try:
@@ -361,11 +362,11 @@ def test_every_process_ends_with_one_line_when_the_others_are_gone(tmp_path):
                                          subscriptions=(("plant", "state"),))
     procs = [alone, plant, *robots.values()]
     try:
-        assert alone.wait(60) == 1, alone.output()
-        assert probe.wait_for(lambda: newest_sample(probe) >= 5, 60), plant.output()
+        assert alone.wait(HANG) == 1, alone.output()
+        assert probe.wait_for(lambda: newest_sample(probe) >= 5, HANG), plant.output()
         for r in robots.values():
             r.proc.kill()
-        assert plant.wait(60) == 1, plant.output()
+        assert plant.wait(HANG) == 1, plant.output()
     finally:
         probe.close()
         stop_processes(procs)

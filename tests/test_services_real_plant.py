@@ -18,8 +18,7 @@ import pytest
 from sqpmpc.problem.plant import PlantSpec
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import simulate
-
-pytestmark = pytest.mark.timeout(120)
+from tests import HANG
 
 
 @pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
@@ -32,7 +31,7 @@ def test_noisy_exact_plant_with_obstacles_reproduces_the_in_process_run(tmp_path
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "services.launch", "--scenario", str(path), "--scheme", scheme,
            "--out", str(out), "--no-plots"]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=110,
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=HANG,
                          cwd=Path(__file__).resolve().parent.parent)
     assert res.returncode == 0, res.stderr
     traj = np.load(out / "trajectory.npz")

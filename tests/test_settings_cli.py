@@ -18,15 +18,14 @@ import numpy as np
 import pytest
 
 from services.testing import REPO, free_ports, start_service, stop_processes
-
-pytestmark = pytest.mark.timeout(120)
+from tests import HANG
 
 SCENARIO = "paper-s2"
 OPTIONS = ["--collision-margin", "0.05", "--discretization", "exact"]
 SETTINGS = 'collision_margin = 0.05\ndiscretization = "exact"\nt_end = 20.0\n'
 
 
-def _run(*args: str, timeout: float = 100.0) -> subprocess.CompletedProcess[str]:
+def _run(*args: str, timeout: float = HANG) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=REPO)
 
@@ -90,11 +89,11 @@ def test_a_process_with_other_settings_is_braked_and_named(tmp_path: Path, schem
                           tmp_path / "logs", name=f"robot-{i}")
             for i, p in zip((1, 2), ports, strict=True)]
     try:
-        assert plant.wait(60) == 2, plant.output()
+        assert plant.wait(HANG) == 2, plant.output()
         odd_one = controllers[-1]
-        assert odd_one.wait(30) == 2, odd_one.output()
+        assert odd_one.wait(HANG) == 2, odd_one.output()
         if scheme == "decentralized":
-            assert controllers[0].wait(30) == 0, controllers[0].output()
+            assert controllers[0].wait(HANG) == 0, controllers[0].output()
     finally:
         stop_processes([plant, *controllers])
     errors = [ln for ln in plant.output().splitlines() if " ERROR " in ln]

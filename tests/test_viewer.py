@@ -38,14 +38,13 @@ from services.testing import (
     stop_processes,
 )
 from sqpmpc.io.recording import POSE_TOPIC
-
-pytestmark = pytest.mark.timeout(120)
+from tests import HANG
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 NODE_CLIENT = REPO / "tests" / "node"
 
 
-def _wait_serving(viewer: ServiceProcess, timeout: float = 60.0) -> str:
+def _wait_serving(viewer: ServiceProcess, timeout: float = HANG) -> str:
     """Wait for the viewer's URL line; returns the URL (with its token)."""
     deadline = time.monotonic() + timeout
     while (found := re.search(r"viewer: open (ws://\S+) in Foxglove", viewer.output())) is None:
@@ -58,7 +57,7 @@ def _credentials(tmp_path: Path, run: str) -> Path:
     credentials = tmp_path / "credentials"  # the run's, shared by the viewer and the launcher
     made = subprocess.run([sys.executable, "-m", "sqpmpc", "credentials", "--scenario",
                            "paper-s2", "--run", run, "--out", str(credentials)],
-                          capture_output=True, text=True, timeout=60, cwd=REPO)
+                          capture_output=True, text=True, timeout=HANG, cwd=REPO)
     assert made.returncode == 0, made.stderr
     return credentials
 
@@ -68,7 +67,7 @@ def _launch(run: str, endpoint: str, credentials: Path, out: Path) -> None:
         [sys.executable, "-m", "services.launch", "--scenario", "paper-s2", "--scheme",
          "decentralized", "--t-end", "5", "--run", run, "--connect", endpoint,
          "--credentials", str(credentials), "--out",
-         str(out), "--no-plots"], capture_output=True, text=True, timeout=100, cwd=REPO)
+         str(out), "--no-plots"], capture_output=True, text=True, timeout=HANG, cwd=REPO)
     assert launch.returncode == 0, launch.stderr
 
 
@@ -106,7 +105,7 @@ def test_viewer_serves_the_poses_of_a_lockstep_run(tmp_path: Path) -> None:
                      max_queue=None) as ws:  # buffer everything while the run runs
             assert ws.subprotocol == SUBPROTOCOL
             poses, clearances, out = _watch(ws, run, endpoint, credentials, tmp_path)
-        assert viewer.wait(30) == 0, viewer.output()
+        assert viewer.wait(HANG) == 0, viewer.output()
     finally:
         stop_processes(procs)
     states = np.load(out / "trajectory.npz")["states"]
@@ -148,7 +147,7 @@ def test_the_viewer_admits_only_the_runs_clients(tmp_path: Path) -> None:
         if shutil.which("node"):  # the Node client without the token is refused too
             _npm_install()
             node = subprocess.run(["node", "pose_client.mjs", bare, "4", "1"],
-                                  capture_output=True, text=True, timeout=60, cwd=NODE_CLIENT)
+                                  capture_output=True, text=True, timeout=HANG, cwd=NODE_CLIENT)
             assert node.returncode == 3, node.stdout + node.stderr
             assert '"status":401' in node.stdout
     finally:
@@ -181,15 +180,15 @@ def test_a_node_foxglove_v1_client_receives_every_robots_pose(tmp_path: Path) ->
         with open(lines, "w") as sink:
             node = subprocess.Popen(["node", "pose_client.mjs", url, "4", "10"], stdout=sink,
                                     stderr=subprocess.PIPE, text=True, cwd=NODE_CLIENT)
-        deadline = time.monotonic() + 60  # subscribed to the 4 pose channels
+        deadline = time.monotonic() + HANG  # subscribed to the 4 pose channels
         while lines.read_text().count('"event":"channel"') < 4:
             assert node.poll() is None and time.monotonic() < deadline, lines.read_text()
             time.sleep(0.1)
         out = tmp_path / "out"
         _launch(run, endpoint, credentials, out)
-        _, err = node.communicate(timeout=60)
+        _, err = node.communicate(timeout=HANG)
         assert node.returncode == 0, lines.read_text() + err
-        assert viewer.wait(30) == 0, viewer.output()
+        assert viewer.wait(HANG) == 0, viewer.output()
     finally:
         if node is not None and node.poll() is None:
             node.kill()
