@@ -330,33 +330,3 @@ def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> N
                plan.roadmap.corners())
     # the robots' own points are vertices: they start and end exactly there
     assert np.allclose(plan.roadmap.positions[plan.roadmap.starts], sc.initial_states()[:, :2])
-
-
-def test_a_robot_pushed_back_holds_the_robots_after_it_on_the_vertex_it_left() -> None:
-    """Robot 0 goes from x = 1 to x = 4 along a one-cell corridor and robot 1 follows it from
-    x = 0: robot 1 may head for x = 1 once robot 0 is counted at x = 2 (nearer to it), and
-    not while robot 0, pushed back across the middle of that edge, stands nearer to x = 1
-    again (its progress does not go back); once forward again, robot 1 may go on."""
-    walls = [PolygonObstacle(((-0.5, 0.5), (4.5, 0.5), (4.5, 1.5), (-0.5, 1.5)))]
-    starts = np.array([[1.0, 0.0], [0.0, 0.0]])
-    goals = np.array([[4.0, 0.0], [3.0, 0.0]])
-    roadmap = build_roadmap(walls, (), (np.array([-0.5, -0.5]), np.array([4.5, 0.5])),
-                            starts, goals, np.array([True, True]), 0.0, 0.5, 0.3,
-                            GridSpec(1.0, (0.0, 0.0)))
-    schedule = Schedule.from_plan(plan_paths(roadmap, roadmap.starts, roadmap.goals))
-    execution = Execution(schedule, roadmap, np.arange(2), window=2)
-    x = roadmap.positions[schedule.paths, 0]
-    assert x[0, :4].tolist() == [1.0, 2.0, 3.0, 4.0] and x[1, :4].tolist() == [0.0, 1.0, 2.0, 3.0]
-
-    def at(a: float, b: float) -> np.ndarray:
-        return np.array([[a, 0.0], [b, 0.0]])
-
-    execution.advance(at(1.0, 0.0))
-    assert execution.permitted_all()[1] == 0  # robot 0 is still on x = 1
-    execution.advance(at(1.6, 0.0))
-    assert execution.progress[0] == 1 and execution.permitted_all()[1] == 1
-    execution.advance(at(1.3, 0.05))  # pushed back: nearer to x = 1 again
-    assert execution.progress[0] == 1 and execution.standing[0] == 0
-    assert execution.permitted_all()[1] == 0
-    execution.advance(at(1.7, 0.05))
-    assert execution.standing[0] == 1 and execution.permitted_all()[1] >= 1

@@ -17,19 +17,6 @@ than to the vertices around it on its path. Every
 controller counts it for every robot from the same measurements, so the
 decentralized controllers agree without a coordinator.
 
-**Pushed back.** Progress never decreases, but a robot can be pushed back, by the
-collision rows of the robots around it, across the middle of the edge it was
-counted over: it stands nearer to the vertex it had left. The robots the plan has
-on that vertex after it then hold (:attr:`Execution.standing`: the progress, less
-one while the robot stands nearer to the vertex behind it), and one already on its
-way there goes back to the vertex it holds, so the vertex is clear for the pushed
-robot's way forward. Without this, a robot pushed 0.58 m back onto the vertex behind
-it stood there, and the robot the plan has next on that vertex came on towards it:
-both free, each in the other's way, to the end of the run (a grid formation of 64
-robots). The hold only adds waits on robots earlier in the plan at the same vertex,
-so the argument below is unchanged; the pushed robot heads forward (its progress
-vertex), away from the robots behind it.
-
 **No deadlock.** The dependencies point from an earlier step of the plan to a
 later one, or to the same step where a robot follows another onto the vertex it
 leaves; plans have no rotation (:mod:`sqpmpc.coordination.mapf`), so no chain of
@@ -172,7 +159,6 @@ class Execution:
         self.roadmap = roadmap
         self.robots = np.asarray(robots, dtype=np.int64)
         self.progress = np.zeros(schedule.size, dtype=np.int64)
-        self.standing = np.zeros(schedule.size, dtype=np.int64)
         self.window = max(int(window), 1)
         self._points = roadmap.positions[schedule.paths]  # (n, L, 2)
         self._last = schedule.lengths - 1
@@ -193,7 +179,6 @@ class Execution:
         # the later of equally near vertices: argmin over the reversed window
         best = gap.shape[1] - 1 - np.argmin(gap[:, ::-1], axis=1)
         np.maximum(self.progress, ahead[np.arange(n), best], out=self.progress)
-        self._stand(now)
         return self.progress
 
     def resume(self, positions: np.ndarray) -> np.ndarray:
@@ -222,39 +207,22 @@ class Execution:
         nearest = valid & (gap <= gap.min(axis=1, keepdims=True) + 1e-9)
         target = width - 1 - np.argmax(nearest[:, ::-1], axis=1)  # last visit
         start = self.progress.copy()
-        self._stand(now)
         while True:  # at most one pass per robot that moves
             moved = np.maximum(self.progress, np.minimum(target, self.permitted_all()))
             if np.array_equal(moved, self.progress):
                 break
             self.progress[:] = moved
-            self._stand(now)
         within = nearest & (index <= self.progress[:, None])
         last = np.where(within.any(axis=1), width - 1 - np.argmax(within[:, ::-1], axis=1), 0)
         self.progress[:] = np.maximum(start, last)
-        self._stand(now)
         return self.progress
 
-    def _stand(self, now: np.ndarray) -> None:
-        """Where every robot stands now: its progress, or the vertex before it while it is
-        nearer to that one (pushed back across the middle of the edge it was counted over;
-        ``now`` ``(n, 2)`` its positions)."""
-        n = self.progress.size
-        rows = np.arange(n)
-        p = self.progress
-        behind = self._points[rows, np.maximum(p - 1, 0)]
-        ahead = self._points[rows, p]
-        back = (p > 0) & (np.hypot(*(now - behind).T) < np.hypot(*(now - ahead).T))
-        self.standing[:] = p - back
-
     def permitted_all(self) -> np.ndarray:
-        """``(n,)`` the last path index every robot may head for now: before each path
-        vertex, every robot the plan has there earlier must *stand* past it
-        (:attr:`standing`: counted past it, and not pushed back nearer to it since)."""
+        """``(n,)`` the last path index every robot may head for now."""
         s = self.schedule
         out = self._last.copy()
         unmet = (s.dep_index > self.progress[s.dep_owner]) & (
-            self.standing[s.dep_robot] < s.dep_need)
+            self.progress[s.dep_robot] < s.dep_need)
         np.minimum.at(out, s.dep_owner[unmet], s.dep_index[unmet] - 1)
         return out
 
