@@ -330,3 +330,32 @@ def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> N
                plan.roadmap.corners())
     # the robots' own points are vertices: they start and end exactly there
     assert np.allclose(plan.roadmap.positions[plan.roadmap.starts], sc.initial_states()[:, :2])
+
+
+def test_a_robot_holds_while_another_stands_on_its_next_vertex() -> None:
+    """Robot 0 goes from x = 1 to x = 4 along a one-cell corridor and robot 1 follows it from
+    x = 0: the order lets robot 1 head for x = 1 once robot 0 is counted at x = 2, but it
+    holds while any robot stands within half the spacing of x = 1: robot 0 pushed back
+    there (its progress does not go back), or a robot the plan does not know."""
+    walls = [PolygonObstacle(((-0.5, 0.5), (4.5, 0.5), (4.5, 1.5), (-0.5, 1.5)))]
+    starts = np.array([[1.0, 0.0], [0.0, 0.0]])
+    goals = np.array([[4.0, 0.0], [3.0, 0.0]])
+    roadmap = build_roadmap(walls, (), (np.array([-0.5, -0.5]), np.array([4.5, 0.5])),
+                            starts, goals, np.array([True, True]), 0.0, 0.5, 0.3,
+                            GridSpec(1.0, (0.0, 0.0)))
+    schedule = Schedule.from_plan(plan_paths(roadmap, roadmap.starts, roadmap.goals))
+    execution = Execution(schedule, roadmap, np.arange(2), window=2)
+    x = roadmap.positions[schedule.paths, 0]
+    assert x[0, :4].tolist() == [1.0, 2.0, 3.0, 4.0] and x[1, :4].tolist() == [0.0, 1.0, 2.0, 3.0]
+
+    def at(a: float, b: float, outsider: tuple[float, float] = (9.0, 9.0)) -> np.ndarray:
+        return np.array([[a, 0.0], [b, 0.0], outsider])
+
+    execution.advance(at(1.0, 0.0))
+    assert execution.clear_all(at(1.0, 0.0))[1] == 0  # the order holds it
+    execution.advance(at(1.6, 0.0))
+    assert execution.progress[0] == 1 and execution.clear_all(at(1.6, 0.0))[1] == 1
+    assert execution.clear_all(at(1.3, 0.0))[1] == 0  # robot 0 pushed back near x = 1
+    assert execution.progress[0] == 1 and execution.permitted_all()[1] == 1
+    assert execution.clear_all(at(1.6, 0.0, (1.1, 0.2)))[1] == 0  # another robot there
+    assert execution.clear_all(at(1.6, 0.0, (1.0, 0.6)))[1] == 1  # beside it: not there

@@ -114,7 +114,7 @@ class _Instance(RuleInstance):
         else:  # a controller started (or restarted) mid-run: no history of the positions
             progress = execution.resume(view.positions)
         self._joined = True
-        permitted = execution.permitted_all()
+        permitted = execution.clear_all(view.positions)
         out = np.array(view.references)
         self._tracked[:] = False
         reach = plan.roadmap.reach
