@@ -24,9 +24,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.kernels.polygons import support
 from sqpmpc.ocp.geometry import RowGeometry
-from sqpmpc.ocp.obstacle_rows import ObstacleRows
 from sqpmpc.ocp.polygon_rows import PolygonRows
-from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.scenario_file import parse_scenario
 from sqpmpc.qp.backend import OSQPSettings
@@ -108,44 +106,6 @@ def test_every_piece_within_reach_is_kept_by_the_stage_rows(seed: int, n: int, s
             implied = [support(A[0, s, i, 0], A[0, s, i, 1], verts, verts.shape[0]) + required
                        <= lower[0, s, i] + 1e-9 for s in np.flatnonzero(on)]
             assert any(implied), f"stage {i + 1}: piece {e} within reach left without a row"
-
-
-@settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 40), slots=st.integers(1, 5))
-def test_every_circle_within_reach_is_kept_by_the_stage_rows(seed: int, n: int,
-                                                             slots: int) -> None:
-    """Circles, some moving: at every stage, every point that keeps the slots' rows keeps
-    its distance from every circle within reach at that stage's time."""
-    rng = np.random.default_rng(seed)
-    obstacles = [Obstacle(tuple(rng.uniform(-3.0, 3.0, 2)), float(rng.uniform(0.1, 0.6)),
-                          tuple(rng.normal(0.0, 0.2, 2)) if rng.random() < 0.3 else (0.0, 0.0))
-                 for _ in range(n)]
-    Ts, speed = 0.5, 0.4
-    rows = ObstacleRows(obstacles, np.array([2 * RADIUS]), N, Ts, RowGeometry.plain(N),
-                        MARGIN, (-speed, speed), slots=slots)
-    if not rows.selecting:
-        return
-    p0 = rng.uniform(-3.0, 3.0, 2)
-    states = np.zeros((1, N + 1, 3))
-    states[0, 0, :2] = p0
-    states[0, 1:, :2] = p0 + np.cumsum(rng.normal(0.0, speed * Ts, (N, 2)), axis=0)
-    t = float(rng.uniform(0.0, 3.0))
-    rows.set_sample(t, states[:, 0])
-    A = np.zeros((1, rows.n_obstacles, N, 2))
-    lower = np.zeros((1, rows.n_obstacles, N))
-    rows.write_rows(states, A, lower)
-    box = rng.uniform(-1.0, 1.0, (3000, 2)) * (speed * Ts * (N + 2) + 1.0) + p0
-    for i in range(1, N):  # stage i + 1 (stage 1 is capped: standing still is kept)
-        on = np.isfinite(lower[0, :, i])
-        keeps = np.all(box @ A[0, on, i].T >= lower[0, on, i] - 1e-12, axis=1)
-        when = t + Ts * (i + 1)
-        for e, o in enumerate(obstacles):
-            centre = np.asarray(o.position) + when * np.asarray(o.velocity)
-            need = rows.required[0, e]
-            if np.hypot(*(centre - p0)) - speed * Ts * (i + 2) - need > -1e-9:
-                continue  # beyond the reach of stage i + 1
-            d = np.hypot(*(box[keeps] - centre).T)
-            assert d.size == 0 or d.min() >= need - 1e-7, (i, e)
 
 
 def test_the_k_d_tree_finds_the_same_candidates(monkeypatch: pytest.MonkeyPatch) -> None:

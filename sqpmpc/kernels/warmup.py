@@ -30,13 +30,7 @@ from sqpmpc.kernels.ocp import (
     write_reference,
 )
 from sqpmpc.kernels.pair_paths import warm_up_pair_paths
-from sqpmpc.kernels.polygons import (
-    candidate_rows,
-    path_keeps_pieces,
-    piece_distances,
-    polygon_rows,
-    shadow_select,
-)
+from sqpmpc.kernels.polygons import path_keeps_pieces, piece_distances, polygon_rows
 from sqpmpc.kernels.references import harmonic_positions
 from sqpmpc.kernels.rings import warm_up_rings
 from sqpmpc.kernels.rules import hold_touching_rows, inside_pairs, warm_up_roundabout, warm_up_rules
@@ -136,11 +130,4 @@ def warm_up() -> float:
                  np.empty((1, 2, 2)), np.empty((1, 2)))
     path_keeps_pieces(0.0, 0.0, 0.1, 0.0, square, four, np.ones(1), 0.0)
     piece_distances(0.0, 0.0, square, four, np.empty(1))
-    one = np.zeros(1, dtype=np.int64)
-    A_all, l_all = np.zeros((1, 2, 2)), np.zeros((1, 2))
-    candidate_rows(np.zeros(2), np.zeros((2, 3)), square, four, one, np.ones(1), rot, A_all,
-                   l_all, np.zeros(1, dtype=np.bool_))
-    shadow_select(A_all, l_all, square, four, np.zeros((1, 2, 2)), np.ones(1),
-                  np.zeros((2, 3)), np.ones((1, 2), dtype=np.bool_), one,
-                  np.zeros((1, 2, 2)), np.zeros((1, 2)), np.zeros((1, 2), dtype=np.int64))
     return time.perf_counter() - t0

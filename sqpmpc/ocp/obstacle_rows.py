@@ -1,27 +1,23 @@
-r"""The obstacle rows of the OCP: circles of :class:`sqpmpc.problem.obstacles.Obstacle`
+"""The obstacle rows of the OCP: circles of :class:`sqpmpc.problem.obstacles.Obstacle`
 kept by separating half-planes (:class:`ObstacleRows`), stacked beside other collision
 models (:class:`StackedRows`).
 
 Rows by reach. A map with more than :data:`OBSTACLE_SLOTS` circles (or convex
-polygon pieces, :mod:`sqpmpc.ocp.polygon_rows`, whose docstring has the
-argument in full) gives each robot that many slots per stage, filled every
-sample from the obstacles its horizon can reach: at stage :math:`i` those whose
-distance from the robot's measured position at that stage's time, less the
-distance the robot can travel by then (``max_speed`` times the stage's time,
-one sample more for the linearization), comes within the required distance.
-Each stage's candidates are taken by their row's gap at the iterate; one
-behind a chosen row (:math:`n^\top o_c + d_c \le l`) is kept by it and needs
-no slot (:func:`sqpmpc.kernels.polygons.shadow_select`); more unshadowed
-candidates than slots raise a chosen row to keep them all (counted in
-``overflows``, warned), so no obstacle within reach is ever without a row that
-keeps it. The QP's size, and so the cost of a sample, depends on the slots, not
-on the map's size. The first input is still verified against every obstacle
-(:meth:`ObstacleRows.first_input_safe`).
+polygon pieces, :mod:`sqpmpc.ocp.polygon_rows`) gives each robot that many
+slots, filled every sample with the obstacles its horizon can reach: those
+whose distance from the robot's measured position, less the distance the
+robot can travel by each stage (``max_speed`` times the stage's time, one
+sample more for the linearization), comes within the required distance,
+nearest first (:func:`assign_slots`). The QP's size, and so the cost of a
+sample, then depends on the slots, not on the map's size. An obstacle out of
+reach cannot be touched by a plan within the speed bound; the first input is
+still verified against every obstacle (:meth:`ObstacleRows.first_input_safe`),
+so an obstacle within reach left without a slot (more than the slots nearby)
+can stop a plan, never be hit.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Sequence
 
@@ -29,14 +25,11 @@ import numpy as np
 
 from sqpmpc.kernels.acceleration import moving_points_keep_bulging_distance
 from sqpmpc.kernels.collision import moving_points_keep_distance, obstacle_rows
-from sqpmpc.kernels.polygons import shadow_select
 from sqpmpc.ocp.geometry import RowGeometry
 from sqpmpc.problem.obstacles import Obstacle, obstacle_positions
 
 __all__ = ["OBSTACLE_SLOTS", "ObstacleRows", "StackedRows", "assign_slots", "map_slots",
            "scenario_map_slots"]
-
-_log = logging.getLogger(__name__)
 
 #: Slots per robot for circles, and for polygon pieces, on maps with more of them
 #: (``None``: one per circle and per piece). Measured on a 64-box maze with 0.5 m
@@ -136,14 +129,8 @@ class ObstacleRows:
             max_speed)
         # travel by stage 0..N, one sample more for the linearization's error
         self._travel = speed * self.sample_time * np.arange(1, self.horizon + 2)
-        #: ``(m, K, N)`` the obstacle in each robot's slot per stage (-1: empty)
-        self.slot_obstacles = np.tile(np.arange(self.n_obstacles)[:, None],
-                                      (d.size, 1, self.horizon))
-        #: stages whose unshadowed candidates outnumbered the slots (a row raised), so far
-        self.overflows = 0
-        #: per robot: the candidate obstacles of the sample and ``(C, N)`` their stages
-        self.candidates: list[np.ndarray] = [np.arange(self.n_all)] * d.size
-        self._active: list[np.ndarray] = [np.ones((self.n_all, self.horizon), bool)] * d.size
+        #: ``(m, K)`` the obstacle in each robot's slot (-1: empty)
+        self.slot_obstacles = np.tile(np.arange(self.n_obstacles), (d.size, 1))
         self._kinds = np.full(self.n_obstacles, 2, dtype=np.int8)  # obstacle slots
         self._stage_offsets = self.sample_time * np.arange(0, self.horizon + 1)
         self._t = 0.0
@@ -171,60 +158,40 @@ class ObstacleRows:
             # (m, N+1, O): distance to each obstacle at stage k less the travel by then
             distance = np.hypot(track[None, :, :, 0] - self.current[:, None, None, 0],
                                 track[None, :, :, 1] - self.current[:, None, None, 1])
-            gap = distance - self._travel[None, :, None] - self.required[:, None, :]
+            gap = (distance - self._travel[None, :, None]).min(axis=1) - self.required
             for r in range(self.current.shape[0]):
-                # stage i (1..N) against the obstacles then; stage 0's reach counts for stage 1
-                within = gap[r, 1:] <= 0.0
-                within[0] |= gap[r, 0] <= 0.0
-                cand = np.flatnonzero(within.any(axis=0))
-                self.candidates[r] = cand
-                self._active[r] = np.ascontiguousarray(within[:, cand].T)
+                self.slot_obstacles[r] = assign_slots(gap[r], self.slot_obstacles[r])
 
     def write_rows(self, states: np.ndarray, A_out: np.ndarray, lower_out: np.ndarray) -> None:
         """Rows at the iterate ``states (m, N+1, 3)`` into ``(m, K, N, 2)`` and ``(m, K, N)``
         (``K`` slots; an empty slot's row is off: zero, lower bound ``-inf``)."""
         overrides = 0
-        N = self.horizon
         for r in range(self.current.shape[0]):
             if self.selecting:
-                cand = self.candidates[r]
-                C = cand.size
-                A = np.zeros((C, N, 2))
-                lower = np.zeros((C, N))
-                now, predicted = self.now[cand], self.predicted[cand]
-                overrides += obstacle_rows(self.current[r], now, states[r, 1:], predicted,
-                                           np.full(C, 2, dtype=np.int8),
-                                           np.ascontiguousarray(self.required[r, cand]), 0.0,
-                                           self.geometry.rotation, True, A, lower)
-                self._cap_stage_one(r, A, lower, self._moving[cand])
-                overflows = shadow_select(
-                    A, lower, np.zeros((C, 1, 2)), np.ones(C, dtype=np.int64), predicted,
-                    np.ascontiguousarray(self.required[r, cand]), states[r, 1:],
-                    self._active[r], cand, A_out[r], lower_out[r], self.slot_obstacles[r])
-                if overflows:
-                    if not self.overflows:
-                        _log.warning(
-                            "obstacle rows by reach: %d stage(s) of robot slot %d had more "
-                            "unshadowed circles within reach than its %d slots; a row was "
-                            "raised to keep them all (conservative)", overflows, r,
-                            self.n_obstacles)
-                    self.overflows += overflows
-                continue
-            overrides += obstacle_rows(self.current[r], self.now, states[r, 1:], self.predicted,
-                                       self._kinds, self.required[r], 0.0,
+                slot = self.slot_obstacles[r]
+                empty = slot < 0
+                idx = np.where(empty, 0, slot)
+                now, predicted, required = self.now[idx], self.predicted[idx], self.required[
+                    r, idx]
+                kinds = np.where(empty, 0, 2).astype(np.int8)
+                moving = self._moving[idx]
+            else:
+                now, predicted, required = self.now, self.predicted, self.required[r]
+                kinds, moving, empty = self._kinds, self._moving, None
+            overrides += obstacle_rows(self.current[r], now, states[r, 1:], predicted,
+                                       kinds, required, 0.0,
                                        self.geometry.rotation, True, A_out[r], lower_out[r])
-            self._cap_stage_one(r, A_out[r], lower_out[r], self._moving)
+            if empty is not None:
+                A_out[r, empty] = 0.0
+                lower_out[r, empty] = -np.inf
+            # stage 1 hard and feasible: capped at what moving along the current heading
+            # can reach (standing still, for a static obstacle: always feasible)
+            n1 = A_out[r, :, 0, :]
+            along = n1 @ self._heading[r]
+            reach = self._reach * np.maximum(self._v_max * along, self._v_min * along)
+            cap = n1 @ self.current[r] + np.where(moving, np.maximum(reach, 0.0), 0.0)
+            np.minimum(lower_out[r, :, 0], cap, out=lower_out[r, :, 0])
         self.stage_one_overrides = overrides
-
-    def _cap_stage_one(self, r: int, A: np.ndarray, lower: np.ndarray,
-                       moving: np.ndarray) -> None:
-        """Stage 1 hard and feasible: capped at what moving along the current heading can
-        reach (standing still, for a static obstacle: always feasible)."""
-        n1 = A[:, 0, :]
-        along = n1 @ self._heading[r]
-        reach = self._reach * np.maximum(self._v_max * along, self._v_min * along)
-        cap = n1 @ self.current[r] + np.where(moving, np.maximum(reach, 0.0), 0.0)
-        np.minimum(lower[:, 0], cap, out=lower[:, 0])
 
     def braking_safe(self, paths: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> bool:
         """Every own robot's braking path ``paths (m, B+1, 2)`` (stage 1 on, one point a
