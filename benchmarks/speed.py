@@ -17,9 +17,7 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    (``"piqp-multistage"``). The replays are interleaved QP by QP.
 2. **Maze** -- 10 robots (decentralized) through 64 boxes of 0.5 m with 0.5 m
    corridors, and the same robots without the boxes, interleaved sample by sample:
-   per-robot CPU per sample, arrivals, collisions with robots and with boxes (at
-   and between samples), and the stages whose unshadowed pieces within reach
-   outnumbered the slots (*overflows*: a row raised, no piece dropped).
+   per-robot CPU per sample, arrivals, collisions.
 3. **Fleets** -- antipodal swaps of 16, 64 and 256 robots (decentralized) in one
    process, **with the liveness rules off** (``--rules none``: the roundabout
    rule's ring search dominated the first sample of large fleets, and the rules
@@ -170,17 +168,8 @@ def maze(t_end: float) -> dict[str, dict[str, float]]:
                      "first": _ms(s.cpu_times[0].mean()), "pieces": s.scenario.obstacle_slots,
                      "slots": s.controllers[0].engine.qp.layout.n_external - s.controllers[0].slots,
                      "collisions": m["collisions"],
-                     "obstacle_collisions": m.get("obstacle_collisions"),
-                     "final_error": m["max_final_position_error"], "fallbacks": s.fallbacks,
-                     "overflows": sum(_polygon_rows(c).overflows for c in s.controllers
-                                      if _polygon_rows(c) is not None)}
+                     "final_error": m["max_final_position_error"], "fallbacks": s.fallbacks}
     return out
-
-
-def _polygon_rows(controller: object) -> object | None:
-    """A controller's polygon rows (:class:`sqpmpc.ocp.polygon_rows.PolygonRows`), if any."""
-    rows = getattr(controller, "obstacle_rows", None)
-    return getattr(rows, "polygons", None)
 
 
 # ---------------------------------------------------------------------------- fleets
@@ -358,11 +347,9 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
              "What the parts measure (issue 34): the QP backends' tail (`qp_solver=\"auto\"` "
              "is OSQP capped at the hand-over with PIQP for the rest outside decentralized "
              "fleets; `piqp-multistage` is PIQP's multistage KKT solver on the QP in stage "
-             "order), obstacle rows by reach (`sqpmpc.ocp.polygon_rows`: `OBSTACLE_SLOTS` rows "
-             "per robot and stage for polygon pieces, filled from what the horizon can "
-             "reach; a piece behind a chosen row is kept by it, more unshadowed pieces than "
-             "slots raise a row: none is dropped; circles keep the nearest within reach), "
-             "the per-robot cost of large "
+             "order), obstacle rows by reach (`sqpmpc.ocp.obstacle_rows`: at most "
+             "`OBSTACLE_SLOTS` rows per robot for circles and for polygon pieces, the first "
+             "input still checked against every obstacle), the per-robot cost of large "
              "fleets, where a sample's CPU goes, the paper scenarios under the new default "
              "and acados on the same OCPs.", ""]
     if tail:
@@ -381,15 +368,13 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
         b, f = maze_rows["boxes"], maze_rows["no boxes"]
         ratio = b["median"] / f["median"]
         lines += ["## Maze: 64 boxes, 0.5 m corridors, 10 robots (decentralized)", "",
-                  "| map | pieces (rows per robot and stage) | per-robot CPU median / p99 ms | "
-                  "first sample ms | collisions (robots / obstacles) | largest final error m "
-                  "| fallbacks | overflows |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "| map | pieces (rows per robot) | per-robot CPU median / p99 ms | first "
+                  "sample ms | collisions | largest final error m | fallbacks |",
+                  "|---|---|---|---|---|---|---|"]
         for name, r in maze_rows.items():
             lines.append(f"| {name} | {r['pieces']} ({r['slots']}) | {r['median']:.3f} / "
-                         f"{r['p99']:.3f} | {r['first']:.2f} | {r['collisions']} / "
-                         f"{r['obstacle_collisions']} | {r['final_error']:.3f} | "
-                         f"{r['fallbacks']} | {r['overflows']} |")
+                         f"{r['p99']:.3f} | {r['first']:.2f} | {r['collisions']} | "
+                         f"{r['final_error']:.3f} | {r['fallbacks']} |")
         lines += ["", f"Per-robot median with boxes / without: **{ratio:.2f}** (target <= 3: "
                   f"{'met' if ratio <= 3 else 'NOT met'}).", ""]
     if fleet_rows:
