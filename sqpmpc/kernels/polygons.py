@@ -15,7 +15,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["closest_point", "path_keeps_pieces", "piece_distances", "polygon_rows", "support"]
+__all__ = ["candidate_rows", "closest_point", "path_keeps_pieces", "piece_distances",
+           "polygon_rows", "shadow_select", "support"]
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -96,35 +97,41 @@ def polygon_rows(me: np.ndarray, own: np.ndarray, vertices: np.ndarray, counts: 
     satisfies it. Returns the number of overrides.
     """
     overrides = 0
-    N = A_out.shape[1]
-    mx, my = me[0], me[1]
     for e in range(counts.shape[0]):
-        c_count = counts[e]
-        verts = vertices[e]
-        n0x, n0y = _normal(mx, my, verts, c_count, 1.0, 0.0)
-        d = required[e]
-        px, py = n0x, n0y
-        for i in range(N):
-            nx, ny = _normal(own[i, 0], own[i, 1], verts, c_count, px, py)
-            if nx * px + ny * py < 0.0:
-                # the prediction tunnelled through the piece between two stages (a thin
-                # wall): keep the side it came from, or the plan stays locked beyond it
-                nx, ny = px, py
-            px, py = nx, ny
-            c, sn = rotation[i, 0], rotation[i, 1]
-            ax, ay = nx * c - ny * sn, nx * sn + ny * c
-            A_out[e, i, 0], A_out[e, i, 1] = ax, ay
-            lower_out[e, i] = support(ax, ay, verts, c_count) + d
-        # stage one: keep the current normal when the iterate's cuts the robot off
-        gap = A_out[e, 0, 0] * mx + A_out[e, 0, 1] * my - support(A_out[e, 0, 0],
-                                                                   A_out[e, 0, 1], verts,
-                                                                   c_count)
-        if gap < d:
+        if _piece_rows(me[0], me[1], own, vertices[e], counts[e], required[e], rotation,
+                       A_out[e], lower_out[e]):
             overrides += 1
-            A_out[e, 0, 0], A_out[e, 0, 1] = n0x, n0y
-            lower_out[e, 0] = support(n0x, n0y, verts, c_count) + d
-        lower_out[e, 0] = min(lower_out[e, 0], A_out[e, 0, 0] * mx + A_out[e, 0, 1] * my)
     return overrides
+
+
+@_jit
+def _piece_rows(mx: float, my: float, own: np.ndarray, verts: np.ndarray, c_count: int,
+                d: float, rotation: np.ndarray, A: np.ndarray, lower: np.ndarray) -> bool:
+    """One piece's rows of :func:`polygon_rows` into ``A (N, 2)``, ``lower (N,)``; whether
+    stage 1 was overridden."""
+    N = A.shape[0]
+    n0x, n0y = _normal(mx, my, verts, c_count, 1.0, 0.0)
+    px, py = n0x, n0y
+    for i in range(N):
+        nx, ny = _normal(own[i, 0], own[i, 1], verts, c_count, px, py)
+        if nx * px + ny * py < 0.0:
+            # the prediction tunnelled through the piece between two stages (a thin
+            # wall): keep the side it came from, or the plan stays locked beyond it
+            nx, ny = px, py
+        px, py = nx, ny
+        c, sn = rotation[i, 0], rotation[i, 1]
+        ax, ay = nx * c - ny * sn, nx * sn + ny * c
+        A[i, 0], A[i, 1] = ax, ay
+        lower[i] = support(ax, ay, verts, c_count) + d
+    # stage one: keep the current normal when the iterate's cuts the robot off
+    overridden = False
+    gap = A[0, 0] * mx + A[0, 1] * my - support(A[0, 0], A[0, 1], verts, c_count)
+    if gap < d:
+        overridden = True
+        A[0, 0], A[0, 1] = n0x, n0y
+        lower[0] = support(n0x, n0y, verts, c_count) + d
+    lower[0] = min(lower[0], A[0, 0] * mx + A[0, 1] * my)
+    return overridden
 
 
 @_jit
@@ -213,3 +220,155 @@ def piece_distances(px: float, py: float, vertices: np.ndarray, counts: np.ndarr
     inside)."""
     for p in range(counts.shape[0]):
         out[p] = closest_point(px, py, vertices[p], counts[p])[2]
+
+
+@_jit
+def _shifted_support(nx: float, ny: float, verts: np.ndarray, count: int, ox: float,
+                     oy: float) -> float:
+    """:func:`support` of the piece moved by ``(ox, oy)``."""
+    return support(nx, ny, verts, count) + nx * ox + ny * oy
+
+
+@_jit
+def shadow_select(A_all: np.ndarray, lower_all: np.ndarray, verts: np.ndarray,
+                  counts: np.ndarray, offsets: np.ndarray, required: np.ndarray,
+                  points: np.ndarray, active: np.ndarray, ids: np.ndarray,
+                  A_out: np.ndarray, lower_out: np.ndarray, slot_out: np.ndarray) -> int:
+    r"""Each stage's rows of the candidates in ``K`` slots, none of them dropped.
+
+    Parameters
+    ----------
+    A_all, lower_all
+        ``(C, N, 2)``, ``(C, N)``: every candidate's rows :math:`a^\top p \ge l` at the
+        iterate (:math:`\lVert a \rVert \le 1`).
+    verts, counts, offsets
+        ``(C, V, 2)``, ``(C,)``, ``(C, N, 2)``: candidate ``c`` at stage ``i`` is the
+        convex hull of ``verts[c, :counts[c]] + offsets[c, i]`` (a circle: its centre).
+    required
+        ``(C,)`` the distance each candidate's row keeps (radius and margins).
+    points
+        ``(N, 2+)`` the iterate's positions, stages 1..N (the order of the candidates).
+    active
+        ``(C, N)`` whether candidate ``c`` is within reach at stage ``i`` (others have
+        no row).
+    ids
+        ``(C,)`` the candidates' obstacle numbers.
+    A_out, lower_out, slot_out
+        ``(K, N, 2)``, ``(K, N)``, ``(K, N)``: the slots' rows and their obstacles;
+        ``slot_out`` holds the previous sample's on entry (an obstacle chosen again
+        keeps its slot), ``-1`` for an empty slot (row off: zero, ``-inf``).
+
+    At each stage the active candidates are taken in the order of their row's gap
+    at the iterate (the most violated first). A candidate is *shadowed* by a chosen
+    row :math:`(a, l)` when :math:`h_c(a) + d_c \le l`, with :math:`h_c` its support
+    value: every :math:`p` with :math:`a^\top p \ge l` then keeps
+    :math:`\operatorname{dist}(p, c) \ge \min_{q \in c} a^\top (p - q) \ge l - h_c(a)
+    \ge d_c` (a soft row with slack :math:`s`: :math:`d_c - s`, as the candidate's own
+    row would), so it needs no row of its own. Candidates neither shadowed nor
+    given one of the ``K`` slots (more than ``K`` unshadowed) are not dropped: the
+    chosen row that needs the smallest raise to shadow all of them is raised,
+    :math:`l \leftarrow \max(l, \max_c h_c(a) + d_c)` (conservative: it may cut the
+    iterate, the QP's slack or a fallback takes it). Returns how many stages needed
+    such a raise (the overflows).
+    """
+    C, N = A_all.shape[0], A_all.shape[1]
+    K = A_out.shape[0]
+    overflows = 0
+    order = np.empty(C, dtype=np.int64)
+    gaps = np.empty(C)
+    chosen = np.empty(K, dtype=np.int64)
+    lows = np.empty(K)
+    rest = np.empty(C, dtype=np.int64)
+    placed = np.zeros(K, dtype=np.bool_)
+    slot_of = np.empty(K, dtype=np.int64)
+    for i in range(N):
+        px, py = points[i, 0], points[i, 1]
+        n_active = 0
+        for c in range(C):
+            if active[c, i]:
+                order[n_active] = c
+                gaps[n_active] = A_all[c, i, 0] * px + A_all[c, i, 1] * py - lower_all[c, i]
+                n_active += 1
+        ranked = order[:n_active][np.argsort(gaps[:n_active], kind="mergesort")]
+        n_chosen = 0
+        n_rest = 0
+        for c in ranked:
+            shadowed = False
+            for s in range(n_chosen):
+                a = chosen[s]
+                if _shifted_support(A_all[a, i, 0], A_all[a, i, 1], verts[c], counts[c],
+                                    offsets[c, i, 0], offsets[c, i, 1]) + required[c] \
+                        <= lows[s]:
+                    shadowed = True
+                    break
+            if shadowed:
+                continue
+            if n_chosen < K:
+                chosen[n_chosen] = c
+                lows[n_chosen] = lower_all[c, i]
+                n_chosen += 1
+            else:
+                rest[n_rest] = c
+                n_rest += 1
+        if n_rest:
+            overflows += 1
+            best, best_raise = 0, math.inf
+            for s in range(n_chosen):
+                a = chosen[s]
+                need = -math.inf
+                for q in range(n_rest):
+                    c = rest[q]
+                    need = max(need, _shifted_support(A_all[a, i, 0], A_all[a, i, 1],
+                                                      verts[c], counts[c], offsets[c, i, 0],
+                                                      offsets[c, i, 1]) + required[c])
+                if need - lows[s] < best_raise:
+                    best, best_raise = s, need - lows[s]
+            lows[best] = max(lows[best], lows[best] + best_raise)
+        # the slots: an obstacle chosen again keeps its slot, the others fill the free ones
+        placed[:] = False
+        slot_of[:] = -1
+        for s in range(K):
+            previous = slot_out[s, i]
+            if previous < 0:
+                continue
+            for t in range(n_chosen):
+                if not placed[t] and ids[chosen[t]] == previous:
+                    slot_of[s] = t
+                    placed[t] = True
+                    break
+        t = 0
+        for s in range(K):
+            if slot_of[s] >= 0:
+                continue
+            while t < n_chosen and placed[t]:
+                t += 1
+            if t < n_chosen:
+                slot_of[s] = t
+                placed[t] = True
+        for s in range(K):
+            t = slot_of[s]
+            if t < 0:
+                A_out[s, i, 0] = 0.0
+                A_out[s, i, 1] = 0.0
+                lower_out[s, i] = -np.inf
+                slot_out[s, i] = -1
+            else:
+                a = chosen[t]
+                A_out[s, i, 0] = A_all[a, i, 0]
+                A_out[s, i, 1] = A_all[a, i, 1]
+                lower_out[s, i] = lows[t]
+                slot_out[s, i] = ids[a]
+    return overflows
+
+
+@_jit
+def candidate_rows(me: np.ndarray, own: np.ndarray, vertices: np.ndarray, counts: np.ndarray,
+                   candidates: np.ndarray, required: np.ndarray, rotation: np.ndarray,
+                   A_all: np.ndarray, lower_all: np.ndarray, overridden: np.ndarray) -> None:
+    """:func:`polygon_rows` of the pieces ``candidates (C,)`` into ``A_all (C, N, 2)``,
+    ``lower_all (C, N)`` (``required (P,)`` per piece) and whether each one's stage 1 was
+    overridden into ``overridden (C,)``."""
+    for c in range(candidates.shape[0]):
+        e = candidates[c]
+        overridden[c] = _piece_rows(me[0], me[1], own, vertices[e], counts[e], required[e],
+                                    rotation, A_all[c], lower_all[c])
