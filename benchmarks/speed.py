@@ -17,7 +17,9 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    (``"piqp-multistage"``). The replays are interleaved QP by QP.
 2. **Maze** -- 10 robots (decentralized) through 64 boxes of 0.5 m with 0.5 m
    corridors, and the same robots without the boxes, interleaved sample by sample:
-   per-robot CPU per sample, arrivals, collisions.
+   per-robot CPU per sample, arrivals, collisions with robots and with boxes (at
+   and between samples), and the stages whose unshadowed pieces within reach
+   outnumbered the slots (*overflows*: a row raised, no piece dropped).
 3. **Fleets** -- antipodal swaps of 16, 64 and 256 robots (decentralized) in one
    process, **with the liveness rules off** (``--rules none``: the roundabout
    rule's ring search dominated the first sample of large fleets, and the rules
@@ -356,9 +358,10 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
              "What the parts measure (issue 34): the QP backends' tail (`qp_solver=\"auto\"` "
              "is OSQP capped at the hand-over with PIQP for the rest outside decentralized "
              "fleets; `piqp-multistage` is PIQP's multistage KKT solver on the QP in stage "
-             "order), obstacle rows by reach (`sqpmpc.ocp.obstacle_rows`: at most "
-             "`OBSTACLE_SLOTS` rows per robot for circles and for polygon pieces, the first "
-             "input still checked against every obstacle), the per-robot cost of large "
+             "order), obstacle rows by reach (`sqpmpc.ocp.polygon_rows`: `OBSTACLE_SLOTS` rows "
+             "per robot and stage for circles and for polygon pieces, filled from what the "
+             "horizon can reach; a piece behind a chosen row is kept by it, more unshadowed "
+             "pieces than slots raise a row: none is dropped), the per-robot cost of large "
              "fleets, where a sample's CPU goes, the paper scenarios under the new default "
              "and acados on the same OCPs.", ""]
     if tail:
