@@ -114,7 +114,7 @@ def test_the_k_d_tree_finds_the_same_candidates(monkeypatch: pytest.MonkeyPatch)
     scan = _rows(polygons, 4, 0.3)
     monkeypatch.setattr(polygon_rows, "TREE_PIECES", 10)
     tree = _rows(polygons, 4, 0.3)
-    assert tree._tree is not None and scan._tree is None
+    assert tree.indexed and not scan.indexed
     for _ in range(50):
         pose = np.array([[*rng.uniform(-4.0, 4.0, 2), 0.0]])
         scan.set_sample(0.0, pose)
@@ -193,14 +193,15 @@ def test_qp_updated_in_place_equals_its_rebuild_with_the_selection_on(
         sim.step()
         seen.add(tuple(np.unique(rows.slot_pieces[0])))
         P, q, A, lo, up = engine.qp.matrices()
+        written_A, written_lower = engine.collision_blocks()["external"]
         A = A.toarray()
         pos = layout.state_index[0, 1:, :2]  # (N, 2)
         for s in range(3):
             for i in range(N):
                 r = layout.external_rows[0, first + s, i]
-                np.testing.assert_array_equal(A[r, pos[i]], engine._external_A[0, first + s, i])
-                assert lo[r] == engine._external_lower[0, first + s, i] or (
-                    lo[r] <= -1e20 and np.isinf(engine._external_lower[0, first + s, i]))
+                np.testing.assert_array_equal(A[r, pos[i]], written_A[0, first + s, i])
+                assert lo[r] == written_lower[0, first + s, i] or (
+                    lo[r] <= -1e20 and np.isinf(written_lower[0, first + s, i]))
         assert engine.qp.backend.setup_count == 1
     assert len(seen) > 3  # the slots changed hands along the way
     res = engine.qp.solve()

@@ -159,6 +159,12 @@ class PolygonRows:
                 np.hypot(*(self.vertices[e, :c] - centres[e]).T).max()
                 for e, c in enumerate(self.counts)))
 
+    @property
+    def indexed(self) -> bool:
+        """Whether the candidates come from the k-d tree (more than :data:`TREE_PIECES`
+        pieces, selecting)."""
+        return self._tree is not None
+
     def _nearby(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Robot ``r``'s candidates (pieces within :math:`\\rho_N` plus their distance)
         and their gaps :math:`\\delta - d`."""
