@@ -359,9 +359,10 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
              "is OSQP capped at the hand-over with PIQP for the rest outside decentralized "
              "fleets; `piqp-multistage` is PIQP's multistage KKT solver on the QP in stage "
              "order), obstacle rows by reach (`sqpmpc.ocp.polygon_rows`: `OBSTACLE_SLOTS` rows "
-             "per robot and stage for circles and for polygon pieces, filled from what the "
-             "horizon can reach; a piece behind a chosen row is kept by it, more unshadowed "
-             "pieces than slots raise a row: none is dropped), the per-robot cost of large "
+             "per robot and stage for polygon pieces, filled from what the horizon can "
+             "reach; a piece behind a chosen row is kept by it, more unshadowed pieces than "
+             "slots raise a row: none is dropped; circles keep the nearest within reach), "
+             "the per-robot cost of large "
              "fleets, where a sample's CPU goes, the paper scenarios under the new default "
              "and acados on the same OCPs.", ""]
     if tail:

@@ -255,8 +255,9 @@ def shadow_select(A_all: np.ndarray, lower_all: np.ndarray, verts: np.ndarray,
         ``(C,)`` the candidates' obstacle numbers.
     A_out, lower_out, slot_out
         ``(K, N, 2)``, ``(K, N)``, ``(K, N)``: the slots' rows and their obstacles;
-        ``slot_out`` holds the previous sample's on entry (an obstacle chosen again
-        keeps its slot), ``-1`` for an empty slot (row off: zero, ``-inf``).
+        an obstacle in ``slot_out`` on entry keeps that slot if chosen again (the caller
+        passes ``-1`` everywhere, so the slots depend on the sample's data alone), ``-1``
+        for an empty slot (row off: zero, ``-inf``).
 
     At each stage the active candidates are taken in the order of their row's gap
     at the iterate (the most violated first). A candidate is *shadowed* by a chosen
