@@ -255,9 +255,10 @@ def shadow_select(A_all: np.ndarray, lower_all: np.ndarray, verts: np.ndarray,
         ``(C,)`` the candidates' obstacle numbers.
     A_out, lower_out, slot_out
         ``(K, N, 2)``, ``(K, N)``, ``(K, N)``: the slots' rows and their obstacles;
-        an obstacle in ``slot_out`` on entry keeps that slot if chosen again (the caller
-        passes ``-1`` everywhere, so the slots depend on the sample's data alone), ``-1``
-        for an empty slot (row off: zero, ``-inf``).
+        the slots hold the chosen rows in the order chosen, so they depend on the
+        sample's data alone (slots kept from the sample before permuted the QP's rows
+        and its round-off between otherwise equal runs), ``-1`` for an empty slot (row
+        off: zero, ``-inf``).
 
     At each stage the active candidates are taken in the order of their row's gap
     at the iterate (the most violated first). A candidate is *shadowed* by a chosen
@@ -280,8 +281,6 @@ def shadow_select(A_all: np.ndarray, lower_all: np.ndarray, verts: np.ndarray,
     chosen = np.empty(K, dtype=np.int64)
     lows = np.empty(K)
     rest = np.empty(C, dtype=np.int64)
-    placed = np.zeros(K, dtype=np.bool_)
-    slot_of = np.empty(K, dtype=np.int64)
     for i in range(N):
         px, py = points[i, 0], points[i, 1]
         n_active = 0
@@ -325,40 +324,19 @@ def shadow_select(A_all: np.ndarray, lower_all: np.ndarray, verts: np.ndarray,
                 if need - lows[s] < best_raise:
                     best, best_raise = s, need - lows[s]
             lows[best] = max(lows[best], lows[best] + best_raise)
-        # the slots: an obstacle chosen again keeps its slot, the others fill the free ones
-        placed[:] = False
-        slot_of[:] = -1
-        for s in range(K):
-            previous = slot_out[s, i]
-            if previous < 0:
-                continue
-            for t in range(n_chosen):
-                if not placed[t] and ids[chosen[t]] == previous:
-                    slot_of[s] = t
-                    placed[t] = True
-                    break
-        t = 0
-        for s in range(K):
-            if slot_of[s] >= 0:
-                continue
-            while t < n_chosen and placed[t]:
-                t += 1
-            if t < n_chosen:
-                slot_of[s] = t
-                placed[t] = True
-        for s in range(K):
-            t = slot_of[s]
-            if t < 0:
-                A_out[s, i, 0] = 0.0
-                A_out[s, i, 1] = 0.0
-                lower_out[s, i] = -np.inf
-                slot_out[s, i] = -1
+        # the slots in the order chosen (a function of this sample's data alone)
+        for t in range(K):
+            if t >= n_chosen:
+                A_out[t, i, 0] = 0.0
+                A_out[t, i, 1] = 0.0
+                lower_out[t, i] = -np.inf
+                slot_out[t, i] = -1
             else:
                 a = chosen[t]
-                A_out[s, i, 0] = A_all[a, i, 0]
-                A_out[s, i, 1] = A_all[a, i, 1]
-                lower_out[s, i] = lows[t]
-                slot_out[s, i] = ids[a]
+                A_out[t, i, 0] = A_all[a, i, 0]
+                A_out[t, i, 1] = A_all[a, i, 1]
+                lower_out[t, i] = lows[t]
+                slot_out[t, i] = ids[a]
     return overflows
 
 

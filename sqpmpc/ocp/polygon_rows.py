@@ -217,11 +217,6 @@ class PolygonRows:
             if self._offsets.shape[0] < C:
                 self._offsets = np.zeros((C, N, 2))
             active = self._gaps[r][:, None] <= self.stage_reach[None, :]
-            # slots filled from this sample's data alone: the rows' order (and so the QP's
-            # round-off) is then the same in every process that computes this sample (with
-            # the previous sample's slots kept, the services in lockstep drifted 2.5e-4 from
-            # the in-process run of the same scenario)
-            self.slot_pieces[r][:] = -1
             overflows = shadow_select(A_all, l_all, self.vertices[cand], self.counts[cand],
                                       self._offsets[:C], self.required[r, cand],
                                       states[r, 1:], active, cand, A_out[r], lower_out[r],
