@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sqpmpc.coordination.mapf import plan_paths
+from sqpmpc.coordination.mapf import PlanningError, plan_paths
 from sqpmpc.coordination.roadmap import Roadmap, build_roadmap
 from sqpmpc.coordination.schedule import Schedule
 from sqpmpc.problem.references import PointReference
@@ -121,14 +121,20 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     s = roadmap.starts[robots] if start_vertices is None else start_vertices
     g = roadmap.goals[robots]
     names = [f"robot {scenario.robots[i].id}" for i in robots]
-    configs = plan_paths(roadmap, s, g, seed=0, names=names)
+    # with and without the diagonals: the plan of fewer steps (its dependency chains are
+    # shorter; diagonals shorten crossings and lengthen dense formations). The 4-connected
+    # plan first (prioritized, else LaCAM's); over the diagonals prioritized planning
+    # then seeks only a plan of fewer steps
+    square = replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
+    configs = plan_paths(square, s, g, seed=0, names=names)
     if roadmap.diagonals.size:
-        # with and without the diagonals: the plan of fewer steps (its dependency chains
-        # are shorter; diagonals shorten crossings and lengthen dense formations)
-        square = replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
-        other = plan_paths(square, s, g, seed=0, names=names)
-        if other.shape[0] <= configs.shape[0]:
-            roadmap, configs = square, other
+        try:
+            configs = plan_paths(roadmap, s, g, seed=0, names=names, method="prioritized",
+                                 shorter_than=configs.shape[0] - 1)
+        except PlanningError:
+            roadmap = square
+    else:
+        roadmap = square
     schedule = Schedule.from_plan(configs, roadmap.corners())
     return FleetPlan(roadmap, robots, goals[robots], configs, schedule,
                      time.process_time() - t0)

@@ -62,16 +62,22 @@ search only backtracks in narrow places.
 
 from __future__ import annotations
 
-import heapq
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import shortest_path
 
 from sqpmpc.coordination.roadmap import Roadmap
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.mapf import (
+    FIELDS,
+    FOUND,
+    LIMIT,
+    bfs_distances,
+    reserve_path,
+    space_time_search,
+)
 
 __all__ = ["PLANNERS", "PlanningError", "distance_tables", "plan_paths"]
 
@@ -87,10 +93,12 @@ def distance_tables(roadmap: Roadmap, goals: np.ndarray, diagonal: bool = False
                     ) -> np.ndarray:
     """``(n, V)`` hop distances from every vertex to each robot's goal (``inf`` where the goal
     cannot be reached), along the roadmap's diagonals too when ``diagonal``."""
-    unique, inverse = np.unique(goals, return_inverse=True)
-    table = shortest_path(_graph(roadmap, diagonal), directed=False, unweighted=True,
-                          indices=unique)
-    return np.asarray(table)[inverse]
+    unique, inverse = np.unique(np.asarray(goals, dtype=np.int64), return_inverse=True)
+    graph = _graph(roadmap, diagonal)
+    table = np.empty((unique.size, roadmap.size))
+    bfs_distances(graph.indptr.astype(np.int64), graph.indices.astype(np.int64), unique,
+                  table)
+    return table[inverse]
 
 
 def _graph(roadmap: Roadmap, diagonal: bool) -> csr_matrix:
@@ -226,7 +234,7 @@ class _PIBT:
 
 def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed: int = 0,
                max_nodes: int = 200_000, names: list[str] | None = None,
-               method: str = "auto") -> np.ndarray:
+               method: str = "auto", shorter_than: int | None = None) -> np.ndarray:
     """A conflict-free plan from ``starts`` to ``goals`` (module docstring).
 
     Parameters
@@ -244,6 +252,10 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
     method
         ``"auto"`` (prioritized planning, else LaCAM), ``"prioritized"`` (a
         :class:`PlanningError` when it finds no plan) or ``"lacam"``.
+    shorter_than
+        Prioritized planning seeks only plans of fewer steps (each robot's search stops
+        at arrivals later than ``shorter_than - 1``): a plan no shorter than one in hand
+        is not worth its work. LaCAM's plan is not bounded.
 
     Returns
     -------
@@ -281,22 +293,22 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                             f"{roadmap.positions[goals[i]].round(3).tolist()} from "
                             f"{roadmap.positions[starts[i]].round(3).tolist()}: no path of free "
                             "roadmap vertices joins them at the robots' footprint")
-    dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
     neighbours = roadmap.neighbour_lists()
     if method != "lacam":
-        diagonal = roadmap.diagonal_lists()
-        near = dist
+        near = table
         if roadmap.diagonals.size:  # the A*'s bound counts diagonal steps
             near = distance_tables(roadmap, goals, diagonal=True)
-            near = [row.tolist() for row in np.where(np.isfinite(near), near, 1e18)]
-        first = _prioritized(neighbours, near, starts.tolist(), goals.tolist(),
-                             _straight_on(roadmap, diagonal=True), diagonal,
-                             roadmap.corners())
+        moves = _moves(neighbours, roadmap.diagonal_lists(),
+                       _straight_on(roadmap, diagonal=True))
+        first = _prioritized(moves, near, starts.tolist(), goals.tolist(),
+                             -1 if shorter_than is None else shorter_than - 1)
         if first is not None:
             return first
         if method == "prioritized":
-            raise PlanningError(f"roadmap: prioritized planning found no plan for {n} robots "
-                                f"(in {n + 1} orders at most)")
+            within = "" if shorter_than is None else f" of fewer than {shorter_than} steps"
+            raise PlanningError(f"roadmap: prioritized planning found no plan{within} for "
+                                f"{n} robots (in {n + 1} orders at most)")
+    dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
     return _lacam(roadmap, neighbours, dist, starts, goals, seed, max_nodes)
 
 
@@ -353,24 +365,72 @@ def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]
                         "(every configuration reachable from the starts was explored)")
 
 
-def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: list[int],
-                 goals: list[int], straight: dict[tuple[int, int], int],
-                 diagonal: list[list[tuple[int, int, int]]],
-                 corners: dict[tuple[int, int], tuple[int, int]],
-                 effort: int = 10_000, total: int = 300) -> np.ndarray | None:
+@dataclass
+class _Moves:
+    """The moves of prioritized planning in CSR form: out of ``v``, ``targets[ptr[v]:ptr[v +
+    1]]`` (its grid neighbours, ``v`` itself: the wait, then its diagonals), the corners
+    ``b, c`` of a diagonal (-1 otherwise) and the vertex ``straight`` on after each move
+    (-1 where none)."""
+
+    ptr: np.ndarray
+    targets: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    straight: np.ndarray
+
+
+def _moves(neighbours: list[list[int]], diagonal: list[list[tuple[int, int, int]]],
+           straight: dict[tuple[int, int], int]) -> _Moves:
+    ptr, targets, bs, cs, ahead = [0], [], [], [], []
+    for v, (grid, diag) in enumerate(zip(neighbours, diagonal, strict=True)):
+        for u, b, c in (*((w, -1, -1) for w in grid), (v, -1, -1), *diag):
+            targets.append(u)
+            bs.append(b)
+            cs.append(c)
+            ahead.append(-1 if u == v else straight.get((v, u), -1))
+        ptr.append(len(targets))
+    return _Moves(*(np.array(x, dtype=np.int64) for x in (ptr, targets, bs, cs, ahead)))
+
+
+class _Tables:
+    """The reservations and the search's scratch nodes (:mod:`sqpmpc.kernels.mapf`),
+    ``(H, V)`` each, grown by doubling ``H``."""
+
+    def __init__(self, size: int, rows: int) -> None:
+        self.size = size
+        self.res = np.zeros((rows, size), dtype=np.int64)
+        self.nodes = np.zeros((rows, size, FIELDS), dtype=np.int32)
+        self.search = 0
+
+    def fit(self, rows: int) -> None:
+        """At least ``rows`` rows (new rows empty)."""
+        have = self.res.shape[0]
+        if rows <= have:
+            return
+        more = max(rows, 2 * have) - have
+        self.res = np.concatenate((self.res, np.zeros((more, self.size), dtype=np.int64)))
+        self.nodes = np.concatenate((self.nodes, np.zeros((more, self.size, FIELDS),
+                                                          dtype=np.int32)))
+
+
+def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
+                 bound: int = -1, effort: int = 10_000, total: int = 300
+                 ) -> np.ndarray | None:
     """Prioritized planning (:func:`_prioritized_once`), first in the order of farther goals
     first; when a robot finds no path, again with that robot moved to the front of the
     order (each robot at most once: at most ``n + 1`` attempts); ``None`` when the last
     attempt fails too, or when the attempts together expand more than ``total`` times the
     sum of the robots' distances + 1 nodes (on the MovingAI maps with 32 and 64 robots
-    they expand 7 to 216 times it; a 256-robot swap needs more, and LaCAM plans it)."""
+    they expand 1 to 70 times it, a 256-robot antipodal swap 130 times).
+    ``bound`` (>= 0) is the largest makespan sought."""
     n = len(starts)
-    order = sorted(range(n), key=lambda i: (-dist[i][starts[i]], i))
+    order = sorted(range(n), key=lambda i: (-table[i, starts[i]], i))
     moved: set[int] = set()
-    budget = [int(total * sum(int(dist[i][starts[i]]) + 1 for i in range(n)))]
+    budget = [int(total * sum(int(table[i, starts[i]]) + 1 for i in range(n)))]
+    tables = _Tables(table.shape[1], 2 + int(table[np.arange(n), starts].max()))
     while True:
-        plan, failed = _prioritized_once(neighbours, dist, starts, goals, order, effort,
-                                         straight, diagonal, corners, budget)
+        plan, failed = _prioritized_once(moves, table, starts, goals, order, effort, bound,
+                                         tables, budget)
         if plan is not None:
             return plan
         if failed < 0 or failed in moved:
@@ -379,122 +439,53 @@ def _prioritized(neighbours: list[list[int]], dist: list[list[float]], starts: l
         order = [failed] + [i for i in order if i != failed]
 
 
-def _prioritized_once(neighbours: list[list[int]], dist: list[list[float]], starts: list[int],
-                      goals: list[int], order: list[int], effort: int,
-                      straight: dict[tuple[int, int], int],
-                      diagonal: list[list[tuple[int, int, int]]],
-                      corners: dict[tuple[int, int], tuple[int, int]],
+def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
+                      order: list[int], effort: int, bound: int, tables: _Tables,
                       budget: list[int]) -> tuple[np.ndarray | None, int]:
-    """One prioritized planning in ``order``: each robot's path a space-time
-    A* around the robots planned before it (their vertices, their edges the other way, and
-    their goals from their arrival on); it may follow one of them onto the vertex it leaves,
-    never be followed by one (so no cycle of following: no rotation); among paths arriving
-    as early, the one with the fewest turns (``straight``: the edge straight on from each
-    edge; waits keep the last move's direction), since a unicycle slows down at every
-    corner. Returns the plan and -1, or
-    ``None`` and the robot whose search found no path or expanded more than ``effort``
-    times (its distance + 1) nodes; ``None`` and -1 once the attempts' shared ``budget``
-    (expansions left) is spent."""
-    n = len(starts)
-    occupied: set[tuple[int, int]] = set()  # (vertex, time)
-    moves: set[tuple[int, int, int]] = set()  # (from, to, time): a move from t to t + 1
-    entered: set[tuple[int, int]] = set()  # (vertex, time): a robot enters it then
-    parked: dict[int, int] = {}  # vertex -> time from which a robot stays there
-    last_use: dict[int, int] = {}  # vertex -> last time a planned robot is there
-    paths: list[list[int]] = [[] for _ in range(n)]
-    others = set(starts)
+    """One prioritized planning in ``order``: each robot's path a space-time A*
+    (:func:`sqpmpc.kernels.mapf.space_time_search`) around the robots planned before it
+    (their vertices, their edges the other way, and their goals from their arrival on);
+    it may follow one of them onto the vertex it leaves, never be followed by one (so no
+    cycle of following: no rotation); among paths arriving as early, the one with the
+    fewest turns, since a unicycle slows down at every corner. Returns the plan and -1,
+    or ``None`` and the robot whose search found no path (arriving by ``bound`` when
+    ``bound >= 0``) or expanded more than ``effort`` times (its distance + 1) nodes;
+    ``None`` and -1 once the attempts' shared ``budget`` (expansions left) is spent."""
+    n, size = len(starts), tables.size
+    tables.res[:] = 0
+    parked = np.full(size, 1 << 40, dtype=np.int64)  # vertex -> step a robot stays from
+    last_use = np.full(size, -1, dtype=np.int64)  # vertex -> last step a robot is there
+    others = np.zeros(size, dtype=np.uint8)  # starts of the robots not planned yet
+    others[starts] = 1
+    empty = 0  # the first step from which every reservation row is empty
+    paths: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n
+    buffer = np.zeros(0, dtype=np.int64)
     for i in order:
-        others.discard(starts[i])
-        d, goal, start = dist[i], goals[i], starts[i]
-        free_at = last_use.get(goal, -1) + 1  # the goal is the robot's for good from then
-        # a node (v, t): its path's turns and last move (for the tie-break on turns)
-        heap: list[tuple[float, int, int, int, int]] = [(max(d[start], free_at), 0, 0, start, 0)]
-        parent: dict[tuple[int, int], tuple[int, int] | None] = {(start, 0): None}
-        turns: dict[tuple[int, int], int] = {(start, 0): 0}
-        came: dict[tuple[int, int], tuple[int, int] | None] = {(start, 0): None}
-        closed: set[tuple[int, int]] = set()
-        found: tuple[int, int] | None = None
-        limit = effort * (int(d[start]) + 1)
-        spent = 0
-        pushes = 0
-        while heap:
-            _, k, negative_t, v, _tie = heapq.heappop(heap)
-            t = -negative_t
-            if (v, t) in closed or k > turns[(v, t)]:
-                continue  # expanded already, or reached with fewer turns since
-            closed.add((v, t))
-            spent += 1
-            budget[0] -= 1
-            if budget[0] < 0:
-                return None, -1  # the attempts' work is spent
-            if spent > limit:
-                return None, i
-            if v == goal and t >= free_at:
-                found = (v, t)
-                break
-            t2 = t + 1
-            last = came[(v, t)]
-            for u, b, c in (*((w, -1, -1) for w in neighbours[v]), (v, -1, -1), *diagonal[v]):
-                if (u, t2) in closed or (u, t2) in occupied or parked.get(u, t2 + 1) <= t2:
-                    continue
-                if u != v and (u, v, t) in moves:
-                    continue  # a robot comes the other way
-                if (u, t2 + 1) in entered:  # it would be followed by a robot planned before
-                    continue
-                if t2 == 1 and u in others and u != v:
-                    continue  # a robot not planned yet still stands there
-                if b >= 0 and not all(_corner_free(x, t, occupied, entered, parked, others)
-                                      for x in (b, c)):
-                    continue  # a diagonal passes the square's other corners: kept free
-                move = last if u == v else (v, u)
-                bend = int(u != v and last is not None and straight.get(last) != u)
-                count = k + bend
-                if count >= turns.get((u, t2), count + 1):
-                    continue
-                parent[(u, t2)] = (v, t)
-                turns[(u, t2)] = count
-                came[(u, t2)] = move
-                pushes += 1
-                heapq.heappush(heap, (t2 + max(d[u], free_at - t2), count, -t2, u, pushes))
-        if found is None:
+        others[starts[i]] = 0
+        collapse = empty + 1
+        tables.fit(collapse + 2)
+        if buffer.size < collapse + size + 1:
+            buffer = np.zeros(collapse + size + 1, dtype=np.int64)
+        tables.search += 1
+        own = effort * (int(table[i, starts[i]]) + 1)
+        limit = min(own, budget[0])
+        status, length, spent = space_time_search(
+            moves.ptr, moves.targets, moves.b, moves.c, moves.straight, table[i],
+            starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit, tables.res,
+            parked, others, collapse, tables.search, tables.nodes, buffer)
+        budget[0] -= spent
+        if status == LIMIT:
+            return None, (i if own <= limit else -1)  # its own effort, or the attempts'
+        if status != FOUND:
             return None, i
-        path = []
-        node: tuple[int, int] | None = found
-        while node is not None:
-            path.append(node[0])
-            node = parent[node]
-        path.reverse()
-        paths[i] = path
-        for t, v in enumerate(path):
-            occupied.add((v, t))
-            if last_use.get(v, -1) < t:
-                last_use[v] = t
-            if t + 1 < len(path):
-                moves.add((v, path[t + 1], t))
-                if path[t + 1] != v:
-                    entered.add((path[t + 1], t + 1))
-                for x in corners.get((v, path[t + 1]), ()):  # held over the diagonal move
-                    occupied.update(((x, t), (x, t + 1)))
-                    entered.add((x, t))
-                    if last_use.get(x, -1) < t + 1:
-                        last_use[x] = t + 1
-        parked[goal] = len(path) - 1
-    horizon = max(len(p) for p in paths)
-    return np.array([p + [p[-1]] * (horizon - len(p)) for p in paths], dtype=np.int64).T, -1
-
-
-def _corner_free(x: int, t: int, occupied: set[tuple[int, int]],
-                 entered: set[tuple[int, int]], parked: dict[int, int], others: set[int]
-                 ) -> bool:
-    """Whether corner ``x`` of a diagonal move from ``t`` to ``t + 1`` is free: no robot
-    planned before is there from ``t - 1`` to ``t + 1`` (there, leaving, arriving), enters
-    it at ``t + 2`` or is parked on it by then, and no robot not planned yet stands there
-    at the start."""
-    if (x, t - 1) in occupied or (x, t) in occupied or (x, t + 1) in occupied:
-        return False
-    if (x, t + 2) in entered or parked.get(x, t + 2) <= t + 1:
-        return False
-    return not (t == 0 and x in others)
+        tables.fit(length + 2)
+        last = reserve_path(buffer, length, moves.ptr, moves.targets, moves.b, moves.c,
+                            tables.res, parked, last_use)
+        empty = max(empty, last + 1)  # rows up to last hold the reservations
+        paths[i] = buffer[:length].copy()
+    horizon = max(p.size for p in paths)
+    return np.array([np.concatenate((p, np.full(horizon - p.size, p[-1]))) for p in paths],
+                    dtype=np.int64).T, -1
 
 
 def _straight_on(roadmap: Roadmap, diagonal: bool = False) -> dict[tuple[int, int], int]:
