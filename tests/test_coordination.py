@@ -3,11 +3,12 @@ and the MovingAI reader (no closed loop here: tests/test_coordination_loop.py)."
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, shortest_path
 
 from sqpmpc.coordination.fleet import fleet_plan
 from sqpmpc.coordination.mapf import PlanningError, distance_tables, plan_paths
@@ -207,6 +208,49 @@ def test_prioritized_plans_are_conflict_free_and_no_shorter_than_the_lower_bound
         plan_paths(roadmap, roadmap.starts, roadmap.goals, method="cbs")
 
 
+def test_distance_tables_are_the_graph_distances() -> None:
+    sc, plan = _maze_plan()
+    roadmap = plan.roadmap
+    goals = np.array([0, roadmap.size // 2, roadmap.size - 1, 0])
+    expected = shortest_path(roadmap.adjacency(), directed=False, unweighted=True,
+                             indices=goals)
+    assert np.array_equal(distance_tables(roadmap, goals), expected)
+
+
+def test_prioritized_planning_seeks_only_shorter_plans() -> None:
+    """``shorter_than``: a plan found is valid and shorter; none below the lower bound
+    (the prioritized planner says so, ``auto`` falls back to LaCAM's plan)."""
+    sc, plan = _maze_plan()
+    roadmap = plan.roadmap
+    rng = np.random.default_rng(3)
+    k = 8
+    starts = rng.choice(roadmap.size, k, replace=False)
+    goals = rng.choice(roadmap.size, k, replace=False)
+    free = plan_paths(roadmap, starts, goals, method="prioritized")
+    steps = free.shape[0] - 1
+    bounded = plan_paths(roadmap, starts, goals, method="prioritized", shorter_than=steps + 1)
+    check_plan(_edges(roadmap), bounded, starts, goals)
+    assert bounded.shape[0] - 1 <= steps
+    lower = int(distance_tables(roadmap, goals)[np.arange(k), starts].max())
+    with pytest.raises(PlanningError, match=f"of fewer than {lower} steps"):
+        plan_paths(roadmap, starts, goals, method="prioritized", shorter_than=lower)
+    check_plan(_edges(roadmap), plan_paths(roadmap, starts, goals, shorter_than=lower),
+               starts, goals)
+
+
+def test_a_swap_in_a_corridor_without_a_pocket_ends_every_prioritized_search() -> None:
+    """Two robots to swap the ends of a corridor: no plan exists. Each search ends when its
+    space-time graph is exhausted (past the last reservation one node per vertex), and the
+    prioritized planner refuses the instance in its last order."""
+    ends = np.array([[0.0, 0.0], [4.0, 0.0]])
+    roadmap = build_roadmap((), (), (np.array([-0.5, -0.5]), np.array([4.5, 0.5])), ends,
+                            ends[::-1], np.array([True, True]), 0.0, 0.5, 0.3,
+                            GridSpec(1.0, (0.0, 0.0)))
+    assert roadmap.size == 5
+    with pytest.raises(PlanningError, match="prioritized planning found no plan"):
+        plan_paths(roadmap, roadmap.starts, roadmap.goals, method="prioritized")
+
+
 def test_a_goal_cut_off_or_shared_is_refused_by_name() -> None:
     positions = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
     wall = PolygonObstacle(((1.55, -0.5), (2.45, -0.5), (2.45, 0.5), (1.55, 0.5)))
@@ -330,6 +374,11 @@ def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> N
                plan.roadmap.corners())
     # the robots' own points are vertices: they start and end exactly there
     assert np.allclose(plan.roadmap.positions[plan.roadmap.starts], sc.initial_states()[:, :2])
+    # over the diagonals only a plan of fewer steps than the 4-connected one is kept
+    square = replace(plan.roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
+    steps = plan_paths(square, square.starts, square.goals).shape[0] - 1
+    assert plan.makespan_steps < steps if plan.roadmap.diagonals.size else \
+        plan.makespan_steps == steps
 
 
 def test_a_robot_holds_while_another_stands_on_its_next_vertex() -> None:
