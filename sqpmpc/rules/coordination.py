@@ -136,12 +136,23 @@ class _Instance(RuleInstance):
                 # where the NMPC's own final approach takes over
                 if gap <= (0.5 * reach if p >= last else reach):
                     out[m] = end
-                    continue
-                # straight at it, facing it first (a unicycle does not close a sideways gap
-                # by itself), backwards when it is behind and the bounds allow
-                points, halt, within = np.stack((here[:2], end)), True, 1
-                bearing = math.atan2(end[1] - here[1], end[0] - here[0])
-                reverse = self._reverse and math.cos(bearing - here[2]) < 0.0  # behind it
+                    if p >= last:
+                        continue
+                    # waiting at a vertex: it faces the edge it will leave by, so that it
+                    # starts along it once free instead of turning in place then
+                    ahead = execution.path_points(row, p, p + 1)
+                    way = ahead[1] - ahead[0]
+                    facing = math.atan2(way[1], way[0])
+                    if abs(math.remainder(facing - float(here[2]), 2.0 * math.pi)) <= 1e-3:
+                        continue
+                    points = np.stack((here[:2], here[:2] + 1e-6 * way))
+                    halt, within = True, 1
+                else:
+                    # straight at it, facing it first (a unicycle does not close a sideways
+                    # gap by itself), backwards when it is behind and the bounds allow
+                    points, halt, within = np.stack((here[:2], end)), True, 1
+                    bearing = math.atan2(end[1] - here[1], end[0] - here[0])
+                    reverse = self._reverse and math.cos(bearing - here[2]) < 0.0  # behind it
             else:
                 back = max(p - 1, 0)  # from the segment into the progress vertex
                 stop = min(k, back + self._window + 1)  # beyond the horizon's reach: open
