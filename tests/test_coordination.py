@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components, shortest_path
 
-from sqpmpc.coordination.fleet import fleet_plan
+from sqpmpc.coordination.fleet import fleet_plan, turn_per_step
 from sqpmpc.coordination.mapf import PlanningError, distance_tables, plan_paths
 from sqpmpc.coordination.roadmap import build_roadmap
 from sqpmpc.coordination.schedule import Execution, Schedule
@@ -136,7 +136,8 @@ def test_a_grid_formation_is_one_connected_roadmap() -> None:
     sc = grid_to_grid(5, 5)
     plan = fleet_plan(sc, 0.151, 0.301)
     assert connected_components(plan.roadmap.adjacency(), directed=False)[0] == 1
-    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
+    check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals,
+               plan.roadmap.corners())
 
 
 def test_a_formation_gets_a_grid_through_its_points_and_a_circle_the_finest() -> None:
@@ -376,7 +377,9 @@ def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> N
     assert np.allclose(plan.roadmap.positions[plan.roadmap.starts], sc.initial_states()[:, :2])
     # over the diagonals only a plan of fewer steps than the 4-connected one is kept
     square = replace(plan.roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
-    steps = plan_paths(square, square.starts, square.goals).shape[0] - 1
+    steps = plan_paths(square, square.starts, square.goals,
+                       turn_step=turn_per_step(sc, square.spacing),
+                       headings=sc.initial_states()[:, 2]).shape[0] - 1
     assert plan.makespan_steps < steps if plan.roadmap.diagonals.size else \
         plan.makespan_steps == steps
 
@@ -408,3 +411,55 @@ def test_a_robot_holds_while_another_stands_on_its_next_vertex() -> None:
     assert execution.progress[0] == 1 and execution.permitted_all()[1] == 1
     assert execution.clear_all(at(1.6, 0.0, (1.1, 0.2)))[1] == 0  # another robot there
     assert execution.clear_all(at(1.6, 0.0, (1.0, 0.6)))[1] == 1  # beside it: not there
+
+
+def _turn_waits(path: np.ndarray, positions: np.ndarray, turn_step: float) -> list[int]:
+    """For every bend of a robot's plan, how many more steps it stood at the bend's vertex
+    than the turn needs (``ceil(angle / turn_step)``)."""
+    change = np.flatnonzero(path[1:] != path[:-1])  # the steps moving off path[k]
+    slack = []
+    for a, b in zip(change[:-1], change[1:], strict=True):
+        d0 = positions[path[a + 1]] - positions[path[a]]
+        d1 = positions[path[b + 1]] - positions[path[b]]
+        bend = abs(np.remainder(np.arctan2(d1[1], d1[0]) - np.arctan2(d0[1], d0[0]) + np.pi,
+                                2 * np.pi) - np.pi)
+        need = int(np.ceil(bend / turn_step - 1e-9))
+        if need:
+            slack.append(int(b - a - 1) - need)
+    return slack
+
+
+def test_a_turn_takes_its_steps_in_a_prioritized_plan() -> None:
+    """A robot alone on the test maze: each bend of its path is preceded by the steps a
+    turn in place takes (a quarter-turn per two steps here), and its plan is as long as its
+    moves plus those steps; with ``turn_step = 0`` it is its distance."""
+    sc, plan = _maze_plan()
+    roadmap = replace(plan.roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
+    table = distance_tables(roadmap, roadmap.goals)
+    far = int(np.argmax(table[np.arange(table.shape[0]), roadmap.starts]))
+    start, goal = roadmap.starts[far:far + 1], roadmap.goals[far:far + 1]
+    fast = plan_paths(roadmap, start, goal)
+    assert fast.shape[0] - 1 == int(table[far, start[0]])
+    step = np.pi / 4
+    slow = plan_paths(roadmap, start, goal, turn_step=step)
+    check_plan(_edges(roadmap), slow, start, goal)
+    slack = _turn_waits(slow[:, 0], roadmap.positions, step)
+    assert slack and min(slack) == 0 and max(slack) == 0  # every bend: its turn, no more
+    bends = len(slack)
+    assert slow.shape[0] - 1 == int(table[far, start[0]]) + 2 * bends  # all quarter-turns
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_plans_with_turns_are_conflict_free(seed: int) -> None:
+    """Random instances on the test maze with turns taking steps: valid plans (where the
+    robots cannot all be given their turns' steps, prioritized planning leaves them out,
+    for a robot or for the fleet, and the plan is still conflict-free)."""
+    rng = np.random.default_rng(seed)
+    sc, plan = _maze_plan()
+    roadmap = replace(plan.roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
+    k = int(rng.integers(2, 10))
+    starts = rng.choice(roadmap.size, k, replace=False)
+    goals = rng.choice(roadmap.size, k, replace=False)
+    headings = rng.uniform(-np.pi, np.pi, k)
+    configs = plan_paths(roadmap, starts, goals, turn_step=np.pi / 4, headings=headings)
+    check_plan(_edges(roadmap), configs, starts, goals)

@@ -24,7 +24,7 @@ from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.routes import scenario_box
 from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["FleetPlan", "fleet_plan", "replan"]
+__all__ = ["FleetPlan", "fleet_plan", "replan", "turn_per_step"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,6 +64,16 @@ class FleetPlan:
         s = self.schedule
         pts = self.roadmap.positions[s.paths[robot, :s.lengths[robot]]]
         return float(np.hypot(*np.diff(pts, axis=0).T).sum()) if pts.shape[0] > 1 else 0.0
+
+
+def turn_per_step(scenario: Scenario, spacing: float) -> float:
+    r"""The largest turn in place of the scenario's robots in one step of a plan on a
+    roadmap of ``spacing`` :math:`h`: :math:`\omega_{\max} h / v_{\max}` rad (a step is
+    an edge at :math:`v_{\max}`), so a plan gives every turn the steps it takes
+    (:func:`sqpmpc.coordination.mapf.plan_paths`)."""
+    bounds = scenario.bounds
+    return float(min(-bounds.omega[0], bounds.omega[1])) * float(spacing) / float(
+        max(bounds.v[1], -bounds.v[0]))
 
 
 def planned_robots(scenario: Scenario) -> np.ndarray:
@@ -121,16 +131,20 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     s = roadmap.starts[robots] if start_vertices is None else start_vertices
     g = roadmap.goals[robots]
     names = [f"robot {scenario.robots[i].id}" for i in robots]
+    turn_step = turn_per_step(scenario, roadmap.spacing)
+    headings = scenario.initial_states()[robots, 2] if start_vertices is None else None
     # with and without the diagonals: the plan of fewer steps (its dependency chains are
     # shorter; diagonals shorten crossings and lengthen dense formations). The 4-connected
     # plan first (prioritized, else LaCAM's); over the diagonals prioritized planning
     # then seeks only a plan of fewer steps
     square = replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
-    configs = plan_paths(square, s, g, seed=0, names=names)
+    configs = plan_paths(square, s, g, seed=0, names=names, turn_step=turn_step,
+                         headings=headings)
     if roadmap.diagonals.size:
         try:
             configs = plan_paths(roadmap, s, g, seed=0, names=names, method="prioritized",
-                                 shorter_than=configs.shape[0] - 1)
+                                 shorter_than=configs.shape[0] - 1, turn_step=turn_step,
+                                 headings=headings)
         except PlanningError:
             roadmap = square
     else:

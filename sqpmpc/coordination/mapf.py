@@ -234,8 +234,9 @@ class _PIBT:
 
 def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed: int = 0,
                max_nodes: int = 200_000, names: list[str] | None = None,
-               method: str = "auto", shorter_than: int | None = None) -> np.ndarray:
-    """A conflict-free plan from ``starts`` to ``goals`` (module docstring).
+               method: str = "auto", shorter_than: int | None = None,
+               turn_step: float = 0.0, headings: np.ndarray | None = None) -> np.ndarray:
+    r"""A conflict-free plan from ``starts`` to ``goals`` (module docstring).
 
     Parameters
     ----------
@@ -256,6 +257,14 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
         Prioritized planning seeks only plans of fewer steps (each robot's search stops
         at arrivals later than ``shorter_than - 1``): a plan no shorter than one in hand
         is not worth its work. LaCAM's plan is not bounded.
+    turn_step
+        The largest turn in place of a robot per step, rad (:math:`\omega_{\max} h /
+        v_{\max}`): prioritized planning gives a robot the steps it needs to turn at a
+        vertex before a move in a new direction (``0``: turns take no time). LaCAM's
+        moves do not turn.
+    headings
+        ``(n,)`` the robots' headings at the start, rad (default: unknown; their first
+        move's turn takes no time).
 
     Returns
     -------
@@ -299,9 +308,15 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
         if roadmap.diagonals.size:  # the A*'s bound counts diagonal steps
             near = distance_tables(roadmap, goals, diagonal=True)
         moves = _moves(neighbours, roadmap.diagonal_lists(),
-                       _straight_on(roadmap, diagonal=True))
+                       _straight_on(roadmap, diagonal=True), roadmap.positions)
         first = _prioritized(moves, near, starts.tolist(), goals.tolist(),
-                             -1 if shorter_than is None else shorter_than - 1)
+                             -1 if shorter_than is None else shorter_than - 1,
+                             turn_step=float(turn_step),
+                             headings=np.full(n, np.nan) if headings is None
+                             else np.asarray(headings, dtype=float))
+        if first is None and turn_step > 0.0:  # the turns' steps left out
+            first = _prioritized(moves, near, starts.tolist(), goals.tolist(),
+                                 -1 if shorter_than is None else shorter_than - 1)
         if first is not None:
             return first
         if method == "prioritized":
@@ -377,10 +392,11 @@ class _Moves:
     b: np.ndarray
     c: np.ndarray
     straight: np.ndarray
+    angle: np.ndarray
 
 
 def _moves(neighbours: list[list[int]], diagonal: list[list[tuple[int, int, int]]],
-           straight: dict[tuple[int, int], int]) -> _Moves:
+           straight: dict[tuple[int, int], int], positions: np.ndarray) -> _Moves:
     ptr, targets, bs, cs, ahead = [0], [], [], [], []
     for v, (grid, diag) in enumerate(zip(neighbours, diagonal, strict=True)):
         for u, b, c in (*((w, -1, -1) for w in grid), (v, -1, -1), *diag):
@@ -389,7 +405,10 @@ def _moves(neighbours: list[list[int]], diagonal: list[list[tuple[int, int, int]
             cs.append(c)
             ahead.append(-1 if u == v else straight.get((v, u), -1))
         ptr.append(len(targets))
-    return _Moves(*(np.array(x, dtype=np.int64) for x in (ptr, targets, bs, cs, ahead)))
+    arrays = [np.array(x, dtype=np.int64) for x in (ptr, targets, bs, cs, ahead)]
+    way = positions[arrays[1]] - positions[np.repeat(np.arange(len(neighbours)),
+                                                     np.diff(arrays[0]))]
+    return _Moves(*arrays, np.arctan2(way[:, 1], way[:, 0]))
 
 
 class _Tables:
@@ -414,7 +433,8 @@ class _Tables:
 
 
 def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
-                 bound: int = -1, effort: int = 10_000, total: int = 300
+                 bound: int = -1, effort: int = 10_000, total: int = 300,
+                 turn_step: float = 0.0, headings: np.ndarray | None = None
                  ) -> np.ndarray | None:
     """Prioritized planning (:func:`_prioritized_once`), first in the order of farther goals
     first; when a robot finds no path, again with that robot moved to the front of the
@@ -430,7 +450,8 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
     tables = _Tables(table.shape[1], 2 + int(table[np.arange(n), starts].max()))
     while True:
         plan, failed = _prioritized_once(moves, table, starts, goals, order, effort, bound,
-                                         tables, budget)
+                                         tables, budget, turn_step,
+                                         np.full(n, np.nan) if headings is None else headings)
         if plan is not None:
             return plan
         if failed < 0 or failed in moved:
@@ -441,7 +462,8 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
 
 def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
                       order: list[int], effort: int, bound: int, tables: _Tables,
-                      budget: list[int]) -> tuple[np.ndarray | None, int]:
+                      budget: list[int], turn_step: float = 0.0,
+                      headings: np.ndarray | None = None) -> tuple[np.ndarray | None, int]:
     """One prioritized planning in ``order``: each robot's path a space-time A*
     (:func:`sqpmpc.kernels.mapf.space_time_search`) around the robots planned before it
     (their vertices, their edges the other way, and their goals from their arrival on);
@@ -460,20 +482,33 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
     empty = 0  # the first step from which every reservation row is empty
     paths: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n
     buffer = np.zeros(0, dtype=np.int64)
+    # past the collapse a path visits distinct vertices, each after at most a half-turn
+    slowest = 1 + (int(np.ceil(np.pi / turn_step)) if turn_step > 0.0 else 0)
+    facing = np.full(n, np.nan) if headings is None else np.asarray(headings, dtype=float)
+    # a robot not planned yet may have to turn by up to a half-turn before it leaves
+    hold = slowest
     for i in order:
         others[starts[i]] = 0
-        collapse = empty + 1
+        collapse = max(empty + 1, hold)  # from then on every step is the same
         tables.fit(collapse + 2)
-        if buffer.size < collapse + size + 1:
-            buffer = np.zeros(collapse + size + 1, dtype=np.int64)
-        tables.search += 1
+        if buffer.size < collapse + slowest * size + 1:
+            buffer = np.zeros(collapse + slowest * size + 1, dtype=np.int64)
         own = effort * (int(table[i, starts[i]]) + 1)
         limit = min(own, budget[0])
-        status, length, spent = space_time_search(
-            moves.ptr, moves.targets, moves.b, moves.c, moves.straight, table[i],
-            starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit, tables.res,
-            parked, others, collapse, tables.search, tables.nodes, buffer)
-        budget[0] -= spent
+        # with the turns' steps first; where that finds no path (a robot that must dodge
+        # the robots before it as fast as the grid allows), without them: the plan stays
+        # conflict-free, only its timing of that robot's turns is not the unicycle's
+        for step in ((float(turn_step), 0.0) if turn_step > 0.0 else (0.0,)):
+            tables.search += 1
+            status, length, spent = space_time_search(
+                moves.ptr, moves.targets, moves.b, moves.c, moves.straight, moves.angle,
+                step, float(facing[i]), hold, table[i],
+                starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit, tables.res,
+                parked, others, collapse, tables.search, tables.nodes, buffer)
+            budget[0] -= spent
+            limit = min(own, budget[0])
+            if status == FOUND or limit <= 0:
+                break
         if status == LIMIT:
             return None, (i if own <= limit else -1)  # its own effort, or the attempts'
         if status != FOUND:

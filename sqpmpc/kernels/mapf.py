@@ -106,13 +106,13 @@ def _row(t: int, rows: int) -> int:
 # the reservation table's bits: occupied, entered, then the vertex the occupant came from + 1
 _OCC, _ENTER, _FROM = 1, 2, 2
 # the fields of a node in the scratch array
-_MARK, _TURNS, _PARENT, _CAME, _EARLY = 0, 1, 2, 3, 4
-FIELDS = 5
+_MARK, _TURNS, _PARENT, _CAME, _EARLY, _WAITS = 0, 1, 2, 3, 4, 5
+FIELDS = 6
 
 
 @_jit
-def _corner_free(x: int, t: int, res: np.ndarray, parked: np.ndarray, others: np.ndarray
-                 ) -> bool:
+def _corner_free(x: int, t: int, res: np.ndarray, parked: np.ndarray, others: np.ndarray,
+                 hold: int) -> bool:
     """Whether corner ``x`` of a diagonal move from ``t`` to ``t + 1`` is free: no robot
     planned before is there from ``t - 1`` to ``t + 1``, enters it at ``t + 2`` or is parked
     on it by then, and no robot not planned yet stands there at ``t = 0``."""
@@ -122,12 +122,13 @@ def _corner_free(x: int, t: int, res: np.ndarray, parked: np.ndarray, others: np
             return False
     if res[_row(t + 2, rows), x] & _ENTER or parked[x] <= t + 1:
         return False
-    return not (t == 0 and others[x])
+    return not (t < hold and others[x])
 
 
 @_jit
 def space_time_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np.ndarray,
-                      straight: np.ndarray, dist: np.ndarray, start: int, goal: int,
+                      straight: np.ndarray, angle: np.ndarray, turn_step: float,
+                      heading: float, hold: int, dist: np.ndarray, start: int, goal: int,
                       free_at: int, bound: int, limit: int, res: np.ndarray,
                       parked: np.ndarray, others: np.ndarray, collapse: int, search: int,
                       nodes: np.ndarray, path: np.ndarray) -> tuple[int, int, int]:
@@ -148,6 +149,14 @@ def space_time_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np
     move). Nodes with :math:`t \ge` ``collapse`` are one node per vertex (module
     docstring), kept with the earliest step, then the fewest turns.
 
+    **Turns take time** (``turn_step > 0``): a unicycle turns in place by at most
+    ``turn_step`` radians per step (:math:`\omega_{\max} h / v_{\max}`), so a move whose
+    direction differs by :math:`\Delta` from the robot's heading (the last move's, at
+    the start ``heading``) is made after :math:`\lceil \Delta / \text{turn\_step}
+    \rceil` steps turning at its vertex, each kept free as a wait is. The node
+    reached keeps its label (fewest turns) as any other: the search is exact in time
+    for the heading of that label.
+
     Parameters
     ----------
     cptr, cidx, cb, cc
@@ -155,6 +164,15 @@ def space_time_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np
         ``cb[e], cc[e]`` its corners (-1 for a grid edge).
     straight
         ``(E,)`` the vertex straight on after move ``e``, -1 where none.
+    angle
+        ``(E,)`` the direction of move ``e``, rad (any value for a wait).
+    turn_step
+        Largest turn in place per step, rad (``<= 0``: turns take no time).
+    heading
+        The robot's heading at the start, rad (NaN: unknown, its first turn takes no time).
+    hold
+        The robots not planned yet keep their starts up to step ``hold`` (1: they leave
+        at the first step; with turns, they may have to turn before).
     dist
         ``(V,)`` hop distances to ``goal`` (the heuristic).
     start, goal, free_at
@@ -203,6 +221,7 @@ def space_time_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np
     node[_CAME] = -1
     node[_PARENT] = -1
     node[_EARLY] = 0
+    node[_WAITS] = 0
     keys[0] = ((int(h0) << _K_BITS) << _T_BITS) | t_top
     ties[0] = 0
     verts[0] = start
@@ -231,28 +250,47 @@ def space_time_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np
             w, s = v, t
             while s >= 0:
                 path[s] = w
-                w = nodes[min(s, collapse), w, _PARENT]
+                entry = nodes[min(s, collapse), w]
+                parent, waits = entry[_PARENT], entry[_WAITS]
+                for _ in range(waits):  # turning at the vertex before
+                    s -= 1
+                    path[s] = parent
+                w = parent
                 s -= 1
             return FOUND, t + 1, expanded
-        t2 = t + 1
-        layer2 = min(t2, collapse)
         last = node[_CAME]
-        here = res[_row(t2, rows)]
-        ahead = res[_row(t2 + 1, rows)]
-        after = nodes[layer2]
+        facing = heading if last < 0 else angle[last]
         for e in range(cptr[v], cptr[v + 1]):
             u = cidx[e]  # v itself: the wait
-            nxt = after[u]
+            waits = 0
+            if turn_step > 0.0 and u != v and not np.isnan(facing):
+                bend = abs((angle[e] - facing + np.pi) % (2.0 * np.pi) - np.pi)
+                waits = int(np.ceil(bend / turn_step - 1e-9))
+            if waits > 0:  # turning at v first: each step kept free as a wait is
+                blocked = False
+                for s2 in range(t + 1, t + waits + 1):
+                    if (res[_row(s2, rows), v] & _OCC or parked[v] <= s2
+                            or res[_row(s2 + 1, rows), v] & _ENTER):
+                        blocked = True
+                        break
+                if blocked:
+                    continue
+            t0 = t + waits  # the step the move starts from
+            t2 = t0 + 1
+            layer2 = min(t2, collapse)
+            here = res[_row(t2, rows)]
+            ahead = res[_row(t2 + 1, rows)]
+            nxt = nodes[layer2, u]
             if nxt[_MARK] == closed_mark or here[u] & _OCC or parked[u] <= t2:
                 continue
             if u != v and (here[v] >> _FROM) == u + 1:
                 continue  # a robot comes the other way
             if ahead[u] & _ENTER:  # it would be followed by a robot planned before
                 continue
-            if t2 == 1 and u != v and others[u]:
+            if t2 <= hold and u != v and others[u]:
                 continue  # a robot not planned yet still stands there
-            if cb[e] >= 0 and not (_corner_free(cb[e], t, res, parked, others)
-                                   and _corner_free(cc[e], t, res, parked, others)):
+            if cb[e] >= 0 and not (_corner_free(cb[e], t0, res, parked, others, hold)
+                                   and _corner_free(cc[e], t0, res, parked, others, hold)):
                 continue  # a diagonal passes the square's other corners: kept free
             move = last if u == v else e
             bend = 1 if (u != v and last >= 0 and straight[last] != u) else 0
@@ -274,6 +312,7 @@ def space_time_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np
             nxt[_TURNS] = count
             nxt[_CAME] = move
             nxt[_EARLY] = t2
+            nxt[_WAITS] = waits
             pushes += 1
             if heap == capacity:
                 capacity *= 2
@@ -335,7 +374,8 @@ def warm_up_mapf() -> None:
     nodes = np.zeros((rows, size, FIELDS), dtype=np.int32)
     path = np.zeros(rows * size, dtype=np.int64)
     status, length, _ = space_time_search(
-        indptr, indices, minus, minus, minus, out[0], 1, 0, 0, -1, 100, res, parked,
+        indptr, indices, minus, minus, minus, np.zeros(2), 1.0, np.nan, 1, out[0], 1, 0, 0, -1,
+        100, res, parked,
         np.zeros(size, dtype=np.uint8), 1, 1, nodes, path)
     if status == FOUND:
         reserve_path(path, length, indptr, indices, minus, minus, res, parked,
