@@ -7,8 +7,10 @@ with the ``coordination`` plug-in (``--rules``, default ``coordination``), decen
 (and centralized up to ``--centralized-max`` robots). Reported per run: the outcome
 (every robot within 0.05 m of its goal at the end, or not), collisions between robots at
 and between samples and with the map, the makespan and the sum of arrival times against
-the roadmap plan's own (its steps times the cell at v_max) and against the straight-line
-lower bound, the controllers' CPU time per robot-sample and the planning CPU time.
+the roadmap plan's own (its steps times the cell at v_max; its steps count the turns in
+place at omega_max, :func:`sqpmpc.coordination.mapf.plan_paths`), against the plan the
+same planner makes when turns take no time, and against the straight-line lower bound,
+the controllers' CPU time per robot-sample and the planning CPU time.
 
 The maps are not shipped (the tests use ``tests/data/maze-12-8``); fetch them from
 https://movingai.com/benchmarks/mapf.html (maps and "random" scenarios) into a folder::
@@ -26,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from sqpmpc.control.settings import SolverSettings
+from sqpmpc.coordination.mapf import plan_paths
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.rules.registry import select_rules
@@ -64,6 +67,11 @@ def run_one(map_path: Path, scen_path: Path | None, robots: int, scheme: str, ce
             record.t[out[-1] + 1] if out[-1] < record.t.size - 1 else math.inf)
     straight = np.hypot(*(goals - sc.initial_states()[:, :2]).T) / V_MAX
     plan_makespan = math.nan if plan is None else plan.makespan_steps * cell / V_MAX
+    untimed = math.nan
+    if plan is not None:  # the same roadmap and starts, turns taking no time
+        rm = plan.roadmap
+        steps = plan_paths(rm, rm.starts[plan.robots], rm.goals[plan.robots]).shape[0] - 1
+        untimed = steps * cell / V_MAX
     arrived = int(np.isfinite(arrival).sum())
     return {
         "map": map_path.stem, "scen": scen_path.stem if scen_path else "random",
@@ -73,6 +81,7 @@ def run_one(map_path: Path, scen_path: Path | None, robots: int, scheme: str, ce
         "obstacle": int(m["obstacle_collisions"]),
         "makespan": float(arrival.max()) if arrived == robots else math.inf,
         "plan_makespan": plan_makespan,
+        "untimed_plan_makespan": untimed,
         "straight_makespan": float(straight.max()),
         "flowtime": float(arrival.sum()) if arrived == robots else math.inf,
         "straight_flowtime": float(straight.sum()),
@@ -87,15 +96,16 @@ def _row(r: dict) -> str:
     return (f"| {r['map']} | {r['scen']} | {r['robots']} | {r['scheme']} | "
             f"{r['arrived']}/{r['robots']} | {r['collisions']}/{r['between']}/{r['obstacle']} | "
             f"{ratio(r['makespan'], r['plan_makespan'])} | "
+            f"{ratio(r['makespan'], r['untimed_plan_makespan'])} | "
             f"{ratio(r['makespan'], r['straight_makespan'])} | "
             f"{ratio(r['flowtime'], r['straight_flowtime'])} | "
             f"{r['cpu_ms_per_robot_sample']:.2f} | {r['planning_s']:.3f} |")
 
 
 HEADER = ("| map | scen | robots | scheme | arrived | collisions robot/between/map | "
-          "makespan / plan's | makespan / straight | flowtime / straight | "
-          "CPU ms per robot-sample | planning CPU s |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|")
+          "makespan / plan's | makespan / plan's without turns | makespan / straight | "
+          "flowtime / straight | CPU ms per robot-sample | planning CPU s |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def main(argv: list[str] | None = None) -> int:
