@@ -14,10 +14,10 @@ turn (at :math:`v = 0` the linearized unicycle's position does not depend on its
 heading: a cost on positions alone gave it no reason to). The motion starts at the
 robot's velocities (for a model with velocity states; the last command when they are
 not measured). At the end of its open path a robot waits within the roadmap's reach of
-its vertex, turned (in place) to face the edge it leaves by next; one pushed farther heads straight back to it, facing it first (a unicycle
-does not close a sideways gap by itself), backwards when the vertex is behind it and its
-bounds allow; at its goal it closes to half the reach, where the NMPC's own final
-approach takes over.
+its vertex, turned (in place) to face the edge it leaves by next; one pushed farther
+heads straight back to it, facing it first (a unicycle does not close a sideways gap by
+itself), backwards when the vertex is behind it and its bounds allow; at its goal it
+closes to half the reach, where the NMPC's own final approach takes over.
 
 The plan is a function of the scenario and the margins, so every controller of a
 run, in one process or in many, computes the same plan and counts the same
