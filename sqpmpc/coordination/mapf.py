@@ -309,14 +309,13 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
             near = distance_tables(roadmap, goals, diagonal=True)
         moves = _moves(neighbours, roadmap.diagonal_lists(),
                        _straight_on(roadmap, diagonal=True), roadmap.positions)
-        first = _prioritized(moves, near, starts.tolist(), goals.tolist(),
-                             -1 if shorter_than is None else shorter_than - 1,
-                             turn_step=float(turn_step),
-                             headings=np.full(n, np.nan) if headings is None
-                             else np.asarray(headings, dtype=float))
+        facing = np.full(n, np.nan) if headings is None else np.asarray(headings, dtype=float)
+        bound = -1 if shorter_than is None else shorter_than - 1
+        first = _prioritized(moves, near, starts.tolist(), goals.tolist(), bound,
+                             float(turn_step), facing)
         if first is None and turn_step > 0.0:  # the turns' steps left out
-            first = _prioritized(moves, near, starts.tolist(), goals.tolist(),
-                                 -1 if shorter_than is None else shorter_than - 1)
+            first = _prioritized(moves, near, starts.tolist(), goals.tolist(), bound, 0.0,
+                                 facing)
         if first is not None:
             return first
         if method == "prioritized":
@@ -433,16 +432,16 @@ class _Tables:
 
 
 def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
-                 bound: int = -1, effort: int = 10_000, total: int = 300,
-                 turn_step: float = 0.0, headings: np.ndarray | None = None
-                 ) -> np.ndarray | None:
+                 bound: int, turn_step: float, headings: np.ndarray, effort: int = 10_000,
+                 total: int = 300) -> np.ndarray | None:
     """Prioritized planning (:func:`_prioritized_once`), first in the order of farther goals
     first; when a robot finds no path, again with that robot moved to the front of the
     order (each robot at most once: at most ``n + 1`` attempts); ``None`` when the last
     attempt fails too, or when the attempts together expand more than ``total`` times the
     sum of the robots' distances + 1 nodes (on the MovingAI maps with 32 and 64 robots
     they expand 1 to 70 times it, a 256-robot antipodal swap 130 times).
-    ``bound`` (>= 0) is the largest makespan sought."""
+    ``bound`` (>= 0) is the largest makespan sought; ``turn_step`` and ``headings``
+    (``(n,)``, NaN where unknown) as :func:`plan_paths`'s."""
     n = len(starts)
     order = sorted(range(n), key=lambda i: (-table[i, starts[i]], i))
     moved: set[int] = set()
@@ -450,8 +449,7 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
     tables = _Tables(table.shape[1], 2 + int(table[np.arange(n), starts].max()))
     while True:
         plan, failed = _prioritized_once(moves, table, starts, goals, order, effort, bound,
-                                         tables, budget, turn_step,
-                                         np.full(n, np.nan) if headings is None else headings)
+                                         tables, budget, turn_step, headings)
         if plan is not None:
             return plan
         if failed < 0 or failed in moved:
@@ -462,8 +460,8 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
 
 def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
                       order: list[int], effort: int, bound: int, tables: _Tables,
-                      budget: list[int], turn_step: float = 0.0,
-                      headings: np.ndarray | None = None) -> tuple[np.ndarray | None, int]:
+                      budget: list[int], turn_step: float, headings: np.ndarray
+                      ) -> tuple[np.ndarray | None, int]:
     """One prioritized planning in ``order``: each robot's path a space-time A*
     (:func:`sqpmpc.kernels.mapf.space_time_search`) around the robots planned before it
     (their vertices, their edges the other way, and their goals from their arrival on);
@@ -482,17 +480,16 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
     empty = 0  # the first step from which every reservation row is empty
     paths: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n
     buffer = np.zeros(0, dtype=np.int64)
-    # past the collapse a path visits distinct vertices, each after at most a half-turn
-    slowest = 1 + (int(np.ceil(np.pi / turn_step)) if turn_step > 0.0 else 0)
-    facing = np.full(n, np.nan) if headings is None else np.asarray(headings, dtype=float)
-    # a robot not planned yet may have to turn by up to a half-turn before it leaves
-    hold = slowest
+    # the most steps a robot takes to leave a vertex: a half-turn, then the move. Past the
+    # collapse a path visits distinct vertices, each that long at most; and a robot not
+    # planned yet keeps its start that long (it may have to turn before it leaves)
+    hold = 1 + (int(np.ceil(np.pi / turn_step)) if turn_step > 0.0 else 0)
     for i in order:
         others[starts[i]] = 0
         collapse = max(empty + 1, hold)  # from then on every step is the same
         tables.fit(collapse + 2)
-        if buffer.size < collapse + slowest * size + 1:
-            buffer = np.zeros(collapse + slowest * size + 1, dtype=np.int64)
+        if buffer.size < collapse + hold * size + 1:
+            buffer = np.zeros(collapse + hold * size + 1, dtype=np.int64)
         own = effort * (int(table[i, starts[i]]) + 1)
         limit = min(own, budget[0])
         # with the turns' steps first; where that finds no path (a robot that must dodge
@@ -502,7 +499,7 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
             tables.search += 1
             status, length, spent = space_time_search(
                 moves.ptr, moves.targets, moves.b, moves.c, moves.straight, moves.angle,
-                step, float(facing[i]), hold, table[i],
+                step, float(headings[i]), hold, table[i],
                 starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit, tables.res,
                 parked, others, collapse, tables.search, tables.nodes, buffer)
             budget[0] -= spent
