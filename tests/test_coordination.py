@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components, shortest_path
 
-from sqpmpc.coordination.fleet import fleet_plan, turn_per_step
+from sqpmpc.coordination.fleet import fleet_plan, replan_from_positions, turn_per_step
 from sqpmpc.coordination.mapf import PlanningError, distance_tables, plan_paths
 from sqpmpc.coordination.roadmap import build_roadmap
 from sqpmpc.coordination.schedule import Execution, Schedule
@@ -382,6 +382,35 @@ def test_fleet_plan_of_a_swap_is_conflict_free_and_open_space_gets_a_grid() -> N
                        headings=sc.initial_states()[:, 2]).shape[0] - 1
     assert plan.makespan_steps < steps if plan.roadmap.diagonals.size else \
         plan.makespan_steps == steps
+
+
+def test_a_plan_from_measured_positions_starts_each_robot_at_a_distinct_nearest_vertex(
+) -> None:
+    """Progress stopped: the new plan starts where the robots are. Robots near their plan's
+    vertices start there; a robot pushed onto another robot's vertex and that robot get
+    two distinct vertices, the nearest assignment; the plan is valid to the same goals
+    and computed once for the same measurements."""
+    sc = antipodal_swap(16)
+    plan = fleet_plan(sc, 0.16, 0.31)
+    assert plan is not None
+    rng = np.random.default_rng(3)
+    middle = plan.configs[plan.makespan_steps // 2]
+    positions = plan.roadmap.positions[middle] + rng.uniform(-0.05, 0.05, (16, 2))
+    moved = positions.copy()
+    moved[3] = plan.roadmap.positions[middle[4]] + np.array([0.02, 0.0])  # onto robot 4's
+    for where, pushed in ((positions, False), (moved, True)):
+        new = replan_from_positions(plan, sc, where)
+        starts = new.configs[0]
+        assert np.unique(starts).size == 16
+        check_plan(_edges(new.roadmap), new.configs, starts, plan.configs[-1],
+                   new.roadmap.corners())
+        gap = np.hypot(*(new.roadmap.positions[starts] - where).T)
+        if not pushed:
+            assert np.array_equal(starts, middle)
+        else:
+            assert starts[3] == middle[4] and starts[4] != middle[4]
+            assert gap[4] <= plan.roadmap.spacing * np.sqrt(2) + 0.06
+        assert replan_from_positions(plan, sc, where.copy()) is new
 
 
 def test_a_robot_holds_while_another_stands_on_its_next_vertex() -> None:

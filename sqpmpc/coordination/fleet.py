@@ -16,6 +16,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from sqpmpc.coordination.mapf import PlanningError, plan_paths
 from sqpmpc.coordination.roadmap import Roadmap, build_roadmap
@@ -24,7 +26,7 @@ from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.routes import scenario_box
 from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["FleetPlan", "fleet_plan", "replan", "turn_per_step"]
+__all__ = ["FleetPlan", "fleet_plan", "replan", "replan_from_positions", "turn_per_step"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +123,8 @@ def _cached(scenario: Scenario, clearance: float, separation: float) -> FleetPla
 
 def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.ndarray,
           has_goal: np.ndarray, clearance: float, separation: float,
-          start_vertices: np.ndarray | None, roadmap: Roadmap | None = None) -> FleetPlan:
+          start_vertices: np.ndarray | None, roadmap: Roadmap | None = None,
+          headings: np.ndarray | None = None) -> FleetPlan:
     t0 = time.process_time()
     if roadmap is None:
         roadmap = build_roadmap(
@@ -132,7 +135,8 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     g = roadmap.goals[robots]
     names = [f"robot {scenario.robots[i].id}" for i in robots]
     turn_step = turn_per_step(scenario, roadmap.spacing)
-    headings = scenario.initial_states()[robots, 2] if start_vertices is None else None
+    if headings is None and start_vertices is None:
+        headings = scenario.initial_states()[robots, 2]
     # with and without the diagonals: the plan of fewer steps (its dependency chains are
     # shorter; diagonals shorten crossings and lengthen dense formations). The 4-connected
     # plan first (prioritized, else LaCAM's); over the diagonals prioritized planning
@@ -173,3 +177,60 @@ def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,
     all_goals[previous.robots] = points
     return _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
                  has_goal, 0.0, 0.0, np.asarray(configuration), roadmap=moved)
+
+
+def replan_from_positions(previous: FleetPlan, scenario: Scenario, positions: np.ndarray
+                          ) -> FleetPlan:
+    r"""A new plan on ``previous``'s roadmap to its goals from where the robots *are*:
+    the measured ``positions (N, 2)`` of all robots (scenario order).
+
+    Each planned robot starts at a distinct vertex: the assignment of least total
+    distance between the robots and their nearest vertices (each robot's
+    :math:`k` nearest, :math:`k` grown until an assignment exists), so a robot pushed
+    off its path starts from the vertex it stands nearest to, not from the one its
+    progress counted. The robots' first turns take no steps in the plan (every
+    controller measures every robot's position, its own robots' headings only).
+    Cached per process: every controller of a run that re-plans at the same sample
+    from the same measurements gets the same plan, computed once.
+
+    Raises
+    ------
+    sqpmpc.coordination.mapf.PlanningError
+        No plan from there.
+    """
+    positions = np.asarray(positions, dtype=float)
+    key = np.ascontiguousarray(positions[previous.robots, :2]).tobytes()
+    return _replanned(previous, scenario, key)
+
+
+@functools.lru_cache(maxsize=4)
+def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes) -> FleetPlan:
+    poses = np.frombuffer(key, dtype=float).reshape(-1, 2)
+    roadmap = previous.roadmap
+    n, size = poses.shape[0], roadmap.size
+    tree = cKDTree(roadmap.positions)
+    k = min(9, size)
+    while True:
+        _, near = tree.query(poses[:, :2], k=k)
+        near = np.asarray(near).reshape(n, -1)
+        columns = np.unique(near)
+        if columns.size >= n:
+            cost = np.hypot(poses[:, None, 0] - roadmap.positions[columns][None, :, 0],
+                            poses[:, None, 1] - roadmap.positions[columns][None, :, 1])
+            # only each robot's own nearest vertices: the others priced out
+            allowed = np.zeros_like(cost, dtype=bool)
+            allowed[np.repeat(np.arange(n), near.shape[1]),
+                    np.searchsorted(columns, near.ravel())] = True
+            cost = np.where(allowed, cost, cost.max(initial=0.0) * n + 1.0)
+            rows, cols = linear_sum_assignment(cost)
+            if allowed[rows, cols].all() or k >= size:
+                break
+        k = min(2 * k, size)
+    starts = np.empty(n, dtype=np.int64)
+    starts[rows] = columns[cols]
+    has_goal = np.zeros(scenario.n_robots, dtype=bool)
+    has_goal[previous.robots] = True
+    all_goals = scenario.reference_positions(0.0)
+    all_goals[previous.robots] = previous.goals
+    return _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
+                 has_goal, 0.0, 0.0, starts, roadmap=previous.roadmap)

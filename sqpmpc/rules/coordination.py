@@ -29,16 +29,35 @@ from every robot's progress vertex (a valid start: :mod:`sqpmpc.coordination.sch
 A controller that joins a run under way (started late, or restarted after a crash)
 has no earlier positions: at its first sample it counts the progress from that one
 measurement (:meth:`~sqpmpc.coordination.schedule.Execution.resume`).
+
+**Progress stops: a new plan from where the robots are.** The execution cannot
+deadlock while robots stay near their paths (:mod:`sqpmpc.coordination.schedule`):
+the robot whose next vertex comes first in the plan is free, and it reaches that
+vertex within the time a free robot needs from rest, :math:`T = \pi/\omega_{\max} +
+(h + 2\rho)/v_{\max} + 2 v_{\max}/a_{\max} + N T_s` (a half-turn in place, the edge
+and the reach, speeding up and slowing down, and the horizon to see it). The collision
+rows may push a robot off its path, into the way of a robot that waits for it
+(a 256-robot swap: a robot counted at its vertex stood 0.74 m from it, beyond the robot
+waiting for it to go on). So when no robot's progress grows for :math:`T` (in samples)
+while robots are not at their paths' ends, every controller plans again from the
+measured positions (:func:`~sqpmpc.coordination.fleet.replan_from_positions`: each
+robot from the distinct vertex nearest to it, same goals) and executes the new plan:
+it counts the same progress from the same measurements, so it re-plans at the same
+sample to the same plan (in one process, computed once). A controller restarted after
+such a re-plan does not know of it and executes the first plan; the collision rows keep
+it safe.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from sqpmpc.coordination.fleet import FleetPlan, fleet_plan, replan
+from sqpmpc.coordination.fleet import FleetPlan, fleet_plan, replan, replan_from_positions
+from sqpmpc.coordination.mapf import PlanningError
 from sqpmpc.coordination.motion import path_motion
 from sqpmpc.coordination.schedule import Execution
 from sqpmpc.problem.references import PointReference
@@ -46,10 +65,13 @@ from sqpmpc.rules.base import Contribution, Rule, RuleContext, RuleInstance, Sam
 
 __all__ = ["Coordination"]
 
+_LOG = logging.getLogger(__name__)
+
 
 class _Instance(RuleInstance):
     hooks = ("references",)
-    counter_names = ("coordination_holds", "coordination_replans", "coordination_tracked")
+    counter_names = ("coordination_holds", "coordination_replans", "coordination_stalls",
+                     "coordination_tracked")
 
     def __init__(self, rule: Rule, context: RuleContext) -> None:
         super().__init__(rule, context)
@@ -82,6 +104,16 @@ class _Instance(RuleInstance):
         self._accel = None if bounds.acceleration is None else float(
             min(-bounds.acceleration[0], bounds.acceleration[1]))
         self._window = window
+        # a stall: no robot's progress for the time the slowest free robot takes to reach
+        # its next vertex from rest within the reach of its own: a half-turn in place, the
+        # edge and the reach at v_max, speeding up and slowing down, and the horizon the
+        # NMPC needs to see the vertex (module docstring)
+        speed_up = 0.0 if self._accel is None else 2.0 * self._speed / self._accel
+        patience = (math.pi / self._turn + (plan.roadmap.spacing + 2.0 * plan.roadmap.reach)
+                    / self._speed + speed_up + c.horizon * c.sample_time)
+        self._patience = math.ceil(patience / c.sample_time)
+        self._total = -1  # the sum of the robots' progress when it last grew
+        self._grew = 0  # the sample it did
         m, N = c.own.size, c.horizon
         self._tracked = np.zeros(m, dtype=bool)
         self._poses = np.zeros((m, N + 1, 3))
@@ -105,6 +137,32 @@ class _Instance(RuleInstance):
         self._start(self.plan)  # the new paths start at the progress vertices
         self.counts["coordination_replans"] += 1
 
+    def _stalled(self, progress: np.ndarray, sample: int) -> bool:
+        """Whether no robot's progress has grown for the patience (in samples, so that
+        controllers that skipped a sample agree), with robots not at their paths' ends."""
+        total = int(progress.sum())
+        if total > self._total or self.execution is None or all(
+                self.execution.finished(r) for r in range(progress.size)):
+            self._total, self._grew = max(total, self._total), sample
+            return False
+        return sample - self._grew >= self._patience
+
+    def _replan_from(self, plan: FleetPlan, execution: Execution, view: SampleView
+                     ) -> tuple[Execution, FleetPlan]:
+        """A new plan from the measured states (:func:`replan_from_positions`), the same in
+        every controller that counted the same progress; kept as it was when there is none
+        (counted, logged)."""
+        self.counts["coordination_stalls"] += 1
+        try:
+            plan = replan_from_positions(plan, self.context.scenario, view.positions)
+        except PlanningError as error:
+            _LOG.warning("coordination: progress stopped and no new plan from the "
+                         "robots' positions (%s): the plan is kept", error)
+            return execution, plan
+        self.plan = plan
+        self._start(plan)
+        return self.execution or execution, plan
+
     def shape_references(self, view: SampleView) -> Contribution | None:
         execution, plan = self.execution, self.plan
         if execution is None or plan is None:
@@ -114,6 +172,9 @@ class _Instance(RuleInstance):
         else:  # a controller started (or restarted) mid-run: no history of the positions
             progress = execution.resume(view.positions)
         self._joined = True
+        if self._stalled(progress, view.sample):
+            execution, plan = self._replan_from(plan, execution, view)
+            progress = execution.advance(view.positions)
         permitted = execution.clear_all(view.positions)
         out = np.array(view.references)
         self._tracked[:] = False
