@@ -82,3 +82,40 @@ def test_the_corridor_arrives_with_coordination(acceleration, scheme) -> None:
     assert m["obstacle_collisions"] == 0
     goals = sim.scenario.reference_positions(0.0)
     assert np.hypot(*(sim.states[-1, :, :2] - goals).T).max() <= 0.05
+
+
+def test_when_progress_stops_every_robot_is_planned_again_from_where_it_stands() -> None:
+    """Robots that do not move (the measurement never changes: motors off) make no
+    progress: after the patience (the time a free robot needs to reach its next vertex,
+    in samples) the controller plans again from the measured positions, once per
+    patience, each robot from its own vertex; a robot measured on another robot's next
+    vertex starts the new plan there, the other from a distinct vertex."""
+    sc = mapf_scenario(DATA / "maze-12-8.map", 6, scen_path=DATA / "maze-12-8.scen", cell=0.5,
+                       diameter=0.3, acceleration=2.0, angular_acceleration=10.0)
+    sim = ClosedLoopSimulation(sc, "centralized", SolverSettings(
+        rules=select_rules(["coordination"])))
+    controller = sim.controllers[0]
+    rule = controller.rule("coordination")
+    first, patience = rule.plan, rule.patience
+    assert 0 < patience < sc.steps // 3
+    measured = sim.plant.measure(sim.states[0])
+    for k in range(2 * patience + 1):
+        out = controller.step(sim.t[k], measured)
+        assert np.all(np.isfinite(out.inputs))
+        # no progress from sample 0: a new plan at sample `patience`, the next one a
+        # patience after the sample following it
+        assert controller.counters()["coordination_stalls"] == int(k >= patience), k
+    stalls = controller.counters()["coordination_stalls"]
+    plan = rule.plan
+    assert plan is not first
+    assert np.array_equal(plan.configs[0], first.configs[0])  # each from its own vertex
+    assert np.array_equal(plan.configs[-1], first.configs[-1])  # to the same goals
+    # robot 1 pushed onto robot 0's next vertex
+    nxt = first.roadmap.positions[first.schedule.paths[0, 1]]
+    pushed = measured.copy()
+    pushed[first.robots[1], :2] = nxt + 0.01
+    for k in range(2 * patience + 1, 3 * patience + 3):
+        controller.step(sim.t[k], pushed)
+    assert controller.counters()["coordination_stalls"] > stalls
+    starts = rule.plan.configs[0]
+    assert starts[1] == first.schedule.paths[0, 1] and np.unique(starts).size == starts.size
