@@ -87,6 +87,8 @@ def run_one(map_path: Path, scen_path: Path | None, robots: int, scheme: str, ce
         "straight_flowtime": float(straight.sum()),
         "cpu_ms_per_robot_sample": 1e3 * cpu / (max(sim.k, 1) * sc.n_robots),
         "planning_s": math.nan if plan is None else plan.seconds,
+        "stalls": 0 if coordination is None else int(
+            sim.controllers[0].counters().get("coordination_stalls", 0)),
     }
 
 
