@@ -74,9 +74,13 @@ from sqpmpc.kernels.mapf import (
     FIELDS,
     FOUND,
     LIMIT,
+    SCRATCH,
+    UNBOUNDED,
     bfs_distances,
     reserve_path,
-    space_time_search,
+    safe_interval_search,
+    straight_moves,
+    turn_tables,
 )
 
 __all__ = ["PLANNERS", "PlanningError", "distance_tables", "plan_paths"]
@@ -294,7 +298,11 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                                 "are nearer than the roadmap spacing")
     if n == 0:
         return np.zeros((1, 0), dtype=np.int64)
-    table = distance_tables(roadmap, goals)
+    # the hop distances (over the diagonals too, for prioritized planning: its heuristic
+    # counts diagonal steps; a diagonal joins two vertices its corners join, so the goals
+    # are reachable or not as on the grid alone)
+    diagonal = method != "lacam" and roadmap.diagonals.size > 0
+    table = distance_tables(roadmap, goals, diagonal=diagonal)
     far = ~np.isfinite(table[np.arange(n), starts])
     if far.any():
         i = int(np.argmax(far))
@@ -302,19 +310,14 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                             f"{roadmap.positions[goals[i]].round(3).tolist()} from "
                             f"{roadmap.positions[starts[i]].round(3).tolist()}: no path of free "
                             "roadmap vertices joins them at the robots' footprint")
-    neighbours = roadmap.neighbour_lists()
     if method != "lacam":
-        near = table
-        if roadmap.diagonals.size:  # the A*'s bound counts diagonal steps
-            near = distance_tables(roadmap, goals, diagonal=True)
-        moves = _moves(neighbours, roadmap.diagonal_lists(),
-                       _straight_on(roadmap, diagonal=True), roadmap.positions)
+        moves = _moves(roadmap)
         facing = np.full(n, np.nan) if headings is None else np.asarray(headings, dtype=float)
         bound = -1 if shorter_than is None else shorter_than - 1
-        first = _prioritized(moves, near, starts.tolist(), goals.tolist(), bound,
+        first = _prioritized(moves, table, starts.tolist(), goals.tolist(), bound,
                              float(turn_step), facing)
         if first is None and turn_step > 0.0:  # the turns' steps left out
-            first = _prioritized(moves, near, starts.tolist(), goals.tolist(), bound, 0.0,
+            first = _prioritized(moves, table, starts.tolist(), goals.tolist(), bound, 0.0,
                                  facing)
         if first is not None:
             return first
@@ -322,8 +325,10 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
             within = "" if shorter_than is None else f" of fewer than {shorter_than} steps"
             raise PlanningError(f"roadmap: prioritized planning found no plan{within} for "
                                 f"{n} robots (in {n + 1} orders at most)")
+        if diagonal:  # LaCAM's distances: on the grid alone
+            table = distance_tables(roadmap, goals)
     dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
-    return _lacam(roadmap, neighbours, dist, starts, goals, seed, max_nodes)
+    return _lacam(roadmap, roadmap.neighbour_lists(), dist, starts, goals, seed, max_nodes)
 
 
 def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]],
@@ -383,8 +388,9 @@ def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]
 class _Moves:
     """The moves of prioritized planning in CSR form: out of ``v``, ``targets[ptr[v]:ptr[v +
     1]]`` (its grid neighbours, ``v`` itself: the wait, then its diagonals), the corners
-    ``b, c`` of a diagonal (-1 otherwise) and the vertex ``straight`` on after each move
-    (-1 where none)."""
+    ``b, c`` of a diagonal (-1 otherwise), the vertex ``straight`` on after each move
+    (-1 where none), its direction ``angle`` and the move ``back`` (out of its end; a
+    wait's itself); the vertices' coordinates ``x, y``."""
 
     ptr: np.ndarray
     targets: np.ndarray
@@ -392,33 +398,77 @@ class _Moves:
     c: np.ndarray
     straight: np.ndarray
     angle: np.ndarray
+    back: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    depart: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    turn: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    turn_step: float = 0.0
+
+    def turning(self, turn_step: float) -> None:
+        """The tables of the steps turns take at ``turn_step`` (:func:`turn_tables`)."""
+        if turn_step <= 0.0 or turn_step == self.turn_step:
+            return
+        width = np.diff(self.ptr)
+        self.offsets = np.concatenate(([0], np.cumsum(width * width))).astype(np.int64)
+        self.depart = np.empty(int(self.offsets[-1]), dtype=np.int64)
+        self.turn = np.empty(int(self.offsets[-1]), dtype=np.int64)
+        turn_tables(self.ptr, self.back, self.angle, turn_step, self.offsets, self.depart,
+                    self.turn)
+        self.turn_step = turn_step
 
 
-def _moves(neighbours: list[list[int]], diagonal: list[list[tuple[int, int, int]]],
-           straight: dict[tuple[int, int], int], positions: np.ndarray) -> _Moves:
-    ptr, targets, bs, cs, ahead = [0], [], [], [], []
-    for v, (grid, diag) in enumerate(zip(neighbours, diagonal, strict=True)):
-        for u, b, c in (*((w, -1, -1) for w in grid), (v, -1, -1), *diag):
-            targets.append(u)
-            bs.append(b)
-            cs.append(c)
-            ahead.append(-1 if u == v else straight.get((v, u), -1))
-        ptr.append(len(targets))
-    arrays = [np.array(x, dtype=np.int64) for x in (ptr, targets, bs, cs, ahead)]
-    way = positions[arrays[1]] - positions[np.repeat(np.arange(len(neighbours)),
-                                                     np.diff(arrays[0]))]
-    return _Moves(*arrays, np.arctan2(way[:, 1], way[:, 0]))
+def _moves(roadmap: Roadmap) -> _Moves:
+    """The moves of ``roadmap`` (:class:`_Moves`): out of every vertex its neighbours in
+    the roadmap's order, the wait, then its diagonals in their order."""
+    size = roadmap.size
+    ptr, idx = roadmap.indptr.astype(np.int64), roadmap.indices.astype(np.int64)
+    diag = roadmap.diagonals.astype(np.int64).reshape(-1, 4)
+    vertices = np.arange(size, dtype=np.int64)
+    # (tail, kind, order) sorts them: grid edges (0), the wait (1), diagonals both ways (2)
+    tail = np.concatenate((np.repeat(vertices, np.diff(ptr)), vertices, diag[:, 0], diag[:, 1]))
+    head = np.concatenate((idx, vertices, diag[:, 1], diag[:, 0]))
+    b = np.concatenate((np.full(idx.size + size, -1), diag[:, 2], diag[:, 2]))
+    c = np.concatenate((np.full(idx.size + size, -1), diag[:, 3], diag[:, 3]))
+    kind = np.concatenate((np.zeros(idx.size), np.ones(size), np.full(2 * diag.shape[0], 2)))
+    # the diagonals of a vertex in the order of the roadmap's rows
+    rank = np.concatenate((np.arange(idx.size), np.zeros(size), np.arange(diag.shape[0]),
+                           np.arange(diag.shape[0])))
+    order = np.lexsort((rank, kind, tail))
+    tail, head, b, c = tail[order], head[order], b[order], c[order]
+    starts = np.searchsorted(tail, np.arange(size + 1))
+    # the move back (the same move, ends swapped), and the vertex straight on
+    key = tail * size + head
+    sort = np.argsort(key, kind="stable")
+    back = sort[np.searchsorted(key[sort], head * size + tail)]
+    pos = roadmap.positions
+    x = np.ascontiguousarray(pos[:, 0], dtype=float)
+    y = np.ascontiguousarray(pos[:, 1], dtype=float)
+    straight = np.empty(tail.size, dtype=np.int64)
+    straight_moves(starts, head, x, y, straight)
+    return _Moves(starts, head, b, c, straight,
+                  np.arctan2(y[head] - y[tail], x[head] - x[tail]), back, x, y)
 
 
 class _Tables:
-    """The reservations and the search's scratch nodes (:mod:`sqpmpc.kernels.mapf`),
-    ``(H, V)`` each, grown by doubling ``H``."""
+    """The reservations (:mod:`sqpmpc.kernels.mapf`): the ``(H, V)`` table, grown by
+    doubling ``H``, every vertex's blocked runs (``(V, H // 2 + 1, 2)``), and the
+    searches' scratch states and heap."""
 
     def __init__(self, size: int, rows: int) -> None:
         self.size = size
         self.res = np.zeros((rows, size), dtype=np.int64)
-        self.nodes = np.zeros((rows, size, FIELDS), dtype=np.int32)
+        self.runs = np.zeros((size, rows // 2 + 1, 2), dtype=np.int64)
+        self.count = np.zeros(size, dtype=np.int64)
+        self.states = np.zeros((4 * size, FIELDS), dtype=np.int32)
+        self.heap = np.zeros((4096, 3), dtype=np.int64)
         self.search = 0
+
+    def clear(self) -> None:
+        """No reservation."""
+        self.res[:] = 0
+        self.count[:] = 0
 
     def fit(self, rows: int) -> None:
         """At least ``rows`` rows (new rows empty)."""
@@ -427,8 +477,18 @@ class _Tables:
             return
         more = max(rows, 2 * have) - have
         self.res = np.concatenate((self.res, np.zeros((more, self.size), dtype=np.int64)))
-        self.nodes = np.concatenate((self.nodes, np.zeros((more, self.size, FIELDS),
-                                                          dtype=np.int32)))
+        room = self.res.shape[0] // 2 + 1 - self.runs.shape[1]
+        self.runs = np.concatenate((self.runs, np.zeros((self.size, room, 2), dtype=np.int64)),
+                                   axis=1)
+
+    def scratch(self, need: int) -> None:
+        """At least ``need`` scratch states (marks below every search's), or when ``need``
+        is negative at least ``-need`` heap entries."""
+        if need < 0:
+            self.heap = np.zeros((-need, 3), dtype=np.int64)
+        elif need > self.states.shape[0]:
+            self.states = np.zeros((max(need, 2 * self.states.shape[0]), FIELDS),
+                                   dtype=np.int32)
 
 
 def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
@@ -462,46 +522,48 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
                       order: list[int], effort: int, bound: int, tables: _Tables,
                       budget: list[int], turn_step: float, headings: np.ndarray
                       ) -> tuple[np.ndarray | None, int]:
-    """One prioritized planning in ``order``: each robot's path a space-time A*
-    (:func:`sqpmpc.kernels.mapf.space_time_search`) around the robots planned before it
-    (their vertices, their edges the other way, and their goals from their arrival on);
-    it may follow one of them onto the vertex it leaves, never be followed by one (so no
-    cycle of following: no rotation); among paths arriving as early, the one with the
-    fewest turns, since a unicycle slows down at every corner. Returns the plan and -1,
+    """One prioritized planning in ``order``: each robot's path a safe-interval A*
+    (:func:`sqpmpc.kernels.mapf.safe_interval_search`) around the robots planned before
+    it (their vertices, their edges the other way, and their goals from their arrival
+    on); it may follow one of them onto the vertex it leaves, never be followed by one
+    (so no cycle of following: no rotation); it arrives as early as any path, and among
+    the paths found arriving as early takes the one with the fewest turns, since a
+    unicycle slows down at every corner. Returns the plan and -1,
     or ``None`` and the robot whose search found no path (arriving by ``bound`` when
-    ``bound >= 0``) or expanded more than ``effort`` times (its distance + 1) nodes;
+    ``bound >= 0``) or expanded more than ``effort`` times (its distance + 1) states;
     ``None`` and -1 once the attempts' shared ``budget`` (expansions left) is spent."""
     n, size = len(starts), tables.size
-    tables.res[:] = 0
-    parked = np.full(size, 1 << 40, dtype=np.int64)  # vertex -> step a robot stays from
+    tables.clear()
+    parked = np.full(size, UNBOUNDED, dtype=np.int64)  # vertex -> step a robot stays from
     last_use = np.full(size, -1, dtype=np.int64)  # vertex -> last step a robot is there
     others = np.zeros(size, dtype=np.uint8)  # starts of the robots not planned yet
     others[starts] = 1
     empty = 0  # the first step from which every reservation row is empty
     paths: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n
-    buffer = np.zeros(0, dtype=np.int64)
-    # the most steps a robot takes to leave a vertex: a half-turn, then the move. Past the
-    # collapse a path visits distinct vertices, each that long at most; and a robot not
-    # planned yet keeps its start that long (it may have to turn before it leaves)
+    # the most steps a robot takes to leave a vertex: a half-turn, then the move; a robot
+    # not planned yet keeps its start that long (it may have to turn before it leaves)
     hold = 1 + (int(np.ceil(np.pi / turn_step)) if turn_step > 0.0 else 0)
+    moves.turning(turn_step)
     for i in order:
         others[starts[i]] = 0
-        collapse = max(empty + 1, hold)  # from then on every step is the same
-        tables.fit(collapse + 2)
-        if buffer.size < collapse + hold * size + 1:
-            buffer = np.zeros(collapse + hold * size + 1, dtype=np.int64)
         own = effort * (int(table[i, starts[i]]) + 1)
         limit = min(own, budget[0])
         # with the turns' steps first; where that finds no path (a robot that must dodge
         # the robots before it as fast as the grid allows), without them: the plan stays
         # conflict-free, only its timing of that robot's turns is not the unicycle's
         for step in ((float(turn_step), 0.0) if turn_step > 0.0 else (0.0,)):
-            tables.search += 1
-            status, length, spent = space_time_search(
-                moves.ptr, moves.targets, moves.b, moves.c, moves.straight, moves.angle,
-                step, float(headings[i]), hold, table[i],
-                starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit, tables.res,
-                parked, others, collapse, tables.search, tables.nodes, buffer)
+            while True:
+                tables.search += 1
+                status, length, spent, path = safe_interval_search(
+                    moves.ptr, moves.targets, moves.b, moves.c, moves.straight, moves.angle,
+                    moves.back, moves.offsets, moves.depart, moves.turn, step,
+                    float(headings[i]), hold, table[i], moves.x, moves.y,
+                    starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit,
+                    tables.runs, tables.count, parked, others, tables.search, tables.states,
+                    tables.heap)
+                if status != SCRATCH:
+                    break
+                tables.scratch(length)
             budget[0] -= spent
             limit = min(own, budget[0])
             if status == FOUND or limit <= 0:
@@ -511,10 +573,10 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
         if status != FOUND:
             return None, i
         tables.fit(length + 2)
-        last = reserve_path(buffer, length, moves.ptr, moves.targets, moves.b, moves.c,
-                            tables.res, parked, last_use)
+        last = reserve_path(path, length, moves.ptr, moves.targets, moves.b, moves.c,
+                            tables.res, parked, last_use, tables.runs, tables.count, empty)
         empty = max(empty, last + 1)  # rows up to last hold the reservations
-        paths[i] = buffer[:length].copy()
+        paths[i] = path
     horizon = max(p.size for p in paths)
     return np.array([np.concatenate((p, np.full(horizon - p.size, p[-1]))) for p in paths],
                     dtype=np.int64).T, -1
