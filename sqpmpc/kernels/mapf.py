@@ -236,8 +236,6 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
         return SCRATCH, total, 0, none
     if dist[start] == np.inf or (bound >= 0 and max(int(dist[start]), free_at) > bound):
         return NO_PATH, 0, 0, none
-    if count[start] and runs[start, 0, 0] == 0:
-        return NO_PATH, 0, 0, none  # the start is taken at step 0 (no robot leaves so)
     seen, closed = 2 * search, 2 * search + 1
     slot = 0
     if timed:  # the start's heading: the wait's slot
@@ -259,6 +257,11 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
     n_heap = 1
     expanded = 0
     gx, gy = px[goal], py[goal]
+    # cos(k turn_step), k = 0, 1, ...: the turn towards the goal takes the least k steps
+    # whose cosine is at most the angle's (a hair lower: the bound stays a lower bound)
+    cosines = np.full(2 + int(np.pi / turn_step) if timed else 1, -2.0)
+    for step in range(cosines.size - 1):
+        cosines[step] = np.cos(step * turn_step) - 1e-12
     while n_heap > 0:
         key, tie, sid = heap[0, 0], heap[0, 1], heap[0, 2]
         n_heap -= 1
@@ -312,6 +315,8 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
         last_v = UNBOUNDED if j == count[v] else runs[v, j, 0] - 1  # the interval's end
         if parked[v] < UNBOUNDED and parked[v] - 1 < last_v:
             last_v = parked[v] - 1
+        if last_v < t:  # the start, taken from step 1 (a robot planned before holds it as
+            last_v = t  # the corner of a diagonal, the start's robot to leave at once)
         if v == goal and last_v == UNBOUNDED:  # parked from t on, free for good
             path = np.empty(t + 1, dtype=np.int64)
             path[t] = v
@@ -340,10 +345,14 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
             turns = k + (1 if (last >= 0 and straight[last] != u) else 0)
             # the heuristic: the hops left, and the turn towards the goal (3)
             h = int(dist[u])
-            if timed and u != goal:
-                bend = abs((np.arctan2(gy - py[u], gx - px[u]) - angle[e] + np.pi)
-                           % (2.0 * np.pi) - np.pi)
-                h += int(np.ceil(bend / turn_step - 1e-9))
+            if timed and u != goal:  # the least k with cos(angle) >= cos(k turn_step)
+                ax, ay = px[u] - px[v], py[u] - py[v]
+                bx, by = gx - px[u], gy - py[u]
+                cosine = (ax * bx + ay * by) / np.sqrt((ax * ax + ay * ay) * (bx * bx + by * by))
+                step = 0
+                while cosine < cosines[step]:
+                    step += 1
+                h += step
             slot = back[e] - cptr[u] if timed else 0
             across = cptr[u + 1] - cptr[u] if timed else 1
             # u's first interval ending at or after `early`: the first run starting after
