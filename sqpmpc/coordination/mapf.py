@@ -13,20 +13,22 @@ let another robot by and back is part of it, so a robot that has finished is
 never in another's way in the final configuration.
 
 A plan is first sought by *prioritized planning* (Silver, *Cooperative
-Pathfinding*, 2005): robots with farther goals first, each one's path a
-space-time A* around the paths of the robots before it (their vertices, their
-moves the other way, their goals from their arrival on; a robot may follow one
-planned before it onto the vertex it leaves, never the other way round, so the
-following never closes a cycle), each search bounded by
-10,000 times its robot's distance plus one expansions; when a robot finds no
-path, the planning starts again with that robot first (each robot moved to the
-front at most once, so at most :math:`n + 1` attempts); among paths that arrive
-as early, each search takes one with the fewest turns (a unicycle slows down at
-every corner: on the four MovingAI maps with 32 robots, 30-57 % fewer turns than
-the first-found path, the same makespans). Its plans are short (on
-the MovingAI maps with 32 robots, 20 of 20 plans at the lower bound, the
-longest distance of a robot alone) and cheap, but it is not complete: where the
-last attempt fails, the plan is LaCAM's.
+Pathfinding*, 2005): robots with farther goals first, each one's path a search
+around the paths of the robots before it (their vertices, their moves the other
+way, their goals from their arrival on; a robot may follow one planned before it
+onto the vertex it leaves, never the other way round, so the following never closes
+a cycle): a safe-interval A* (Phillips and Likhachev, *SIPP*, 2011; compiled,
+:func:`sqpmpc.kernels.mapf.safe_interval_search`, whose docstring has the argument)
+over a vertex, a safe interval of it (a maximal run of steps at which the robots
+planned before leave it free) and the robot's heading, which arrives as early as any
+path, with the turns' steps, and among the paths it finds that arrive as early takes
+one with the fewest turns (a unicycle slows down at every corner), each search bounded
+by 10,000 times its robot's distance plus one expansions; when a robot finds no path,
+the planning starts again with that robot first (each robot moved to the front at
+most once, so at most :math:`n + 1` attempts). Its plans are short (on the MovingAI
+maps with 32 robots, 20 of 20 plans at the lower bound, the longest distance of a
+robot alone) and cheap, but it is not complete: where the last attempt fails, the
+plan is LaCAM's.
 
 LaCAM (Okumura, *LaCAM: Search-Based Algorithm for Quick
 Multi-Agent Pathfinding*, AAAI 2023): a depth-first search over configurations
@@ -498,15 +500,18 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
     first; when a robot finds no path, again with that robot moved to the front of the
     order (each robot at most once: at most ``n + 1`` attempts); ``None`` when the last
     attempt fails too, or when the attempts together expand more than ``total`` times the
-    sum of the robots' distances + 1 nodes (on the MovingAI maps with 32 and 64 robots
-    they expand 1 to 70 times it, a 256-robot antipodal swap 130 times).
+    sum of the robots' distances + 1 states (with the turns' steps, on the MovingAI maps
+    with 32 and 64 robots they expand 5 to 11 times it, antipodal swaps of 64 to 256
+    robots 15 to 42 times on the 4-connected grid and 29 to 120 times over the
+    diagonals).
     ``bound`` (>= 0) is the largest makespan sought; ``turn_step`` and ``headings``
     (``(n,)``, NaN where unknown) as :func:`plan_paths`'s."""
     n = len(starts)
     order = sorted(range(n), key=lambda i: (-table[i, starts[i]], i))
     moved: set[int] = set()
     budget = [int(total * sum(int(table[i, starts[i]]) + 1 for i in range(n)))]
-    tables = _Tables(table.shape[1], 2 + int(table[np.arange(n), starts].max()))
+    # room for plans twice as long as the longest distance (grown if longer)
+    tables = _Tables(table.shape[1], 2 * (2 + int(table[np.arange(n), starts].max())))
     while True:
         plan, failed = _prioritized_once(moves, table, starts, goals, order, effort, bound,
                                          tables, budget, turn_step, headings)
