@@ -327,7 +327,7 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
                     path[s] = states[parent, _VERTEX]  # waiting or turning there
                 child = parent
             return FOUND, t + 1, expanded, path
-        here = offsets[v] + (back[last] - cptr[v]) * width if last >= 0 else 0
+        here = offsets[v] + (back[last] - cptr[v]) * width if timed and last >= 0 else 0
         for e in range(cptr[v], cptr[v + 1]):
             u = cidx[e]
             if u == v or dist[u] == np.inf:
