@@ -13,20 +13,22 @@ let another robot by and back is part of it, so a robot that has finished is
 never in another's way in the final configuration.
 
 A plan is first sought by *prioritized planning* (Silver, *Cooperative
-Pathfinding*, 2005): robots with farther goals first, each one's path a
-space-time A* around the paths of the robots before it (their vertices, their
-moves the other way, their goals from their arrival on; a robot may follow one
-planned before it onto the vertex it leaves, never the other way round, so the
-following never closes a cycle), each search bounded by
-10,000 times its robot's distance plus one expansions; when a robot finds no
-path, the planning starts again with that robot first (each robot moved to the
-front at most once, so at most :math:`n + 1` attempts); among paths that arrive
-as early, each search takes one with the fewest turns (a unicycle slows down at
-every corner: on the four MovingAI maps with 32 robots, 30-57 % fewer turns than
-the first-found path, the same makespans). Its plans are short (on
-the MovingAI maps with 32 robots, 20 of 20 plans at the lower bound, the
-longest distance of a robot alone) and cheap, but it is not complete: where the
-last attempt fails, the plan is LaCAM's.
+Pathfinding*, 2005): robots with farther goals first, each one's path a search
+around the paths of the robots before it (their vertices, their moves the other
+way, their goals from their arrival on; a robot may follow one planned before it
+onto the vertex it leaves, never the other way round, so the following never closes
+a cycle): a safe-interval A* (Phillips and Likhachev, *SIPP*, 2011; compiled,
+:func:`sqpmpc.kernels.mapf.safe_interval_search`, whose docstring has the argument)
+over a vertex, a safe interval of it (a maximal run of steps at which the robots
+planned before leave it free) and the robot's heading, which arrives as early as any
+path, with the turns' steps, and among the paths it finds that arrive as early takes
+one with the fewest turns (a unicycle slows down at every corner), each search bounded
+by 10,000 times its robot's distance plus one expansions; when a robot finds no path,
+the planning starts again with that robot first (each robot moved to the front at
+most once, so at most :math:`n + 1` attempts). Its plans are short (on the MovingAI
+maps with 32 robots, 20 of 20 plans at the lower bound, the longest distance of a
+robot alone) and cheap, but it is not complete: where the last attempt fails, the
+plan is LaCAM's.
 
 LaCAM (Okumura, *LaCAM: Search-Based Algorithm for Quick
 Multi-Agent Pathfinding*, AAAI 2023): a depth-first search over configurations
@@ -74,9 +76,13 @@ from sqpmpc.kernels.mapf import (
     FIELDS,
     FOUND,
     LIMIT,
+    SCRATCH,
+    UNBOUNDED,
     bfs_distances,
     reserve_path,
-    space_time_search,
+    safe_interval_search,
+    straight_moves,
+    turn_tables,
 )
 
 __all__ = ["PLANNERS", "PlanningError", "distance_tables", "plan_paths"]
@@ -294,7 +300,11 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                                 "are nearer than the roadmap spacing")
     if n == 0:
         return np.zeros((1, 0), dtype=np.int64)
-    table = distance_tables(roadmap, goals)
+    # the hop distances (over the diagonals too, for prioritized planning: its heuristic
+    # counts diagonal steps; a diagonal joins two vertices its corners join, so the goals
+    # are reachable or not as on the grid alone)
+    diagonal = method != "lacam" and roadmap.diagonals.size > 0
+    table = distance_tables(roadmap, goals, diagonal=diagonal)
     far = ~np.isfinite(table[np.arange(n), starts])
     if far.any():
         i = int(np.argmax(far))
@@ -302,19 +312,14 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                             f"{roadmap.positions[goals[i]].round(3).tolist()} from "
                             f"{roadmap.positions[starts[i]].round(3).tolist()}: no path of free "
                             "roadmap vertices joins them at the robots' footprint")
-    neighbours = roadmap.neighbour_lists()
     if method != "lacam":
-        near = table
-        if roadmap.diagonals.size:  # the A*'s bound counts diagonal steps
-            near = distance_tables(roadmap, goals, diagonal=True)
-        moves = _moves(neighbours, roadmap.diagonal_lists(),
-                       _straight_on(roadmap, diagonal=True), roadmap.positions)
+        moves = _moves(roadmap)
         facing = np.full(n, np.nan) if headings is None else np.asarray(headings, dtype=float)
         bound = -1 if shorter_than is None else shorter_than - 1
-        first = _prioritized(moves, near, starts.tolist(), goals.tolist(), bound,
+        first = _prioritized(moves, table, starts.tolist(), goals.tolist(), bound,
                              float(turn_step), facing)
         if first is None and turn_step > 0.0:  # the turns' steps left out
-            first = _prioritized(moves, near, starts.tolist(), goals.tolist(), bound, 0.0,
+            first = _prioritized(moves, table, starts.tolist(), goals.tolist(), bound, 0.0,
                                  facing)
         if first is not None:
             return first
@@ -322,8 +327,10 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
             within = "" if shorter_than is None else f" of fewer than {shorter_than} steps"
             raise PlanningError(f"roadmap: prioritized planning found no plan{within} for "
                                 f"{n} robots (in {n + 1} orders at most)")
+        if diagonal:  # LaCAM's distances: on the grid alone
+            table = distance_tables(roadmap, goals)
     dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
-    return _lacam(roadmap, neighbours, dist, starts, goals, seed, max_nodes)
+    return _lacam(roadmap, roadmap.neighbour_lists(), dist, starts, goals, seed, max_nodes)
 
 
 def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]],
@@ -383,8 +390,9 @@ def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]
 class _Moves:
     """The moves of prioritized planning in CSR form: out of ``v``, ``targets[ptr[v]:ptr[v +
     1]]`` (its grid neighbours, ``v`` itself: the wait, then its diagonals), the corners
-    ``b, c`` of a diagonal (-1 otherwise) and the vertex ``straight`` on after each move
-    (-1 where none)."""
+    ``b, c`` of a diagonal (-1 otherwise), the vertex ``straight`` on after each move
+    (-1 where none), its direction ``angle`` and the move ``back`` (out of its end; a
+    wait's itself); the vertices' coordinates ``x, y``."""
 
     ptr: np.ndarray
     targets: np.ndarray
@@ -392,33 +400,77 @@ class _Moves:
     c: np.ndarray
     straight: np.ndarray
     angle: np.ndarray
+    back: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    depart: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    turn: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    turn_step: float = 0.0
+
+    def turning(self, turn_step: float) -> None:
+        """The tables of the steps turns take at ``turn_step`` (:func:`turn_tables`)."""
+        if turn_step <= 0.0 or turn_step == self.turn_step:
+            return
+        width = np.diff(self.ptr)
+        self.offsets = np.concatenate(([0], np.cumsum(width * width))).astype(np.int64)
+        self.depart = np.empty(int(self.offsets[-1]), dtype=np.int64)
+        self.turn = np.empty(int(self.offsets[-1]), dtype=np.int64)
+        turn_tables(self.ptr, self.back, self.angle, turn_step, self.offsets, self.depart,
+                    self.turn)
+        self.turn_step = turn_step
 
 
-def _moves(neighbours: list[list[int]], diagonal: list[list[tuple[int, int, int]]],
-           straight: dict[tuple[int, int], int], positions: np.ndarray) -> _Moves:
-    ptr, targets, bs, cs, ahead = [0], [], [], [], []
-    for v, (grid, diag) in enumerate(zip(neighbours, diagonal, strict=True)):
-        for u, b, c in (*((w, -1, -1) for w in grid), (v, -1, -1), *diag):
-            targets.append(u)
-            bs.append(b)
-            cs.append(c)
-            ahead.append(-1 if u == v else straight.get((v, u), -1))
-        ptr.append(len(targets))
-    arrays = [np.array(x, dtype=np.int64) for x in (ptr, targets, bs, cs, ahead)]
-    way = positions[arrays[1]] - positions[np.repeat(np.arange(len(neighbours)),
-                                                     np.diff(arrays[0]))]
-    return _Moves(*arrays, np.arctan2(way[:, 1], way[:, 0]))
+def _moves(roadmap: Roadmap) -> _Moves:
+    """The moves of ``roadmap`` (:class:`_Moves`): out of every vertex its neighbours in
+    the roadmap's order, the wait, then its diagonals in their order."""
+    size = roadmap.size
+    ptr, idx = roadmap.indptr.astype(np.int64), roadmap.indices.astype(np.int64)
+    diag = roadmap.diagonals.astype(np.int64).reshape(-1, 4)
+    vertices = np.arange(size, dtype=np.int64)
+    # (tail, kind, order) sorts them: grid edges (0), the wait (1), diagonals both ways (2)
+    tail = np.concatenate((np.repeat(vertices, np.diff(ptr)), vertices, diag[:, 0], diag[:, 1]))
+    head = np.concatenate((idx, vertices, diag[:, 1], diag[:, 0]))
+    b = np.concatenate((np.full(idx.size + size, -1), diag[:, 2], diag[:, 2]))
+    c = np.concatenate((np.full(idx.size + size, -1), diag[:, 3], diag[:, 3]))
+    kind = np.concatenate((np.zeros(idx.size), np.ones(size), np.full(2 * diag.shape[0], 2)))
+    # the diagonals of a vertex in the order of the roadmap's rows
+    rank = np.concatenate((np.arange(idx.size), np.zeros(size), np.arange(diag.shape[0]),
+                           np.arange(diag.shape[0])))
+    order = np.lexsort((rank, kind, tail))
+    tail, head, b, c = tail[order], head[order], b[order], c[order]
+    starts = np.searchsorted(tail, np.arange(size + 1))
+    # the move back (the same move, ends swapped), and the vertex straight on
+    key = tail * size + head
+    sort = np.argsort(key, kind="stable")
+    back = sort[np.searchsorted(key[sort], head * size + tail)]
+    pos = roadmap.positions
+    x = np.ascontiguousarray(pos[:, 0], dtype=float)
+    y = np.ascontiguousarray(pos[:, 1], dtype=float)
+    straight = np.empty(tail.size, dtype=np.int64)
+    straight_moves(starts, head, x, y, straight)
+    return _Moves(starts, head, b, c, straight,
+                  np.arctan2(y[head] - y[tail], x[head] - x[tail]), back, x, y)
 
 
 class _Tables:
-    """The reservations and the search's scratch nodes (:mod:`sqpmpc.kernels.mapf`),
-    ``(H, V)`` each, grown by doubling ``H``."""
+    """The reservations (:mod:`sqpmpc.kernels.mapf`): the ``(H, V)`` table, grown by
+    doubling ``H``, every vertex's blocked runs (``(V, H // 2 + 1, 2)``), and the
+    searches' scratch states and heap."""
 
     def __init__(self, size: int, rows: int) -> None:
         self.size = size
         self.res = np.zeros((rows, size), dtype=np.int64)
-        self.nodes = np.zeros((rows, size, FIELDS), dtype=np.int32)
+        self.runs = np.zeros((size, rows // 2 + 1, 2), dtype=np.int64)
+        self.count = np.zeros(size, dtype=np.int64)
+        self.states = np.zeros((4 * size, FIELDS), dtype=np.int32)
+        self.heap = np.zeros((4096, 3), dtype=np.int64)
         self.search = 0
+
+    def clear(self) -> None:
+        """No reservation."""
+        self.res[:] = 0
+        self.count[:] = 0
 
     def fit(self, rows: int) -> None:
         """At least ``rows`` rows (new rows empty)."""
@@ -427,8 +479,18 @@ class _Tables:
             return
         more = max(rows, 2 * have) - have
         self.res = np.concatenate((self.res, np.zeros((more, self.size), dtype=np.int64)))
-        self.nodes = np.concatenate((self.nodes, np.zeros((more, self.size, FIELDS),
-                                                          dtype=np.int32)))
+        room = self.res.shape[0] // 2 + 1 - self.runs.shape[1]
+        self.runs = np.concatenate((self.runs, np.zeros((self.size, room, 2), dtype=np.int64)),
+                                   axis=1)
+
+    def scratch(self, need: int) -> None:
+        """At least ``need`` scratch states (marks below every search's), or when ``need``
+        is negative at least ``-need`` heap entries."""
+        if need < 0:
+            self.heap = np.zeros((-need, 3), dtype=np.int64)
+        elif need > self.states.shape[0]:
+            self.states = np.zeros((max(need, 2 * self.states.shape[0]), FIELDS),
+                                   dtype=np.int32)
 
 
 def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
@@ -438,15 +500,18 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
     first; when a robot finds no path, again with that robot moved to the front of the
     order (each robot at most once: at most ``n + 1`` attempts); ``None`` when the last
     attempt fails too, or when the attempts together expand more than ``total`` times the
-    sum of the robots' distances + 1 nodes (on the MovingAI maps with 32 and 64 robots
-    they expand 1 to 70 times it, a 256-robot antipodal swap 130 times).
+    sum of the robots' distances + 1 states (with the turns' steps, on the MovingAI maps
+    with 32 and 64 robots they expand 5 to 11 times it, antipodal swaps of 64 to 256
+    robots 15 to 42 times on the 4-connected grid and 29 to 120 times over the
+    diagonals).
     ``bound`` (>= 0) is the largest makespan sought; ``turn_step`` and ``headings``
     (``(n,)``, NaN where unknown) as :func:`plan_paths`'s."""
     n = len(starts)
     order = sorted(range(n), key=lambda i: (-table[i, starts[i]], i))
     moved: set[int] = set()
     budget = [int(total * sum(int(table[i, starts[i]]) + 1 for i in range(n)))]
-    tables = _Tables(table.shape[1], 2 + int(table[np.arange(n), starts].max()))
+    # room for plans twice as long as the longest distance (grown if longer)
+    tables = _Tables(table.shape[1], 2 * (2 + int(table[np.arange(n), starts].max())))
     while True:
         plan, failed = _prioritized_once(moves, table, starts, goals, order, effort, bound,
                                          tables, budget, turn_step, headings)
@@ -462,46 +527,48 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
                       order: list[int], effort: int, bound: int, tables: _Tables,
                       budget: list[int], turn_step: float, headings: np.ndarray
                       ) -> tuple[np.ndarray | None, int]:
-    """One prioritized planning in ``order``: each robot's path a space-time A*
-    (:func:`sqpmpc.kernels.mapf.space_time_search`) around the robots planned before it
-    (their vertices, their edges the other way, and their goals from their arrival on);
-    it may follow one of them onto the vertex it leaves, never be followed by one (so no
-    cycle of following: no rotation); among paths arriving as early, the one with the
-    fewest turns, since a unicycle slows down at every corner. Returns the plan and -1,
+    """One prioritized planning in ``order``: each robot's path a safe-interval A*
+    (:func:`sqpmpc.kernels.mapf.safe_interval_search`) around the robots planned before
+    it (their vertices, their edges the other way, and their goals from their arrival
+    on); it may follow one of them onto the vertex it leaves, never be followed by one
+    (so no cycle of following: no rotation); it arrives as early as any path, and among
+    the paths found arriving as early takes the one with the fewest turns, since a
+    unicycle slows down at every corner. Returns the plan and -1,
     or ``None`` and the robot whose search found no path (arriving by ``bound`` when
-    ``bound >= 0``) or expanded more than ``effort`` times (its distance + 1) nodes;
+    ``bound >= 0``) or expanded more than ``effort`` times (its distance + 1) states;
     ``None`` and -1 once the attempts' shared ``budget`` (expansions left) is spent."""
     n, size = len(starts), tables.size
-    tables.res[:] = 0
-    parked = np.full(size, 1 << 40, dtype=np.int64)  # vertex -> step a robot stays from
+    tables.clear()
+    parked = np.full(size, UNBOUNDED, dtype=np.int64)  # vertex -> step a robot stays from
     last_use = np.full(size, -1, dtype=np.int64)  # vertex -> last step a robot is there
     others = np.zeros(size, dtype=np.uint8)  # starts of the robots not planned yet
     others[starts] = 1
     empty = 0  # the first step from which every reservation row is empty
     paths: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n
-    buffer = np.zeros(0, dtype=np.int64)
-    # the most steps a robot takes to leave a vertex: a half-turn, then the move. Past the
-    # collapse a path visits distinct vertices, each that long at most; and a robot not
-    # planned yet keeps its start that long (it may have to turn before it leaves)
+    # the most steps a robot takes to leave a vertex: a half-turn, then the move; a robot
+    # not planned yet keeps its start that long (it may have to turn before it leaves)
     hold = 1 + (int(np.ceil(np.pi / turn_step)) if turn_step > 0.0 else 0)
+    moves.turning(turn_step)
     for i in order:
         others[starts[i]] = 0
-        collapse = max(empty + 1, hold)  # from then on every step is the same
-        tables.fit(collapse + 2)
-        if buffer.size < collapse + hold * size + 1:
-            buffer = np.zeros(collapse + hold * size + 1, dtype=np.int64)
         own = effort * (int(table[i, starts[i]]) + 1)
         limit = min(own, budget[0])
         # with the turns' steps first; where that finds no path (a robot that must dodge
         # the robots before it as fast as the grid allows), without them: the plan stays
         # conflict-free, only its timing of that robot's turns is not the unicycle's
         for step in ((float(turn_step), 0.0) if turn_step > 0.0 else (0.0,)):
-            tables.search += 1
-            status, length, spent = space_time_search(
-                moves.ptr, moves.targets, moves.b, moves.c, moves.straight, moves.angle,
-                step, float(headings[i]), hold, table[i],
-                starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit, tables.res,
-                parked, others, collapse, tables.search, tables.nodes, buffer)
+            while True:
+                tables.search += 1
+                status, length, spent, path = safe_interval_search(
+                    moves.ptr, moves.targets, moves.b, moves.c, moves.straight, moves.angle,
+                    moves.back, moves.offsets, moves.depart, moves.turn, step,
+                    float(headings[i]), hold, table[i], moves.x, moves.y,
+                    starts[i], goals[i], int(last_use[goals[i]]) + 1, bound, limit,
+                    tables.runs, tables.count, parked, others, tables.search, tables.states,
+                    tables.heap)
+                if status != SCRATCH:
+                    break
+                tables.scratch(length)
             budget[0] -= spent
             limit = min(own, budget[0])
             if status == FOUND or limit <= 0:
@@ -511,10 +578,10 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
         if status != FOUND:
             return None, i
         tables.fit(length + 2)
-        last = reserve_path(buffer, length, moves.ptr, moves.targets, moves.b, moves.c,
-                            tables.res, parked, last_use)
+        last = reserve_path(path, length, moves.ptr, moves.targets, moves.b, moves.c,
+                            tables.res, parked, last_use, tables.runs, tables.count, empty)
         empty = max(empty, last + 1)  # rows up to last hold the reservations
-        paths[i] = buffer[:length].copy()
+        paths[i] = path
     horizon = max(p.size for p in paths)
     return np.array([np.concatenate((p, np.full(horizon - p.size, p[-1]))) for p in paths],
                     dtype=np.int64).T, -1
