@@ -297,3 +297,28 @@ def test_plans_over_diagonals_and_with_turns_are_conflict_free(seed: int, turns:
     step = np.pi / 4 if turns else 0.0
     configs = plan_paths(roadmap, starts, goals, turn_step=step, headings=headings)
     check_plan(_edges(roadmap), configs, starts, goals, roadmap.corners())
+
+
+def test_the_moves_are_the_roadmap_edges_in_order_with_the_move_back_and_straight_on() -> None:
+    """The compiled planners' moves (built with arrays) against the roadmap's lists: out of
+    every vertex its neighbours in order, the wait, its diagonals in order with their
+    corners; the move back of each; the vertex straight on (``_straight_on``)."""
+    sc = antipodal_swap(12)
+    roadmap = build_roadmap((), (), None, sc.initial_states()[:, :2],
+                            sc.reference_positions(0.0), np.ones(12, dtype=bool), 0.151,
+                            0.302, 0.3, diagonal=True)
+    for graph in (roadmap, replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))):
+        mv = mapf._moves(graph)
+        straight = mapf._straight_on(graph, diagonal=True)
+        rows = []
+        for v, (grid, diag) in enumerate(zip(graph.neighbour_lists(), graph.diagonal_lists(),
+                                             strict=True)):
+            rows += [(v, u, b, c) for u, b, c in (*((w, -1, -1) for w in grid), (v, -1, -1),
+                                                  *diag)]
+        tail = np.repeat(np.arange(graph.size), np.diff(mv.ptr))
+        assert list(zip(tail.tolist(), mv.targets.tolist(), mv.b.tolist(), mv.c.tolist(),
+                        strict=True)) == rows
+        assert mv.straight.tolist() == [-1 if v == u else straight.get((v, u), -1)
+                                        for v, u, _, _ in rows]
+        assert np.array_equal(tail[mv.back], mv.targets)
+        assert np.array_equal(mv.targets[mv.back], tail)

@@ -464,7 +464,7 @@ class _Tables:
         self.runs = np.zeros((size, rows // 2 + 1, 2), dtype=np.int64)
         self.count = np.zeros(size, dtype=np.int64)
         self.states = np.zeros((4 * size, FIELDS), dtype=np.int32)
-        self.heap = np.zeros((4096, 3), dtype=np.int64)
+        self.heap = np.zeros((1 << 15, 3), dtype=np.int64)
         self.search = 0
 
     def clear(self) -> None:

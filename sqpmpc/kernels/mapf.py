@@ -35,7 +35,9 @@ interval of the corner), nor, for :math:`t_0 <` ``hold``, a robot not planned ye
 heading (its last move's, at the start its own) is made after :math:`w =
 \lceil \Delta / \text{turn\_step} \rceil` steps standing on :math:`x` (turning): with
 arrival :math:`t_a` on :math:`x`, :math:`t_0 \ge t_a + w`. Waits and turns are steps
-on :math:`x` inside its interval.
+on :math:`x` inside its interval. The robot's start at step 0 is its own even where a
+robot planned before holds it from step 1 (as a corner of a diagonal, which may pass a
+start from that step): the robot then leaves it at once.
 
 The search
 ----------
