@@ -100,6 +100,13 @@ class PlanStore:
     ----------
     received, decoded, repeats
         Plans accepted so far, plans decoded so far, copies dropped.
+    in_order
+        Per robot, ``(count, newest)``: the plans of it that came (accepted, or too old
+        by then: stale) newer than every one that came before, and the newest one's
+        sample. A sender's plans to one receiver travel one reliable, ordered link, so
+        without a loss ``count`` is the number of plans it sent this robot up to
+        ``newest`` (copies sent again, plans accepted again after :meth:`clear`: not
+        counted); those sent after ``newest`` may still be on their way when a run ends.
     false
         Per robot, plans refused as false (not starting at the plant's state).
     """
@@ -119,6 +126,7 @@ class PlanStore:
         self._newest = dict.fromkeys(self._plans, -1)
         self.received = 0
         self.decoded = 0
+        self.in_order: dict[int, tuple[int, int]] = {}
 
     def __contains__(self, robot_id: object) -> bool:
         return robot_id in self._plans
@@ -162,6 +170,10 @@ class PlanStore:
     def _admit(self, robot_id: int, sample: int) -> bool:
         """Whether a plan of ``sample`` is kept (:meth:`AcceptancePolicy.plan`)."""
         decision = self.policy.plan(self.cursor(), sample, sample in self._plans[robot_id])
+        if decision.verdict in (Verdict.ACCEPT, Verdict.STALE):
+            count, newest = self.in_order.get(robot_id, (0, -1))
+            if sample > newest:
+                self.in_order[robot_id] = (count + 1, sample)
         if decision.verdict is Verdict.ACCEPT:
             return True
         if decision.verdict is Verdict.REPEAT:

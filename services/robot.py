@@ -189,6 +189,9 @@ class RobotNode(ControllerNode):
         status = super().run()
         log.info("robot %d: %d plans received, %d decoded, %d sent addressed", self.robot_id,
                  self.plans.received, self.plans.decoded, self.addressed)
+        log.info("robot %d: plans in order per sender (sender:count@newest sample): %s",
+                 self.robot_id, " ".join(f"{j}:{n}@{s}"
+                                         for j, (n, s) in sorted(self.plans.in_order.items())))
         for rid, n in sorted(self.plans.false.items()):
             log.warning("robot %d: untrusted robot %d: %d false plans refused", self.robot_id,
                         rid, n)

@@ -178,13 +178,14 @@ def _run(tmp_path, t_end: float, env: dict[str, str] | None = None,
 
 def test_forged_duplicated_and_replayed_messages_neither_stall_nor_rewind(tmp_path):
     t_end = 40.0  # 80 samples
-    probe, plant, robots = _run(tmp_path, t_end)
+    # the plant's lockstep wait a hang guard: a timeout is a stall, never a busy machine
+    probe, plant, robots = _run(tmp_path, t_end, plant_args=("--timeout", str(HANG)))
     procs = [plant, *robots]
     scenario = load_scenario(SCENARIO).with_changes(t_end=t_end)
     digest, ids = scenario_digest(scenario), tuple(int(i) for i in scenario.ids)
     x = scenario.initial_states()
     try:
-        assert probe.wait_alive(["plant", "robot/1", "robot/2", "robot/3", "robot/4"], 90)
+        assert probe.wait_alive(["plant", "robot/1", "robot/2", "robot/3", "robot/4"], HANG)
 
         def reached(k: int) -> bool:
             return any(decode(e.payload, N).sample >= k for e in probe.events)

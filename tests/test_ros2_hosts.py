@@ -57,7 +57,7 @@ def test_lab_links_lose_packets_the_relay_delays_and_close_removes_everything():
             for p in procs:
                 p.terminate()
             for p in procs:
-                p.wait(10)
+                p.wait(HANG)
         assert out.returncode == 0, out.stderr
         probe = json.loads(out.stdout)
         assert probe["udp_round_trip_loss"] > 0.0  # 0.81^60: never all through

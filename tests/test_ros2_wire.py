@@ -225,10 +225,16 @@ def test_an_independent_node_reads_what_a_node_of_this_encoder_sends(tmp_path):
                 twist=T["geometry_msgs/msg/TwistWithCovariance"](
                     _theirs_twist((0.3, 0, 0), (0, 0, 0.2)), np.zeros(36)))
             time.sleep(0.2)
-        info = sdk.get_topic_info("/r7/plan", domain_id=5, router_port=port, timeout=1.0,
-                                  verbose=True)
-        topics = dict(sdk.get_topic_names_and_types(domain_id=5, router_port=port,
-                                                    timeout=1.0))
+        while True:  # asked again while a busy machine answers a query short
+            info = sdk.get_topic_info("/r7/plan", domain_id=5, router_port=port, timeout=1.0,
+                                      verbose=True)
+            topics = dict(sdk.get_topic_names_and_types(domain_id=5, router_port=port,
+                                                        timeout=1.0))
+            if ("/r7/cmd_vel" in topics and any(e.node_name == "sqpmpc_robot7"
+                                                for e in info.publishers)) \
+                    or time.time() > deadline:
+                break
+            time.sleep(0.2)
         for ep in [*subs, odom_pub]:
             ep.close()
         node.close()

@@ -115,7 +115,7 @@ def test_kill_9_of_the_plant_leaves_a_readable_record(tmp_path):
 
         assert probe.wait_for(lambda: newest() >= kill_at, HANG), plant.output()
         os.kill(plant.pid, signal.SIGKILL)
-        plant.wait(10)
+        plant.wait(HANG)
         probe.wait_for(lambda: False, 0.5)  # what was still on its way (a late one: not counted)
         published = newest()
     finally:

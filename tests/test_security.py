@@ -35,10 +35,14 @@ from sqpmpc.control.settings import SolverSettings
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 from tests import HANG
+from tests.service_helpers import assert_lockstep_held
 
 SCENARIO = "paper-s2"
 T_END = 20.0  # 40 samples
 IDENTITIES = ["plant", "viewer", "robot-1", "robot-2", "robot-3", "robot-4"]
+HANG_GUARDS = ("--timeout", str(HANG), "--startup-timeout", str(HANG))
+"""The plant's waits (for a sample's inputs in lockstep, for the controllers before sample
+0): hang guards only, so that no robot is braked because a busy machine was slow."""
 
 
 def test_credentials_command_writes_a_private_folder_per_identity(tmp_path, capsys):
@@ -138,7 +142,7 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
         else:
             net, plant_net = ["--connect", eps[0]], ["--listen", eps[0]]
         plant = start_service("plant", [*common, *plant_net, "--out", str(out), "--no-plots",
-                                        "--quiet", "--timeout", "5"], logs)
+                                        "--quiet", *HANG_GUARDS], logs)
         procs.append(plant)
         targets = [eps[0]] if topology == "router" else eps
         hostile = {
@@ -190,8 +194,8 @@ def test_forged_traffic_from_other_processes_changes_nothing(tmp_path, topology)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["completed"] is True and metrics["steps"] == 40
     assert metrics["insecure"] is False  # the plant had its credentials
-    assert metrics["collisions"] == 0 and metrics["missed_deadlines"] == 0
-    assert metrics["lockstep_timeouts"] == 0
+    assert metrics["collisions"] == 0
+    assert_lockstep_held(metrics)  # no robot braked: its own input applied at every sample
     assert metrics["invalid_messages"] == 0  # nothing forged reached a validator
     traj = np.load(out / "trajectory.npz")
     assert not np.any(traj["inputs"][:, :, 0] == forged_speed(scenario.bounds.input_upper()))
@@ -238,7 +242,7 @@ def test_one_inconsistent_input_on_a_robots_own_key_cannot_stop_the_run(tmp_path
     procs: list[ServiceProcess] = []
     try:
         plant = start_service("plant", [*common, "--listen", eps[0], "--out", str(out),
-                                        "--no-plots", "--quiet", "--timeout", "5"], logs)
+                                        "--no-plots", "--quiet", *HANG_GUARDS], logs)
         procs.append(plant)
         forger = start_service(
             "forger", ["--scenario", SCENARIO, "--run", run, "--t-end", str(T_END),
@@ -319,7 +323,7 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
             with open(f"/proc/{pid}/environ", "rb") as fh:  # readable here: root
                 assert not _key_material(fh.read())
         launcher.kill()  # SIGKILL: the children get SIGTERM (parent death signal)
-        launcher.wait(10)
+        launcher.wait(HANG)
         deadline = time.monotonic() + HANG
         while any(pid_alive(pid) for pid in children) and time.monotonic() < deadline:
             time.sleep(0.1)

@@ -32,7 +32,12 @@ from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 from tests import HANG
-from tests.service_helpers import kill_and_restart, newest_sample, start_run
+from tests.service_helpers import (
+    assert_lockstep_held,
+    kill_and_restart,
+    newest_sample,
+    start_run,
+)
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
 pytestmark = pytest.mark.timeout(900)
@@ -62,7 +67,8 @@ def _metrics(out: Path) -> dict:
 @pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
 def test_lockstep_run_reproduces_the_in_process_trajectory(tmp_path, scheme):
     out = tmp_path / "run"
-    res = _launch(out, "--scheme", scheme, "--t-end", str(T_END))
+    res = _launch(out, "--scheme", scheme, "--t-end", str(T_END),
+                  "--timeout", str(HANG))  # the plant's lockstep wait: a hang guard only
     assert res.returncode == 0, res.stderr
     assert "collisions" in res.stdout  # the summary
     traj = np.load(out / "trajectory.npz")
@@ -72,8 +78,9 @@ def test_lockstep_run_reproduces_the_in_process_trajectory(tmp_path, scheme):
     assert list(traj["ids"]) == [1, 2, 3, 4]
     assert np.max(np.abs(traj["states"] - reference)) <= 1e-9
     m = _metrics(out)
-    assert m["completed"] is True and m["scheme"] == scheme and m["mode"] == "lockstep"
-    assert m["missed_deadlines"] == 0 and m["invalid_messages"] == 0
+    assert m["completed"] is True and m["scheme"] == scheme
+    assert_lockstep_held(m)  # no robot braked: its own input applied at every sample
+    assert m["invalid_messages"] == 0
     assert m["collisions"] == 0
     assert m["solve_time"]["total_s"] > 0
     # the controllers' counters reach the plant's metrics
@@ -129,10 +136,14 @@ def _start_run(tmp_path: Path, run: str, ids: list[int], t_end: float, **kwargs)
 
 def test_invalid_messages_are_dropped_and_counted(tmp_path):
     run = "invalid"
-    probe, plant, robots, plant_ep = _start_run(tmp_path, run, [1, 2, 3], 10.0)
+    # the plant's waits (for the 4 controllers before sample 0, for a sample's inputs):
+    # hang guards only
+    probe, plant, robots, plant_ep = _start_run(
+        tmp_path, run, [1, 2, 3], 10.0,
+        plant_args=("--startup-timeout", str(HANG), "--timeout", str(HANG)))
     procs = [plant, *robots.values()]
     try:
-        assert probe.wait_alive(["plant", "robot/1", "robot/2", "robot/3"], 30), probe.alive
+        assert probe.wait_alive(["plant", "robot/1", "robot/2", "robot/3"], HANG), probe.alive
         good_cmd = msgpack.unpackb(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), raw=False)
         bad_version = msgpack.packb({**good_cmd, "v": 99}, use_bin_type=True)
         nan_u = encode(CmdMsg(1, 0, np.array([np.nan, 0.0]), 0.0))
@@ -170,7 +181,8 @@ def test_invalid_messages_are_dropped_and_counted(tmp_path):
     assert by_process["robot/2"] == 1 and by_process["robot/4"] == 0
     assert m["invalid_messages"] == 12
     # the forged messages changed nothing: every input arrived, the run completed
-    assert m["completed"] is True and m["missed_deadlines"] == 0
+    assert m["completed"] is True
+    assert_lockstep_held(m)
     assert "dropped an invalid message" in plant.output()
 
 
@@ -189,9 +201,12 @@ def test_a_robot_that_dies_does_not_stop_the_others(tmp_path):
 
         assert probe.wait_for(lambda: reached(20), HANG), plant.output()
         robots[2].proc.send_signal(signal.SIGSTOP)  # silent: the plant times out on it
-        time.sleep(1.0)
+        # however long a busy machine makes the plant take to see it (not a fixed 1 s)
+        assert probe.wait_for(lambda: re.search(r"no input from robots \[[\d, ]*\b2\b",
+                                                plant.output()) is not None, HANG), \
+            plant.output()
         robots[2].proc.kill()  # then gone: its liveliness token disappears
-        robots[2].wait(10)
+        robots[2].wait(HANG)
         assert plant.wait(HANG) == 0, plant.output()
         for i in (1, 3, 4):
             assert robots[i].wait(HANG) == 0, robots[i].output()
@@ -325,12 +340,14 @@ def test_a_run_no_controller_ever_answered_is_not_a_success(tmp_path):
 
 
 def test_a_robot_killed_and_restarted_rejoins_the_lockstep_run(tmp_path):
-    """kill -9 of robot 2 at sample 20 of a lockstep run, then its command again: the plant
-    waits for it (``--rejoin-timeout``) and it rejoins at the sample where it left."""
+    """kill -9 of robot 2 at sample 20 of a lockstep run (silent from there, so the run
+    waits for it at 20 however slow the machine), then its command again: the plant waits
+    for it (``--rejoin-timeout``) and it rejoins at the sample where it left."""
     run = "rejoin"
     probe, plant, robots, plant_ep = _start_run(
-        tmp_path, run, [1, 2, 3, 4], T_END, plant_args=("--rejoin-timeout", str(HANG)),
-        subscriptions=(("plant", "state"),))
+        tmp_path, run, [1, 2, 3, 4], T_END,
+        plant_args=("--rejoin-timeout", str(HANG), "--timeout", str(HANG)),  # hang guards
+        subscriptions=(("plant", "state"),), muted={2: 20})
     procs = [plant, *robots.values()]
     try:
         kill_and_restart(probe, plant, robots, procs, 2, 20, tmp_path / "logs")
@@ -390,20 +407,23 @@ def test_oversized_and_too_frequent_messages_are_dropped_before_the_service(tmp_
                                     "--no-plots"], tmp_path / "logs")
     probe = Probe(run, [f"tcp/127.0.0.1:{port}"])
     try:
-        assert probe.wait_alive(["plant"], 60), plant.output()
+        assert probe.wait_alive(["plant"], HANG), plant.output()
         probe.put(b"\x00" * (1 << 17), "robot", 1, "cmd")  # 128 KiB: dropped by Zenoh
         time.sleep(0.2)
         start = time.monotonic()
         for _ in range(2000):  # small garbage, as fast as it goes: a few per 50 ms pass
             probe.put(b"\x00garbage", "robot", 3, "cmd")
-        elapsed = time.monotonic() - start
         probe.put(b"\x00garbage", "robot", 4, "cmd")  # another key: its own budget
-        time.sleep(1.0)
+        # the plant handled that last one, so everything before it over the same link
+        # (not a fixed 1 s that a busy machine can outlast)
+        assert probe.wait_for(lambda: "robot 4: inconsistent input dropped" in plant.output(),
+                              HANG), plant.output()
     finally:
         probe.close()
         stop_processes([plant])
+    window = time.monotonic() - start  # every robot 3 message reached the plant within it
     m = _metrics(tmp_path / "out")
     faulty = m["faulty_messages"]
     assert faulty["1"] == 0 and faulty["4"] == 1
-    assert 1 <= faulty["3"] <= 2 + 20 * (elapsed + 1.2) < 2000
+    assert 1 <= faulty["3"] <= 2 + 20 * window and faulty["3"] < 2000
     assert m["invalid_messages_by_process"]["plant"] == faulty["3"] + faulty["4"]

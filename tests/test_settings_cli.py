@@ -19,6 +19,7 @@ import pytest
 
 from services.testing import REPO, free_ports, start_service, stop_processes
 from tests import HANG
+from tests.service_helpers import assert_lockstep_held
 
 SCENARIO = "paper-s2"
 OPTIONS = ["--collision-margin", "0.05", "--discretization", "exact"]
@@ -44,7 +45,8 @@ def test_a_distributed_run_with_options_equals_sqpmpc_run(tmp_path: Path, scheme
     assert res.returncode == 0, res.stderr
     assert "\r" not in res.stderr and f"{SCENARIO} {scheme}: sample " in res.stderr
     res = _run("sqpmpc", "launch", "--scenario", SCENARIO, "--scheme", scheme, *given,
-               "--out", str(dist), "--no-plots", "--status-every", "0.01")
+               "--out", str(dist), "--no-plots", "--status-every", "0.01",
+               "--timeout", str(HANG))  # the plant's lockstep wait: a hang guard only
     assert res.returncode == 0, res.stderr
     assert "plant: sample " in res.stderr and "\r" not in res.stderr + res.stdout
     if scheme == "decentralized":
@@ -55,7 +57,8 @@ def test_a_distributed_run_with_options_equals_sqpmpc_run(tmp_path: Path, scheme
     assert a["states"].shape == b["states"].shape == (41, 4, 3)
     assert np.max(np.abs(a["states"] - b["states"])) <= 1e-9
     m = json.loads((dist / "metrics.json").read_text())
-    assert m["completed"] is True and m["missed_deadlines"] == 0 and m["collisions"] == 0
+    assert m["completed"] is True and m["collisions"] == 0
+    assert_lockstep_held(m)  # no robot braked: its own input applied at every sample
     assert m["agreed_settings"]["collision_margin"] == "0.05"
     assert m["agreed_settings"]["discretization"] == "exact"
     # the options changed the run: the default settings give another trajectory

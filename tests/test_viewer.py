@@ -83,7 +83,7 @@ def _advertised(ws: ClientConnection, topics: set[str]) -> dict[str, dict]:
     """Channels advertised by the server, by topic, until every one of ``topics`` is seen."""
     channels: dict[str, dict] = {}
     while not topics <= set(channels):
-        msg = ws.recv(timeout=30.0)
+        msg = ws.recv(timeout=HANG)
         if isinstance(msg, str):
             data = json.loads(msg)
             if data.get("op") == "advertise":
@@ -139,11 +139,11 @@ def test_the_viewer_admits_only_the_runs_clients(tmp_path: Path) -> None:
         _refused(url, 403, origin="https://evil.example")  # a foreign web page with the token
         for ok in ({"origin": "https://app.foxglove.dev"}, {}):  # Foxglove's web app, a program
             with connect(url, subprotocols=[SUBPROTOCOL], **ok) as ws:
-                assert json.loads(ws.recv(timeout=30))["op"] == "serverInfo"
+                assert json.loads(ws.recv(timeout=HANG))["op"] == "serverInfo"
         with connect(bare, subprotocols=["foxglove.websocket.v1"],
                      additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             assert ws.subprotocol == "foxglove.websocket.v1"
-            assert json.loads(ws.recv(timeout=30))["op"] == "serverInfo"
+            assert json.loads(ws.recv(timeout=HANG))["op"] == "serverInfo"
         if shutil.which("node"):  # the Node client without the token is refused too
             _npm_install()
             node = subprocess.run(["node", "pose_client.mjs", bare, "4", "1"],
@@ -228,7 +228,7 @@ def _watch(ws: ClientConnection, run: str, endpoint: str, credentials: Path, tmp
     poses, clearances = [], []
     while len(poses) < 10 or len(clearances) < 10:  # samples 0..9
         try:
-            msg = ws.recv(timeout=30.0)
+            msg = ws.recv(timeout=HANG)
         except Exception as exc:
             raise AssertionError(f"received {len(poses)} poses, {len(clearances)} "
                                  "clearances") from exc
