@@ -124,7 +124,7 @@ def measure(named: list[tuple[str, object]], repeats: int = 1) -> list[dict]:
             scenario = _scenario(description)
             best: dict | None = None
             for _ in range(max(1, repeats)):
-                fleet._cached.cache_clear()  # planned afresh, not an equal scenario's plan
+                fleet.clear_cache()  # planned afresh, not an equal scenario's plan
                 calls.clear()
                 sim = ClosedLoopSimulation(scenario, "decentralized",
                                            SolverSettings(rules=select_rules(["coordination"])))

@@ -139,7 +139,7 @@ class _Planner:
 
     def __init__(self, roadmap: Roadmap, turn_step: float) -> None:
         self.roadmap = roadmap
-        self.moves = mapf._moves(roadmap)
+        self.moves = mapf.plan_moves(roadmap)
         self.moves.turning(turn_step)
         self.turn_step = turn_step
         self.hold = 1 + (int(np.ceil(np.pi / turn_step)) if turn_step > 0.0 else 0)
@@ -302,14 +302,14 @@ def test_plans_over_diagonals_and_with_turns_are_conflict_free(seed: int, turns:
 def test_the_moves_are_the_roadmap_edges_in_order_with_the_move_back_and_straight_on() -> None:
     """The compiled planners' moves (built with arrays) against the roadmap's lists: out of
     every vertex its neighbours in order, the wait, its diagonals in order with their
-    corners; the move back of each; the vertex straight on (``_straight_on``)."""
+    corners; the move back of each; the vertex straight on (``straight_on``)."""
     sc = antipodal_swap(12)
     roadmap = build_roadmap((), (), None, sc.initial_states()[:, :2],
                             sc.reference_positions(0.0), np.ones(12, dtype=bool), 0.151,
                             0.302, 0.3, diagonal=True)
     for graph in (roadmap, replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))):
-        mv = mapf._moves(graph)
-        straight = mapf._straight_on(graph, diagonal=True)
+        mv = mapf.plan_moves(graph)
+        straight = mapf.straight_on(graph, diagonal=True)
         rows = []
         for v, (grid, diag) in enumerate(zip(graph.neighbour_lists(), graph.diagonal_lists(),
                                              strict=True)):

@@ -26,7 +26,8 @@ from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.routes import scenario_box
 from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["FleetPlan", "fleet_plan", "replan", "replan_from_positions", "turn_per_step"]
+__all__ = ["FleetPlan", "clear_cache", "fleet_plan", "replan", "replan_from_positions",
+           "turn_per_step"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,6 +107,13 @@ def fleet_plan(scenario: Scenario, clearance: float, separation: float) -> Fleet
         A declared grid too fine for the robots.
     """
     return _cached(scenario, round(float(clearance), 12), round(float(separation), 12))
+
+
+def clear_cache() -> None:
+    """Forget the plans this process has cached (:func:`fleet_plan`,
+    :func:`replan_from_positions`): the next call plans afresh (benchmarks time it)."""
+    _cached.cache_clear()
+    _replanned.cache_clear()
 
 
 @functools.lru_cache(maxsize=8)

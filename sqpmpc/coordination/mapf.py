@@ -85,7 +85,8 @@ from sqpmpc.kernels.mapf import (
     turn_tables,
 )
 
-__all__ = ["PLANNERS", "PlanningError", "distance_tables", "plan_paths"]
+__all__ = ["PLANNERS", "Moves", "PlanningError", "distance_tables", "plan_moves", "plan_paths",
+           "straight_on"]
 
 #: The ``method`` names of :func:`plan_paths`.
 PLANNERS = ("auto", "prioritized", "lacam")
@@ -313,7 +314,7 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                             f"{roadmap.positions[starts[i]].round(3).tolist()}: no path of free "
                             "roadmap vertices joins them at the robots' footprint")
     if method != "lacam":
-        moves = _moves(roadmap)
+        moves = plan_moves(roadmap)
         facing = np.full(n, np.nan) if headings is None else np.asarray(headings, dtype=float)
         bound = -1 if shorter_than is None else shorter_than - 1
         first = _prioritized(moves, table, starts.tolist(), goals.tolist(), bound,
@@ -339,7 +340,7 @@ def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]
     4-connected grid."""
     n = starts.size
     rng = np.random.default_rng(seed)
-    pibt = _PIBT(neighbours, dist, rng, roadmap.size, _straight_on(roadmap))
+    pibt = _PIBT(neighbours, dist, rng, roadmap.size, straight_on(roadmap))
     goal = tuple(goals.tolist())
     start = tuple(starts.tolist())
     priorities = [dist[i][start[i]] / (roadmap.size + 1.0) for i in range(n)]
@@ -387,7 +388,7 @@ def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]
 
 
 @dataclass
-class _Moves:
+class Moves:
     """The moves of prioritized planning in CSR form: out of ``v``, ``targets[ptr[v]:ptr[v +
     1]]`` (its grid neighbours, ``v`` itself: the wait, then its diagonals), the corners
     ``b, c`` of a diagonal (-1 otherwise), the vertex ``straight`` on after each move
@@ -421,8 +422,8 @@ class _Moves:
         self.turn_step = turn_step
 
 
-def _moves(roadmap: Roadmap) -> _Moves:
-    """The moves of ``roadmap`` (:class:`_Moves`): out of every vertex its neighbours in
+def plan_moves(roadmap: Roadmap) -> Moves:
+    """The moves of ``roadmap`` (:class:`Moves`): out of every vertex its neighbours in
     the roadmap's order, the wait, then its diagonals in their order."""
     size = roadmap.size
     ptr, idx = roadmap.indptr.astype(np.int64), roadmap.indices.astype(np.int64)
@@ -449,7 +450,7 @@ def _moves(roadmap: Roadmap) -> _Moves:
     y = np.ascontiguousarray(pos[:, 1], dtype=float)
     straight = np.empty(tail.size, dtype=np.int64)
     straight_moves(starts, head, x, y, straight)
-    return _Moves(starts, head, b, c, straight,
+    return Moves(starts, head, b, c, straight,
                   np.arctan2(y[head] - y[tail], x[head] - x[tail]), back, x, y)
 
 
@@ -493,7 +494,7 @@ class _Tables:
                                    dtype=np.int32)
 
 
-def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
+def _prioritized(moves: Moves, table: np.ndarray, starts: list[int], goals: list[int],
                  bound: int, turn_step: float, headings: np.ndarray, effort: int = 10_000,
                  total: int = 300) -> np.ndarray | None:
     """Prioritized planning (:func:`_prioritized_once`), first in the order of farther goals
@@ -523,7 +524,7 @@ def _prioritized(moves: _Moves, table: np.ndarray, starts: list[int], goals: lis
         order = [failed] + [i for i in order if i != failed]
 
 
-def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals: list[int],
+def _prioritized_once(moves: Moves, table: np.ndarray, starts: list[int], goals: list[int],
                       order: list[int], effort: int, bound: int, tables: _Tables,
                       budget: list[int], turn_step: float, headings: np.ndarray
                       ) -> tuple[np.ndarray | None, int]:
@@ -587,7 +588,7 @@ def _prioritized_once(moves: _Moves, table: np.ndarray, starts: list[int], goals
                     dtype=np.int64).T, -1
 
 
-def _straight_on(roadmap: Roadmap, diagonal: bool = False) -> dict[tuple[int, int], int]:
+def straight_on(roadmap: Roadmap, diagonal: bool = False) -> dict[tuple[int, int], int]:
     """``(u, v) -> w``: the first neighbour ``w`` of ``v`` straight on from the edge
     ``u -> v`` (``w - v`` parallel to ``v - u``, same way), where there is one (over the
     diagonals too when ``diagonal``)."""
