@@ -141,6 +141,31 @@ def bfs_distances(indptr: np.ndarray, indices: np.ndarray, sources: np.ndarray,
                     tail += 1
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dominated(states: np.ndarray, row: int, width: int, sid: int, t: int, seen: int,
+               turn: np.ndarray, offset: int, facing: float, heading: float,
+               turn_step: float) -> bool:
+    """Whether state ``sid`` (arrival ``t``, reached by a move in direction ``facing``) is
+    dominated by a sibling: a state of the same vertex and interval, ``states[row:row +
+    width]``, seen in this search and reached earlier by at least the turn from its
+    heading to this one's (``turn[offset + (sid - row) + (sib - row) width]``; from the
+    start, the turn from ``heading``, free when it is unknown)."""
+    table = offset + sid - row
+    for sib in range(row, row + width):
+        if sib == sid or states[sib, _MARK] < seen or states[sib, _TIME] >= t:
+            continue
+        if states[sib, _CAME] >= 0:
+            if states[sib, _TIME] + turn[table + (sib - row) * width] <= t:
+                return True
+        elif np.isnan(heading):  # the start, its heading unknown: turns free
+            return True
+        else:
+            bend = abs((facing - heading + np.pi) % (2.0 * np.pi) - np.pi)
+            if states[sib, _TIME] + int(np.ceil(bend / turn_step - 1e-9)) <= t:
+                return True
+    return False
+
+
 @_jit
 def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc: np.ndarray,
                          straight: np.ndarray, angle: np.ndarray, back: np.ndarray,
@@ -290,26 +315,11 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
             continue  # expanded already, or a better label since
         v, j, last = states[sid, _VERTEX], states[sid, _INTERVAL], states[sid, _CAME]
         width = cptr[v + 1] - cptr[v]
-        if timed and last >= 0:  # dominated by a sibling reached since (1)
-            row = base[v] + j * width
-            table = offsets[v] + sid - row  # the turns from the siblings' headings to this
-            dominated = False
-            for sib in range(row, row + width):
-                if sib == sid or states[sib, _MARK] < seen or states[sib, _TIME] >= t:
-                    continue
-                if states[sib, _CAME] >= 0:
-                    dominated = states[sib, _TIME] + turn[table + (sib - row) * width] <= t
-                elif np.isnan(heading):  # the start, its heading unknown: turns free
-                    dominated = True
-                else:
-                    bend = abs((angle[last] - heading + np.pi) % (2.0 * np.pi) - np.pi)
-                    dominated = states[sib, _TIME] + int(
-                        np.ceil(bend / turn_step - 1e-9)) <= t
-                if dominated:
-                    break
-            if dominated:
-                states[sid, _MARK] = closed
-                continue
+        if timed and last >= 0 and _dominated(  # by a sibling reached since (1)
+                states, base[v] + j * width, width, sid, t, seen, turn, offsets[v],
+                angle[last], heading, turn_step):
+            states[sid, _MARK] = closed
+            continue
         states[sid, _MARK] = closed
         expanded += 1
         if expanded > limit:
@@ -422,27 +432,11 @@ def safe_interval_search(cptr: np.ndarray, cidx: np.ndarray, cb: np.ndarray, cc:
                     break  # later intervals arrive later still
                 row = base[u] + ju * across
                 sid2 = row + slot
-                if timed:  # dominated by this interval reached earlier with another
-                    # heading, by more than the turn between them (1)
-                    table = offsets[u] + slot
-                    dominated = False
-                    for sib in range(row, row + across):
-                        if (sib == sid2 or states[sib, _MARK] < seen
-                                or states[sib, _TIME] >= t2):
-                            continue
-                        if states[sib, _CAME] >= 0:
-                            dominated = states[sib, _TIME] + turn[
-                                table + (sib - row) * across] <= t2
-                        elif np.isnan(heading):
-                            dominated = True
-                        else:
-                            bend = abs((angle[e] - heading + np.pi) % (2.0 * np.pi) - np.pi)
-                            dominated = states[sib, _TIME] + int(
-                                np.ceil(bend / turn_step - 1e-9)) <= t2
-                        if dominated:
-                            break
-                    if dominated:
-                        continue
+                # dominated by this interval reached earlier with another heading, by
+                # more than the turn between them (1)
+                if timed and _dominated(states, row, across, sid2, t2, seen, turn,
+                                        offsets[u], angle[e], heading, turn_step):
+                    continue
                 mark = states[sid2, _MARK]
                 if mark >= seen:  # seen in this search
                     if t2 > states[sid2, _TIME] or (t2 == states[sid2, _TIME] and (
