@@ -141,12 +141,11 @@ class _Instance(RuleInstance):
         self._start(self.plan)  # the new paths start at the progress vertices
         self.counts["coordination_replans"] += 1
 
-    def _stalled(self, progress: np.ndarray, sample: int) -> bool:
+    def _stalled(self, execution: Execution, progress: np.ndarray, sample: int) -> bool:
         """Whether no robot's progress has grown for the patience, robots not at their
         paths' ends (in samples, so that controllers that skipped one agree)."""
         total = int(progress.sum())
-        if total > self._total or self.execution is None or all(
-                self.execution.finished(r) for r in range(progress.size)):
+        if total > self._total or all(execution.finished(r) for r in range(progress.size)):
             self._total, self._grew = max(total, self._total), sample
             return False
         return sample - self._grew >= self.patience
@@ -176,7 +175,7 @@ class _Instance(RuleInstance):
         else:  # a controller started (or restarted) mid-run: no history of the positions
             progress = execution.resume(view.positions)
         self._joined = True
-        if self._stalled(progress, view.sample):
+        if self._stalled(execution, progress, view.sample):
             execution, plan = self._replan_from(plan, execution, view)
             progress = execution.advance(view.positions)
         permitted = execution.clear_all(view.positions)
