@@ -28,6 +28,7 @@ __all__ = [
     "INSECURE_FLAGS",
     "REPO",
     "Probe",
+    "ProcessId",
     "ServiceProcess",
     "child_pids",
     "free_ports",
@@ -111,29 +112,57 @@ def stop_processes(procs: Sequence[ServiceProcess], grace: float = 10.0) -> None
             p.proc.wait(timeout=10.0)
 
 
-def pid_alive(pid: int) -> bool:
-    """Whether a process with this pid exists and is not a zombie."""
+class ProcessId(int):
+    """A process id with the process's start time (``/proc/<pid>/stat`` field 22, clock
+    ticks since boot): :func:`pid_alive` then does not mistake a later process or thread
+    that was given the same number (ids wrap at ``kernel.pid_max``, 32,768 on many
+    machines, and a suite that starts many threaded processes gets there) for this one."""
+
+    start: int | None
+
+    def __new__(cls, pid: int, start: int | None = None) -> ProcessId:
+        self = super().__new__(cls, pid)
+        self.start = start
+        return self
+
+
+def _stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (state first), or ``None``
+    if no process or thread has this id."""
     try:
         with open(f"/proc/{pid}/stat") as fh:
-            state = fh.read().rsplit(")", 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
+            return fh.read().rsplit(")", 1)[1].split()
+    except OSError:  # gone, or not ours to read
+        return None
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether the process ``pid`` exists and is not a zombie. For a :class:`ProcessId`
+    (what :func:`child_pids` returns) also that it is the same process: same start time.
+    ``/proc/<id>`` also answers for a thread's id; a thread is not a process here."""
+    fields = _stat(pid)
+    if fields is None or fields[0] in ("Z", "X"):
         return False
-    return state not in ("Z", "X")
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            tgid = next(int(ln.split()[1]) for ln in fh if ln.startswith("Tgid:"))
+    except (OSError, StopIteration, ValueError):
+        return False
+    if tgid != pid:
+        return False
+    start = getattr(pid, "start", None)
+    return start is None or int(fields[19]) == start
 
 
-def child_pids(pid: int) -> list[int]:
-    """Pids of the live children of ``pid`` (Linux ``/proc``)."""
+def child_pids(pid: int) -> list[ProcessId]:
+    """The live children of ``pid`` (Linux ``/proc``), each with its start time."""
     out = []
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
-        try:
-            with open(f"/proc/{entry}/stat") as fh:
-                fields = fh.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] not in ("Z", "X"):
-            out.append(int(entry))
+        fields = _stat(int(entry))
+        if fields is not None and int(fields[1]) == pid and fields[0] not in ("Z", "X"):
+            out.append(ProcessId(int(entry), int(fields[19])))
     return out
 
 

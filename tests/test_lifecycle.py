@@ -22,7 +22,15 @@ import numpy as np
 import pytest
 
 from services.priority import Priority, parse_priority, raise_priority
-from services.testing import REPO, child_pids, free_ports, start_service, stop_processes
+from services.testing import (
+    REPO,
+    ProcessId,
+    child_pids,
+    free_ports,
+    pid_alive,
+    start_service,
+    stop_processes,
+)
 from sqpmpc.cli.main import main as sqpmpc_main
 from sqpmpc.problem.movingai import mapf_scenario
 from tests import HANG
@@ -221,6 +229,37 @@ def test_the_ros2_demo_hands_each_child_only_its_own_identity(tmp_path):
     assert metrics["controller_counts"]["samples"] > 0
     assert metrics["controller_counts"]["odometry_future"] == 0
     assert sqpmpc_main(["metrics", str(out)]) == 0
+
+
+def test_a_process_is_alive_only_as_itself():
+    """``pid_alive``: a child while it runs, not once it ended (reaped or a zombie), not a
+    thread's id, not a later process given the same number (another start time)."""
+    import threading
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (pid,) = [p for p in child_pids(os.getpid()) if p == child.pid]
+        assert pid_alive(pid) and pid_alive(child.pid)
+        assert not pid_alive(ProcessId(child.pid, pid.start + 1))
+        child.kill()
+        while pid_alive(pid):  # a zombie until reaped: not alive either
+            time.sleep(0.01)
+    finally:
+        child.kill()
+        child.wait()
+    assert not pid_alive(pid)
+    tid: list[int] = []
+    done = threading.Event()
+    thread = threading.Thread(target=lambda: (tid.append(threading.get_native_id()),
+                                              done.wait()))
+    thread.start()
+    try:
+        while not tid:
+            time.sleep(0.01)
+        assert os.path.exists(f"/proc/{tid[0]}/stat") and not pid_alive(tid[0])
+    finally:
+        done.set()
+        thread.join()
 
 
 def test_priority_values_are_checked():

@@ -299,11 +299,14 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     out = tmp_path / "out"
-    launcher = subprocess.Popen(
-        [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
-         "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots"],
-        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        env={**os.environ, "TMPDIR": str(tmp)})
+    # the launcher's and its children's output in a file: a pipe read only at the end would
+    # fill and block a child's write, and the child would then never end
+    log = tmp_path / "launch.log"
+    with open(log, "wb") as fh:
+        launcher = subprocess.Popen(
+            [sys.executable, "-m", "services.launch", "--scenario", SCENARIO, "--scheme",
+             "decentralized", "--mode", "realtime", "--out", str(out), "--no-plots"],
+            cwd=REPO, stdout=subprocess.DEVNULL, stderr=fh, env={**os.environ, "TMPDIR": str(tmp)})
     try:
         deadline = time.monotonic() + HANG  # a loaded machine: imports take long
         record = out / "record.msgpack"
@@ -314,7 +317,7 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
         while time.monotonic() < deadline and not (record.exists()
                                                    and record.stat().st_size > 0):
             time.sleep(0.1)
-        assert record.exists(), launcher.stderr
+        assert record.exists(), log.read_text()
         assert len(children) == 5, "plant and 4 robots"
         for pid in children:
             with open(f"/proc/{pid}/cmdline", "rb") as fh:
@@ -327,7 +330,7 @@ def test_a_launch_writes_no_key_and_hands_each_process_only_its_own(tmp_path):
         deadline = time.monotonic() + HANG
         while any(pid_alive(pid) for pid in children) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not any(pid_alive(pid) for pid in children)
+        assert not any(pid_alive(pid) for pid in children), log.read_text()
     finally:
         if launcher.poll() is None:
             launcher.kill()
