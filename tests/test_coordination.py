@@ -492,3 +492,102 @@ def test_plans_with_turns_are_conflict_free(seed: int) -> None:
     headings = rng.uniform(-np.pi, np.pi, k)
     configs = plan_paths(roadmap, starts, goals, turn_step=np.pi / 4, headings=headings)
     check_plan(_edges(roadmap), configs, starts, goals)
+
+
+def _arrivals_by_recursion(schedule: Schedule, positions: np.ndarray, headings: np.ndarray,
+                           speed: float, rate: float) -> np.ndarray:
+    """The reference of ``Schedule.predicted_arrivals``: its recursion evaluated event by
+    event, each arrival from the arrivals it needs (memoized depth-first)."""
+    needs: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for o, k, j, m in zip(schedule.dep_owner, schedule.dep_index, schedule.dep_robot,
+                          schedule.dep_need, strict=True):
+        needs.setdefault((int(o), int(k)), []).append((int(j), int(m)))
+    memo: dict[tuple[int, int], float] = {}
+
+    def arrival(i: int, k: int) -> float:
+        if k == 0:
+            return 0.0
+        if (i, k) not in memo:
+            a, b = positions[schedule.paths[i, k - 1]], positions[schedule.paths[i, k]]
+            way = b - a
+            facing = headings[i] if k == 1 else np.arctan2(
+                *(a - positions[schedule.paths[i, k - 2]])[::-1])
+            bend = abs((np.arctan2(way[1], way[0]) - facing + np.pi) % (2 * np.pi) - np.pi)
+            turn = 0.0 if np.isnan(bend) else bend / rate
+            ready = max([arrival(j, m) for j, m in needs.get((i, k), [])], default=0.0)
+            memo[i, k] = max(arrival(i, k - 1) + turn, ready) + np.hypot(*way) / speed
+        return memo[i, k]
+
+    return np.array([arrival(i, int(schedule.lengths[i]) - 1) for i in range(schedule.size)])
+
+
+def test_predicted_arrivals_of_one_robot_are_its_moves_and_turns() -> None:
+    """One robot on a straight line of three vertices 0.5 m apart at 1 m/s and pi/2 rad/s:
+    1 s facing the way, 1 s more for a quarter-turn first, 2 s more for a half-turn;
+    unknown heading: the first turn is free."""
+    positions = np.array([[0.0, 0.0], [0.5, 0.0], [1.0, 0.0]])
+    schedule = Schedule.from_plan(np.array([[0], [1], [2]]))
+    for heading, expected in ((0.0, 1.0), (np.pi / 2, 2.0), (np.pi, 3.0), (np.nan, 1.0)):
+        got = schedule.predicted_arrivals(positions, np.array([heading]), 1.0, np.pi / 2)
+        assert np.allclose(got, [expected]), (heading, got)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_predicted_arrivals_are_the_recursion_over_the_dependencies(seed: int) -> None:
+    """Random plans on the test maze (4-connected, turns in the plan) and in open space
+    over the diagonals (corner passes are dependencies too): the vectorized fixed point
+    equals the recursion evaluated event by event; every robot is predicted no earlier
+    than its path at full speed, and a robot that waits for others no earlier than them."""
+    rng = np.random.default_rng(seed)
+    sc, plan = _maze_plan()
+    open_space = build_roadmap((), (), None, antipodal_swap(12).initial_states()[:, :2],
+                               antipodal_swap(12).reference_positions(0.0),
+                               np.ones(12, dtype=bool), 0.151, 0.302, 0.3, diagonal=True)
+    for roadmap, k in ((replace(plan.roadmap, diagonals=np.zeros((0, 4), dtype=np.int64)), 8),
+                       (open_space, 24)):
+        starts = rng.choice(roadmap.size, k, replace=False)
+        goals = rng.choice(roadmap.size, k, replace=False)
+        headings = rng.uniform(-np.pi, np.pi, k)
+        configs = plan_paths(roadmap, starts, goals, turn_step=np.pi / 4, headings=headings)
+        schedule = Schedule.from_plan(configs, roadmap.corners())
+        assert schedule.dep_owner.size > 0
+        got = schedule.predicted_arrivals(roadmap.positions, headings, 0.7, 1.3)
+        want = _arrivals_by_recursion(schedule, roadmap.positions, headings, 0.7, 1.3)
+        assert np.allclose(got, want, rtol=0.0, atol=1e-9)
+        lengths = [np.hypot(*np.diff(roadmap.positions[schedule.paths[i, :schedule.lengths[i]]],
+                                     axis=0).T).sum() for i in range(k)]
+        assert np.all(got >= np.array(lengths) / 0.7 - 1e-9)
+
+
+def test_the_fleet_plan_is_the_one_predicted_to_end_first() -> None:
+    """A grid formation: of the plans with the turns' steps and without them, the fleet
+    plan is the one whose predicted execution ends first; every candidate is valid."""
+    sc = grid_to_grid(4, 4)
+    plan = fleet_plan(sc, 0.16, 0.31)
+    assert plan is not None
+    headings = sc.initial_states()[plan.robots, 2]
+    v = float(sc.bounds.v[1])
+    w = float(sc.bounds.omega[1])
+    chosen = plan.schedule.predicted_arrivals(plan.roadmap.positions, headings, v, w).max()
+    full = build_roadmap((), (), None, sc.initial_states()[:, :2], sc.reference_positions(0.0),
+                         np.ones(sc.n_robots, dtype=bool), 0.16, 0.31, 0.3, diagonal=True)
+    assert full.size == plan.roadmap.size
+    square = replace(full, diagonals=np.zeros((0, 4), dtype=np.int64))
+    ends = []
+    for step in (turn_per_step(sc, full.spacing), 0.0):
+        # each candidate as the fleet makes it: the 4-connected plan, then over the
+        # diagonals a plan of fewer steps if there is one
+        roadmap = square
+        configs = plan_paths(square, square.starts, square.goals, turn_step=step,
+                             headings=headings)
+        try:
+            configs = plan_paths(full, full.starts, full.goals, turn_step=step,
+                                 headings=headings, method="prioritized",
+                                 shorter_than=configs.shape[0] - 1)
+            roadmap = full
+        except PlanningError:
+            pass
+        check_plan(_edges(roadmap), configs, roadmap.starts, roadmap.goals, roadmap.corners())
+        ends.append(Schedule.from_plan(configs, roadmap.corners()).predicted_arrivals(
+            roadmap.positions, headings, v, w).max())
+    assert np.isclose(chosen, min(ends), rtol=0.0, atol=1e-9)

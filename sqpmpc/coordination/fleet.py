@@ -145,25 +145,46 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     turn_step = turn_per_step(scenario, roadmap.spacing)
     if headings is None and start_vertices is None:
         headings = scenario.initial_states()[robots, 2]
-    # with and without the diagonals: the plan of fewer steps (its dependency chains are
-    # shorter; diagonals shorten crossings and lengthen dense formations). The 4-connected
-    # plan first (prioritized, else LaCAM's); over the diagonals prioritized planning
-    # then seeks only a plan of fewer steps
+    # two plans, with the turns' steps and without them; of the two, the one whose
+    # execution by unicycles at their bounds ends first (Schedule.predicted_arrivals)
+    speed, rate = _speeds(scenario)
+    facing = np.full(robots.size, np.nan) if headings is None else np.asarray(headings)
+    candidates = []
+    for step in ((turn_step, 0.0) if turn_step > 0.0 else (0.0,)):
+        used, configs = _plan_on(roadmap, s, g, names, step, headings)
+        schedule = Schedule.from_plan(configs, used.corners())
+        end = float(schedule.predicted_arrivals(used.positions, facing, speed, rate).max())
+        candidates.append((end, len(candidates), used, configs, schedule))
+    _, _, roadmap, configs, schedule = min(candidates, key=lambda c: c[:2])
+    return FleetPlan(roadmap, robots, goals[robots], configs, schedule,
+                     time.process_time() - t0)
+
+
+def _speeds(scenario: Scenario) -> tuple[float, float]:
+    """``v_max`` (m/s) and ``omega_max`` (rad/s) as :func:`turn_per_step` takes them."""
+    bounds = scenario.bounds
+    return (float(max(bounds.v[1], -bounds.v[0])),
+            float(min(-bounds.omega[0], bounds.omega[1])))
+
+
+def _plan_on(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, names: list[str],
+             turn_step: float, headings: np.ndarray | None) -> tuple[Roadmap, np.ndarray]:
+    """The plan on ``roadmap`` and the roadmap it uses: with and without the diagonals, the
+    plan of fewer steps (its dependency chains are shorter; diagonals shorten crossings
+    and lengthen dense formations). The 4-connected plan first (prioritized, else
+    LaCAM's); over the diagonals prioritized planning then seeks only a plan of fewer
+    steps."""
     square = replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
-    configs = plan_paths(square, s, g, seed=0, names=names, turn_step=turn_step,
+    configs = plan_paths(square, starts, goals, seed=0, names=names, turn_step=turn_step,
                          headings=headings)
     if roadmap.diagonals.size:
         try:
-            configs = plan_paths(roadmap, s, g, seed=0, names=names, method="prioritized",
-                                 shorter_than=configs.shape[0] - 1, turn_step=turn_step,
-                                 headings=headings)
+            return roadmap, plan_paths(
+                roadmap, starts, goals, seed=0, names=names, method="prioritized",
+                shorter_than=configs.shape[0] - 1, turn_step=turn_step, headings=headings)
         except PlanningError:
-            roadmap = square
-    else:
-        roadmap = square
-    schedule = Schedule.from_plan(configs, roadmap.corners())
-    return FleetPlan(roadmap, robots, goals[robots], configs, schedule,
-                     time.process_time() - t0)
+            pass
+    return square, configs
 
 
 def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,

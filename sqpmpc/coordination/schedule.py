@@ -46,6 +46,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from sqpmpc.coordination.roadmap import Roadmap
 
@@ -135,6 +137,71 @@ class Schedule:
     def size(self) -> int:
         """Number of robots."""
         return int(self.lengths.size)
+
+    def predicted_arrivals(self, positions: np.ndarray, headings: np.ndarray, speed: float,
+                           turn_rate: float) -> np.ndarray:
+        r"""When each robot reaches the end of its path if the schedule is executed by
+        unicycles at their bounds: ``(n,)`` seconds.
+
+        Robot :math:`i` reaches its path vertex :math:`k + 1` at
+
+        .. math::
+
+            A_i(k + 1) = \max\Big(A_i(k) + \frac{|\Delta\theta_i(k)|}{\omega_{\max}},
+            \max_{e \to (i, k + 1)} A_{j_e}(m_e)\Big) + \frac{\lVert v_{k+1} -
+            v_k\rVert}{v_{\max}}, \qquad A_i(0) = 0,
+
+        turning in place at :math:`v_k` from its heading (its last move's direction, at
+        the start ``headings[i]``) to the next move's while it waits for the robots it
+        depends on (:attr:`dep_robot` reaching :attr:`dep_need`). The waits of the plan
+        are not kept: this is the execution of :class:`Execution`, which keeps the order
+        at the vertices only. Speeding up and slowing down are left out, so it is a
+        model for comparing plans, not a bound. The dependencies are acyclic (module
+        docstring), so the longest-path fixed point below is reached in at most as many
+        passes as the longest chain of dependencies.
+
+        Parameters
+        ----------
+        positions
+            ``(V, 2)`` the roadmap's vertex positions.
+        headings
+            ``(n,)`` the robots' headings at the start, rad (NaN: unknown, the first
+            turn takes no time).
+        speed, turn_rate
+            :math:`v_{\max}` (m/s) and :math:`\omega_{\max}` (rad/s), positive.
+        """
+        n, width = self.paths.shape
+        if n == 0:
+            return np.zeros(0)
+        pts = np.asarray(positions, dtype=float)[self.paths]  # (n, L, 2)
+        step = np.diff(pts, axis=1)  # (n, L - 1, 2): zero past each path's end
+        travel = np.hypot(step[..., 0], step[..., 1]) / float(speed)
+        moving = travel > 0.0
+        direction = np.arctan2(step[..., 1], step[..., 0])
+        # the heading before each move: the last move's direction, else the start's
+        before = np.empty_like(direction)
+        if width > 1:
+            before[:, 0] = np.asarray(headings, dtype=float)
+            before[:, 1:] = direction[:, :-1]
+        bend = np.abs((direction - before + np.pi) % (2.0 * np.pi) - np.pi)
+        turning = np.where(moving & np.isfinite(bend), bend / float(turn_rate), 0.0)
+        arrive = np.zeros((n, width))
+        # the dependencies of each move k -> k + 1 (owner, index k + 1)
+        owner, index = self.dep_owner, self.dep_index
+        robot, need = self.dep_robot, self.dep_need
+        flat = owner * width + index
+        for _ in range(max(1, owner.size + 1)):
+            ready = np.zeros(n * width)
+            np.maximum.at(ready, flat, arrive[robot, need])
+            ready = ready.reshape(n, width)
+            new = np.zeros_like(arrive)
+            for k in range(width - 1):
+                depart = np.maximum(new[:, k] + turning[:, k], ready[:, k + 1])
+                new[:, k + 1] = np.where(moving[:, k], depart + travel[:, k], new[:, k])
+            if np.array_equal(new, arrive):
+                break
+            arrive = new
+        return arrive[np.arange(n), self.lengths - 1]
 
 
 class Execution:
@@ -240,7 +307,14 @@ class Execution:
         way to the end of the run). Heading for that vertex would pin the pushed robot
         against the way back to its path; holding at its own vertex leaves it the room.
         The hold waits only on a robot going back to its own path, which waits for no
-        one to do so, so no cycle of waiting is added."""
+        one to do so, so no cycle of waiting is added.
+
+        Of the robots still free, one whose way to its next vertex another free robot
+        stands on gives way to it (:meth:`_yield_way`): two robots pushed off their paths
+        and pressed together at the kept distance, both free, each heading where the
+        other's way goes, stood so to the end of a run (a grid formation of 64 robots,
+        seed 0, on the plan without the turns' steps; re-planning from where they stood
+        gave them the same ways). The one on the other's way is left to go first."""
         out = self.permitted_all()
         now = np.asarray(positions, dtype=float)
         rows = np.flatnonzero(out > self.progress)
@@ -251,7 +325,42 @@ class Execution:
         gap[np.arange(rows.size), self.robots[rows]] = np.inf  # not the robot itself
         held = rows[gap.min(axis=1) < 0.5 * self.roadmap.spacing]
         out[held] = self.progress[held]
+        free = np.setdiff1d(rows, held)
+        if free.size >= 2:
+            wait = free[self._yield_way(now, free)]
+            out[wait] = self.progress[wait]
         return out
+
+    def _yield_way(self, now: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """Which of the robots ``free (q,)`` (schedule indices, free to head for their next
+        vertex) give way: a robot whose straight way from where it is (``now (N, 2)``, all
+        robots) to its next vertex passes within the kept distance :math:`s = h - 2\rho`
+        of another free robot, whose own way is clear of it and which is not one the plan
+        has on that vertex before it (that one it follows), holds. Such a wait is taken
+        only where it closes no cycle of waiting (strongly connected components), so one
+        robot of every chain is free. Returns a boolean mask over ``free``."""
+        sep = self.roadmap.spacing - 2.0 * self.roadmap.reach
+        a = now[self.robots[free]]  # (q, 2) where they are
+        d = self._points[free, self.progress[free] + 1] - a  # their ways
+        dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+        rel = a[None, :, :] - a[:, None, :]  # (q, q, 2): robot j from robot r
+        f = np.clip(np.einsum("rjk,rk->rj", rel, d) / dd[:, None], 0.0, 1.0)
+        near = rel - f[:, :, None] * d[:, None, :]
+        inway = np.hypot(near[..., 0], near[..., 1]) < sep  # inway[r, j]: j on r's way
+        np.fill_diagonal(inway, False)
+        if not inway.any():
+            return np.zeros(free.size, dtype=bool)
+        s = self.schedule
+        index = np.full(self.schedule.size, -1)
+        index[free] = np.arange(free.size)
+        # the robots each one follows onto its next vertex
+        e = np.flatnonzero((index[s.dep_owner] >= 0) & (index[s.dep_robot] >= 0))
+        e = e[s.dep_index[e] == self.progress[s.dep_owner[e]] + 1]
+        inway[index[s.dep_owner[e]], index[s.dep_robot[e]]] = False
+        waits = inway & ~inway.T
+        _, label = connected_components(csr_matrix(waits), directed=True, connection="strong")
+        cyclic = np.bincount(label)[label] > 1
+        return waits.any(axis=1) & ~cyclic
 
     def path_points(self, robot: int, first: int, last: int) -> np.ndarray:
         """``(last - first + 1, 2)`` the positions of robot ``robot``'s path vertices
