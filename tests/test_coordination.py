@@ -442,6 +442,37 @@ def test_a_robot_holds_while_another_stands_on_its_next_vertex() -> None:
     assert execution.clear_all(at(1.6, 0.0, (1.0, 0.6)))[1] == 1  # beside it: not there
 
 
+def test_a_free_robot_gives_way_to_one_standing_on_its_way() -> None:
+    """Open space, 1 m cells, kept distance 0.5 m: robot 0 heads east from (0, 0), robot 1
+    north from (1, 1), neither waiting for the other in the plan. Robot 1 pushed to
+    (0.3, 0.2), on robot 0's way (pushed back to (-0.25, 0)) and with its own way clear of
+    robot 0: robot 0 holds, robot 1 stays free. Each on the other's way (robot 1 heading
+    for (-1, -1) from (0, -1)): neither holds (no cycle of waiting); a third robot on no
+    way changes nothing."""
+    points = np.array([[0.0, 0.0], [1.0, 1.0], [0.0, -1.0]])
+    roadmap = build_roadmap((), (), (np.array([-2.0, -2.0]), np.array([3.0, 3.0])), points,
+                            points, np.ones(3, dtype=bool), 0.0, 0.5, 0.3,
+                            GridSpec(1.0, (0.0, 0.0)))
+    assert np.isclose(roadmap.spacing - 2 * roadmap.reach, 0.5)
+
+    def vertex(x: float, y: float) -> int:
+        return int(np.argmin(np.hypot(*(roadmap.positions - (x, y)).T)))
+
+    east = [vertex(0, 0), vertex(1, 0), vertex(2, 0)]
+    for way, holds in (([vertex(1, 1), vertex(1, 2)], [0]),
+                       ([vertex(0, -1), vertex(-1, -1)], [])):
+        configs = np.array([east, way + way[-1:], [vertex(2, -2)] * 3]).T
+        schedule = Schedule.from_plan(configs)
+        execution = Execution(schedule, roadmap, np.arange(3), window=1)
+        assert execution.permitted_all().tolist() == [2, 1, 0]  # nobody waits for anybody
+        here = np.array([[-0.25, 0.0], [0.3, 0.2], [2.0, -2.0]])
+        permitted = execution.clear_all(here)
+        assert np.flatnonzero(permitted == execution.progress).tolist() == holds + [2]
+        # nobody on robot 0's way: free
+        here[1] = (1.0, 1.2) if holds else (0.0, -1.2)
+        assert execution.clear_all(here).tolist() == [2, 1, 0]
+
+
 def _turn_waits(path: np.ndarray, positions: np.ndarray, turn_step: float) -> list[int]:
     """For every bend of a robot's plan, how many more steps it stood at the bend's vertex
     than the turn needs (``ceil(angle / turn_step)``)."""
