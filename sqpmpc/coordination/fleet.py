@@ -150,8 +150,12 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     speed, rate = _speeds(scenario)
     facing = np.full(robots.size, np.nan) if headings is None else np.asarray(headings)
     candidates = []
+    # the plan without the turns' steps on the 4-connected grid only: its pass over the
+    # diagonals doubled the planning of a 256-robot swap (12.8 s against 6.5 s), and
+    # where it is kept (dense formations) its diagonals did not shorten it
     for step in ((turn_step, 0.0) if turn_step > 0.0 else (0.0,)):
-        used, configs = _plan_on(roadmap, s, g, names, step, headings)
+        used, configs = _plan_on(roadmap if step == turn_step else replace(
+            roadmap, diagonals=np.zeros((0, 4), dtype=np.int64)), s, g, names, step, headings)
         schedule = Schedule.from_plan(configs, used.corners())
         end = float(schedule.predicted_arrivals(used.positions, facing, speed, rate).max())
         candidates.append((end, len(candidates), used, configs, schedule))
