@@ -624,3 +624,35 @@ def test_the_fleet_plan_is_the_one_predicted_to_end_first() -> None:
         ends.append(Schedule.from_plan(configs, roadmap.corners()).predicted_arrivals(
             roadmap.positions, headings, v, w).max())
     assert np.isclose(chosen, min(ends), rtol=0.0, atol=1e-9)
+
+
+def test_a_departed_robot_is_planned_standing_and_a_goal_it_holds_moves_next_to_it() -> None:
+    """An antipodal swap of 8 planned from where the robots start with robot index 0
+    standing (its controller left): its vertex is cut off the roadmap (no edge, no
+    diagonal), its path is that vertex, no other robot's plan enters it, the plan is valid
+    on the cut roadmap; robot index 4, whose goal is robot 0's start, is sent to the
+    nearest vertex no one else has; the others keep their goals. Planned with nobody
+    standing again, robot 4's goal is its own again."""
+    sc = antipodal_swap(8)
+    plan = fleet_plan(sc, 0.16, 0.31)
+    assert plan is not None
+    where = sc.initial_states()[:, :2]
+    new = replan_from_positions(plan, sc, where, standing=frozenset({0}))
+    row0, row4 = (int(np.flatnonzero(new.robots == i)[0]) for i in (0, 4))
+    vertex = new.configs[0, row0]
+    assert (new.configs[:, row0] == vertex).all()
+    assert not (np.delete(new.configs, row0, axis=1) == vertex).any()
+    assert new.roadmap.neighbours(vertex).size == 0
+    assert not np.isin(new.roadmap.diagonals, [vertex]).any()
+    check_plan(_edges(new.roadmap), new.configs, new.configs[0], new.configs[-1],
+               new.roadmap.corners())
+    goals = sc.reference_positions(0.0)
+    assert np.allclose(goals[4], where[0])  # robot 4's goal is where robot 0 stands
+    moved = new.roadmap.positions[new.configs[-1, row4]]
+    assert 0.0 < np.hypot(*(moved - goals[4])) <= np.sqrt(2) * new.roadmap.spacing + 1e-9
+    others = [k for k in range(new.robots.size) if k not in (row0, row4)]
+    assert np.allclose(new.roadmap.positions[new.configs[-1, others]],
+                       goals[new.robots[others]])
+    back = replan_from_positions(new, sc, where)
+    assert back.base is None and back.roadmap.neighbours(vertex).size > 0
+    assert np.allclose(back.roadmap.positions[back.configs[-1, row4]], goals[4])

@@ -10,8 +10,11 @@ import pytest
 
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.coordination.schedule import Execution
+from sqpmpc.errors import ProblemError
 from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.fleets import grid_to_grid
 from sqpmpc.problem.movingai import mapf_scenario
+from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.scenario import Bounds
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.registry import select_rules
@@ -119,3 +122,93 @@ def test_when_progress_stops_every_robot_is_planned_again_from_where_it_stands()
     assert controller.counters()["coordination_stalls"] > stalls
     starts = rule.plan.configs[0]
     assert starts[1] == first.schedule.paths[0, 1] and np.unique(starts).size == starts.size
+
+
+def _grid(rows: int = 3, cols: int = 3):
+    return grid_to_grid(rows, cols)
+
+
+def test_a_robot_that_leaves_is_planned_standing_and_kept_apart_from() -> None:
+    """A 3x3 formation crossing to its mirror, decentralized: robot 5's controller (the
+    middle of the formation, which robots behind it wait for) leaves at sample 1. Every
+    other controller is told at once and plans again from where the robots stand, to one
+    plan, with robot 5 standing on a vertex no other path enters; robot 5 stops and stands;
+    no collision of any kind, no bound violated."""
+    sc = _grid()
+    sim = ClosedLoopSimulation(sc, "decentralized", SolverSettings(
+        rules=select_rules(["coordination"])))
+    sim.step()
+    sim.depart(5)
+    left_at = sim.states[sim.k, sc.index_of(5), :2].copy()
+    record = sim.run()
+    m = compute_metrics(record)
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
+    gone = sc.index_of(5)
+    assert np.hypot(*(sim.states[-1, gone, :2] - left_at)) <= 0.05  # it stood
+    plans = set()
+    for c in sim.controllers:
+        if c.robot_id == 5:
+            assert c.counters()["samples"] == 1  # it computed nothing after it left
+            continue
+        rule = c.rule("coordination")
+        assert c.counters()["coordination_departures"] == 1
+        plans.add(id(rule.plan))
+        plan = rule.plan
+        row = int(np.flatnonzero(plan.robots == gone)[0])
+        assert plan.schedule.lengths[row] == 1  # planned standing
+        vertex = plan.schedule.paths[row, 0]
+        assert plan.roadmap.neighbours(vertex).size == 0  # cut off the roadmap
+        others = np.delete(plan.configs, row, axis=1)
+        assert not (others == vertex).any()  # no other path enters it
+    assert len(plans) == 1  # every controller the same plan
+
+
+def test_departures_are_checked_and_a_robot_back_is_planned_to_its_goal_again() -> None:
+    """``update_departed``: a robot of the controller itself or an unknown id is refused by
+    name; told that robot 2 left and then that it is back, the controller plans twice
+    (``coordination_departures``) and the second plan sends robot 2 to its goal."""
+    sc = _grid()
+    sim = ClosedLoopSimulation(sc, "decentralized", SolverSettings(
+        rules=select_rules(["coordination"])))
+    controller = sim.controllers[0]
+    with pytest.raises(ProblemError, match="robot 1 is driven by this controller"):
+        controller.update_departed([1])
+    with pytest.raises(ProblemError, match="update_departed"):
+        controller.update_departed([99])
+    sim.step()
+    sim.depart(2)
+    sim.step()
+    rule = controller.rule("coordination")
+    two = int(np.flatnonzero(rule.plan.robots == sc.index_of(2))[0])
+    assert rule.plan.schedule.lengths[two] == 1
+    sim.departed.clear()
+    for c in sim.controllers:
+        c.update_departed([])
+    sim.step()
+    assert controller.counters()["coordination_departures"] == 2
+    goal = sc.reference_positions(0.0)[sc.index_of(2)]
+    assert np.allclose(rule.plan.goals[two], goal)
+    assert np.allclose(rule.plan.roadmap.positions[rule.plan.configs[-1, two]], goal)
+
+
+def test_a_new_goal_is_planned_and_reached() -> None:
+    """``update_reference`` on every controller at sample 4: robot 1 of a 3x3 formation is
+    sent to a free point beyond the goals instead; the plan is made again from the
+    robots' progress (``coordination_replans``) and every robot arrives at its goal, robot
+    1 at the new one, without a collision."""
+    sc = _grid()
+    sim = ClosedLoopSimulation(sc, "decentralized", SolverSettings(
+        rules=select_rules(["coordination"])))
+    for _ in range(4):
+        sim.step()
+    new_goal = sc.reference_positions(0.0).max(axis=0) + np.array([1.0, 0.0])
+    for c in sim.controllers:
+        c.update_reference(1, PointReference(new_goal))
+    record = sim.run()
+    m = compute_metrics(record)
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert all(c.counters()["coordination_replans"] == 1 for c in sim.controllers)
+    goals = sc.reference_positions(0.0)
+    goals[sc.index_of(1)] = new_goal
+    assert (np.hypot(*(sim.states[-1, :, :2] - goals).T) <= 0.05).all()

@@ -46,7 +46,7 @@ import functools
 import math
 import numbers
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -490,6 +490,43 @@ class ControllerPipeline:
                                          for i in self.indices])
         for rule in self.rules:
             rule.references_changed()
+        self._bind_hooks()
+
+    def update_departed(self, robot_ids: Iterable[int]) -> None:
+        """The robots whose controllers left the run for good, from the next step on
+        (all of them: an id not given is taking part again).
+
+        Every controller of a run must be told the same set at the same sample (a
+        plant's states message carries it), since rules may plan the fleet anew from
+        it (:mod:`sqpmpc.rules.coordination`: a departed robot then stands where it is
+        and the others are planned around it). The safety rows are not changed: a
+        departed robot is kept apart from as any robot is.
+
+        Raises
+        ------
+        ProblemError
+            An id that is not an integer robot id of the scenario, or one of this
+            controller's own robots (the message names it).
+        """
+        indices = set()
+        for robot_id in robot_ids:
+            if isinstance(robot_id, bool) or not isinstance(robot_id, numbers.Integral):
+                raise ProblemError(f"update_departed: robot ids must be integers, got "
+                                   f"{robot_id!r}")
+            try:
+                index = self.scenario.index_of(int(robot_id))
+            except ProblemError as exc:
+                raise ProblemError(f"update_departed: {exc}") from None
+            if index in self.indices:
+                raise ProblemError(f"update_departed: robot {int(robot_id)} is driven by "
+                                   "this controller; it cannot have left")
+            indices.add(index)
+        departed = frozenset(indices)
+        if departed == self.context.departed:
+            return
+        self.context.departed = departed
+        for rule in self.rules:
+            rule.departed_changed()
         self._bind_hooks()
 
     # ------------------------------------------------------------------ queries

@@ -48,6 +48,10 @@ class FleetPlan:
         The plan's schedule.
     seconds
         CPU time spent planning (roadmap, plan and schedule), s.
+    base
+        The roadmap before the vertices of departed robots were cut off
+        (:func:`replan_from_positions`; ``None``: :attr:`roadmap` itself), where later
+        plans start from.
     """
 
     roadmap: Roadmap
@@ -56,6 +60,7 @@ class FleetPlan:
     configs: np.ndarray
     schedule: Schedule
     seconds: float
+    base: Roadmap | None = None
 
     @property
     def makespan_steps(self) -> int:
@@ -212,8 +217,8 @@ def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,
                  has_goal, 0.0, 0.0, np.asarray(configuration), roadmap=moved)
 
 
-def replan_from_positions(previous: FleetPlan, scenario: Scenario, positions: np.ndarray
-                          ) -> FleetPlan:
+def replan_from_positions(previous: FleetPlan, scenario: Scenario, positions: np.ndarray,
+                          standing: frozenset[int] = frozenset()) -> FleetPlan:
     r"""A new plan on ``previous``'s roadmap to its goals from where the robots *are*:
     the measured ``positions (N, 2)`` of all robots (scenario order).
 
@@ -226,6 +231,14 @@ def replan_from_positions(previous: FleetPlan, scenario: Scenario, positions: np
     Cached per process: every controller of a run that re-plans at the same sample
     from the same measurements gets the same plan, computed once.
 
+    The robots ``standing`` (scenario indices: robots whose controllers left the run,
+    :attr:`sqpmpc.rules.base.RuleContext.departed`) stand on their start vertices, which
+    are cut off the roadmap (:meth:`~sqpmpc.coordination.roadmap.Roadmap.isolated`): the
+    others are planned around them. The other robots' goals are their scenario
+    references' (a point at rest), else ``previous``'s; a goal a departed robot stands on
+    is moved to the nearest vertex that is no other robot's (the robot comes as near as
+    it can, and is planned to its own goal again once that robot takes part again).
+
     Raises
     ------
     sqpmpc.coordination.mapf.PlanningError
@@ -233,13 +246,14 @@ def replan_from_positions(previous: FleetPlan, scenario: Scenario, positions: np
     """
     positions = np.asarray(positions, dtype=float)
     key = np.ascontiguousarray(positions[previous.robots, :2]).tobytes()
-    return _replanned(previous, scenario, key)
+    return _replanned(previous, scenario, key, frozenset(int(i) for i in standing))
 
 
 @functools.lru_cache(maxsize=4)
-def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes) -> FleetPlan:
+def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes,
+               standing: frozenset[int]) -> FleetPlan:
     poses = np.frombuffer(key, dtype=float).reshape(-1, 2)
-    roadmap = previous.roadmap
+    roadmap = previous.base or previous.roadmap
     n, size = poses.shape[0], roadmap.size
     tree = cKDTree(roadmap.positions)
     k = min(9, size)
@@ -263,7 +277,36 @@ def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes) -> FleetPlan
     starts[rows] = columns[cols]
     has_goal = np.zeros(scenario.n_robots, dtype=bool)
     has_goal[previous.robots] = True
+    goals = previous.goals.copy()
+    goal_v = roadmap.goals.copy()
+    for k, i in enumerate(previous.robots.tolist()):
+        reference = scenario.robots[i].reference
+        if i in standing:
+            goals[k] = roadmap.positions[starts[k]]
+            goal_v[i] = starts[k]
+        elif isinstance(reference, PointReference):
+            goals[k] = np.asarray(reference.goal, dtype=float)
+            goal_v[i] = _nearest_vertex(roadmap, goals[k])
     all_goals = scenario.reference_positions(0.0)
-    all_goals[previous.robots] = previous.goals
-    return _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
-                 has_goal, 0.0, 0.0, starts, roadmap=previous.roadmap)
+    all_goals[previous.robots] = goals
+    cut = [starts[k] for k, i in enumerate(previous.robots.tolist()) if i in standing]
+    if cut:  # a goal a departed robot stands on: the nearest vertex no one else has
+        taken = set(cut) | {int(goal_v[i]) for i in previous.robots.tolist() if i not in standing}
+        for k, i in enumerate(previous.robots.tolist()):
+            if i not in standing and int(goal_v[i]) in cut:
+                gap = np.hypot(*(roadmap.positions - roadmap.positions[goal_v[i]]).T)
+                gap[list(taken)] = np.inf
+                goal_v[i] = int(np.argmin(gap))
+                taken.add(int(goal_v[i]))
+                goals[k] = roadmap.positions[goal_v[i]]
+    planned = replace(roadmap, goals=goal_v)
+    plan = _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
+                 has_goal, 0.0, 0.0, starts,
+                 roadmap=planned.isolated(np.asarray(cut, dtype=np.int64)) if cut else planned)
+    return replace(plan, base=planned) if cut else plan
+
+
+def _nearest_vertex(roadmap: Roadmap, point: np.ndarray) -> int:
+    """The roadmap vertex nearest to ``point (2,)``."""
+    return int(np.argmin(np.hypot(roadmap.positions[:, 0] - point[0],
+                                  roadmap.positions[:, 1] - point[1])))

@@ -74,7 +74,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import shapely
@@ -156,6 +156,20 @@ class Roadmap:
         for a, d, b, c in self.diagonals.tolist():
             out[(a, d)] = out[(d, a)] = (b, c)
         return out
+
+    def isolated(self, vertices: np.ndarray) -> Roadmap:
+        """The roadmap with ``vertices`` cut off: no edge or diagonal ends at one of them
+        and no diagonal passes one as a corner, so a plan enters none of them and a robot
+        on one stays there (a robot whose controller left: it stands)."""
+        cut = np.zeros(self.size, dtype=bool)
+        cut[np.asarray(vertices, dtype=np.int64)] = True
+        rows = np.repeat(np.arange(self.size), np.diff(self.indptr))
+        keep = ~(cut[rows] | cut[self.indices])
+        indptr = np.concatenate(([0], np.cumsum(np.bincount(rows[keep], minlength=self.size))))
+        diagonals = self.diagonals[~cut[self.diagonals].any(axis=1)] if self.diagonals.size \
+            else self.diagonals
+        return replace(self, indptr=indptr.astype(self.indptr.dtype),
+                       indices=self.indices[keep], diagonals=diagonals)
 
     def neighbour_lists(self) -> list[list[int]]:
         """The neighbours of every vertex as Python lists (for the planners' inner loops)."""

@@ -103,6 +103,10 @@ class RuleContext:
     wall_margin
         Distance, m, the rows against the static map keep beyond the robot's radius
         (the solver's ``collision_margin`` plus :attr:`obstacle_margin`).
+    departed
+        Scenario indices of the robots whose controllers left the run for good
+        (:meth:`sqpmpc.control.pipeline.ControllerPipeline.update_departed`): they stand
+        where they are from now on.
     """
 
     scenario: Scenario
@@ -114,6 +118,7 @@ class RuleContext:
     obstacle_margin: float = 0.0
     pair_margin: float = 0.0
     wall_margin: float = 0.0
+    departed: frozenset[int] = frozenset()
 
     def kept_distances(self) -> np.ndarray:
         """``(m, n)`` distances the rows keep from the own robots to everyone, m: the
@@ -346,6 +351,9 @@ class RuleInstance:
 
     def references_changed(self) -> None:
         """``context.scenario``'s references changed: refresh what was derived from them."""
+
+    def departed_changed(self) -> None:
+        """``context.departed`` changed: refresh what was derived from who takes part."""
 
     def shape_references(self, view: SampleView) -> Contribution | None:
         """``"references"``: new references or position-weight scales for this sample."""

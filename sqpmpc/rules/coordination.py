@@ -49,6 +49,15 @@ it safe. (Re-planning also when a single robot free to go on has not reached its
 vertex for :math:`T` re-planned a 256-robot swap every :math:`T` from 45 s on: in a crowd
 a free robot is often slowed that long by its neighbours, and every new plan restarts
 the progress.)
+
+**A robot leaves: a new plan around it.** When the controller is told that robots left
+the run for good (:meth:`~sqpmpc.control.pipeline.ControllerPipeline.update_departed`,
+every controller at the same sample: in the services, the plant's states message says
+so), it plans again from the measured positions with those robots standing on the
+vertices nearest to them (the plan's robots parked on their goals): the robots the old
+plan had waiting for them are planned around them, or, where no way around is left (a
+one-lane aisle), the plan is kept and they wait (logged). Counted in
+``coordination_departures``; a robot taking part again is planned to its goal again.
 """
 
 from __future__ import annotations
@@ -73,8 +82,8 @@ _LOG = logging.getLogger(__name__)
 
 class _Instance(RuleInstance):
     hooks = ("references",)
-    counter_names = ("coordination_holds", "coordination_replans", "coordination_stalls",
-                     "coordination_tracked")
+    counter_names = ("coordination_departures", "coordination_holds",
+                     "coordination_replans", "coordination_stalls", "coordination_tracked")
 
     def __init__(self, rule: Rule, context: RuleContext) -> None:
         super().__init__(rule, context)
@@ -85,6 +94,7 @@ class _Instance(RuleInstance):
             + context.pair_margin if scenario.n_robots > 1 else 0.0
         self.plan: FleetPlan | None = fleet_plan(scenario, self.clearance, self.separation)
         self._joined = False  # whether this controller counted progress at an earlier sample
+        self._departed: frozenset[int] = frozenset()  # the robots the plan has standing
         self.idle = self.plan is None
         self._start(self.plan)
 
@@ -132,7 +142,7 @@ class _Instance(RuleInstance):
         goals = []
         for k, i in enumerate(plan.robots):
             reference = scenario.robots[int(i)].reference
-            goals.append(np.asarray(reference.position, dtype=float)
+            goals.append(np.asarray(reference.goal, dtype=float)
                          if isinstance(reference, PointReference)
                          else plan.roadmap.positions[configuration[k]])
         if all(np.allclose(g, old) for g, old in zip(goals, plan.goals, strict=True)):
@@ -150,17 +160,20 @@ class _Instance(RuleInstance):
             return False
         return sample - self._grew >= self.patience
 
-    def _replan_from(self, plan: FleetPlan, execution: Execution, view: SampleView
-                     ) -> tuple[Execution, FleetPlan]:
+    def _replan_from(self, plan: FleetPlan, execution: Execution, view: SampleView,
+                     why: str) -> tuple[Execution, FleetPlan]:
         """A new plan from the measured states (:func:`replan_from_positions`), the same in
-        every controller that counted the same progress; kept as it was when there is none
-        (counted, logged)."""
-        self.counts["coordination_stalls"] += 1
+        every controller that counted the same progress and was told the same departed
+        robots, those standing; kept as it was when there is none (logged)."""
+        departed = self.context.departed & frozenset(plan.robots.tolist())
+        self._departed = self.context.departed
         try:
-            plan = replan_from_positions(plan, self.context.scenario, view.positions)
+            plan = replan_from_positions(plan, self.context.scenario, view.positions,
+                                         standing=departed)
         except PlanningError as error:
-            _LOG.warning("coordination: progress stopped and no new plan from the "
-                         "robots' positions (%s): the plan is kept", error)
+            _LOG.warning("coordination: %s and no new plan from the robots' positions "
+                         "(%s): the plan is kept", why, error)
+            self._grew = view.sample  # tried again after another patience, not every sample
             return execution, plan
         self.plan = plan
         self._start(plan)
@@ -175,8 +188,15 @@ class _Instance(RuleInstance):
         else:  # a controller started (or restarted) mid-run: no history of the positions
             progress = execution.resume(view.positions)
         self._joined = True
-        if self._stalled(execution, progress, view.sample):
-            execution, plan = self._replan_from(plan, execution, view)
+        if self.context.departed != self._departed:
+            self.counts["coordination_departures"] += 1
+            execution, plan = self._replan_from(plan, execution, view,
+                                                "the robots taking part changed")
+            progress = execution.advance(view.positions)
+            self._total, self._grew = int(progress.sum()), view.sample
+        elif self._stalled(execution, progress, view.sample):
+            self.counts["coordination_stalls"] += 1
+            execution, plan = self._replan_from(plan, execution, view, "progress stopped")
             progress = execution.advance(view.positions)
         permitted = execution.clear_all(view.positions)
         out = np.array(view.references)

@@ -144,8 +144,31 @@ class ClosedLoopSimulation:
         self._plan_ages: dict[int, dict[int, int]] = {}
         self._rng = np.random.default_rng(self.options.seed)
         self.dropped_messages = 0
+        #: ids of the robots whose controllers left the run (:meth:`depart`)
+        self.departed: set[int] = set()
 
     # -------------------------------------------------------------- stepping
+    def depart(self, robot_id: int) -> None:
+        """Robot ``robot_id``'s controller leaves the run for good (decentralized): from the
+        next step on it computes nothing and publishes nothing, its robot is sent zero
+        (it stops within its bounds and stands), and every other controller is told
+        (:meth:`~sqpmpc.control.pipeline.ControllerPipeline.update_departed`), as a plant
+        tells the controllers of a distributed run.
+
+        Raises
+        ------
+        ProblemError
+            The centralized scheme (one controller drives every robot), or an id that is
+            not a robot of the scenario.
+        """
+        if self.scheme != "decentralized":
+            raise ProblemError("depart: only a decentralized run has a controller per robot")
+        self.scenario.index_of(int(robot_id))  # a robot of the scenario, or a named error
+        self.departed.add(int(robot_id))
+        for c in self.controllers:
+            if c.robot_id not in self.departed:
+                c.update_departed(sorted(self.departed))
+
     def step(self) -> None:
         """Advance one sample."""
         k, sc = self.k, self.scenario
@@ -162,20 +185,34 @@ class ClosedLoopSimulation:
             while self._in_transit and self._in_transit[0][0] <= k:
                 # a lost message leaves the receivers with the older plan, as over a network
                 self.neighbour_plans.update(self._in_transit.popleft()[1])
+            taking_part = [c for c in self.controllers if c.robot_id not in self.departed]
             outs = [c.step(k, self.t[k], measured, self.neighbour_plans, prev, self._plan_ages)
-                    for c in self.controllers]
-            u = np.concatenate([o.inputs for o in outs], axis=0)
-            self._plan_ages = {c.robot_id: c.plan_ages for c in self.controllers
-                               if c.plan_ages}
+                    for c in taking_part]
+            if self.departed:  # a departed robot is sent nothing: it stops, and stands
+                u = np.zeros((sc.n_robots, 2))
+                self.horizons[k] = x[:, None, :]
+                for c, o in zip(taking_part, outs, strict=True):
+                    j = sc.index_of(c.robot_id)
+                    u[j] = o.inputs[0]
+                    self.horizons[k, j] = o.predicted_states[0]
+            else:
+                u = np.concatenate([o.inputs for o in outs], axis=0)
+                self.horizons[k] = np.concatenate([o.predicted_states for o in outs], axis=0)
+            self._plan_ages = {c.robot_id: c.plan_ages for c in taking_part if c.plan_ages}
             plans = {}
-            for c in self.controllers:
+            for c in taking_part:
                 if self._rng.random() < self.options.message_drop_probability:
                     self.dropped_messages += 1
                     continue
                 plans[c.robot_id] = c.published
             self._in_transit.append((k + self.options.plan_delay, plans))
-        self.horizons[k] = np.concatenate([o.predicted_states for o in outs], axis=0)
-        for j, o in enumerate(outs):
+        if self.scheme == "centralized":
+            self.horizons[k] = np.concatenate([o.predicted_states for o in outs], axis=0)
+            columns = [0]
+        else:
+            columns = [j for j, c in enumerate(self.controllers)
+                       if c.robot_id not in self.departed]
+        for j, o in zip(columns, outs, strict=True):
             self.solve_times[k, j] = o.compute_time
             self.cpu_times[k, j] = o.cpu_time
             self.fallbacks += o.fallback is not None
