@@ -444,11 +444,11 @@ def test_a_robot_holds_while_another_stands_on_its_next_vertex() -> None:
 
 def test_a_free_robot_gives_way_to_one_standing_on_its_way() -> None:
     """Open space, 1 m cells, kept distance 0.5 m: robot 0 heads east from (0, 0), robot 1
-    north from (1, 1), neither waiting for the other in the plan. Robot 1 pushed to
-    (0.3, 0.2), on robot 0's way (pushed back to (-0.25, 0)) and with its own way clear of
-    robot 0: robot 0 holds, robot 1 stays free. Each on the other's way (robot 1 heading
-    for (-1, -1) from (0, -1)): neither holds (no cycle of waiting); a third robot on no
-    way changes nothing."""
+    north from (1, 1), neither waiting for the other in the plan. Robot 1 pushed off its
+    path to (0.3, 0.2), on robot 0's way (robot 0 pushed to (-0.25, -0.3)), its own way
+    clear of robot 0: robot 0 holds, robot 1 stays free. Each on the other's way (robot 1
+    heading for (-1, -1) from (0, -1)): neither holds (no cycle of waiting); a third robot
+    on no way changes nothing. Robot 1 back on its path: nobody holds."""
     points = np.array([[0.0, 0.0], [1.0, 1.0], [0.0, -1.0]])
     roadmap = build_roadmap((), (), (np.array([-2.0, -2.0]), np.array([3.0, 3.0])), points,
                             points, np.ones(3, dtype=bool), 0.0, 0.5, 0.3,
@@ -465,10 +465,10 @@ def test_a_free_robot_gives_way_to_one_standing_on_its_way() -> None:
         schedule = Schedule.from_plan(configs)
         execution = Execution(schedule, roadmap, np.arange(3), window=1)
         assert execution.permitted_all().tolist() == [2, 1, 0]  # nobody waits for anybody
-        here = np.array([[-0.25, 0.0], [0.3, 0.2], [2.0, -2.0]])
+        here = np.array([[-0.25, -0.3], [0.3, 0.2], [2.0, -2.0]])
         permitted = execution.clear_all(here)
         assert np.flatnonzero(permitted == execution.progress).tolist() == holds + [2]
-        # nobody on robot 0's way: free
+        # robot 1 on its path: nobody on robot 0's way that the plan did not put there
         here[1] = (1.0, 1.2) if holds else (0.0, -1.2)
         assert execution.clear_all(here).tolist() == [2, 1, 0]
 

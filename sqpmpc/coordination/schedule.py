@@ -332,10 +332,11 @@ class Execution:
         return out
 
     def _yield_way(self, now: np.ndarray, free: np.ndarray) -> np.ndarray:
-        """Which of the robots ``free (q,)`` (schedule indices, free to head for their next
+        r"""Which of the robots ``free (q,)`` (schedule indices, free to head for their next
         vertex) give way: a robot whose straight way from where it is (``now (N, 2)``, all
         robots) to its next vertex passes within the kept distance :math:`s = h - 2\rho`
-        of another free robot, whose own way is clear of it and which is not one the plan
+        of another free robot pushed off its path (farther than :math:`\rho` from the edge
+        it is on), whose own way is clear of it and which is not one the plan
         has on that vertex before it (that one it follows), holds. Such a wait is taken
         only where it closes no cycle of waiting (strongly connected components), so one
         robot of every chain is free. Returns a boolean mask over ``free``."""
@@ -348,6 +349,15 @@ class Execution:
         near = rel - f[:, :, None] * d[:, None, :]
         inway = np.hypot(near[..., 0], near[..., 1]) < sep  # inway[r, j]: j on r's way
         np.fill_diagonal(inway, False)
+        # only a robot pushed off its path (farther than the reach from the edge it is on)
+        # stands in a way the plan did not give it; one on its path is where the plan's
+        # order has it
+        v0 = self._points[free, self.progress[free]]
+        edge = self._points[free, self.progress[free] + 1] - v0
+        length = np.maximum(np.einsum("ij,ij->i", edge, edge), 1e-12)
+        g = np.clip(np.einsum("ij,ij->i", a - v0, edge) / length, 0.0, 1.0)
+        off = np.hypot(*(a - v0 - g[:, None] * edge).T) > self.roadmap.reach
+        inway &= off[None, :]
         if not inway.any():
             return np.zeros(free.size, dtype=bool)
         s = self.schedule
