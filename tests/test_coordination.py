@@ -169,8 +169,14 @@ def test_the_maze_plan_is_conflict_free() -> None:
     check_plan(_edges(plan.roadmap), plan.configs, plan.roadmap.starts, plan.roadmap.goals)
 
 
-@pytest.mark.parametrize("method", ["auto", "lacam"])
-@pytest.mark.parametrize("seed", range(6))
+# six random instances per method; LaCAM's seed 10 in place of its seed 5, whose instance
+# (7 robots) takes ~60,000 search nodes (a minute of pure Python): seeds 0, 4 and 10 are
+# searches through hundreds of nodes too (plans of 49-135 steps), each plan checked
+RANDOM_INSTANCES = [*((seed, "auto") for seed in range(6)),
+                    *((seed, "lacam") for seed in (0, 1, 2, 3, 4, 10))]
+
+
+@pytest.mark.parametrize("seed,method", RANDOM_INSTANCES)
 def test_random_instances_are_planned_conflict_free(seed: int, method: str) -> None:
     rng = np.random.default_rng(seed)
     sc, plan = _maze_plan()

@@ -9,6 +9,7 @@ refused; status lines written to a pipe hold no carriage return.
 
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -18,6 +19,7 @@ import numpy as np
 import pytest
 
 from services.testing import REPO, free_ports, start_service, stop_processes
+from sqpmpc.cli.main import main as sqpmpc_main
 from tests import HANG
 from tests.service_helpers import assert_lockstep_held
 
@@ -31,17 +33,54 @@ def _run(*args: str, timeout: float = HANG) -> subprocess.CompletedProcess[str]:
                           timeout=timeout, cwd=REPO)
 
 
+def _parse(capsys: pytest.CaptureFixture[str], module: str, *argv: str) -> tuple[int, str, str]:
+    """``python -m MODULE ARGV`` up to its options' checks, in this process: the entry point
+    the module's ``__main__`` calls (``sqpmpc``: :func:`sqpmpc.cli.main.main`, a service:
+    its ``main``). Its status, stdout and stderr.
+
+    What the process around it adds (one line on stderr, status 2, no traceback, for every
+    module) is checked with real processes: ``test_bad_input_gives_one_message_and_status_2``
+    (tests/test_services.py) and ``tests/test_cli.py``. A process costs ~2 s of CPU in
+    imports alone, for each of the cases here."""
+    if module == "sqpmpc":
+        entry, args = sqpmpc_main, (list(argv),)
+    else:
+        entry, args = importlib.import_module(module).main, (list(argv), module)
+    try:
+        status = entry(*args)
+    except SystemExit as exc:  # argparse and services.node.fail
+        status = 0 if exc.code is None else exc.code
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+@pytest.fixture(scope="module")
+def sqpmpc_run(tmp_path_factory: pytest.TempPathFactory):
+    """``sqpmpc run`` of the scenario with OPTIONS, once per scheme in a worker: the flags
+    and the settings file are two ways to give the same options, compared to one run."""
+    runs: dict[str, tuple[Path, subprocess.CompletedProcess[str]]] = {}
+
+    def run(scheme: str) -> tuple[Path, subprocess.CompletedProcess[str]]:
+        if scheme not in runs:
+            ref = tmp_path_factory.mktemp(f"ref-{scheme}") / "ref"
+            runs[scheme] = ref, _run("sqpmpc", "run", SCENARIO, "--scheme", scheme, *OPTIONS,
+                                     "--t-end", "20", "--out", str(ref), "--no-plots",
+                                     "--status-every", "0.01")
+        return runs[scheme]
+
+    return run
+
+
 @pytest.mark.parametrize("scheme,source", [("decentralized", "flags"),
                                            ("centralized", "flags"),
                                            ("decentralized", "settings")])
-def test_a_distributed_run_with_options_equals_sqpmpc_run(tmp_path: Path, scheme: str,
-                                                          source: str) -> None:
+def test_a_distributed_run_with_options_equals_sqpmpc_run(tmp_path: Path, sqpmpc_run,
+                                                          scheme: str, source: str) -> None:
     settings = tmp_path / "run.toml"
     settings.write_text(SETTINGS)
     given = OPTIONS + ["--t-end", "20"] if source == "flags" else ["--settings", str(settings)]
-    ref, dist = tmp_path / "ref", tmp_path / "dist"
-    res = _run("sqpmpc", "run", SCENARIO, "--scheme", scheme, *OPTIONS, "--t-end", "20",
-               "--out", str(ref), "--no-plots", "--status-every", "0.01")
+    dist = tmp_path / "dist"
+    ref, res = sqpmpc_run(scheme)
     assert res.returncode == 0, res.stderr
     assert "\r" not in res.stderr and f"{SCENARIO} {scheme}: sample " in res.stderr
     res = _run("sqpmpc", "launch", "--scenario", SCENARIO, "--scheme", scheme, *given,
@@ -113,10 +152,11 @@ def test_a_process_with_other_settings_is_braked_and_named(tmp_path: Path, schem
     assert m["collisions"] == 0
 
 
-def _one_error(res: subprocess.CompletedProcess[str], prog: str, *needles: str) -> None:
-    assert res.returncode == 2, res.stderr
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), res.stderr
+def _one_error(res: tuple[int, str, str], prog: str, *needles: str) -> None:
+    status, _, stderr = res
+    assert status == 2, stderr
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), stderr
     assert all(n in lines[0] for n in needles), lines[0]
 
 
@@ -154,9 +194,10 @@ BAD = [
 
 
 @pytest.mark.parametrize("argv,needles", BAD, ids=[" ".join(b[0][:1] + b[0][-2:]) for b in BAD])
-def test_errors_name_the_flag_and_no_op_flags_are_refused(argv: list[str],
+def test_errors_name_the_flag_and_no_op_flags_are_refused(capsys: pytest.CaptureFixture[str],
+                                                         argv: list[str],
                                                          needles: list[str]) -> None:
-    _one_error(_run("sqpmpc", *argv), f"sqpmpc {argv[0]}", *needles)
+    _one_error(_parse(capsys, "sqpmpc", *argv), f"sqpmpc {argv[0]}", *needles)
 
 
 @pytest.mark.parametrize("text,needles", [
@@ -167,24 +208,25 @@ def test_errors_name_the_flag_and_no_op_flags_are_refused(argv: list[str],
     ("t_end = 0.3\n", ["t_end in", "0.3"]),
     ("collision_margin = \n", ["not valid TOML"]),
 ])
-def test_a_bad_settings_file_is_refused_naming_the_key_and_the_file(tmp_path: Path, text: str,
-                                                                   needles: list[str]) -> None:
+def test_a_bad_settings_file_is_refused_naming_the_key_and_the_file(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str,
+        needles: list[str]) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(text)
     for argv, prog in ((["sqpmpc", "run", "head-on", "--scheme", "decentralized"], "sqpmpc run"),
                        (["services.robot", "--id", "1", "--scenario", "head-on"],
                         "services.robot")):
-        _one_error(_run(*argv, "--settings", str(path)), prog, "bad.toml", *needles)
+        _one_error(_parse(capsys, *argv, "--settings", str(path)), prog, "bad.toml", *needles)
 
 
-def test_every_command_has_help_and_version() -> None:
+def test_every_command_has_help_and_version(capsys: pytest.CaptureFixture[str]) -> None:
     for name in ("launch", "plant", "robot", "central", "router"):
-        res = _run("sqpmpc", name, "--help")
-        assert res.returncode == 0 and res.stdout.startswith(f"usage: sqpmpc {name} "), res
+        status, out, err = _parse(capsys, "sqpmpc", name, "--help")
+        assert status == 0 and out.startswith(f"usage: sqpmpc {name} "), (status, out, err)
         if name != "router":
-            assert "--settings FILE.toml" in res.stdout and "--t-end" in res.stdout
+            assert "--settings FILE.toml" in out and "--t-end" in out
         if name in ("launch", "robot", "central"):
-            assert "--collision-margin" in res.stdout and "--discretization" in res.stdout
+            assert "--collision-margin" in out and "--discretization" in out
     for name in ("launch", "plant"):
-        res = _run(f"services.{name}", "--version")
-        assert res.returncode == 0 and res.stdout.startswith(f"services.{name} ")
+        status, out, err = _parse(capsys, f"services.{name}", "--version")
+        assert status == 0 and out.startswith(f"services.{name} "), (status, out, err)

@@ -16,7 +16,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from sqpmpc.coordination.mapf import PlanningError, plan_paths
@@ -252,6 +251,10 @@ def replan_from_positions(previous: FleetPlan, scenario: Scenario, positions: np
 @functools.lru_cache(maxsize=4)
 def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes,
                standing: frozenset[int]) -> FleetPlan:
+    # imported here: scipy.optimize is ~0.2 s of every process's start (each service
+    # imports this module through the rules' registry) and only a re-plan needs it
+    from scipy.optimize import linear_sum_assignment
+
     poses = np.frombuffer(key, dtype=float).reshape(-1, 2)
     roadmap = previous.base or previous.roadmap
     n, size = poses.shape[0], roadmap.size

@@ -27,7 +27,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import networkx as nx
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Point, box
@@ -134,6 +133,8 @@ class RoadMap:
         self.empty = self.inflated.is_empty
         self._inner = self.inflated.buffer(-_EPS)
         shapely.prepare(self._inner)
+        import networkx as nx  # here: ~0.1 s of every process's start, for maps only
+
         self.graph = nx.Graph()
         nodes: list[tuple[float, float]] = []
         if not self.empty:
@@ -214,6 +215,8 @@ class RoadMap:
         a, b = head[-1], tail[-1]
         if self.free(a, b):
             return Route(np.array(head + tail[::-1]))
+        import networkx as nx
+
         g = self.graph.copy()
         n = len(self.nodes)
         for name, p in ((n, a), (n + 1, b)):
