@@ -89,6 +89,7 @@ class SampleStates:
     budget: float | None
     states: np.ndarray
     plan_ages: dict[int, dict[int, int]] | None = None
+    gone: tuple[int, ...] = ()
 
 
 class ControllerNode(Node):
@@ -144,7 +145,8 @@ class ControllerNode(Node):
             self.policy.advance(self.cursor, msg.sample)
             for later in [s for s in self.samples if s > msg.sample]:
                 del self.samples[later]  # back to the plant's sample after a forged one
-            self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x, msg.plan_ages)
+            self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x, msg.plan_ages,
+                                                    msg.gone)
             self.pending = msg.sample
         elif decision.verdict is Verdict.REPEAT:
             # the plant misses an input of this sample: if it is handled, this process's

@@ -96,6 +96,9 @@ class StateMsg:
     settings: str = ""
     plan_ages: dict[int, dict[int, int]] | None = None
     """Per robot whose input of ``k - 1`` the plant applied, its ``plan_ages`` (relayed)."""
+    gone: tuple[int, ...] = ()
+    """Robots whose controllers left the run for good (not back within the plant's
+    ``--rejoin-timeout``): every controller is told the same at the same sample."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,6 +171,8 @@ def encode(msg: Message) -> bytes:
             body["settings"] = msg.settings
         if msg.plan_ages:
             body["plan_ages"] = [[int(r), _pairs(a)] for r, a in msg.plan_ages.items() if a]
+        if msg.gone:
+            body["gone"] = [int(i) for i in msg.gone]
     elif isinstance(msg, CmdMsg):
         body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
                 "compute_time": float(msg.compute_time), "fallback": msg.fallback,
@@ -308,10 +313,14 @@ def decode(payload: bytes, horizon: int) -> Message:
         if (not isinstance(ids, list) or not ids or len(ids) > 4096
                 or any(type(i) is not int for i in ids)):
             raise InvalidMessage("'ids' must be a non-empty list of integers")
+        gone = body.get("gone", [])
+        if (not isinstance(gone, list) or len(gone) > len(ids)
+                or any(type(i) is not int or i not in ids for i in gone)):
+            raise InvalidMessage("'gone' must be a list of the message's robot ids")
         return StateMsg(_int(body, "sample", 0), _float(body, "t"), tuple(ids),
                         _array(body, "x", (len(ids), 3)), budget, scenario,
                         _text(body, "settings"),
-                        _relayed_ages(body, horizon) or None)
+                        _relayed_ages(body, horizon) or None, tuple(sorted(set(gone))))
     if kind == "cmd":
         fallback = body.get("fallback")
         if fallback is not None and not isinstance(fallback, str):

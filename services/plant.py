@@ -187,6 +187,7 @@ class PlantNode(Presence, FaultyInputs, Node):
         self.refused: str | None = None  # a controller runs with other settings
         self.rejoin_timeout = float(getattr(args, "rejoin_timeout", REJOIN_TIMEOUT))
         self.departed: dict[str, float] = {}  # controller -> when it left (perf_counter)
+        self.gone: set[int] = set()  # robots whose controllers did not rejoin in time
         self.all_gone_since: float | None = None
         self.gave_up: str | None = None  # every controller left for good
         self.status = StatusLines(scenario, "plant", float(getattr(args, "status_every",
@@ -230,7 +231,7 @@ class PlantNode(Presence, FaultyInputs, Node):
         budget = self.scenario.sample_time if self.mode == "realtime" else None
         msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest,
                        self.settings_digest,
-                       plan_ages=self.relay)
+                       plan_ages=self.relay, gone=self.gone_for_good())
         self.bus.put(encode(msg), "plant", "state")
 
     def apply(self, k: int) -> None:

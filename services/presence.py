@@ -39,6 +39,7 @@ class Presence:
     running: bool
     missed: dict[int, int]
     departed: dict[str, float]
+    gone: set[int]
     all_gone_since: float | None
     rejoin_timeout: float
     startup_timeout: float
@@ -89,6 +90,8 @@ class Presence:
             return
         if alive:
             self.departed.pop(name, None)
+            if name.startswith("robot/"):
+                self.gone.discard(int(name.split("/")[1]))
             self.all_gone_since = None
             log.info("%s joined at sample %d", name, self.k)
             self.publish_states(self.k)
@@ -117,9 +120,21 @@ class Presence:
         for name, left in list(self.departed.items()):
             if now - left >= self.rejoin_timeout:
                 del self.departed[name]
+                if name.startswith("robot/"):
+                    self.gone.add(int(name.split("/")[1]))
                 log.warning("%s did not rejoin within %g s: its robots are braked", name,
                             self.rejoin_timeout)
         return list(self.departed)
+
+    def gone_for_good(self) -> tuple[int, ...]:
+        """Robots whose controllers left and did not rejoin within ``--rejoin-timeout``
+        (told to every controller in the states message, its ``gone``); in real
+        time counted here, in lockstep when :meth:`awaited` stops waiting for them."""
+        if self.mode == "realtime":
+            now = time.perf_counter()
+            self.gone.update(int(name.split("/")[1]) for name, left in self.departed.items()
+                             if name.startswith("robot/") and now - left >= self.rejoin_timeout)
+        return tuple(sorted(self.gone))
 
     def rejoin_deadline(self) -> float:
         return max((t + self.rejoin_timeout for t in self.departed.values()), default=0.0) \

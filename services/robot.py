@@ -240,6 +240,9 @@ class RobotNode(ControllerNode):
         if len(plans) < len(needed):
             self.fallback_samples += 1
         with self.step_lock:  # one step at a time in a process hosting several robots
+            # the robots whose controllers left for good, as the plant says (every
+            # controller at the same sample)
+            self.controller.update_departed([i for i in entry.gone if i != self.robot_id])
             out = self.controller.step(sample, entry.t, entry.states, plans,
                                        self.previous_states(sample), entry.plan_ages)
         plan = self.controller.published

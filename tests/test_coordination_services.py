@@ -25,7 +25,12 @@ from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.registry import default_rules
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 from tests import HANG
-from tests.service_helpers import assert_lockstep_held, kill_and_restart, start_run
+from tests.service_helpers import (
+    assert_lockstep_held,
+    kill_and_restart,
+    newest_sample,
+    start_run,
+)
 
 # a guard against a hang only (no budget on how long a right run takes on a busy machine)
 pytestmark = pytest.mark.timeout(900)
@@ -116,3 +121,38 @@ def test_a_robot_killed_and_restarted_mid_run_rejoins_in_plan_order_and_arrives(
     final = np.load(tmp_path / "out" / "trajectory.npz")["states"][-1]
     error = np.hypot(*(final[:, :2] - scenario.reference_positions(T_END)).T)
     assert np.all(error <= 0.05), error  # every robot arrived
+
+
+def test_a_robot_killed_for_good_is_told_to_every_controller_and_planned_standing(tmp_path):
+    """kill -9 of robot 2's controller at sample 15 of a lockstep run, not started again:
+    after ``--rejoin-timeout`` the plant says so in its states message (``gone``), every
+    other controller plans again at that sample with robot 2 standing
+    (``coordination_departures``: one per controller), robot 2 is braked and stands, the run
+    completes with 0 collisions of any kind."""
+    path = _maze(tmp_path)
+    run = "coordination-gone"
+    probe, plant, robots, _ = start_run(
+        tmp_path, run, list(range(1, ROBOTS + 1)), T_END, scenario=str(path),
+        plant_args=("--rejoin-timeout", "1", "--timeout", str(HANG)),
+        subscriptions=(("plant", "state"),), muted={2: 15})
+    procs = [plant, *robots.values()]
+    try:
+        assert probe.wait_for(lambda: newest_sample(probe) >= 15, HANG), plant.output()
+        robots[2].proc.kill()
+        robots[2].wait(HANG)
+        assert plant.wait(HANG) == 0, plant.output()
+        for rid, r in robots.items():
+            if rid != 2:
+                assert r.wait(HANG) == 0, r.output()
+    finally:
+        probe.close()
+        stop_processes(procs)
+    assert "robot/2 did not rejoin within 1 s" in plant.output()
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert m["completed"] is True
+    assert m["collisions"] == 0 and m["intersample_collisions"] == 0
+    assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
+    assert m["counters"]["coordination_departures"] == ROBOTS - 1
+    states = np.load(tmp_path / "out" / "trajectory.npz")["states"]
+    # braked from the sample the plant stopped waiting for it: it stands from then on
+    assert np.hypot(*(states[-1, 1, :2] - states[-5, 1, :2])) <= 1e-6
