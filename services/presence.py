@@ -28,6 +28,12 @@ __all__ = ["FaultyInputs", "Presence"]
 log = logging.getLogger("services.plant")
 
 
+def _robot_of(name: str) -> int | None:
+    """The robot of a decentralized controller's liveliness name ``robot/<id>``, else
+    ``None`` (the centralized controller's ``central``)."""
+    return int(name.split("/")[1]) if name.startswith("robot/") else None
+
+
 class Presence:
     """The plant's view of its controllers' liveliness (a mixin of the plant node)."""
 
@@ -90,8 +96,8 @@ class Presence:
             return
         if alive:
             self.departed.pop(name, None)
-            if name.startswith("robot/"):
-                self.gone.discard(int(name.split("/")[1]))
+            if (rid := _robot_of(name)) is not None:
+                self.gone.discard(rid)
             self.all_gone_since = None
             log.info("%s joined at sample %d", name, self.k)
             self.publish_states(self.k)
@@ -103,8 +109,8 @@ class Presence:
         self.departed[name] = now
         if self.scheme == "centralized":  # gone, not silent: waited for as one that left
             self.silent.clear()
-        elif name.startswith("robot/"):
-            self.silent.discard(int(name.split("/")[1]))
+        elif (rid := _robot_of(name)) is not None:
+            self.silent.discard(rid)
         if not self.expected():
             self.all_gone_since = now
         log.warning("%s left at sample %d%s", name, self.k,
@@ -120,8 +126,8 @@ class Presence:
         for name, left in list(self.departed.items()):
             if now - left >= self.rejoin_timeout:
                 del self.departed[name]
-                if name.startswith("robot/"):
-                    self.gone.add(int(name.split("/")[1]))
+                if (rid := _robot_of(name)) is not None:
+                    self.gone.add(rid)
                 log.warning("%s did not rejoin within %g s: its robots are braked", name,
                             self.rejoin_timeout)
         return list(self.departed)
@@ -132,8 +138,9 @@ class Presence:
         time counted here, in lockstep when :meth:`awaited` stops waiting for them."""
         if self.mode == "realtime":
             now = time.perf_counter()
-            self.gone.update(int(name.split("/")[1]) for name, left in self.departed.items()
-                             if name.startswith("robot/") and now - left >= self.rejoin_timeout)
+            self.gone.update(rid for name, left in self.departed.items()
+                             if (rid := _robot_of(name)) is not None
+                             and now - left >= self.rejoin_timeout)
         return tuple(sorted(self.gone))
 
     def rejoin_deadline(self) -> float:

@@ -78,9 +78,8 @@ def turn_per_step(scenario: Scenario, spacing: float) -> float:
     roadmap of ``spacing`` :math:`h`: :math:`\omega_{\max} h / v_{\max}` rad (a step is
     an edge at :math:`v_{\max}`), so a plan gives every turn the steps it takes
     (:func:`sqpmpc.coordination.mapf.plan_paths`)."""
-    bounds = scenario.bounds
-    return float(min(-bounds.omega[0], bounds.omega[1])) * float(spacing) / float(
-        max(bounds.v[1], -bounds.v[0]))
+    speed, rate = _speeds(scenario)
+    return rate * float(spacing) / speed
 
 
 def planned_robots(scenario: Scenario) -> np.ndarray:
@@ -202,10 +201,8 @@ def replan(previous: FleetPlan, scenario: Scenario, configuration: np.ndarray,
     vertex is the free vertex nearest to it (the robot ends on its own point)."""
     roadmap = previous.roadmap
     points = np.asarray(goals, dtype=float).reshape(-1, 2)
-    vertex = np.argmin(np.hypot(roadmap.positions[None, :, 0] - points[:, None, 0],
-                                roadmap.positions[None, :, 1] - points[:, None, 1]), axis=1)
     goal_v = roadmap.goals.copy()
-    goal_v[previous.robots] = vertex
+    goal_v[previous.robots] = _nearest_vertices(roadmap, points)
     moved = replace(roadmap, goals=goal_v)
     n = scenario.n_robots
     has_goal = np.zeros(n, dtype=bool)
@@ -282,26 +279,27 @@ def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes,
     has_goal[previous.robots] = True
     goals = previous.goals.copy()
     goal_v = roadmap.goals.copy()
-    for k, i in enumerate(previous.robots.tolist()):
+    cut = []  # the vertices the departed robots stand on
+    for r, i in enumerate(previous.robots.tolist()):
         reference = scenario.robots[i].reference
         if i in standing:
-            goals[k] = roadmap.positions[starts[k]]
-            goal_v[i] = starts[k]
+            goals[r] = roadmap.positions[starts[r]]
+            goal_v[i] = starts[r]
+            cut.append(starts[r])
         elif isinstance(reference, PointReference):
-            goals[k] = np.asarray(reference.goal, dtype=float)
-            goal_v[i] = _nearest_vertex(roadmap, goals[k])
+            goals[r] = np.asarray(reference.goal, dtype=float)
+            goal_v[i] = _nearest_vertices(roadmap, goals[r][None])[0]
     all_goals = scenario.reference_positions(0.0)
     all_goals[previous.robots] = goals
-    cut = [starts[k] for k, i in enumerate(previous.robots.tolist()) if i in standing]
     if cut:  # a goal a departed robot stands on: the nearest vertex no one else has
         taken = set(cut) | {int(goal_v[i]) for i in previous.robots.tolist() if i not in standing}
-        for k, i in enumerate(previous.robots.tolist()):
+        for r, i in enumerate(previous.robots.tolist()):
             if i not in standing and int(goal_v[i]) in cut:
                 gap = np.hypot(*(roadmap.positions - roadmap.positions[goal_v[i]]).T)
                 gap[list(taken)] = np.inf
                 goal_v[i] = int(np.argmin(gap))
                 taken.add(int(goal_v[i]))
-                goals[k] = roadmap.positions[goal_v[i]]
+                goals[r] = roadmap.positions[goal_v[i]]
     planned = replace(roadmap, goals=goal_v)
     plan = _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
                  has_goal, 0.0, 0.0, starts,
@@ -309,7 +307,7 @@ def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes,
     return replace(plan, base=planned) if cut else plan
 
 
-def _nearest_vertex(roadmap: Roadmap, point: np.ndarray) -> int:
-    """The roadmap vertex nearest to ``point (2,)``."""
-    return int(np.argmin(np.hypot(roadmap.positions[:, 0] - point[0],
-                                  roadmap.positions[:, 1] - point[1])))
+def _nearest_vertices(roadmap: Roadmap, points: np.ndarray) -> np.ndarray:
+    """``(k,)`` the roadmap vertex nearest to each of ``points (k, 2)``."""
+    return np.argmin(np.hypot(roadmap.positions[None, :, 0] - points[:, None, 0],
+                              roadmap.positions[None, :, 1] - points[:, None, 1]), axis=1)

@@ -361,7 +361,7 @@ class Execution:
         if not inway.any():
             return np.zeros(free.size, dtype=bool)
         s = self.schedule
-        index = np.full(self.schedule.size, -1)
+        index = np.full(s.size, -1)
         index[free] = np.arange(free.size)
         # the robots each one follows onto its next vertex
         e = np.flatnonzero((index[s.dep_owner] >= 0) & (index[s.dep_robot] >= 0))
