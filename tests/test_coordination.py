@@ -656,6 +656,7 @@ def test_a_departed_robot_is_planned_standing_and_a_goal_it_holds_moves_next_to_
     assert np.allclose(goals[4], where[0])  # robot 4's goal is where robot 0 stands
     moved = new.roadmap.positions[new.configs[-1, row4]]
     assert 0.0 < np.hypot(*(moved - goals[4])) <= np.sqrt(2) * new.roadmap.spacing + 1e-9
+    assert np.allclose(new.goals[row4], moved)  # the point it closes on at its path's end
     others = [k for k in range(new.robots.size) if k not in (row0, row4)]
     assert np.allclose(new.roadmap.positions[new.configs[-1, others]],
                        goals[new.robots[others]])

@@ -289,8 +289,6 @@ def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes,
         elif isinstance(reference, PointReference):
             goals[r] = np.asarray(reference.goal, dtype=float)
             goal_v[i] = _nearest_vertices(roadmap, goals[r][None])[0]
-    all_goals = scenario.reference_positions(0.0)
-    all_goals[previous.robots] = goals
     if cut:  # a goal a departed robot stands on: the nearest vertex no one else has
         taken = set(cut) | {int(goal_v[i]) for i in previous.robots.tolist() if i not in standing}
         for r, i in enumerate(previous.robots.tolist()):
@@ -300,6 +298,8 @@ def _replanned(previous: FleetPlan, scenario: Scenario, key: bytes,
                 goal_v[i] = int(np.argmin(gap))
                 taken.add(int(goal_v[i]))
                 goals[r] = roadmap.positions[goal_v[i]]
+    all_goals = scenario.reference_positions(0.0)
+    all_goals[previous.robots] = goals
     planned = replace(roadmap, goals=goal_v)
     plan = _plan(scenario, previous.robots, scenario.initial_states()[:, :2], all_goals,
                  has_goal, 0.0, 0.0, starts,
