@@ -199,3 +199,60 @@ def test_tracking_a_feasible_motion_reproduces_it_and_clearing_restores_the_pape
                                -2.0 * np.asarray(sc.weights.R) * u[0], rtol=1e-12)
     engine.clear_motion()
     np.testing.assert_array_equal(engine.qp.q[L.input_index], 0.0)
+
+
+def test_a_tracked_motion_linearizes_the_dynamics_and_the_iterate_keeps_the_rows() -> None:
+    """Update-vs-rebuild: the first QP of a sample with a motion has the dynamics rows of
+    the motion's rollout (as a QP whose iterate is that rollout) and the collision rows of
+    the iterate (as a QP without the motion), whose iterate is not moved; the sample's
+    next QP is linearized at its iterate again."""
+    sc = fleet([[0.0, 0.0, 0.0], [2.0, 0.0, math.pi]], [[0.0, 3.0], [2.0, -3.0]],
+               horizon=N, sample_time=T)
+    x0 = sc.initial_states()
+
+    def at_rest() -> CentralizedController:
+        ctrl = CentralizedController(sc, only())
+        ctrl.step(0.0, x0)
+        ctrl.engine.set_guess(x0, np.zeros((2, N, 2)), converge_first=False)
+        ctrl.engine.start_sample(x0)
+        return ctrl
+
+    def solve(ctrl: CentralizedController) -> None:
+        assert ctrl.engine.solve(x0, reference, max_iterations=1, started=True,
+                                 internal=ctrl.collisions).success
+
+    # robot 0 faces east and must go north: the motion turns in place, then drives
+    tracked, along, plain = at_rest(), at_rest(), at_rest()
+    motion = path_motion(np.array([[0.0, 0.0], [0.0, 1.0], [0.0, 2.0]]), x0[0], 0.0, 0.06,
+                         T, N, float(sc.bounds.v[1]), float(sc.bounds.omega[1]), None)
+    states, u = tracked.engine.model.motion_states(motion.poses[None],
+                                                   motion.velocities[None], T)
+    reference = np.repeat(x0[:, None, :2], N, axis=1)
+    reference[0] = motion.poses[1:, :2]
+    tracked.engine.update_motion(np.array([0]), states, u)
+    np.testing.assert_array_equal(tracked.engine.z, plain.engine.z)  # the iterate stays
+    solve(tracked)
+    L = along.engine.layout  # rebuilt: an iterate that is the motion's rollout
+    along.engine.z[L.state_index[0]] = along.engine.rollout(x0[:1], u)[0]
+    along.engine.z[L.input_index[0]] = u[0]
+    solve(along)
+    solve(plain)
+    for name, source in (("dyn_A", along), ("dyn_B", along), ("internal", plain)):
+        np.testing.assert_allclose(tracked.engine.qp.matrix_entries(name),
+                                   source.engine.qp.matrix_entries(name), rtol=0, atol=1e-12,
+                                   err_msg=name)
+    for k in (0, 1):
+        np.testing.assert_allclose(tracked.engine.qp.row_bounds("dyn")[k],
+                                   along.engine.qp.row_bounds("dyn")[k], atol=1e-12)
+    # the turn is seen: the predicted positions leave the heading's line (east) northwards;
+    # at rest the QP cannot see it, its positions stay on the line y = 0
+    predicted = tracked.engine.states_inputs()[0][0, -1]
+    flat = plain.engine.states_inputs()[0][0, -1]
+    assert abs(flat[1]) < 1e-3 and predicted[1] > 0.5 * motion.poses[-1, 1] > 0.0
+    # the motion's point is spent: the next QP of the sample is linearized at the iterate
+    for ctrl in (tracked, plain):
+        ctrl.engine.set_guess(x0, np.zeros((2, N, 2)), converge_first=False)
+        ctrl.engine.start_sample(x0)
+        solve(ctrl)
+    np.testing.assert_allclose(tracked.engine.qp.matrix_entries("dyn_A"),
+                               plain.engine.qp.matrix_entries("dyn_A"), rtol=0, atol=1e-12)

@@ -300,7 +300,8 @@ class Contribution:
     motions
         ``(rows (k,), poses (k, N+1, 3), velocities (k, N+1, 2))``: the own robots ``rows``
         track these motions at this sample: their inputs and velocity states become the
-        references of the robots' (``"references"`` hooks;
+        references of the robots', and the motions' rollouts their linearization point
+        (``"references"`` hooks;
         :meth:`~sqpmpc.models.base.RobotModel.motion_states` gives the model's states and
         inputs; :meth:`~sqpmpc.ocp.iteration.Iteration.update_motion`).
     iterate

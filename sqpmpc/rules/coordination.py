@@ -11,7 +11,9 @@ stopping there. The motion's positions are the references of stages 1..N and its
 velocities the references of the inputs (and velocity states): the cost is
 :math:`\|u - u^{\mathrm{ref}}\|_R`, so a robot at rest that must turn is asked to
 turn (at :math:`v = 0` the linearized unicycle's position does not depend on its
-heading: a cost on positions alone gave it no reason to). The motion starts at the
+heading: a cost on positions alone gave it no reason to), and the QP linearizes its
+dynamics along the motion, so that it sees what the turn is for
+(:meth:`~sqpmpc.ocp.iteration.Iteration.update_motion`). The motion starts at the
 robot's velocities (for a model with velocity states; the last command when they are
 not measured). At the end of its open path a robot waits within the roadmap's reach of
 its vertex, turned (in place) to face the edge it leaves by next; one pushed farther
