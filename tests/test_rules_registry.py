@@ -10,6 +10,8 @@ import pytest
 from sqpmpc.control.settings import SolverSettings
 from sqpmpc.errors import ProblemError
 from sqpmpc.io.metrics import compute_metrics
+from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid
+from sqpmpc.problem.grid import GridSpec
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.registry import (
@@ -18,6 +20,7 @@ from sqpmpc.rules.registry import (
     SAFETY_ROWS,
     default_names,
     describe_rules,
+    roadmap_is_exact,
     rule_names,
     select_rules,
     set_rule_parameters,
@@ -38,6 +41,28 @@ def test_describe_lists_every_rule_and_safety_row_once() -> None:
     lines = describe_rules().splitlines()
     for name in [*RULES, *SAFETY_ROWS]:
         assert sum(line.split()[0] == name for line in lines if line.startswith("  ")) == 1
+
+
+def _moved(sc: object, robot: int, dx: float) -> object:
+    r = sc.robots[robot]
+    x, y, psi = r.initial_state
+    moved = type(r)(id=r.id, initial_state=(x + dx, y, psi), diameter=r.diameter,
+                    reference=r.reference)
+    return sc.with_changes(robots=sc.robots[:robot] + (moved,) + sc.robots[robot + 1:])
+
+
+def test_coordination_is_the_default_where_the_roadmap_is_exact() -> None:
+    grid = grid_to_grid(3, 4)  # starts and goals 1 m apart on one lattice
+    assert roadmap_is_exact(grid) and default_names(grid) == ["coordination"]
+    # within the fitted grid's reach of its vertex: still on it; beyond: the rules
+    assert roadmap_is_exact(_moved(grid, 5, 0.01))
+    assert not roadmap_is_exact(_moved(grid, 5, 0.2))
+    assert default_names(_moved(grid, 5, 0.2)) == default_names()
+    swap = antipodal_swap(8)  # a circle: no grid holds its points
+    assert not roadmap_is_exact(swap) and "coordination" not in default_names(swap)
+    # a declared grid, whatever the points; timed references are not planned
+    assert roadmap_is_exact(swap.with_changes(roadmap=GridSpec(0.5, (0.0, 0.0))))
+    assert not roadmap_is_exact(load_scenario("paper-s2"))
 
 
 def test_selection() -> None:

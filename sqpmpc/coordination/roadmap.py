@@ -88,7 +88,7 @@ from sqpmpc.problem.grid import GridSpec, grid_edges
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.polygons import PolygonObstacle
 
-__all__ = ["Roadmap", "build_roadmap"]
+__all__ = ["Roadmap", "build_roadmap", "on_one_lattice"]
 
 _OFFSETS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
 
@@ -391,6 +391,35 @@ def _fitted_grid(points: np.ndarray, h_min: float, separation: float, closest: f
     if count <= _aligned(points, h_min, 0.5 * (h_min - separation))[0]:
         return None
     return h, reach, origin
+
+
+def on_one_lattice(starts: np.ndarray, goals: np.ndarray, separation: float,
+                   diameter: float) -> bool:
+    r"""Whether every one of a fleet's ``starts`` and ``goals`` (``(k, 2)`` each) lies
+    within the reach of a vertex of one grid fitted to them: the grid that
+    :func:`build_roadmap` tries first without a declared one (spacing
+    :math:`h \ge s + 2\rho` with :math:`\rho = d/4`, from the points' most common nearest
+    offset; reach :math:`(h - s)/2`), or the finest grid when none is fitted. On such a
+    fleet the roadmap is exact, every start and goal a vertex, as on a declared grid
+    (``sqpmpc generate mapf``).
+
+    Parameters
+    ----------
+    starts, goals
+        ``(k, 2)`` positions of the robots with goals, ``k >= 1``.
+    separation
+        :math:`s`, the distance two robots keep, m.
+    diameter
+        :math:`d`, the largest robot's diameter, m.
+    """
+    starts = np.asarray(starts, dtype=float).reshape(-1, 2)
+    goals = np.asarray(goals, dtype=float).reshape(-1, 2)
+    points = np.concatenate((starts, goals))
+    h_min = separation + 0.5 * diameter
+    fitted = _fitted_grid(points, h_min, separation, min(_closest(starts), _closest(goals)))
+    h, reach = (fitted[0], fitted[1]) if fitted is not None else (
+        h_min, 0.5 * (h_min - separation))
+    return _aligned(points, h, reach)[0] == points.shape[0]
 
 
 def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry | None,

@@ -12,7 +12,9 @@ import dataclasses
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
+from sqpmpc.coordination.roadmap import on_one_lattice
 from sqpmpc.errors import ProblemError
+from sqpmpc.problem.references import PointReference
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.coordination import Coordination
 from sqpmpc.rules.formations import Yield
@@ -35,6 +37,7 @@ __all__ = [
     "OPT_IN",
     "RULES",
     "default_names",
+    "roadmap_is_exact",
     "SAFETY_ROWS",
     "add_rule_arguments",
     "check_rules",
@@ -54,8 +57,9 @@ RULES: dict[str, type[Rule]] = {
                 Roundabout, Detour, Parking, StallRepair, GearCycle)
 }
 
-#: Registered rules that are off unless named (``--rules``): the roadmap coordination
-#: is opt-in until it brings every robot home where the rules do (docs/coordination.md).
+#: Registered rules that are off unless named (``--rules``) or the roadmap is exact
+#: (:func:`default_names`): in open space the roadmap coordination is opt-in until it
+#: brings every robot home as fast as the rules do (docs/coordination.md).
 OPT_IN: tuple[str, ...] = ("coordination",)
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.ocp.collision_rows`).
@@ -75,13 +79,28 @@ def rule_names() -> list[str]:
 
 
 def default_names(scenario: Scenario | None = None) -> list[str]:
-    """Names of the rules on by default, in order: for a scenario that declares the roadmap
-    its robots move on (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`) the
-    ``coordination`` rule alone; for any other (and without a scenario) every built-in
-    rule but :data:`OPT_IN`."""
-    if scenario is not None and scenario.roadmap is not None:
+    """Names of the rules on by default, in order: the ``coordination`` rule alone for a
+    scenario whose roadmap is exact (:func:`roadmap_is_exact`); for any other (and without
+    a scenario) every built-in rule but :data:`OPT_IN`."""
+    if scenario is not None and roadmap_is_exact(scenario):
         return ["coordination"]
     return [name for name in RULES if name not in OPT_IN]
+
+
+def roadmap_is_exact(scenario: Scenario) -> bool:
+    """Whether the scenario's robots move on a roadmap whose vertices are their own starts
+    and goals: it declares the grid (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`:
+    ``sqpmpc generate mapf``), or every robot has a goal at rest (a ``point`` reference)
+    and the starts and goals lie on one grid fitted to them
+    (:func:`sqpmpc.coordination.roadmap.on_one_lattice`: grid formations, a room's
+    doorway places)."""
+    if scenario.roadmap is not None:
+        return True
+    if not all(isinstance(r.reference, PointReference) for r in scenario.robots):
+        return False
+    return on_one_lattice(scenario.initial_states()[:, :2], scenario.reference_positions(0.0),
+                          float(scenario.required_distances().max(initial=0.0)),
+                          float(scenario.diameters().max()))
 
 
 def default_rules(scenario: Scenario | None = None) -> tuple[Rule, ...]:
@@ -137,8 +156,8 @@ def describe_rules() -> str:
     """One line per rule and per safety row (``sqpmpc rules``)."""
     width = max(map(len, list(RULES) + list(SAFETY_ROWS)))
     lines = ["rules (on by default but those marked opt-in; a scenario that declares its "
-             "[roadmap] runs with coordination alone; remove one with --without NAME, "
-             "choose with --rules A,B):"]
+             "[roadmap], or whose robots' starts and goals lie on one grid, runs with "
+             "coordination alone; remove one with --without NAME, choose with --rules A,B):"]
     lines += [f"  {name:<{width}}  {'(opt-in) ' if name in OPT_IN else ''}{cls.summary}"
               for name, cls in RULES.items()]
     lines.append("safety rows (always on):")
