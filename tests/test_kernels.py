@@ -105,7 +105,30 @@ def test_kkt_residual_kernel_matches_the_formula(seed: int) -> None:
                 np.where((y > 0) & ~np.isfinite(up), y, 0).max())
     got = kernels.kkt_residual(vals, rows.astype(np.int64), cols.astype(np.int64), z, y, lo,
                                up, P, q, np.empty(k), np.empty(n))
-    assert got == pytest.approx(max(stat, prim, comp, wrong), rel=1e-12)
+    assert got == pytest.approx(max(stat, prim, comp, wrong), rel=1e-12)  # |y| small: s = 1
+    # multipliers of mean size 1000 (s = 10): stationarity and complementarity over s only
+    big = y * (1000.0 * k / np.abs(y).sum())
+    ATy = np.bincount(cols, vals * big[rows], minlength=n)
+    stat = np.abs(P * z + q + ATy).max()
+    comp = max(np.where((big < 0) & np.isfinite(lo), np.abs(big * (Az - lo)), 0).max(),
+               np.where((big > 0) & np.isfinite(up), np.abs(big * (up - Az)), 0).max())
+    wrong = max(np.where((big < 0) & ~np.isfinite(lo), -big, 0).max(),
+                np.where((big > 0) & ~np.isfinite(up), big, 0).max())
+    got = kernels.kkt_residual(vals, rows.astype(np.int64), cols.astype(np.int64), z, big, lo,
+                               up, P, q, np.empty(k), np.empty(n))
+    scale = 1000.0 / kernels.MULTIPLIER_SCALE
+    assert got == pytest.approx(max(stat / scale, prim, comp / scale, wrong), rel=1e-12)
+
+
+def test_kkt_residual_never_scales_the_primal_violation() -> None:
+    # z0 >= 0.5 active with a multiplier of 1e6 (s = 5000), z1 >= 0.5 violated by 0.5
+    vals, rows, cols = np.ones(2), np.arange(2), np.arange(2)
+    z, y = np.array([0.5, 0.0]), np.array([-1e6, 0.0])
+    lo, up = np.full(2, 0.5), np.full(2, np.inf)
+    q = np.array([1e6, 0.0])  # stationary: q + A^T y = 0
+    got = kernels.kkt_residual(vals, rows, cols, z, y, lo, up, np.zeros(2), q, np.empty(2),
+                               np.empty(2))
+    assert got == 0.5
 
 
 def test_euler_defect_is_zero_on_a_rollout_and_counts_the_initial_state() -> None:

@@ -123,3 +123,27 @@ def test_merit_weight_follows_each_sample_not_the_past() -> None:
     weights = np.array(weights)
     assert weights.max() > 100.0  # the encounter has large multipliers
     assert weights[-5:].max() < 0.1 * weights.max()  # and they do not linger
+
+
+def test_first_sample_of_a_dense_circle_ends_at_the_qps_resolution() -> None:
+    """Robots 0.48 m apart on the circle of swap-256, no plans yet: the stage-1 rows of the
+    two missing neighbours (``missing-neighbour-reach``, nearly parallel to the motion they
+    stop) carry multipliers of tens of thousands, so the KKT residual of steps at the QP's
+    resolution (1e-9 m and less) stayed above 1e-5 and these robots iterated to the cap of
+    30. Robot 53 now converges at once by the KKT test scaled by the multipliers (by the
+    step test alone it ended after 3 QPs); robot 71's third step is too small for the merit
+    function's line search and is taken whole, ending the SQP. The first-input check still
+    brakes both: a missing neighbour is nearer than its distance plus its reach."""
+    from sqpmpc.control.decentralized import DecentralizedController
+    from sqpmpc.problem.fleets import antipodal_swap
+    from sqpmpc.rules.registry import select_rules
+
+    sc = antipodal_swap(256)
+    settings = SolverSettings(rules=select_rules(["none"]))
+    for index, most in ((53, 2), (71, 3)):
+        ctrl = DecentralizedController(sc, int(sc.ids[index]), settings)
+        out = ctrl.step(0, 0.0, sc.initial_states(), {})
+        assert out.report.success and out.report.iterations <= most
+        assert np.abs(out.report.last_qp.y).max() > 1e4  # the multipliers scaled for
+        assert out.fallback == "brake"
+        assert np.array_equal(out.inputs, np.zeros((1, 2)))

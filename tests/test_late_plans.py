@@ -12,10 +12,10 @@ import pytest
 from services.faults import ENV
 from services.testing import free_ports, start_service, stop_processes
 from sqpmpc.control.decentralized import DecentralizedController
-from sqpmpc.control.plans import pair_sample
+from sqpmpc.control.plans import pair_sample, predict_from_states
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.models.unicycle import discrete_dynamics
-from sqpmpc.ocp.collision_rows import SHARED
+from sqpmpc.ocp.collision_rows import MISSING, SHARED
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.sim.simulation import ClosedLoopSimulation, SimulationOptions
 from tests import HANG
@@ -39,6 +39,29 @@ def test_the_margin_grows_with_the_age_of_the_newest_plan():
         # robot 2's plans reach the others up to sample 1, then are lost
         plans = {i: c.published for i, c in ctrl.items() if i != 2 or k < 2}
     assert ctrl[1].counts["late_plan_neighbours"] == 14 - 3
+
+
+def test_missing_neighbours_are_predicted_each_as_alone():
+    """The paper's fallback for the slots without a plan, computed in one rollout, is each
+    neighbour's own prediction exactly: standing at the first sample, the input estimated
+    from two states when the plans are lost."""
+    scenario = load_scenario("paper-s2")
+    ts, horizon = scenario.sample_time, scenario.horizon
+    ctrl = DecentralizedController(scenario, int(scenario.ids[0]))
+    x0 = scenario.initial_states()
+    x1 = x0.copy()
+    x1[:, :2] += 0.1 * np.column_stack((np.cos(x0[:, 2]), np.sin(x0[:, 2])))
+    x1[:, 2] += 0.05
+    for k, states, previous in ((0, x0, None), (1, x1, x0)):
+        ctrl.step(k, k * ts, states, {}, previous)  # no plan from anyone
+        d = ctrl.slot_data
+        slots = [e for e, _ in d.neighbours]
+        assert slots and all(d.kinds[e] == MISSING for e in slots)
+        for e in slots:
+            j = d.index[e]
+            alone = predict_from_states(states[j], None if previous is None else previous[j],
+                                        horizon, ts, ctrl.settings.discretization)[1:]
+            assert np.array_equal(d.predictions[e], alone)
 
 
 @pytest.mark.parametrize("name", ["paper-s2", "swap-6"])

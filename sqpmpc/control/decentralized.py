@@ -332,7 +332,8 @@ class DecentralizedController(ControllerPipeline):
         shared = self.mode == "shared"
         d = self.slot_data
         own_cache: dict[int, np.ndarray | None] = {}
-        missing = 0
+        missing: list[int] = []  # the slots predicted by the fallback, and their plans
+        late: list[PlanMessage | None] = []
         for e, jid in d.neighbours:
             plan = plans.get(jid)
             if shared:
@@ -353,24 +354,30 @@ class DecentralizedController(ControllerPipeline):
             elif plan is not None and fill_from_plan(d.predictions[e], plan, sample, *self._timing):
                 d.kinds[e] = OBSTACLE
                 continue
-            self.predict_fallback(e, sample, states, plan, previous_states)
             d.kinds[e] = MISSING if shared else OBSTACLE
-            missing += 1
+            missing.append(e)
+            late.append(plan)
         if missing:
-            self.counts["fallback_neighbours"] += missing
+            self.predict_fallback(missing, sample, states, late, previous_states)
+            self.counts["fallback_neighbours"] += len(missing)
 
-    def predict_fallback(self, slot: int, sample: int, states: np.ndarray,
-                         plan: PlanMessage | None, previous_states: np.ndarray | None) -> None:
-        """The paper's fallback for the neighbour in ``slot``: its newest late plan (it
-        still says where it was going), else the input estimated from two states, held."""
+    def predict_fallback(self, slots: list[int], sample: int, states: np.ndarray,
+                         plans: list[PlanMessage | None],
+                         previous_states: np.ndarray | None) -> None:
+        """The paper's fallback for the neighbours in ``slots``: each one's newest late
+        plan in ``plans`` (it still says where it was going), else the input estimated
+        from two states, held (:func:`predict_from_states`: the neighbours without a plan
+        in one rollout, each predicted exactly as alone)."""
         d = self.slot_data
-        if d.age_margins[slot] == 0.0 or plan is None or not fill_from_plan(
-                d.predictions[slot], plan, sample, *self._timing):
-            j = d.index[slot]
+        rest = [slot for slot, plan in zip(slots, plans, strict=True)
+                if d.age_margins[slot] == 0.0 or plan is None
+                or not fill_from_plan(d.predictions[slot], plan, sample, *self._timing)]
+        if rest:
+            j = d.index[rest]
             prev = None if previous_states is None else previous_states[j]
-            d.predictions[slot] = predict_from_states(states[j], prev, self.horizon,
-                                                      self.sample_time,
-                                                      self.settings.discretization)[1:]
+            d.predictions[rest] = np.swapaxes(predict_from_states(
+                states[j], prev, self.horizon, self.sample_time,
+                self.settings.discretization)[1:], 0, 1)
 
     def publish(self, sample: int, out: ControlOutput) -> None:
         """Keep the sample's plan as :attr:`published` (and in ``out.plan``), the step's

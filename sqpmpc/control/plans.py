@@ -191,8 +191,22 @@ def predict_from_states(
     sample_time: float,
     method: str,
 ) -> np.ndarray:
-    """Paper section 3.2 fallback: hold the input estimated from two states, ``(N+1, 3)``."""
-    u = np.zeros(2) if previous is None else estimate_input(previous, current, sample_time)
+    r"""Paper section 3.2 fallback: hold the input estimated from two states.
+
+    The input :math:`\hat u` of :func:`~sqpmpc.models.unicycle.estimate_input`
+    (``previous`` ``None``: :math:`\hat u = 0`, standing) is held over the horizon:
+    :math:`\hat\chi_0 = \chi_k`, :math:`\hat\chi_{i+1} = f_d(\hat\chi_i, \hat u)`.
+    ``current`` and ``previous`` are ``(..., 3)``: several robots are predicted in
+    one rollout, each exactly as alone.
+
+    Returns
+    -------
+    np.ndarray
+        ``(N+1, ..., 3)``, the current states first.
+    """
+    current = np.asarray(current, dtype=float)
+    u = np.zeros(current.shape[:-1] + (2,)) if previous is None else estimate_input(
+        previous, current, sample_time)
     return rollout(current, np.repeat(u[None], horizon, axis=0), sample_time, method)
 
 

@@ -62,7 +62,10 @@ class SolverSettings:
     max_sqp_iterations
         Iteration cap of SQP mode.
     kkt_tolerance
-        KKT residual (infinity norm) at which SQP stops.
+        KKT residual (infinity norm; stationarity and complementarity relative to
+        the multipliers once their mean size exceeds 100,
+        :func:`sqpmpc.kernels.ocp.kkt_residual`) at which SQP stops; it also stops
+        on a step at the QP's resolution (:data:`sqpmpc.ocp.iteration.STEP_TOLERANCE`).
     first_sample_iterations
         SQP iterations at the first sample (a converged start for RTI).
     rti_kkt_threshold

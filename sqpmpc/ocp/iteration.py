@@ -19,7 +19,19 @@ repeated with an Armijo line search on the exact L1 merit function
     \phi_\mu(z) = f(z) + \mu \big(\|c(z)\|_1 + \textstyle\sum \max(0, h(z))\big),
 
 until the NLP's KKT residual (stationarity, primal feasibility and
-complementarity, infinity norms) is below ``kkt_tolerance``. The Hessian is
+complementarity, infinity norms; stationarity and complementarity relative to
+the multipliers' size, :func:`sqpmpc.kernels.ocp.kkt_residual`) is below
+``kkt_tolerance``, or until a QP step is numerically insignificant,
+
+.. math::
+
+    \|\Delta z\|_\infty \le \epsilon_{step}\,(1 + \|\bar z\|_\infty), \qquad
+    \epsilon_{step} = 10^{-10}
+
+(:data:`STEP_TOLERANCE`): the iterate is then a fixed point of the QP map to
+the QP's resolution, the step is taken whole (no line search: the merit
+function cannot resolve it) with the QP's multipliers, and iterating further
+only repeats it. The Hessian is
 either Gauss-Newton (the cost's, exact for this quadratic cost) or the exact
 Hessian of the Lagrangian, whose dynamics part
 :math:`-\sum_i \lambda_i^\top\nabla^2 f_d` is projected per stage onto the
@@ -42,7 +54,11 @@ from sqpmpc.qp.backend import QPResult
 from sqpmpc.qp.layout import QPLayout
 from sqpmpc.qp.sparse import SparseQP
 
-__all__ = ["MultipleShootingSQP", "engaged_robots"]
+__all__ = ["STEP_TOLERANCE", "MultipleShootingSQP", "engaged_robots"]
+
+#: :math:`\epsilon_{step}` of the module docstring: a QP step below
+#: ``STEP_TOLERANCE * (1 + |z|_inf)`` (infinity norms) ends an SQP solve.
+STEP_TOLERANCE = 1e-10
 
 
 class MultipleShootingSQP:
@@ -469,6 +485,7 @@ class MultipleShootingSQP:
         last: QPResult | None = None
         check_kkt = sqp or s.rti_kkt_threshold is not None
         tol = s.kkt_tolerance if sqp else s.rti_kkt_threshold
+        insignificant = False  # the last SQP step was below STEP_TOLERANCE
         while True:
             t0 = time.perf_counter()
             self.y = y
@@ -481,7 +498,7 @@ class MultipleShootingSQP:
                     assembly += time.perf_counter() - t0
                     break
             assembly += time.perf_counter() - t0
-            if iterations >= max_iterations or (
+            if insignificant or iterations >= max_iterations or (
                     iterations and deadline is not None and time.perf_counter() > deadline):
                 break
             res = self.qp.solve(z, y)
@@ -498,9 +515,13 @@ class MultipleShootingSQP:
                                        qp_iters, last)
             t1 = time.perf_counter()
             if sqp:
-                alpha = self._line_search(z, res, initial_states)
-                z = z + alpha * (res.x - z)
-                y = y + alpha * (res.y - y)
+                insignificant = _insignificant(res.x, z)
+                if insignificant:  # the merit function cannot resolve it: taken whole
+                    z, y = res.x, res.y
+                else:
+                    alpha = self._line_search(z, res, initial_states)
+                    z = z + alpha * (res.x - z)
+                    y = y + alpha * (res.y - y)
             else:
                 z, y = res.x, res.y
             assembly += time.perf_counter() - t1
@@ -539,6 +560,14 @@ class MultipleShootingSQP:
                 return alpha
             alpha *= 0.5
         return alpha
+
+
+def _insignificant(x: np.ndarray, z: np.ndarray) -> bool:
+    r"""Whether the QP step :math:`x - z` is numerically insignificant:
+    :math:`\|x - z\|_\infty \le \epsilon_{step}\,(1 + \|z\|_\infty)`
+    (:data:`STEP_TOLERANCE`)."""
+    return float(np.abs(x - z).max(initial=0.0)) <= STEP_TOLERANCE * (
+        1.0 + float(np.abs(z).max(initial=0.0)))
 
 
 def _shift_indexed(vec: np.ndarray, idx: np.ndarray, axis: int) -> None:
