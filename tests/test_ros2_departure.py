@@ -69,7 +69,7 @@ diameter = 0.3
 reference = { type = "point", position = [1.8, -0.9] }
 """
 KILL_AT = 1.5  # s after the epoch: robot 3 still waits for robot 1 (it crosses at ~3 s)
-REJOIN = 1.0  # --rejoin-timeout of every controller, s
+REJOIN = 2.0  # --rejoin-timeout of every controller, s (the controllers end within it)
 
 
 def test_a_ros2_controller_gone_for_good_is_planned_around(tmp_path):
