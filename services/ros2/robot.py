@@ -459,8 +459,8 @@ class Ros2Robot(StartUp, Node):
                   "plans_received": self.neighbours.received,
                   "plans_refused": self.neighbours.refused,
                   "false_plans": sum(self.neighbours.untrusted.values())}
-        # the controller's own (fallbacks, the rules': coordination_departures, ...); its
-        # "samples" (steps) is the robot's less the braked ones
+        # the controller's own (fallbacks, the rules': coordination_departures, ...); a name
+        # the robot counts too ("samples": the controller's steps) keeps the robot's
         counts.update((key, value) for key, value in self.controller.counters().items()
                       if key not in counts)
         for rid, n in sorted(self.neighbours.untrusted.items()):
