@@ -114,7 +114,7 @@ from .node import (
     session_lost,
     setup_logging,
 )
-from .presence import FaultyInputs, Presence
+from .presence import REJOIN_TIMEOUT, FaultyInputs, Presence
 from .protocol import Verdict
 from .tallies import response_ms, summed
 
@@ -125,8 +125,6 @@ PROG = "services.plant"
 RESEND = 0.05
 """Lockstep: while inputs of a sample are missing, its states are published again this
 often, s (at most every half ``--timeout``; real time: every ``Ts / 4``)."""
-REJOIN_TIMEOUT = 30.0
-"""Default ``--rejoin-timeout``, s."""
 
 
 class PlantNode(Presence, FaultyInputs, Node):

@@ -23,9 +23,14 @@ from .agreement import describe_difference
 from .messages import CmdMsg, Message
 from .protocol import Verdict
 
-__all__ = ["FaultyInputs", "Presence"]
+__all__ = ["REJOIN_TIMEOUT", "FaultyInputs", "Presence"]
 
 log = logging.getLogger("services.plant")
+
+REJOIN_TIMEOUT = 30.0
+"""Default ``--rejoin-timeout``, s: of the plant (:mod:`services.plant`) and of a ROS 2
+robot's controller (:mod:`services.ros2.robot`: how long a peer's controller is gone before
+it is told departed)."""
 
 
 def _robot_of(name: str) -> int | None:

@@ -14,6 +14,7 @@ from sqpmpc.problem.plant import model_margin
 from sqpmpc.problem.scenario import Scenario
 
 from ..node import options_of
+from ..presence import REJOIN_TIMEOUT
 from .graph import check_name
 
 __all__ = ["MAX_CMD_RATE", "add_ros2_arguments", "check_margin", "odom_timeout", "ros2_config",
@@ -73,6 +74,12 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
                    help="a neighbour's plan must start within this (plus the check's margin) "
                         "of where its past plans put it, else it is refused and the "
                         "neighbour untrusted, m (default 0.05)")
+    g.add_argument("--rejoin-timeout", type=positive_float, default=REJOIN_TIMEOUT,
+                   metavar="S",
+                   help="a neighbour's controller gone (its liveliness token away) this long "
+                        "has left for good: this controller plans without it (it stands "
+                        "where it is, the coordination rule plans around it) until it is "
+                        f"back, s (default {REJOIN_TIMEOUT:g}, as the plant's)")
     g.add_argument("--ros2-guard", type=nonnegative_float, default=0.02, metavar="S",
                    help="bound on the clock offset between robots, s (default 0.02): a "
                         "neighbour deciding less than this after this robot's check is held "

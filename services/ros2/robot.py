@@ -51,6 +51,27 @@ it, stamped at that instant. A neighbour without a plan yet is unknown (not runn
 one whose token disappears (it stopped, commanding zero) is held where its last plan
 put it, standing still.
 Before moving, the robot waits up to ``--timeout`` for every alive neighbour's plan.
+
+**A neighbour leaves for good.** There is no plant to say who left: each controller
+judges from the liveliness it sees. A neighbour whose controller's token has been away for
+``--rejoin-timeout`` s (default 30, as the plant's) is told to the controller as departed
+(:meth:`~sqpmpc.control.pipeline.ControllerPipeline.update_departed`, with every such
+neighbour), at a sample boundary of this robot's own loop (the liveliness event is handled
+on the main thread, between samples, as every event); the coordination rule
+(:mod:`sqpmpc.rules.coordination`) then plans again with it standing where it is
+(``coordination_departures`` in the final counts). A neighbour whose token comes back is
+taking part again from the next sample: told so, it is planned to its goal again. Each
+change is logged once. The controllers of a fleet decide this at slightly different
+instants (each its own phase, each when its own session saw the token go) and from
+slightly different estimates (each robot's own odometry, the neighbours' plans): for a
+while one may execute the new plan and another the old one. Safety does not depend on
+it: the collision rows and the check of every input keep each pair apart whatever plan
+each one executes, and the departed robot is held where its last plan put it, standing,
+as every neighbour that left. The new plan is a function of the vertices nearest to the
+robots (:func:`sqpmpc.coordination.fleet.replan_from_positions`), so controllers that see
+the same vertex configuration make the same plan; ones that see a robot nearer another
+vertex may plan differently, and then each executes its own plan, as after a re-plan when
+progress stops.
 """
 
 from __future__ import annotations
@@ -161,6 +182,12 @@ class Ros2Robot(StartUp, Node):
         self.cmd_period = 1.0 / args.cmd_rate if args.cmd_rate > 0.0 else None
         """Period of the command stream (``--cmd-rate``), s; ``None``: once per sample."""
         self.odom_future = float(args.odom_future)
+        self.rejoin_timeout = float(args.rejoin_timeout)
+        """A neighbour's controller gone this long has left for good (``--rejoin-timeout``),
+        s."""
+        self.departed: frozenset[int] = frozenset()
+        """The neighbours the controller was told left for good (:meth:`update_departed`)."""
+        self._gone_since: dict[int, float] = {}  # neighbour -> wall time its token went away
         self._last_stamp = -math.inf  # of the last plan sent
         self._linked = False  # the plan exchange had a link
         self._lost = False  # ... and has none now
@@ -224,13 +251,42 @@ class Ros2Robot(StartUp, Node):
                             msg.id, why)
 
     def on_liveliness(self, name: str, alive: bool) -> None:
-        if alive or not name.startswith("robot/"):
+        """A neighbour's controller came or went (the main thread, between samples): one
+        that went is held where its last plan put it and, gone ``--rejoin-timeout`` s,
+        told departed at a sample boundary (:meth:`update_departed`); one that came is
+        taking part again."""
+        if not name.startswith("robot/"):
             return
         try:
             rid = int(name.split("/", 1)[1])
         except ValueError:
             return
-        self.neighbours.left(rid, time.time())
+        if rid == self.robot_id or rid not in self.ids:
+            return
+        now = time.time()
+        if alive:
+            self._gone_since.pop(rid, None)
+            return
+        self._gone_since.setdefault(rid, now)
+        self.neighbours.left(rid, now)
+
+    def update_departed(self, at: float) -> None:
+        """Tell the controller, at a sample boundary, which neighbours left for good: those
+        whose controller's token has been away for ``--rejoin-timeout`` s at wall time
+        ``at`` (one back is taking part again); each change is logged once."""
+        departed = frozenset(rid for rid, since in self._gone_since.items()
+                             if at - since >= self.rejoin_timeout)
+        if departed == self.departed:
+            return
+        left, back = sorted(departed - self.departed), sorted(self.departed - departed)
+        self.controller.update_departed(sorted(departed))
+        self.departed = departed
+        for rid in left:
+            log.warning("%s: robot %d's controller has been gone for %g s (--rejoin-timeout):"
+                        " it left for good, planned standing where it is", self.name, rid,
+                        self.rejoin_timeout)
+        for rid in back:
+            log.info("%s: robot %d's controller is back: taking part again", self.name, rid)
 
     def own_state(self, t: float) -> np.ndarray | None:
         """The own pose at wall time ``t`` from the newest odometry and the commands sent
@@ -382,6 +438,7 @@ class Ros2Robot(StartUp, Node):
                 if self.stop.is_set():
                     break
                 self._await_plans(Tk)
+                self.update_departed(Tk)
                 self._step(k, Tk)
                 k += 1
                 if self.neighbours.blocked_by_concurrent:  # by a neighbour deciding at
@@ -402,6 +459,10 @@ class Ros2Robot(StartUp, Node):
                   "plans_received": self.neighbours.received,
                   "plans_refused": self.neighbours.refused,
                   "false_plans": sum(self.neighbours.untrusted.values())}
+        # the controller's own (fallbacks, the rules': coordination_departures, ...); a name
+        # the robot counts too ("samples": the controller's steps) keeps the robot's
+        counts.update((key, value) for key, value in self.controller.counters().items()
+                      if key not in counts)
         for rid, n in sorted(self.neighbours.untrusted.items()):
             log.warning("%s: untrusted robot %d: %d false plans refused (first: %s)",
                         self.name, rid, n, self.neighbours.reasons[rid])
