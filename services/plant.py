@@ -50,8 +50,9 @@ writes what it has and exits with status 1.
 
 A robot without an input (late, timed out, or its controller gone) gets the
 braking input (``v = omega = 0`` clipped to the bounds), counted in
-``missed_deadlines``. The state advances with the scenario's ``[plant]`` model and
-input noise (:class:`sqpmpc.problem.plant.Plant`), as in
+``missed_deadlines``; so does a robot the sample's states message lists as ``gone``,
+whatever its controller sends (the others plan with it braked). The state advances
+with the scenario's ``[plant]`` model and input noise (:class:`sqpmpc.problem.plant.Plant`), as in
 :class:`sqpmpc.sim.simulation.ClosedLoopSimulation`.
 It also keeps the plans the controllers publish on ``robot/<id>/plan``.
 With the states of ``k + 1`` it relays the ``plan_ages`` of the inputs it
@@ -186,6 +187,7 @@ class PlantNode(Presence, FaultyInputs, Node):
         self.rejoin_timeout = float(getattr(args, "rejoin_timeout", REJOIN_TIMEOUT))
         self.departed: dict[str, float] = {}  # controller -> when it left (perf_counter)
         self.gone: set[int] = set()  # robots whose controllers did not rejoin in time
+        self.gone_now: set[int] = set()  # the gone of the states message of this sample
         self.all_gone_since: float | None = None
         self.gave_up: str | None = None  # every controller left for good
         self.status = StatusLines(scenario, "plant", float(getattr(args, "status_every",
@@ -227,15 +229,21 @@ class PlantNode(Presence, FaultyInputs, Node):
     def publish_states(self, k: int) -> None:
         """Publish every robot's state of sample ``k``."""
         budget = self.scenario.sample_time if self.mode == "realtime" else None
+        gone = self.gone_for_good()
+        self.gone_now = set(gone)  # braked at k whatever arrives (apply)
         msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest,
-                       self.settings_digest,
-                       plan_ages=self.relay, gone=self.gone_for_good())
+                       self.settings_digest, plan_ages=self.relay, gone=gone)
         self.bus.put(encode(msg), "plant", "state")
 
     def apply(self, k: int) -> None:
         """Apply the inputs collected for sample ``k`` and integrate to ``k + 1``."""
         for rid in self.faulty_now:
             self.cmds.pop(rid, None)  # a robot that sent an inconsistent input is braked
+        for rid in self.gone_now:
+            # the states message of k told every controller it left: they plan with it
+            # braked (DecentralizedController's braked reach), so it is, even if its
+            # controller is back (it takes part from the next message on)
+            self.cmds.pop(rid, None)
         missing = set(self.ids) - set(self.cmds)
         if missing != self._missing:
             if missing - self._missing:

@@ -133,7 +133,7 @@ def test_a_robot_that_leaves_is_planned_standing_and_kept_apart_from() -> None:
     middle of the formation, which robots behind it wait for) leaves at sample 1. Every
     other controller is told at once and plans again from where the robots stand, to one
     plan, with robot 5 standing on a vertex no other path enters; robot 5 stops and stands;
-    no collision of any kind, no bound violated."""
+    the eight others arrive; no collision of any kind, no bound violated."""
     sc = _grid()
     sim = ClosedLoopSimulation(sc, "decentralized", SolverSettings(
         rules=select_rules(["coordination"])))
@@ -162,6 +162,11 @@ def test_a_robot_that_leaves_is_planned_standing_and_kept_apart_from() -> None:
         others = np.delete(plan.configs, row, axis=1)
         assert not (others == vertex).any()  # no other path enters it
     assert len(plans) == 1  # every controller the same plan
+    # the others arrive: a robot that left is braked by its plant, so it keeps no plan-age
+    # disc around it (DecentralizedController.track_plan_ages)
+    goals = sc.reference_positions(0.0)
+    err = np.hypot(*(sim.states[-1, :, :2] - goals).T)
+    assert np.all(np.delete(err, gone) <= 0.05), np.round(err, 3)
 
 
 def test_departures_are_checked_and_a_robot_back_is_planned_to_its_goal_again() -> None:

@@ -41,6 +41,39 @@ def test_the_margin_grows_with_the_age_of_the_newest_plan():
     assert ctrl[1].counts["late_plan_neighbours"] == 14 - 3
 
 
+def test_a_departed_neighbour_keeps_no_age_margin_and_its_braked_reach():
+    """A neighbour told departed (its plant brakes it) has no age margin however old its
+    last plan, and from the second sample on its one-sample reach is what it moved over the
+    sample before: 0 standing, in the rows and in the check; a neighbour merely silent
+    keeps the full reach and the growing margin."""
+    scenario = load_scenario("paper-s2")
+    ts = scenario.sample_time
+    ctrl = {int(i): DecentralizedController(scenario, int(i)) for i in scenario.ids}
+    reach = ctrl[1].context.max_speed * ts
+    x = scenario.initial_states()
+    plans: dict = {}
+    for k in range(6):
+        if k == 3:
+            ctrl[1].update_departed([2])  # robot 2 left; robot 3 goes silent too
+        for i, c in ctrl.items():
+            if i != 2 or k < 3:
+                c.step(k, k * ts, x, plans, x if k else None)
+        plans = {i: c.published for i, c in ctrl.items() if i not in (2, 3) or k < 2}
+        d = ctrl[1].slot_data
+        slot = {jid: e for e, jid in d.neighbours}
+        rows = ctrl[1].collisions
+        if k >= 3:  # robot 2 departed: no margin; standing (x held): reach 0 after a sample
+            assert rows.age_margin[slot[2]] == 0.0
+            assert rows.slot_reach[slot[2]] == (reach if k == 3 else 0.0)
+        assert rows.slot_reach[slot[3]] == reach
+        if k >= 4:
+            assert rows.age_margin[slot[3]] > 0.0  # silent, not departed
+    ctrl[1].update_departed([])  # back: the full reach again
+    ctrl[1].step(6, 6 * ts, x, plans, x)
+    assert ctrl[1].collisions.slot_reach[{j: e for e, j in ctrl[1].slot_data.neighbours}[2]] \
+        == reach
+
+
 def test_missing_neighbours_are_predicted_each_as_alone():
     """The paper's fallback for the slots without a plan, computed in one rollout, is each
     neighbour's own prediction exactly: standing at the first sample, the input estimated

@@ -499,8 +499,11 @@ class ControllerPipeline:
         Every controller of a run must be told the same set at the same sample (a
         plant's states message carries it), since rules may plan the fleet anew from
         it (:mod:`sqpmpc.rules.coordination`: a departed robot then stands where it is
-        and the others are planned around it). The safety rows are not changed: a
-        departed robot is kept apart from as any robot is.
+        and the others are planned around it). Its plant brakes a departed robot from
+        that sample on, so the decentralized rows keep no plan-age margin from it and,
+        from the next sample, only the reach it showed over the sample before (0 once it
+        stands: :meth:`~sqpmpc.control.decentralized.DecentralizedController.classify`);
+        otherwise it is kept apart from as any robot is.
 
         Raises
         ------

@@ -394,19 +394,19 @@ def shared_rows(me: np.ndarray, others_now: np.ndarray, own_pred: np.ndarray,
 @_jit
 def obstacle_rows(me: np.ndarray, others_now: np.ndarray, own: np.ndarray,
                   obstacles: np.ndarray, kinds: np.ndarray, required: np.ndarray,
-                  reach: float, rotation: np.ndarray, stage_one_rule: bool,
+                  reach: np.ndarray, rotation: np.ndarray, stage_one_rule: bool,
                   A_out: np.ndarray, lower_out: np.ndarray) -> int:
     r"""Rows of the obstacle (kind 2) and missing (kind 3) slots at the own iterate.
 
     Each such neighbour's prediction is a moving obstacle: the full distance
-    :math:`n^	op p \ge n^	op o + d` with :math:`n` the rotated unit direction
+    :math:`n^\top p \ge n^\top o + d` with :math:`n` the rotated unit direction
     from the obstacle to the own predicted position (``own (N, 2+)``, stages
     1..N). With ``stage_one_rule`` a stage-1 normal that the current positions
     violate is replaced by the current one (``stage-one-override``). Missing
     slots then get the ``missing-neighbour-reach`` stage-1 row: keep
-    :math:`d + r` from the neighbour's current position if the current gap
-    allows, else do not approach. Other slots are left as they are. Returns
-    the number of stage-1 overrides.
+    :math:`d + r_e` (``reach (E,)``, the neighbour's one-sample reach) from the
+    neighbour's current position if the current gap allows, else do not approach.
+    Other slots are left as they are. Returns the number of stage-1 overrides.
     """
     overrides = 0
     N = A_out.shape[1]
@@ -429,7 +429,7 @@ def obstacle_rows(me: np.ndarray, others_now: np.ndarray, own: np.ndarray,
             lower_out[e, i] = (A_out[e, i, 0] * obstacles[e, i, 0]
                                + A_out[e, i, 1] * obstacles[e, i, 1]) + d
         if kinds[e] == 3:
-            keep = d + reach
+            keep = d + reach[e]
             A_out[e, 0, 0], A_out[e, 0, 1] = n0x, n0y
             if n0x * gx + n0y * gy >= keep:
                 lower_out[e, 0] = (n0x * others_now[e, 0] + n0y * others_now[e, 1]) + keep

@@ -104,7 +104,8 @@ def warm_up() -> float:
         inside_pairs(me, np.ones((1, 2)), np.ones(1, dtype=np.bool_), np.ones(1),
                      np.zeros(1, dtype=np.bool_))
         ck.obstacle_rows(me, np.ones((1, 2)), np.zeros((2, 3)), np.ones((1, 2, 3)),
-                         np.full(1, 3, dtype=np.int8), np.ones(1), 0.1, rot, True, A, lo)
+                         np.full(1, 3, dtype=np.int8), np.ones(1), np.full(1, 0.1), rot, True,
+                         A, lo)
     euler_defect_l1(z, x, 2, 2, 13, 0.1)
     idx = np.zeros(2, dtype=np.int64)
     ck.nearest_within(np.zeros(2), np.ones((3, 2)), np.arange(1, 3), np.full(2, 5.0), idx[:1],

@@ -43,7 +43,9 @@ These are the safety argument, not heuristics; no option removes them.
     within its bounds. Stage 1 keeps :math:`d + r` from its current position,
     :math:`r = T_s v_{max}` its one-sample reach, if the current distance
     allows, and otherwise does not approach it (and the first-input check
-    accepts only standing still).
+    accepts only standing still). A departed robot, braked by its plant, can
+    only slow down: from its second braked sample its reach is what it moved
+    over the sample before (:meth:`ExternalCollisionModel.set_reach`).
 
 Then the first input is *verified* before it is applied
 (:meth:`PairwiseCollisionModel.first_input_safe`,
@@ -236,7 +238,8 @@ class ExternalCollisionModel:
     geometry
         Row geometry from the rules.
     reach
-        Distance a neighbour can travel in one sample (missing slots), m.
+        Distance a neighbour can travel in one sample (missing slots), m; per slot
+        through :meth:`set_reach`.
     margin
         Added to ``required`` in the QP rows, m.
     stage_one_rule_for_obstacles
@@ -274,6 +277,8 @@ class ExternalCollisionModel:
         self.horizon = horizon
         self.geometry = geometry
         self.reach = float(reach)
+        #: ``(E,)`` each slot's one-sample reach (missing slots; :meth:`set_reach`), m
+        self.slot_reach = np.full(np.asarray(required).size, self.reach)
         self.stage_one_rule_for_obstacles = stage_one_rule_for_obstacles
         self.kind = np.zeros(E, dtype=np.int8)
         self.obstacles = np.zeros((E, horizon, 2))
@@ -310,6 +315,17 @@ class ExternalCollisionModel:
         """
         self.age_margin = np.asarray(margins, dtype=float)
         self._aged = bool((self.age_margin > 0.0).any()) if aged is None else bool(aged)
+
+    def set_reach(self, reach: np.ndarray | None = None) -> None:
+        """Per slot, how far its neighbour can travel in one sample ``(E,)``, m (``None``:
+        :attr:`reach` for every slot): the ``missing-neighbour-reach`` row and check keep
+        the distance plus it. Less than :attr:`reach` only for a neighbour whose motion
+        is known to be bounded (a departed robot braked by its plant:
+        :meth:`sqpmpc.control.decentralized.DecentralizedController.classify`)."""
+        if reach is None:
+            self.slot_reach[:] = self.reach
+        else:
+            self.slot_reach[:] = reach
 
     def set_required(self, required: np.ndarray) -> None:
         """True required distances ``(E,)`` per slot (slots reassigned to other neighbours)."""
@@ -415,7 +431,7 @@ class ExternalCollisionModel:
         """Obstacle and missing slots, relinearized at the own stages 1..N ``own (N, 2+)``."""
         required = self.required + self.age_margin if self._aged else self.required
         return obstacle_rows(self.current_self, self.current_others, own, self.obstacles,
-                             self.kind, required, self.reach, self.geometry.rotation,
+                             self.kind, required, self.slot_reach, self.geometry.rotation,
                              self.stage_one_rule_for_obstacles, normals, rhs)
 
     def inside(self) -> np.ndarray:
@@ -468,7 +484,8 @@ class ExternalCollisionModel:
             missing = self.kind == MISSING
             if not segment_keeps_distance(
                     x0, y0, x1, y1, np.ascontiguousarray(self.current_others[missing]),
-                    self.safe_distance[missing] + self.reach, tolerance, growth):
+                    self.safe_distance[missing] + self.slot_reach[missing], tolerance,
+                    growth):
                 return False
         if self.unslotted.shape[0] and moved and not segment_keeps_distance(
                 x0, y0, x1, y1, self.unslotted, self._unslotted_keep, tolerance, growth):

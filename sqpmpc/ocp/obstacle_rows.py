@@ -179,7 +179,7 @@ class ObstacleRows:
                 now, predicted, required = self.now, self.predicted, self.required[r]
                 kinds, moving, empty = self._kinds, self._moving, None
             overrides += obstacle_rows(self.current[r], now, states[r, 1:], predicted,
-                                       kinds, required, 0.0,
+                                       kinds, required, np.zeros(kinds.size),
                                        self.geometry.rotation, True, A_out[r], lower_out[r])
             if empty is not None:
                 A_out[r, empty] = 0.0
