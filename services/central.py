@@ -66,7 +66,7 @@ class CentralNode(ControllerNode):
         super().__init__(scenario, args, "central", "centralized")
 
     def step_sample(self, sample: int, entry: SampleStates) -> None:
-        out = self.controller.step(entry.t, entry.states)
+        out = self.controller.step(entry.t, entry.measured)
         # each robot's plan first (for the plant's recording and the viewer; before the
         # inputs, so the plant has it when it advances), then the inputs
         stamp = time.time()

@@ -90,6 +90,15 @@ class SampleStates:
     states: np.ndarray
     plan_ages: dict[int, dict[int, int]] | None = None
     gone: tuple[int, ...] = ()
+    velocities: np.ndarray | None = None
+
+    @property
+    def measured(self) -> np.ndarray:
+        """What the controllers step on: the poses ``(n, 3)``, with the plant's measured
+        velocities ``(n, 5)`` when it sent them (as the in-process loop measures)."""
+        if self.velocities is None:
+            return self.states
+        return np.concatenate((self.states, self.velocities), axis=1)
 
 
 class ControllerNode(Node):
@@ -146,7 +155,7 @@ class ControllerNode(Node):
             for later in [s for s in self.samples if s > msg.sample]:
                 del self.samples[later]  # back to the plant's sample after a forged one
             self.samples[msg.sample] = SampleStates(msg.t, msg.budget, msg.x, msg.plan_ages,
-                                                    msg.gone)
+                                                    msg.gone, msg.v)
             self.pending = msg.sample
         elif decision.verdict is Verdict.REPEAT:
             # the plant misses an input of this sample: if it is handled, this process's

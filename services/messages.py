@@ -99,6 +99,9 @@ class StateMsg:
     gone: tuple[int, ...] = ()
     """Robots whose controllers left the run for good (not back within the plant's
     ``--rejoin-timeout``): every controller is told the same at the same sample."""
+    v: np.ndarray | None = None
+    """The robots' measured velocities ``(v, omega)`` ``(n, 2)`` where the plant has them
+    (acceleration bounds: :meth:`sqpmpc.problem.plant.Plant.measure`), else ``None``."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,6 +176,8 @@ def encode(msg: Message) -> bytes:
             body["plan_ages"] = [[int(r), _pairs(a)] for r, a in msg.plan_ages.items() if a]
         if msg.gone:
             body["gone"] = [int(i) for i in msg.gone]
+        if msg.v is not None:
+            body["velocities"] = _floats(msg.v)
     elif isinstance(msg, CmdMsg):
         body = {"type": "cmd", "id": int(msg.id), "sample": int(msg.sample), "u": _floats(msg.u),
                 "compute_time": float(msg.compute_time), "fallback": msg.fallback,
@@ -320,7 +325,9 @@ def decode(payload: bytes, horizon: int) -> Message:
         return StateMsg(_int(body, "sample", 0), _float(body, "t"), tuple(ids),
                         _array(body, "x", (len(ids), 3)), budget, scenario,
                         _text(body, "settings"),
-                        _relayed_ages(body, horizon) or None, tuple(sorted(set(gone))))
+                        _relayed_ages(body, horizon) or None, tuple(sorted(set(gone))),
+                        _array(body, "velocities", (len(ids), 2)) if "velocities" in body
+                        else None)
     if kind == "cmd":
         fallback = body.get("fallback")
         if fallback is not None and not isinstance(fallback, str):

@@ -231,8 +231,11 @@ class PlantNode(Presence, FaultyInputs, Node):
         budget = self.scenario.sample_time if self.mode == "realtime" else None
         gone = self.gone_for_good()
         self.gone_now = set(gone)  # braked at k whatever arrives (apply)
+        # the measured velocities too where the plant has them, as the in-process loop
+        # measures (Plant.measure): the controllers start from them, not from their commands
         msg = StateMsg(k, float(self.t[k]), tuple(self.ids), self.states[k], budget, self.digest,
-                       self.settings_digest, plan_ages=self.relay, gone=gone)
+                       self.settings_digest, plan_ages=self.relay, gone=gone,
+                       v=self.plant.velocities.copy() if self.plant.has_velocities else None)
         self.bus.put(encode(msg), "plant", "state")
 
     def apply(self, k: int) -> None:

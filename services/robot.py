@@ -243,7 +243,7 @@ class RobotNode(ControllerNode):
             # the robots whose controllers left for good, as the plant says (every
             # controller at the same sample)
             self.controller.update_departed([i for i in entry.gone if i != self.robot_id])
-            out = self.controller.step(sample, entry.t, entry.states, plans,
+            out = self.controller.step(sample, entry.t, entry.measured, plans,
                                        self.previous_states(sample), entry.plan_ages)
         plan = self.controller.published
         self.publish_plan(PlanMsg(self.robot_id, sample, entry.t, time.time(), plan.states,

@@ -214,6 +214,21 @@ def test_plan_ages_round_trip_and_default_to_none():
     assert decode(encode(CmdMsg(1, 0, np.zeros(2), 0.0)), N).plan_ages is None
 
 
+def test_measured_velocities_round_trip_bit_exact_and_are_checked():
+    """The plant's measured velocities (acceleration bounds) travel with the states, bit
+    for bit, so that the services step on what the in-process loop steps on; absent, none;
+    a wrong size or a non-finite value is refused by name."""
+    v = np.random.default_rng(5).normal(size=(4, 2))
+    state = StateMsg(8, 4.0, IDS, np.zeros((4, 3)), None, "abc", v=v)
+    back = decode(encode(state), N)
+    assert back.v is not None and back.v.tobytes() == v.tobytes()
+    assert decode(encode(_state()), N).v is None
+    for bad in (np.zeros((3, 2)), np.full((4, 2), np.nan)):
+        body = _body(StateMsg(8, 4.0, IDS, np.zeros((4, 3)), None, "abc", v=bad))
+        with pytest.raises(InvalidMessage, match="velocities"):
+            decode(_raw(body), N)
+
+
 @pytest.mark.parametrize("value", [
     {}, [[1]], [[1, 2, 3]], [["1", 2]], [[1, 2.0]], [[1, 0]], [[1, N + 3]], [[1, 2], [1, 3]],
     [[1, True]], [[1, 2]] * 5000,
