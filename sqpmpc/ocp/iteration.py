@@ -266,25 +266,27 @@ class MultipleShootingSQP:
         ``inputs (k, N, nu)`` at this sample: its inputs (clipped to their bounds) and its
         velocity states of stages 1..N become the references of theirs
         (:meth:`SparseQP.update_input_references`; the other robots' are 0, the paper's
-        cost, until :meth:`clear_motion`), and the rollout of those inputs from the
-        robots' stage-0 states is where the sample's first QP linearizes their dynamics.
-        The iterate (the QP's warm start, and the point of the collision rows) stays the
-        shifted previous solution.
+        cost, until :meth:`clear_motion`), and their dynamics are linearized, in the
+        sample's first QP, along the rollout of the motion's inputs from their stage-0
+        states; the iterate itself (the QP's warm start, the point of the collision rows)
+        stays the shifted previous solution.
 
-        Why the dynamics along the motion: a robot standing in the shifted iterate
-        (:math:`\bar v_k = 0`) has linearized positions that cannot leave its heading's
-        line, :math:`\partial p_{k+1}/\partial\theta_k = T_s \bar v_k
-        (-\sin\bar\theta_k, \cos\bar\theta_k) = 0`, so its QP sees no use in a turn the
-        motion asks for (in place, then along the path) and dithers its turn rate (a
-        64-robot grid formation: two robots pressed together stood until a re-plan, 3.3
-        times the straight trip; 1.98 linearized along the motion). Linearized along the
-        motion, whose later stages move, the QP sees what the turn is for. A robot that
-        tracks its motion has it as its shifted iterate anyway.
+        Why: a robot standing in the shifted iterate (:math:`\bar v_k = 0`) has
+        linearized positions that cannot leave its heading's line,
+        :math:`\partial p_{k+1}/\partial\theta_k = T_s \bar v_k (-\sin\bar\theta_k,
+        \cos\bar\theta_k) = 0`, so its QP sees no use in a turn the motion asks for (in
+        place, then along the path) and dithers its turn rate: a 64-robot grid formation
+        (seed 0) stood with two robots pressed together until a re-plan, 3.29 times the
+        straight trip; 1.98 with the dynamics along the motion. A robot that tracks its
+        motion has it as its shifted iterate anyway; linearizing only the robots standing
+        in the iterate (speeds within the QP's tolerance of 0) did worse on grid formations
+        (seeds 0-12: median 1.94 and at most 2.23 times the straight trip, against 1.88
+        and 2.04).
 
-        Why the collision rows at the iterate: they are the separating hyperplanes between
-        where the robot and its neighbours are predicted to be; at the motion's positions
-        they bound a robot held behind its motion by a neighbour to the far side of that
-        neighbour, and it deferred moving (maze-32-32-2 random-2, 32 robots: 98.6 s
+        Why not the collision rows at the motion: they are the separating hyperplanes
+        between where the robot and its neighbours are predicted to be; at the motion's
+        positions they bound a robot held behind its motion by a neighbour to the far side
+        of that neighbour, and it deferred moving (maze-32-32-2 random-2, 32 robots: 98.6 s
         instead of 88 s). Safety depends on neither point: the rows are inner
         approximations at any point and the first input is verified on the nonlinear model
         (:mod:`sqpmpc.control.pipeline`)."""
