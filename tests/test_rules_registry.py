@@ -12,6 +12,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid
 from sqpmpc.problem.grid import GridSpec
+from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.registry import (
@@ -63,6 +64,12 @@ def test_coordination_is_the_default_where_the_roadmap_is_exact() -> None:
     # a declared grid, whatever the points; timed references are not planned
     assert roadmap_is_exact(swap.with_changes(roadmap=GridSpec(0.5, (0.0, 0.0))))
     assert not roadmap_is_exact(load_scenario("paper-s2"))
+    # one robot (any two points lie on some grid), or an obstacle that moves: the rules
+    assert not roadmap_is_exact(grid.with_changes(robots=grid.robots[:1]))
+    moving = Obstacle(position=(0.0, 5.0), diameter=0.4, velocity=(0.0, -0.1))
+    assert not roadmap_is_exact(grid.with_changes(obstacles=(moving,)))
+    assert roadmap_is_exact(grid.with_changes(obstacles=(Obstacle(position=(0.0, 5.0),
+                                                                  diameter=0.4),)))
 
 
 def test_selection() -> None:

@@ -90,12 +90,16 @@ def default_names(scenario: Scenario | None = None) -> list[str]:
 def roadmap_is_exact(scenario: Scenario) -> bool:
     """Whether the scenario's robots move on a roadmap whose vertices are their own starts
     and goals: it declares the grid (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`:
-    ``sqpmpc generate mapf``), or every robot has a goal at rest (a ``point`` reference)
-    and the starts and goals lie on one grid fitted to them
+    ``sqpmpc generate mapf``), or it is a fleet (two robots or more), every robot has a
+    goal at rest (a ``point`` reference), no obstacle moves (the roadmap is of the static
+    free space) and the starts and goals lie on one grid fitted to them
     (:func:`sqpmpc.coordination.roadmap.on_one_lattice`: grid formations, a room's
-    doorway places)."""
+    doorway places). One robot's start and goal always lie on some grid: for it the
+    roadmap would only bend a straight way."""
     if scenario.roadmap is not None:
         return True
+    if scenario.n_robots < 2 or any(ob.velocity != (0.0, 0.0) for ob in scenario.obstacles):
+        return False
     if not all(isinstance(r.reference, PointReference) for r in scenario.robots):
         return False
     return on_one_lattice(scenario.initial_states()[:, :2], scenario.reference_positions(0.0),
