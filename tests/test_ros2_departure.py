@@ -155,17 +155,17 @@ def test_a_neighbour_gone_for_the_rejoin_timeout_is_told_departed_and_back_again
     left: list[int] = []
     robot = SimpleNamespace(
         name="robot/1", robot_id=1, ids=[1, 2, 3, 4], rejoin_timeout=5.0,
-        departed=frozenset(), _gone_since={},
+        departed=frozenset(), gone_since={},
         controller=SimpleNamespace(update_departed=lambda ids: told.append(list(ids))),
         neighbours=SimpleNamespace(left=lambda rid, now: left.append(rid)))
     for name in ("central", "robot/x", "robot/1", "robot/9", "plant"):  # not a neighbour
         Ros2Robot.on_liveliness(robot, name, False)
-    assert robot._gone_since == {} and left == []
+    assert robot.gone_since == {} and left == []
     Ros2Robot.on_liveliness(robot, "robot/3", False)
     Ros2Robot.on_liveliness(robot, "robot/4", False)
     assert left == [3, 4]
-    gone = robot._gone_since[3]
-    robot._gone_since[4] = gone + 2.0
+    gone = robot.gone_since[3]
+    robot.gone_since[4] = gone + 2.0
     with caplog.at_level(logging.INFO, logger="services.ros2.robot"):
         Ros2Robot.update_departed(robot, gone + 4.9)  # not yet
         Ros2Robot.update_departed(robot, gone + 5.0)

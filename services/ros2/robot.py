@@ -187,7 +187,8 @@ class Ros2Robot(StartUp, Node):
         s."""
         self.departed: frozenset[int] = frozenset()
         """The neighbours the controller was told left for good (:meth:`update_departed`)."""
-        self._gone_since: dict[int, float] = {}  # neighbour -> wall time its token went away
+        self.gone_since: dict[int, float] = {}
+        """Wall time at which each neighbour's controller token went away (not back since), s."""
         self._last_stamp = -math.inf  # of the last plan sent
         self._linked = False  # the plan exchange had a link
         self._lost = False  # ... and has none now
@@ -265,16 +266,16 @@ class Ros2Robot(StartUp, Node):
             return
         now = time.time()
         if alive:
-            self._gone_since.pop(rid, None)
+            self.gone_since.pop(rid, None)
             return
-        self._gone_since.setdefault(rid, now)
+        self.gone_since.setdefault(rid, now)
         self.neighbours.left(rid, now)
 
     def update_departed(self, at: float) -> None:
         """Tell the controller, at a sample boundary, which neighbours left for good: those
         whose controller's token has been away for ``--rejoin-timeout`` s at wall time
         ``at`` (one back is taking part again); each change is logged once."""
-        departed = frozenset(rid for rid, since in self._gone_since.items()
+        departed = frozenset(rid for rid, since in self.gone_since.items()
                              if at - since >= self.rejoin_timeout)
         if departed == self.departed:
             return
