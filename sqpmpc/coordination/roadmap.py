@@ -91,6 +91,7 @@ from sqpmpc.problem.polygons import PolygonObstacle
 __all__ = ["Roadmap", "build_roadmap", "on_one_lattice"]
 
 _OFFSETS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
+_FIT_MAX_POINTS = 1024  # a grid is fitted to at most this many starts and goals (k^2 pairs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -374,7 +375,7 @@ def _fitted_grid(points: np.ndarray, h_min: float, separation: float, closest: f
     beyond ``separation``, its origin one of the points; ``(h, reach, origin)`` or ``None``
     when it puts no more points on vertices, or when two starts (or two goals) are nearer
     than its spacing (``closest``: they would be one vertex)."""
-    if points.shape[0] < 2 or points.shape[0] > 1024:
+    if points.shape[0] < 2 or points.shape[0] > _FIT_MAX_POINTS:
         return None
     nearest = np.argmin(_pair_gaps(points), axis=1)
     offsets = np.abs(points - points[nearest]).ravel()
@@ -401,7 +402,8 @@ def on_one_lattice(starts: np.ndarray, goals: np.ndarray, separation: float,
     :math:`h \ge s + 2\rho` with :math:`\rho = d/4`, from the points' most common nearest
     offset; reach :math:`(h - s)/2`), or the finest grid when none is fitted. On such a
     fleet the roadmap is exact, every start and goal a vertex, as on a declared grid
-    (``sqpmpc generate mapf``).
+    (``sqpmpc generate mapf``). Above 1024 points no grid is fitted (the pairs of points
+    are compared: :math:`k^2` memory), here as in :func:`build_roadmap`.
 
     Parameters
     ----------
@@ -415,6 +417,8 @@ def on_one_lattice(starts: np.ndarray, goals: np.ndarray, separation: float,
     starts = np.asarray(starts, dtype=float).reshape(-1, 2)
     goals = np.asarray(goals, dtype=float).reshape(-1, 2)
     points = np.concatenate((starts, goals))
+    if points.shape[0] > _FIT_MAX_POINTS:  # build_roadmap fits no grid to them either
+        return False
     h_min = separation + 0.5 * diameter
     fitted = _fitted_grid(points, h_min, separation, min(_closest(starts), _closest(goals)))
     h, reach = (fitted[0], fitted[1]) if fitted is not None else (
