@@ -209,7 +209,9 @@ def add_rule_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("rules (sqpmpc rules lists them)")
     group.add_argument("--rules", default=None, metavar="NAME,NAME",
                        help="the liveness rules to use, comma-separated, or 'none' "
-                            "(default: all)")
+                            "(default: coordination alone where the scenario's roadmap is "
+                            "exact, a declared grid or a fleet on one grid; else every rule "
+                            "but the opt-in ones)")
     group.add_argument("--without", action="append", default=[], metavar="NAME",
                        help="remove one rule (repeatable)")
     group.add_argument("--rule-param", action="append", default=[], metavar="RULE.FIELD=VALUE",
