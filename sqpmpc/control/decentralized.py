@@ -257,9 +257,11 @@ class DecentralizedController(ControllerPipeline):
         """Own published prediction and the neighbours', stages 1..N, with the slot kinds.
 
         Five named steps: :meth:`select_neighbours` (with neighbour slots),
-        :meth:`predict_own`, :meth:`track_plan_ages`, :meth:`classify` (shared,
-        obstacle or missing, the fallback prediction for a missing one), then
-        the collision rows are given the sample.
+        :meth:`predict_own`, :meth:`track_plan_ages` (then, with departed neighbours,
+        their braked margins and reach), :meth:`classify` (shared, obstacle or missing,
+        the fallback prediction for a missing one), then the collision rows are given
+        the sample. A departed neighbour, braked by its plant, keeps no plan-age margin
+        and, once braked over a sample, only the reach it showed over it (0 standing).
 
         A shared hyperplane of the pair with neighbour ``l`` is built from both
         robots' plans of the sample :func:`pair_sample` gives (``k - 1``
@@ -273,6 +275,8 @@ class DecentralizedController(ControllerPipeline):
             self.select_neighbours(states)
         self.predict_own(sample, states)
         self.plan_ages = self.track_plan_ages(sample, plans)
+        if self.context.departed or self._braked:
+            self._braked_neighbours(sample, states, previous_states)
         self.classify(sample, states, plans, previous_states, plan_ages)
         d = self.slot_data
         self.collisions.set_age_margins(d.age_margins, self._aged)
@@ -318,29 +322,13 @@ class DecentralizedController(ControllerPipeline):
         re-planned ``a - 1`` times unseen: its rows keep ``v_max Ts min(a - 1, N)``
         more (:attr:`NeighbourSlots.age_margins`). Its age is reported once it
         has been late :data:`LATE_STEPS` steps in a row (:class:`PlanBook.age`).
-        A departed neighbour
-        (:meth:`~sqpmpc.control.pipeline.ControllerPipeline.update_departed`) re-plans
-        nothing: its controller left and its plant brakes it (``v = omega = 0`` clipped
-        to the bounds: the services' plant,
-        :meth:`~sqpmpc.sim.simulation.ClosedLoopSimulation.depart`), so its rows get no
-        age margin and it is predicted from its last two measured states (the paper's
-        fallback: standing once it has stopped). Its one-sample reach stays in the check
-        of the first input, which never had the age margin
-        (:meth:`~sqpmpc.ocp.collision_rows.ExternalCollisionModel.set_age_margins`).
-        Without this a robot that left kept a disc of :math:`v_{\max} T_s N` (2 m at
-        1 m/s, 0.2 s, N = 10) around it for good, and the robots around it stood.
+        A departed neighbour keeps none (:meth:`_braked_neighbours`).
         """
         d = self.slot_data
         report, self._aged, late = self.book.track(d.neighbours, plans, sample, d.age_margins,
                                                    self._reach)
         if late:
             self.counts["late_plan_neighbours"] += late
-        departed = self.context.departed
-        if departed and self._aged:  # braked by their plant: no re-plan unseen (docstring)
-            for e, _ in d.neighbours:
-                if int(d.index[e]) in departed:
-                    d.age_margins[e] = 0.0
-            self._aged = bool((d.age_margins > 0.0).any())
         return report
 
     def classify(self, sample: int, states: np.ndarray, plans: Mapping[int, object],
@@ -378,40 +366,49 @@ class DecentralizedController(ControllerPipeline):
         if missing:
             self.predict_fallback(missing, sample, states, late, previous_states)
             self.counts["fallback_neighbours"] += len(missing)
-        if self.context.departed or self._braked:
-            self._braked_reach(sample, states, previous_states)
 
-    def _braked_reach(self, sample: int, states: np.ndarray,
-                      previous_states: np.ndarray | None) -> None:
-        r"""The one-sample reach of each slot (:meth:`ExternalCollisionModel.set_reach
-        <sqpmpc.ocp.collision_rows.ExternalCollisionModel.set_reach>`): :math:`v_{\max}
-        T_s` but for a departed neighbour braked over the last sample, whose reach is
-        what it moved over that sample.
+    def _braked_neighbours(self, sample: int, states: np.ndarray,
+                           previous_states: np.ndarray | None) -> None:
+        r"""The departed neighbours
+        (:meth:`~sqpmpc.control.pipeline.ControllerPipeline.update_departed`), braked by
+        their plant: no plan-age margin, and a one-sample
+        reach (:meth:`ExternalCollisionModel.set_reach
+        <sqpmpc.ocp.collision_rows.ExternalCollisionModel.set_reach>`) of what they moved
+        over the last sample once braked over it; :math:`v_{\max} T_s` for every other slot.
 
-        A departed robot's plant brakes it from the sample at which its controllers are
-        told (``v = omega = 0`` clipped to the bounds: the services' plant brakes a robot
-        its states message lists as gone, :meth:`~sqpmpc.sim.simulation.
-        ClosedLoopSimulation.depart` sends zero from the next step). Braked, its speed
-        does not grow (a velocity plant: 0, or the bound nearest 0, at once; with
-        acceleration bounds it slows at the bound), so from the second sample on it moves
-        at most what it moved in the sample before: 0 once it stands. A noisy plant's
-        input noise can move it: there it keeps :math:`v_{\max} T_s`. Without this a
+        A departed robot re-plans nothing: with no age margin it is predicted from its last
+        two measured states (the paper's fallback, :meth:`predict_fallback`: standing once
+        it has stopped); its reach stays in the check of the first input, which never had
+        the age margin. Without this a robot that left kept a disc of :math:`v_{\max} T_s N`
+        (2 m at 1 m/s, 0.2 s, N = 10) around it for good, and the robots around it stood. A
+        departed robot's plant brakes it from the sample at which its controllers are told
+        (``v = omega = 0`` clipped to the bounds: the services' plant brakes a robot its
+        states message lists as gone,
+        :meth:`~sqpmpc.sim.simulation.ClosedLoopSimulation.depart` sends zero from the next
+        step). Braked, its speed does not grow (a velocity plant: 0, or the bound nearest 0,
+        at once; with acceleration bounds it slows at the bound), so from the second sample
+        on it moves at most what it moved in the sample before: 0 once it stands. A noisy
+        plant's input noise can move it: there it keeps :math:`v_{\max} T_s`. Without this a
         robot whose path passes a departed robot within :math:`d + v_{\max} T_s` stood
-        before it for good (a 3 x 3 formation: robot 4, 0.5 m from robot 5 that left,
-        which it had to keep 0.6 m from)."""
+        before it for good (a 3 x 3 formation: robot 4, 0.5 m from robot 5 that left, which
+        it had to keep 0.6 m from)."""
         departed = self.context.departed
         for j in [j for j in self._braked if j not in departed]:
             del self._braked[j]
         for j in departed:
             self._braked.setdefault(j, sample)
         reach = np.full(self.slots, self._reach)
-        if previous_states is not None and not self.scenario.plant.noisy:
-            d = self.slot_data
-            for e, _ in d.neighbours:
-                j = int(d.index[e])
-                if self._braked.get(j, sample) < sample:
-                    moved = float(np.hypot(*(states[j, :2] - previous_states[j, :2])))
-                    reach[e] = min(self._reach, moved)
+        known = previous_states is not None and not self.scenario.plant.noisy
+        d = self.slot_data
+        for e, _ in d.neighbours:
+            j = int(d.index[e])
+            if j not in departed:
+                continue
+            d.age_margins[e] = 0.0
+            if known and self._braked[j] < sample:
+                moved = float(np.hypot(*(states[j, :2] - previous_states[j, :2])))
+                reach[e] = min(self._reach, moved)
+        self._aged = bool((d.age_margins > 0.0).any())
         self.collisions.set_reach(reach)
 
     def predict_fallback(self, slots: list[int], sample: int, states: np.ndarray,

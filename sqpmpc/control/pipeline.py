@@ -502,7 +502,7 @@ class ControllerPipeline:
         and the others are planned around it). Its plant brakes a departed robot from
         that sample on, so the decentralized rows keep no plan-age margin from it and,
         from the next sample, only the reach it showed over the sample before (0 once it
-        stands: :meth:`~sqpmpc.control.decentralized.DecentralizedController.classify`);
+        stands: :meth:`~sqpmpc.control.decentralized.DecentralizedController.predict_neighbours`);
         otherwise it is kept apart from as any robot is.
 
         Raises

@@ -321,7 +321,7 @@ class ExternalCollisionModel:
         :attr:`reach` for every slot): the ``missing-neighbour-reach`` row and check keep
         the distance plus it. Less than :attr:`reach` only for a neighbour whose motion
         is known to be bounded (a departed robot braked by its plant:
-        :meth:`sqpmpc.control.decentralized.DecentralizedController.classify`)."""
+        :meth:`sqpmpc.control.decentralized.DecentralizedController.predict_neighbours`)."""
         if reach is None:
             self.slot_reach[:] = self.reach
         else:
