@@ -12,7 +12,7 @@ compiled kernels of the OCP write whole blocks through the views
 :meth:`SparseQP.matrix_entries` and :meth:`SparseQP.row_bounds` hand out by
 name, then say so with :meth:`SparseQP.mark_changed`. :meth:`SparseQP.solve`
 hands the backend (:class:`~sqpmpc.qp.backend.QPBackend`, chosen by name:
-OSQP, PIQP or DAQP) only what changed, then applies the policies of
+OSQP, PIQP, DAQP or the active-set method) only what changed, then applies the policies of
 :mod:`sqpmpc.qp.policies` (hand-over, rescue) to a QP it left unsolved. A
 change of vectors alone never triggers a re-factorization.
 """
@@ -73,7 +73,8 @@ class SparseQP:
     settings
         OSQP settings (tolerances and rescue also for PIQP).
     solver
-        ``"osqp"`` (default), ``"piqp"``, ``"daqp"`` or ``"osqp+piqp"``.
+        ``"osqp"`` (default), ``"piqp"``, ``"piqp-multistage"``, ``"daqp"``,
+        ``"osqp+piqp"`` or ``"active-set"``.
 
     Attributes
     ----------
@@ -95,11 +96,12 @@ class SparseQP:
         self.settings = settings or OSQPSettings()
         self.solver_name = solver
         self.handover: HandOver | None = None
-        if solver == "osqp+piqp":  # OSQP first, capped; PIQP takes the QPs it leaves
+        if solver in ("osqp+piqp", "active-set"):
+            # OSQP (the active set's fallback) capped; PIQP takes the QPs it leaves
             self.handover = HandOver(make_backend("piqp", layout, self.settings))
             self.settings = replace(self.settings, max_iter=min(
                 self.settings.max_iter, HANDOVER_ITERATIONS))
-            solver = "osqp"
+            solver = "osqp" if solver == "osqp+piqp" else solver
         self.backend: QPBackend = make_backend(solver, layout, self.settings)
         self.rescue = None if self.settings.rescue_solver is None else Rescue(
             self.settings.rescue_solver)
