@@ -80,7 +80,7 @@ class ActiveSetSettings:
     epsilon: float = 1e-9
     c: float = 10.0
     max_iter: int = ACTIVE_SET_MAX_ITER
-    refinements: int = 2
+    refinements: int = 1
 
 
 def kkt_order(layout: QPLayout) -> np.ndarray:
