@@ -165,6 +165,7 @@ def test_the_closed_loop_qps_need_no_fallback_and_match_osqp() -> None:
     assert SolverSettings().qp_solver_for(4, "centralized") == CENTRALIZED_QP_SOLVER
     assert SolverSettings().qp_solver_for(FLEET_ROBOTS + 1, "centralized") != "active-set"
     assert SolverSettings().qp_solver_for(4, "decentralized") != "active-set"
+    assert SolverSettings().qp_solver_for(4, "centralized", velocity_states=True) != "active-set"
     sc = sqpmpc.load_scenario("paper-s2").with_changes(t_end=10.0)
     sim = ClosedLoopSimulation(sc, "centralized")
     qp = sim.controllers[0].engine.qp

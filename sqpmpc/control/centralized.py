@@ -43,7 +43,7 @@ class CentralizedController(ControllerPipeline):
 
     def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
         settings = (settings or SolverSettings(rules=default_rules(scenario))).resolved(
-            scenario.n_robots, "centralized")
+            scenario.n_robots, "centralized", bool(scenario.robot_model().velocity_states))
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs,

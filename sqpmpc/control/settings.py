@@ -43,7 +43,8 @@ FLEET_QP_SOLVER = "piqp"
 #: :data:`~sqpmpc.qp.backend.HANDOVER_ITERATIONS` iterations, PIQP for the QPs it leaves;
 #: no QP then takes more than about 5 times OSQP's median work (``docs/speed.md``).
 BOUNDED_QP_SOLVER = "osqp+piqp"
-#: ``qp_solver="auto"`` for the centralized QP of at most :data:`FLEET_ROBOTS` robots: the
+#: ``qp_solver="auto"`` for the centralized QP of at most :data:`FLEET_ROBOTS` robots of a
+#: model without velocity states: the
 #: primal-dual active-set method (:mod:`sqpmpc.qp.active_set`), whose warm-started working
 #: set is right at about 1.03 factorizations per QP, with :data:`BOUNDED_QP_SOLVER`'s chain
 #: behind it; measured on paper-s2 against OSQP on the same QPs: 2.5-3.5 times less QP time
@@ -112,7 +113,8 @@ class SolverSettings:
         than :data:`FLEET_ROBOTS` robots (an interior-point method's time per
         QP is nearly constant, where OSQP's tail grows with the crowding:
         ``docs/fleet.md``), :data:`CENTRALIZED_QP_SOLVER` for the centralized QP
-        of at most :data:`FLEET_ROBOTS` robots, :data:`BOUNDED_QP_SOLVER`
+        of at most :data:`FLEET_ROBOTS` robots without velocity states,
+        :data:`BOUNDED_QP_SOLVER`
         otherwise (OSQP's median, its tail cut at the hand-over: ``docs/speed.md``).
     osqp
         OSQP settings (its tolerances and rescue apply to PIQP too).
@@ -166,7 +168,8 @@ class SolverSettings:
             raise ProblemError(f"osqp must be OSQPSettings, got {type(self.osqp).__name__}")
         object.__setattr__(self, "rules", check_rules(tuple(self.rules)))
 
-    def qp_solver_for(self, n_robots: int, scheme: str = "decentralized") -> str:
+    def qp_solver_for(self, n_robots: int, scheme: str = "decentralized",
+                      velocity_states: bool = False) -> str:
         """The QP backend for a scenario of ``n_robots`` (``"auto"`` resolved).
 
         The fleet solver serves the decentralized robots' small QPs; the
@@ -174,12 +177,16 @@ class SolverSettings:
         sparse ADMM iterations were 4 times faster there than PIQP's
         factorizations (swap-32: median 46 against 186 ms per sample), capped
         at the hand-over like every QP outside a decentralized fleet. The
-        centralized QP of a small group (at most :data:`FLEET_ROBOTS` robots) goes to
-        the active-set method first (:data:`CENTRALIZED_QP_SOLVER`).
+        centralized QP of a small group (at most :data:`FLEET_ROBOTS` robots) of a
+        model without ``velocity_states`` (the paper's unicycle) goes to the active-set
+        method first (:data:`CENTRALIZED_QP_SOLVER`). With velocity states (the
+        acceleration-limited unicycle) its working set often failed to settle on the
+        built-in scenarios (room-door: 190 of 200 QPs handed to OSQP), so OSQP's chain
+        keeps those.
         """
         if self.qp_solver != "auto":
             return self.qp_solver
-        if scheme == "centralized" and n_robots <= FLEET_ROBOTS:
+        if scheme == "centralized" and n_robots <= FLEET_ROBOTS and not velocity_states:
             return CENTRALIZED_QP_SOLVER
         fleet = n_robots > FLEET_ROBOTS and scheme == "decentralized"
         return FLEET_QP_SOLVER if fleet else BOUNDED_QP_SOLVER
@@ -190,9 +197,11 @@ class SolverSettings:
             return self.neighbour_slots
         return FLEET_NEIGHBOUR_SLOTS if n_robots > FLEET_ROBOTS else None
 
-    def resolved(self, n_robots: int, scheme: str = "decentralized") -> SolverSettings:
-        """These settings with every ``"auto"`` resolved for a scenario of ``n_robots``."""
-        return replace(self, qp_solver=self.qp_solver_for(n_robots, scheme),
+    def resolved(self, n_robots: int, scheme: str = "decentralized",
+                 velocity_states: bool = False) -> SolverSettings:
+        """These settings with every ``"auto"`` resolved for a scenario of ``n_robots``
+        (whose robot model has ``velocity_states`` or not)."""
+        return replace(self, qp_solver=self.qp_solver_for(n_robots, scheme, velocity_states),
                        neighbour_slots=self.neighbour_slots_for(n_robots))
 
     def rule(self, name: str) -> Rule | None:

@@ -184,24 +184,30 @@ def ldl_solve(Lp: np.ndarray, Li: np.ndarray, Lx: np.ndarray, Dinv: np.ndarray,
 
 @_jit
 def _working_set(Az: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 c: float, side: np.ndarray, ties: bool) -> bool:
-    """The rule's working set into ``side (m,)`` (1 upper, -1 lower, 2 equality, 0 off);
-    ``ties``: a row exactly at a side with a zero multiplier is put at it (the first
-    working set: a cold start's slacks at 0). Returns whether it changed."""
+                 c: float, tau: float, side: np.ndarray, first: bool) -> bool:
+    """The rule's working set into ``side (m,)`` (1 upper, -1 lower, 2 equality, 0 off),
+    with a band ``tau``: a row enters a side when its test passes by more than ``tau``
+    and leaves it when the test fails by more than ``tau`` (a weakly active row, at its
+    bound with a zero multiplier, does not flip on round-off); the ``first`` working set
+    takes every row within the band (a cold start's slacks at 0). Returns whether it
+    changed."""
     changed = False
     for i in range(Az.shape[0]):
         lo, up = lower[i], upper[i]
+        current = side[i]
         hi_test = y[i] + c * (Az[i] - up)
         lo_test = y[i] + c * (Az[i] - lo)
         if lo == up:
             new = 2
-        elif up < math.inf and (hi_test > 0.0 or (ties and hi_test == 0.0)):
+        elif up < math.inf and (hi_test > tau or (
+                (first or current == 1) and hi_test >= -tau)):
             new = 1
-        elif lo > -math.inf and (lo_test < 0.0 or (ties and lo_test == 0.0)):
+        elif lo > -math.inf and (lo_test < -tau or (
+                (first or current == -1) and lo_test <= tau)):
             new = -1
         else:
             new = 0
-        if new != side[i]:
+        if new != current:
             changed = True
             side[i] = new
     return changed
@@ -253,7 +259,8 @@ def active_set_solve(P_values: np.ndarray, P_rows: np.ndarray, P_cols: np.ndarra
                      Li: np.ndarray, Lx: np.ndarray, D: np.ndarray, Dinv: np.ndarray,
                      Lnz: np.ndarray, etree: np.ndarray, iwork: np.ndarray,
                      fwork: np.ndarray, side: np.ndarray, delta: float, epsilon: float,
-                     c: float, max_iter: int, refinements: int) -> tuple[int, int]:
+                     c: float, tau: float, max_iter: int, refinements: int
+                     ) -> tuple[int, int]:
     r"""The primal-dual active-set iteration (module docstring) from the warm start
     ``(z (n,), y (m,))``, which it overwrites with the last iterate.
 
@@ -288,7 +295,7 @@ def active_set_solve(P_values: np.ndarray, P_rows: np.ndarray, P_cols: np.ndarra
         Az[A_rows[e]] += A_values[e] * z[A_cols[e]]
     for i in range(m):
         side[i] = 0
-    _working_set(Az, y, lower, upper, c, side, True)
+    _working_set(Az, y, lower, upper, c, tau, side, True)
     for it in range(1, max_iter + 1):
         for k in range(Kx.shape[0]):
             s = K_source[k]
@@ -324,7 +331,7 @@ def active_set_solve(P_values: np.ndarray, P_rows: np.ndarray, P_cols: np.ndarra
             Az[i] = 0.0
         for e in range(nA):
             Az[A_rows[e]] += A_values[e] * z[A_cols[e]]
-        if not _working_set(Az, y, lower, upper, c, side, False):
+        if not _working_set(Az, y, lower, upper, c, tau, side, False):
             return ACTIVE_SET_CONVERGED, it
     return ACTIVE_SET_MAX_ITER, max_iter
 
@@ -383,7 +390,7 @@ def warm_up_kkt() -> None:
     active_set_solve(np.ones(1), one, one, np.ones(1), np.ones(1), one, one, np.zeros(1),
                      np.ones(1), z, y, source, Kp, Ki, np.zeros(3), np.arange(2), Lp, Li, Lx,
                      np.zeros(2), np.zeros(2), Lnz, etree, iwork, np.zeros(6),
-                     np.zeros(1, dtype=np.int8), 1e-9, 1e-9, 10.0, 8, 1)
+                     np.zeros(1, dtype=np.int8), 1e-9, 1e-9, 10.0, 1e-7, 8, 1)
     qp_residuals(np.ones(1), one, one, np.ones(1), np.ones(1), one, one, np.zeros(1),
                  np.ones(1), z, y)
     b = np.ones(2)

@@ -79,6 +79,7 @@ class ActiveSetSettings:
     delta: float = 1e-9
     epsilon: float = 1e-9
     c: float = 10.0
+    tau: float = 1e-7
     max_iter: int = ACTIVE_SET_MAX_ITER
     refinements: int = 1
 
@@ -207,7 +208,7 @@ class ActiveSetBackend:
             P_values, self.P_rows, self.P_cols, q, A_values, self.A_rows, self.A_cols,
             lower, upper, z, y, self.K_source, self.Kp, self.Ki, self.Kx, self.order,
             self.Lp, self.Li, self.Lx, self.D, self.Dinv, self.Lnz, self.etree, self.iwork,
-            self.fwork, self.side, s.delta, s.epsilon, s.c, s.max_iter, s.refinements)
+            self.fwork, self.side, s.delta, s.epsilon, s.c, s.tau, s.max_iter, s.refinements)
         primal = dual = objective = float("inf")
         if status == ACTIVE_SET_CONVERGED:
             primal, dual, objective = qp_residuals(P_values, self.P_rows, self.P_cols, q, A_values,
