@@ -431,7 +431,7 @@ class ControllerPipeline:
             c["shifted_plan_fallbacks" if out.fallback == "shifted-plan"
               else "brake_fallbacks"] += 1
         c["qp_rescues"] = self.engine.qp.rescue_count
-        if self.engine.qp.solver_name in ("osqp+piqp", "active-set"):
+        if self.engine.qp.solver_name == "osqp+piqp":
             c["qp_handovers"] = self.engine.qp.handover_count
         for rows in self._rows.values():
             c["stage_one_overrides"] += rows.stage_one_overrides

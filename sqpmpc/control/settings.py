@@ -44,11 +44,11 @@ FLEET_QP_SOLVER = "piqp"
 #: no QP then takes more than about 5 times OSQP's median work (``docs/speed.md``).
 BOUNDED_QP_SOLVER = "osqp+piqp"
 #: ``qp_solver="auto"`` for the centralized QP of at most :data:`FLEET_ROBOTS` robots of a
-#: model without velocity states: the
-#: primal-dual active-set method (:mod:`sqpmpc.qp.active_set`), whose warm-started working
-#: set is right at about 1.03 factorizations per QP, with :data:`BOUNDED_QP_SOLVER`'s chain
-#: behind it; measured on paper-s2 against OSQP on the same QPs: 2.5-3.5 times less QP time
-#: at N = 8 and 40, solutions exact to round-off (``docs/speed.md``).
+#: model without velocity states: the primal-dual active-set method
+#: (:mod:`sqpmpc.qp.active_set`), whose warm-started working set is right at about 1.03
+#: factorizations per QP, with PIQP behind it; measured on paper-s2 against OSQP on the
+#: same QPs: about 3 times less QP time at N = 8 and 40, solutions exact to round-off
+#: (``docs/engine.md``).
 CENTRALIZED_QP_SOLVER = "active-set"
 #: What ``qp_solver`` accepts.
 QP_SOLVER_CHOICES = ("auto", *QP_SOLVERS)
@@ -107,8 +107,8 @@ class SolverSettings:
         QP backend: ``"osqp"``, ``"piqp"`` (:mod:`sqpmpc.qp.piqp`),
         ``"daqp"`` (:mod:`sqpmpc.qp.daqp`), ``"osqp+piqp"`` (OSQP for at
         most :data:`sqpmpc.qp.backend.HANDOVER_ITERATIONS` iterations, then PIQP, both
-        updated in place), ``"active-set"`` (:mod:`sqpmpc.qp.active_set`, with the
-        ``"osqp+piqp"`` chain behind it) or ``"auto"`` (default):
+        updated in place), ``"active-set"`` (:mod:`sqpmpc.qp.active_set`, with PIQP
+        behind it) or ``"auto"`` (default):
         :data:`FLEET_QP_SOLVER` for the decentralized robots of a fleet of more
         than :data:`FLEET_ROBOTS` robots (an interior-point method's time per
         QP is nearly constant, where OSQP's tail grows with the crowding:
@@ -181,7 +181,7 @@ class SolverSettings:
         model without ``velocity_states`` (the paper's unicycle) goes to the active-set
         method first (:data:`CENTRALIZED_QP_SOLVER`). With velocity states (the
         acceleration-limited unicycle) its working set often failed to settle on the
-        built-in scenarios (room-door: 190 of 200 QPs handed to OSQP), so OSQP's chain
+        built-in scenarios (room-door: 190 of 200 QPs handed on), so OSQP's chain
         keeps those.
         """
         if self.qp_solver != "auto":

@@ -1,6 +1,6 @@
 r"""The active-set backend of :class:`sqpmpc.qp.sparse.SparseQP` (``qp_solver="active-set"``):
 a primal-dual active-set method on the sparse KKT system, warm-started from the
-previous sample, with OSQP behind it.
+previous sample, with PIQP behind it.
 
 A real-time iteration's QP differs little from the previous sample's: the
 working set (the rows at a bound) of the shifted solution is usually the new
@@ -34,10 +34,15 @@ ordering library.
 
 The answer is accepted only when its primal and dual residuals are within the
 settings' ``eps_abs`` (the tolerance OSQP is held to): otherwise, or when the
-working set does not settle within :data:`ACTIVE_SET_MAX_ITER` factorizations,
-the same QP goes to OSQP (set up on first need, warm-started as given), so the
-backend solves whatever OSQP solves. :class:`~sqpmpc.qp.sparse.SparseQP` puts
-PIQP and the interior-point rescue behind that, as for ``"osqp+piqp"``.
+working set does not settle within :data:`ACTIVE_SET_MAX_ITER` factorizations
+(the method is not globally convergent: on QPs whose warm start is far off, as
+a robot head-on with a moving obstacle, the working set can cycle), the same QP
+goes to PIQP (``ActiveSetSettings.fallback``, set up on first need), and
+:class:`~sqpmpc.qp.sparse.SparseQP`'s interior-point rescue is behind that. The
+fallback is an accurate solver on purpose: the closed loop then follows the
+QPs' exact solutions throughout (with OSQP's 1e-5 answers mixed in, the robot
+head-on with a moving obstacle did not get round it in 45 s; with PIQP it does,
+as with PIQP alone).
 """
 
 from __future__ import annotations
@@ -59,7 +64,7 @@ from sqpmpc.qp.layout import QPLayout
 
 __all__ = ["ACTIVE_SET_MAX_ITER", "ActiveSetBackend", "ActiveSetSettings", "kkt_order"]
 
-#: Factorizations before a QP is handed to OSQP.
+#: Factorizations before a QP is handed to the fallback (PIQP).
 ACTIVE_SET_MAX_ITER = 8
 
 
@@ -73,7 +78,8 @@ class ActiveSetSettings:
     closed loops' warm-started QPs 1 and 10 need the same factorizations, 1.03-1.04
     per QP on paper-s2 centralized; from a cold start on random QPs 10 settled on 9 of
     12, 1 on 5);
-    ``max_iter``: factorizations before OSQP takes the QP.
+    ``max_iter``: factorizations before the ``fallback`` backend (a
+    :data:`~sqpmpc.qp.backend.BACKENDS` name) takes the QP.
     """
 
     delta: float = 1e-9
@@ -82,6 +88,7 @@ class ActiveSetSettings:
     tau: float = 1e-7
     max_iter: int = ACTIVE_SET_MAX_ITER
     refinements: int = 1
+    fallback: str = "piqp"
 
 
 def kkt_order(layout: QPLayout) -> np.ndarray:
@@ -121,8 +128,8 @@ class ActiveSetBackend:
     layout
         Index maps and sparsity.
     settings
-        OSQP's settings: ``eps_abs`` bounds the accepted residuals; OSQP, the
-        fallback, runs with them.
+        OSQP's settings: ``eps_abs`` bounds the accepted residuals; the fallback
+        runs with them (PIQP: its tolerances).
     active_set
         The iteration's constants.
 
@@ -131,7 +138,7 @@ class ActiveSetBackend:
     setup_count
         Symbolic set-ups (1: the pattern is analysed at construction).
     fallback_count
-        QPs handed to OSQP so far.
+        QPs handed to the fallback so far.
     """
 
     name = "active-set"
@@ -198,7 +205,7 @@ class ActiveSetBackend:
               ) -> BackendSolution:
         """Solve the QP with these values (the :class:`~sqpmpc.qp.backend.QPBackend`
         protocol); the iteration starts from ``(warm_x, warm_y)`` (default: the last
-        solution). Every value is read each call (``changed`` matters to OSQP only)."""
+        solution). Every value is read each call."""
         s = self.active_set
         z = self._z if warm_x is None else np.array(warm_x, dtype=float)
         y = self._y if warm_y is None else np.array(warm_y, dtype=float)
@@ -227,9 +234,10 @@ class ActiveSetBackend:
     def _fall_back(self, P_values: np.ndarray, q: np.ndarray, A_values: np.ndarray,
                    lower: np.ndarray, upper: np.ndarray, warm_x: np.ndarray,
                    warm_y: np.ndarray, factorizations: int, spent: float) -> BackendSolution:
-        """The QP by OSQP (every value pushed: it has not seen the QPs solved here)."""
+        """The QP by the fallback (every value pushed: it has not seen the QPs solved
+        here)."""
         if self.fallback is None:
-            self.fallback = make_backend("osqp", self.layout, self.settings)
+            self.fallback = make_backend(self.active_set.fallback, self.layout, self.settings)
         self.fallback_count += 1
         sol = self.fallback.solve(P_values, q, A_values, lower, upper, ALL_CHANGED, warm_x,
                                   warm_y)
@@ -240,6 +248,7 @@ class ActiveSetBackend:
         sol.extra["factorizations"] = float(factorizations)
         sol.extra["fallback"] = 1.0
         if sol.solved:
-            sol.status = f"solved by OSQP after {factorizations} active-set factorizations"
+            sol.status = (f"solved by {self.fallback.name} after {factorizations} active-set "
+                          "factorizations")
         return sol
 

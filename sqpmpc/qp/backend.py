@@ -36,7 +36,7 @@ __all__ = [
 QP_SOLVERS = ("osqp", "piqp", "piqp-multistage", "daqp", "osqp+piqp", "active-set")
 
 
-#: ``"osqp+piqp"`` and ``"active-set"``: OSQP iterations before a QP is handed to PIQP.
+#: ``"osqp+piqp"``: OSQP iterations before a QP is handed to PIQP.
 HANDOVER_ITERATIONS = 100
 
 
@@ -200,7 +200,7 @@ def make_backend(name: str, layout: QPLayout, settings: OSQPSettings) -> QPBacke
     """The backend ``name`` (:data:`BACKENDS`) for ``layout``: OSQP with ``settings``,
     PIQP with its tolerances and :data:`PIQP_MAX_ITER` (``"piqp-multistage"``: in stage
     order, with PIQP's multistage KKT solver), DAQP as is, the active-set method with
-    ``settings`` (its tolerance and its OSQP fallback's)."""
+    ``settings`` (its tolerance, and its PIQP fallback's)."""
     if name not in BACKENDS:
         raise ProblemError(f"QP backend must be one of {tuple(BACKENDS)}, got {name!r}")
     module, cls = BACKENDS[name]

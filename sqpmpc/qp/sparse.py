@@ -63,7 +63,10 @@ class SparseQP:
     by DAQP (:mod:`sqpmpc.qp.daqp`, dense, hot-started from the previous
     active set), with ``"osqp+piqp"`` by OSQP capped at
     :data:`HANDOVER_ITERATIONS` iterations and PIQP for what it leaves
-    (:class:`~sqpmpc.qp.policies.HandOver`). The rescue of ``settings``
+    (:class:`~sqpmpc.qp.policies.HandOver`), with ``"active-set"`` by the
+    primal-dual active-set method (:mod:`sqpmpc.qp.active_set`, warm-started, one
+    KKT factorization when the working set is right) and PIQP for the QPs it
+    leaves. The rescue of ``settings``
     (:class:`~sqpmpc.qp.policies.Rescue`) applies to all, the tolerances to PIQP.
 
     Parameters
@@ -96,12 +99,11 @@ class SparseQP:
         self.settings = settings or OSQPSettings()
         self.solver_name = solver
         self.handover: HandOver | None = None
-        if solver in ("osqp+piqp", "active-set"):
-            # OSQP (the active set's fallback) capped; PIQP takes the QPs it leaves
+        if solver == "osqp+piqp":  # OSQP first, capped; PIQP takes the QPs it leaves
             self.handover = HandOver(make_backend("piqp", layout, self.settings))
             self.settings = replace(self.settings, max_iter=min(
                 self.settings.max_iter, HANDOVER_ITERATIONS))
-            solver = "osqp" if solver == "osqp+piqp" else solver
+            solver = "osqp"
         self.backend: QPBackend = make_backend(solver, layout, self.settings)
         self.rescue = None if self.settings.rescue_solver is None else Rescue(
             self.settings.rescue_solver)
