@@ -37,8 +37,9 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    of one iteration), from which the iterations that would fit in acados's C
    time are computed when acados runs too.
 5. **Paper scenarios** -- paper-s1 and paper-s2, both schemes, with
-   ``qp_solver="osqp"`` (the former default) and ``"auto"`` (OSQP capped at the
-   hand-over, PIQP for the rest): closed-loop cost, collisions, final errors.
+   ``qp_solver="osqp"`` (the former default) and ``"auto"`` (centralized: the
+   active-set method with PIQP behind it; decentralized: OSQP capped at the hand-over,
+   PIQP for the rest): closed-loop cost, collisions, final errors.
 6. **acados** (with ``--acados-path`` or an installed ``comma-deps-acados``):
    :mod:`benchmarks.acados_peer`'s table.
 
@@ -359,8 +360,10 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
              "All times are thread CPU time (a loaded machine still slows them: shared caches "
              "and cores).", "",
              "What the parts measure (issue 34): the QP backends' tail (`qp_solver=\"auto\"` "
-             "is OSQP capped at the hand-over with PIQP for the rest outside decentralized "
-             "fleets; `piqp-multistage` is PIQP's multistage KKT solver on the QP in stage "
+             "is the active-set method, PIQP behind it, for the centralized QP of at most 8 "
+             "paper unicycles, else OSQP capped at the hand-over with PIQP for the rest "
+             "outside decentralized fleets; `piqp-multistage` is PIQP's multistage KKT "
+             "solver on the QP in stage "
              "order), obstacle rows by reach (`sqpmpc.ocp.polygon_rows`: `OBSTACLE_SLOTS` rows "
              "per robot and stage for polygon pieces, filled from what the horizon can "
              "reach; a piece behind a chosen row is kept by it, more unshadowed pieces than "
