@@ -338,7 +338,8 @@ def run_case(label: str, scenario: Scenario, settings: SolverSettings, template:
     return CaseResult(label, scenario.n_robots, scenario.horizon, sq[1:], tot[1:],
                       np.array(cs[1:]), np.array(qps[1:]), np.array(walls[1:]), (sq[0], tot[0]),
                       (float(np.median(d)), float(d.max())),
-                      settings.qp_solver_for(scenario.n_robots, "centralized"))
+                      settings.qp_solver_for(scenario.n_robots, "centralized",
+                                             bool(scenario.robot_model().velocity_states)))
 
 
 def verdicts(results: list[CaseResult], decentralized: DecentralizedResult | None) -> list[str]:

@@ -11,10 +11,11 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
 1. **QP tail** -- every QP of a paper-s2 centralized closed loop at N = 40 (OSQP,
    the library's settings), replayed by each backend as
    :class:`sqpmpc.qp.sparse.SparseQP` runs it (set up once, updated in place;
-   OSQP warm-started): OSQP, OSQP capped at
+   OSQP and the active-set method warm-started): OSQP, OSQP capped at
    :data:`~sqpmpc.qp.backend.HANDOVER_ITERATIONS` iterations with PIQP for the
-   rest (``"osqp+piqp"``), PIQP, and PIQP's multistage KKT solver
-   (``"piqp-multistage"``). The replays are interleaved QP by QP.
+   rest (``"osqp+piqp"``), PIQP, PIQP's multistage KKT solver
+   (``"piqp-multistage"``) and the active-set method (``"active-set"``, its
+   iterations are KKT factorizations). The replays are interleaved QP by QP.
 2. **Maze** -- 10 robots (decentralized) through 64 boxes of 0.5 m with 0.5 m
    corridors, and the same robots without the boxes, interleaved sample by sample:
    per-robot CPU per sample, arrivals, collisions with robots and with boxes (at
@@ -36,8 +37,9 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    of one iteration), from which the iterations that would fit in acados's C
    time are computed when acados runs too.
 5. **Paper scenarios** -- paper-s1 and paper-s2, both schemes, with
-   ``qp_solver="osqp"`` (the former default) and ``"auto"`` (OSQP capped at the
-   hand-over, PIQP for the rest): closed-loop cost, collisions, final errors.
+   ``qp_solver="osqp"`` (the former default) and ``"auto"`` (centralized: the
+   active-set method with PIQP behind it; decentralized: OSQP capped at the hand-over,
+   PIQP for the rest): closed-loop cost, collisions, final errors.
 6. **acados** (with ``--acados-path`` or an installed ``comma-deps-acados``):
    :mod:`benchmarks.acados_peer`'s table.
 
@@ -112,13 +114,14 @@ def qp_tail(horizon: int = 40, t_end: float = 150.0) -> list[tuple[str, np.ndarr
     capped = make_backend("osqp", L, replace(settings, max_iter=HANDOVER_ITERATIONS))
     handover = HandOver(make_backend("piqp", L, settings))
     runs = {"osqp": make_backend("osqp", L, settings), "osqp+piqp": capped,
+            "active-set": make_backend("active-set", L, capped.settings),
             "piqp": make_backend("piqp", L, settings),
             "piqp-multistage": make_backend("piqp-multistage", L, settings)}
     times: dict[str, list[float]] = {name: [] for name in runs}
     iters: dict[str, list[int]] = {name: [] for name in runs}
     for P, q, A, lo, up, wx, wy in captured:
         for name, backend in runs.items():
-            warm = name.startswith("osqp")
+            warm = name.startswith("osqp") or name == "active-set"
             t0 = time.thread_time()
             sol = backend.solve(P, q, A, lo, up, ALL_CHANGED, wx if warm else None,
                                 wy if warm else None)
@@ -283,7 +286,8 @@ def _split_case(label: str, scheme: str, horizon: int | None, t_end: float
     step = sim.cpu_times[1:sim.k] - copying[1:sim.k]
     qp = qp_cpu[1:sim.k]
     row: dict[str, float | str] = {
-        "label": label, "step": _ms(np.median(step.mean(axis=1))),
+        "label": label, "backend": sim.controllers[0].engine.qp.backend.name,
+        "step": _ms(np.median(step.mean(axis=1))),
         "qp": _ms(np.median(qp.mean(axis=1))),
         "rest": _ms(np.median((step - qp).mean(axis=1))),
         "iterations": float(np.median(iterations[1:sim.k])),
@@ -327,7 +331,7 @@ def _verdicts(acados: list, paper_rows: list | None, split_rows: list | None = N
     out = verdicts(acados, None)
     by = {r.label: r for r in acados}
     for r in split_rows or []:
-        if r["label"] in by and not np.isnan(r["fixed"]):
+        if r["label"] in by and not np.isnan(r["fixed"]) and r["backend"] == "osqp":
             c = _ms(np.median(by[r["label"]].acados_c))
             fit = (c - r["rest"] - r["fixed"]) / r["per_iteration"]
             out.append(f"- {r['label']}: with this run's split, OSQP would have to stop within "
@@ -356,8 +360,10 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
              "All times are thread CPU time (a loaded machine still slows them: shared caches "
              "and cores).", "",
              "What the parts measure (issue 34): the QP backends' tail (`qp_solver=\"auto\"` "
-             "is OSQP capped at the hand-over with PIQP for the rest outside decentralized "
-             "fleets; `piqp-multistage` is PIQP's multistage KKT solver on the QP in stage "
+             "is the active-set method, PIQP behind it, for the centralized QP of at most 8 "
+             "paper unicycles, else OSQP capped at the hand-over with PIQP for the rest "
+             "outside decentralized fleets; `piqp-multistage` is PIQP's multistage KKT "
+             "solver on the QP in stage "
              "order), obstacle rows by reach (`sqpmpc.ocp.polygon_rows`: `OBSTACLE_SLOTS` rows "
              "per robot and stage for polygon pieces, filled from what the horizon can "
              "reach; a piece behind a chosen row is kept by it, more unshadowed pieces than "
@@ -419,18 +425,20 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
     if split_rows:
         lines += ["## Split: where a sample's CPU goes (no profiler)", "",
                   "Medians over the samples after the first, ms per robot and sample: the "
-                  "controller step, its QP backend (OSQP's update, warm start and solve, "
+                  "controller step, its QP backend's solve (update, warm start and solve, "
                   "with the backend's Python) and the rest (the Python pipeline and its "
-                  "kernels). *OSQP fixed / per iteration*: every centralized QP replayed "
-                  "with 1 and 30 iterations and no termination checks.", "",
-                  "| case | step | QP backend | rest | QP share | OSQP iterations | OSQP fixed "
-                  "ms | OSQP per iteration ms |", "|---|---|---|---|---|---|---|---|"]
+                  "kernels). *Iterations*: the backend's (OSQP's ADMM iterations; the "
+                  "active-set method's KKT factorizations). *OSQP fixed / per iteration*: "
+                  "every centralized QP replayed by OSQP with 1 and 30 iterations and no "
+                  "termination checks.", "",
+                  "| case | backend | step | QP backend | rest | QP share | iterations | "
+                  "OSQP fixed ms | OSQP per iteration ms |", "|" + "---|" * 9]
         for r in split_rows:
             fixed = "-" if np.isnan(r["fixed"]) else f"{r['fixed']:.4f}"
             per = "-" if np.isnan(r["per_iteration"]) else f"{r['per_iteration']:.4f}"
-            lines.append(f"| {r['label']} | {r['step']:.4f} | {r['qp']:.4f} | {r['rest']:.4f} "
-                         f"| {r['qp'] / r['step'] * 100:.0f} % | {r['iterations']:.0f} | "
-                         f"{fixed} | {per} |")
+            lines.append(f"| {r['label']} | {r['backend']} | {r['step']:.4f} | {r['qp']:.4f} | "
+                         f"{r['rest']:.4f} | {r['qp'] / r['step'] * 100:.0f} % | "
+                         f"{r['iterations']:.0f} | {fixed} | {per} |")
         lines.append("")
     if paper_rows:
         lines += ["## Paper scenarios: the former default (OSQP) against auto", "",

@@ -45,7 +45,8 @@ def agreed_settings(scenario: Scenario, scheme: str, options: RunOptions) -> dic
     a different override is named), the scheme, and the controller options with
     every ``"auto"`` resolved for this scenario and scheme.
     """
-    s = options.solver_settings(scenario=scenario).resolved(scenario.n_robots, scheme)
+    s = options.solver_settings(scenario=scenario).resolved(
+        scenario.n_robots, scheme, bool(scenario.robot_model().velocity_states))
     slots = s.neighbour_slots
     out = {
         "scenario": f"{scenario.name} (digest {scenario_digest(scenario)})",

@@ -260,6 +260,8 @@ def add_controller_options(parser: argparse.ArgumentParser, *, decentralized: bo
                        metavar="|".join(QP_SOLVER_CHOICES),
                        help=f"QP backend; 'auto' (default): {FLEET_QP_SOLVER} for the "
                             f"decentralized robots of fleets of more than {FLEET_ROBOTS}, "
+                            f"active-set for the centralized QP of at most {FLEET_ROBOTS} "
+                            "robots without velocity states, "
                             "else osqp+piqp: OSQP capped at the hand-over, PIQP for the "
                             "rest (docs/qp-backends.md, docs/speed.md)")
     group.add_argument("--collision-margin", type=nonnegative_float, metavar="M",

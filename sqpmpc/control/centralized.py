@@ -43,7 +43,7 @@ class CentralizedController(ControllerPipeline):
 
     def __init__(self, scenario: Scenario, settings: SolverSettings | None = None) -> None:
         settings = (settings or SolverSettings(rules=default_rules(scenario))).resolved(
-            scenario.n_robots, "centralized")
+            scenario.n_robots, "centralized", bool(scenario.robot_model().velocity_states))
         pairs = scenario.pairs().reshape(-1, 2)
         required = scenario.required_distances()[pairs[:, 0], pairs[:, 1]]
         layout = QPLayout(scenario.n_robots, scenario.horizon, pairs,
@@ -114,11 +114,31 @@ class CentralizedController(ControllerPipeline):
                                             self._keep, alpha, beta):
                 return False
             return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
+        if self._response is not None:
+            # a plant that lags: the bound itself (its lag part grows at the speed change's
+            # rate near s = 0 and is a fraction of that by s = 1, far below the linear
+            # majorant), pairs inside their distance by the overlap-recovery rule alone
+            if not (self.collisions.first_input_safe(now, p, np.zeros_like(alpha))
+                    and self._apart_pairs_keep(now, p, alpha, beta)):
+                return False
+            return self.obstacles_safe(now, p, alpha, beta) and self.in_position_bounds(p)
         # alpha + max(beta, 0) (alpha itself, bit for bit, when the plant moves as predicted)
         growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha
         if not self.collisions.first_input_safe(now, p, growth):
             return False
         return self.obstacles_safe(now, p, growth) and self.in_position_bounds(p)
+
+    def _apart_pairs_keep(self, now: np.ndarray, nxt: np.ndarray, alpha: np.ndarray,
+                          beta: np.ndarray) -> bool:
+        """The pairs apart now keep their distance over the sample when each robot's path
+        strays up to ``alpha s + beta s (1 - s)`` from its segment (exactly: Bernstein
+        bounds on the squared distance, :mod:`sqpmpc.kernels.pair_paths`)."""
+        pairs, keep = self.collisions.pairs, self.collisions.safe_distance
+        gap = np.linalg.norm(now[pairs[:, 0]] - now[pairs[:, 1]], axis=-1)
+        apart = gap >= keep
+        return bool(pairs_keep_ramp_distance(
+            np.ascontiguousarray(pairs[apart]), now, nxt, np.zeros_like(now), keep[apart],
+            np.ascontiguousarray(alpha, dtype=float), np.ascontiguousarray(beta, dtype=float)))
 
     def _brakes_safely(self, next_states: np.ndarray) -> bool:
         """With acceleration limits: braking right after the first input, every robot as hard

@@ -172,7 +172,7 @@ class DecentralizedController(ControllerPipeline):
         if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
                                                 beta=float(beta[0])):
             return False
-        if not self._unicycle:  # robots with velocity states: the bound itself
+        if not self._unicycle or self._response is not None:  # the bound itself
             return (self.obstacles_safe(states, next_state, alpha, beta)
                     and self.in_position_bounds(next_state[:, :2]))
         growth = alpha + np.maximum(beta, 0.0) if self._deviates else alpha  # as predicted: 0

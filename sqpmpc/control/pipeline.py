@@ -76,6 +76,9 @@ if TYPE_CHECKING:
 __all__ = ["RECOVERY_TOLERANCE", "ControlOutput", "ControllerPipeline", "braking_input",
            "kernel_warm_up_seconds"]
 
+#: A plant that lags: the shares of a refused first input's change from the last command
+#: tried before the fallbacks (:meth:`ControllerPipeline.verify`).
+EASED_SHARES = (0.5, 0.25)
 #: Smallest tolerance of the ``overlap-recovery`` rule, m (the solver's accuracy).
 RECOVERY_TOLERANCE = 1e-4
 
@@ -165,7 +168,12 @@ class ControllerPipeline:
         self._rows: dict[str, CollisionRows] = {}  # the scheme's collision models
         # a plant unlike the prediction: the margin of the rows and the check's path bound
         self._deviates = plant.model != settings.discretization or plant.noisy or not \
-            self._unicycle
+            self._unicycle or plant.response is not None
+        #: a plant that lags (``[plant] response``): the checks' bound takes the change from
+        #: the command of the sample before and the coast of a brake after the sample
+        self._response = plant if plant.response is not None else None
+        if self._response is not None:
+            self.counts["eased_inputs"] = 0
         self._own = np.zeros((self.indices.size, self.model.nx))
         self._noise_bound = plant.noise_bound
         #: the margin of the rows between two robots: solver tolerance + plant deviation
@@ -313,13 +321,16 @@ class ControllerPipeline:
     def path_deviation(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r"""The plant's deviation from the predicted segments, :math:`(\alpha, \beta)` per own
         robot, for the first inputs ``(m, nu)`` of the model from this sample's states
-        (:func:`sqpmpc.problem.plant.path_deviation`; zeros when the plant moves as predicted)."""
+        (:func:`sqpmpc.problem.plant.path_deviation`; zeros when the plant moves as predicted;
+        a plant that lags: from the commands of the sample before, and with the coast of the
+        brake that may follow, so that the unchecked brake fallback stays safe)."""
         if not self._deviates:
             zero = np.zeros(inputs.shape[0])
             return zero, zero
         if self._unicycle:
             return path_deviation(inputs, self.sample_time, self.settings.discretization,
-                                  self.scenario.plant.model, self._noise_bound)
+                                  self.scenario.plant.model, self._noise_bound, self._response,
+                                  self._applied)
         return acceleration_path_deviation(
             self._own[:, 3:5], inputs, self.sample_time, self.settings.discretization,
             self.scenario.plant.model, self._noise_bound)
@@ -374,6 +385,12 @@ class ControllerPipeline:
                     return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
                                          time.perf_counter() - t0)
                 return self._output(plan_x, plan_u, None, report, t0)
+            if finite and self._response is not None:
+                eased = self._eased(own, plan_u)
+                if eased is not None:
+                    plan_u, plan_x = eased
+                    return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
+                                         time.perf_counter() - t0)
         fallback, plan_u, plan_x = "brake", None, None
         if shifted is not None:
             candidate = np.clip(shifted, model.input_lower, model.input_upper)
@@ -388,6 +405,22 @@ class ControllerPipeline:
             plan_x = engine.rollout(own, plan_u)
         engine.set_guess(own, plan_u, converge_first=False)
         return self._output(plan_x, plan_u, fallback, report, t0)
+
+    def _eased(self, own: np.ndarray, plan_u: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+        """A plant that lags: the QP's first input refused, the same change from the last
+        command at half and a quarter of its size (the lag's bound shrinks with the square of
+        it; the QP's rows cannot see it), the plan's rest kept; checked alike. ``None``: none
+        passes."""
+        previous = np.asarray(self._applied)
+        for share in EASED_SHARES:
+            candidate = plan_u.copy()
+            candidate[:, 0] = previous + share * (plan_u[:, 0] - previous)
+            candidate_x = self.engine.rollout(own, candidate)
+            if self.first_input_safe(own, candidate_x[:, 1], candidate[:, 0]):
+                self.counts["eased_inputs"] += 1
+                return candidate, candidate_x
+        return None
 
     def _output(self, plan_x: np.ndarray, plan_u: np.ndarray, fallback: str | None,
                 report: IterationReport, t0: float) -> ControlOutput:

@@ -29,8 +29,8 @@ from sqpmpc.qp.backend import QP_SOLVERS, OSQPSettings
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.registry import check_rules, default_rules
 
-__all__ = ["BOUNDED_QP_SOLVER", "FLEET_NEIGHBOUR_SLOTS", "FLEET_QP_SOLVER", "FLEET_ROBOTS",
-           "QP_SOLVER_CHOICES",
+__all__ = ["BOUNDED_QP_SOLVER", "CENTRALIZED_QP_SOLVER", "FLEET_NEIGHBOUR_SLOTS",
+           "FLEET_QP_SOLVER", "FLEET_ROBOTS", "QP_SOLVER_CHOICES",
            "SolverSettings", "neighbour_slots_argument"]
 
 #: Scenarios with more robots than this are *fleets* for the ``"auto"`` settings.
@@ -43,6 +43,13 @@ FLEET_QP_SOLVER = "piqp"
 #: :data:`~sqpmpc.qp.backend.HANDOVER_ITERATIONS` iterations, PIQP for the QPs it leaves;
 #: no QP then takes more than about 5 times OSQP's median work (``docs/speed.md``).
 BOUNDED_QP_SOLVER = "osqp+piqp"
+#: ``qp_solver="auto"`` for the centralized QP of at most :data:`FLEET_ROBOTS` robots of a
+#: model without velocity states: the primal-dual active-set method
+#: (:mod:`sqpmpc.qp.active_set`), whose warm-started working set is right at about 1.03
+#: factorizations per QP, with PIQP behind it; measured on paper-s2 against OSQP on the
+#: same QPs: about 3 times less QP time at N = 8 and 40, solutions exact to round-off
+#: (``docs/engine.md``).
+CENTRALIZED_QP_SOLVER = "active-set"
 #: What ``qp_solver`` accepts.
 QP_SOLVER_CHOICES = ("auto", *QP_SOLVERS)
 
@@ -100,12 +107,15 @@ class SolverSettings:
         QP backend: ``"osqp"``, ``"piqp"`` (:mod:`sqpmpc.qp.piqp`),
         ``"daqp"`` (:mod:`sqpmpc.qp.daqp`), ``"osqp+piqp"`` (OSQP for at
         most :data:`sqpmpc.qp.backend.HANDOVER_ITERATIONS` iterations, then PIQP, both
-        updated in place) or ``"auto"`` (default):
+        updated in place), ``"active-set"`` (:mod:`sqpmpc.qp.active_set`, with PIQP
+        behind it) or ``"auto"`` (default):
         :data:`FLEET_QP_SOLVER` for the decentralized robots of a fleet of more
         than :data:`FLEET_ROBOTS` robots (an interior-point method's time per
         QP is nearly constant, where OSQP's tail grows with the crowding:
-        ``docs/fleet.md``), :data:`BOUNDED_QP_SOLVER` otherwise (OSQP's median,
-        its tail cut at the hand-over: ``docs/speed.md``).
+        ``docs/fleet.md``), :data:`CENTRALIZED_QP_SOLVER` for the centralized QP
+        of at most :data:`FLEET_ROBOTS` robots without velocity states,
+        :data:`BOUNDED_QP_SOLVER`
+        otherwise (OSQP's median, its tail cut at the hand-over: ``docs/speed.md``).
     osqp
         OSQP settings (its tolerances and rescue apply to PIQP too).
     """
@@ -158,17 +168,26 @@ class SolverSettings:
             raise ProblemError(f"osqp must be OSQPSettings, got {type(self.osqp).__name__}")
         object.__setattr__(self, "rules", check_rules(tuple(self.rules)))
 
-    def qp_solver_for(self, n_robots: int, scheme: str = "decentralized") -> str:
+    def qp_solver_for(self, n_robots: int, scheme: str = "decentralized",
+                      velocity_states: bool = False) -> str:
         """The QP backend for a scenario of ``n_robots`` (``"auto"`` resolved).
 
         The fleet solver serves the decentralized robots' small QPs; the
         centralized QP of a fleet (thousands of rows) stays with OSQP, whose
         sparse ADMM iterations were 4 times faster there than PIQP's
         factorizations (swap-32: median 46 against 186 ms per sample), capped
-        at the hand-over like every QP outside a decentralized fleet.
+        at the hand-over like every QP outside a decentralized fleet. The
+        centralized QP of a small group (at most :data:`FLEET_ROBOTS` robots) of a
+        model without ``velocity_states`` (the paper's unicycle) goes to the active-set
+        method first (:data:`CENTRALIZED_QP_SOLVER`). With velocity states (the
+        acceleration-limited unicycle) its working set often failed to settle on the
+        built-in scenarios (room-door: 190 of 200 QPs handed on), so OSQP's chain
+        keeps those.
         """
         if self.qp_solver != "auto":
             return self.qp_solver
+        if scheme == "centralized" and n_robots <= FLEET_ROBOTS and not velocity_states:
+            return CENTRALIZED_QP_SOLVER
         fleet = n_robots > FLEET_ROBOTS and scheme == "decentralized"
         return FLEET_QP_SOLVER if fleet else BOUNDED_QP_SOLVER
 
@@ -178,9 +197,11 @@ class SolverSettings:
             return self.neighbour_slots
         return FLEET_NEIGHBOUR_SLOTS if n_robots > FLEET_ROBOTS else None
 
-    def resolved(self, n_robots: int, scheme: str = "decentralized") -> SolverSettings:
-        """These settings with every ``"auto"`` resolved for a scenario of ``n_robots``."""
-        return replace(self, qp_solver=self.qp_solver_for(n_robots, scheme),
+    def resolved(self, n_robots: int, scheme: str = "decentralized",
+                 velocity_states: bool = False) -> SolverSettings:
+        """These settings with every ``"auto"`` resolved for a scenario of ``n_robots``
+        (whose robot model has ``velocity_states`` or not)."""
+        return replace(self, qp_solver=self.qp_solver_for(n_robots, scheme, velocity_states),
                        neighbour_slots=self.neighbour_slots_for(n_robots))
 
     def rule(self, name: str) -> Rule | None:

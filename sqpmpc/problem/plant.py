@@ -99,6 +99,51 @@ first input only if braking right after it keeps every distance too
 (:meth:`sqpmpc.control.pipeline.ControllerPipeline.braking_path` and the schemes'
 braking checks), so the
 braking fallback of the next sample follows a path already checked.
+
+A plant that lags (the paper's robot on real wheels)
+-----------------------------------------------------
+The paper's robot changes its velocities at once, so standing still is always safe and
+the brake fallback is never checked. A robot on wheels cannot: its speed holds for a
+delay :math:`\tau` and then moves towards a new command at some acceleration
+:math:`a` or faster, never beyond it (``[plant] response = [tau, a]``; the physics
+plant derives both from its robot, :meth:`sqpmpc.sim.physics.PhysicalRobot.response`).
+After a change :math:`\Delta` of the commanded speed its path is then ahead of or behind
+the one the model predicts by at most
+
+.. math::
+
+    \int_0^t |v - v_{cmd}| \le \min\big(|\Delta| t,\; c(\Delta)\big),
+    \qquad c(\Delta) = |\Delta|\tau + \frac{\Delta^2}{2a},
+
+and :math:`\min(|\Delta| T_s s, c) \le c\,s + |\Delta| T_s\,s(1-s)` on :math:`[0, 1]`.
+The checks take as :math:`\Delta` the change from the command of the sample before,
+the speed a sample starts with when the speed settles within a sample
+(:math:`\tau + (v_{\max} - v_{\min})/a \le T_s`, which the scenario checks). Off the
+heading's line the robot strays as an exact plant does, its yaw rate anywhere between
+the two commands: :math:`|\psi(t) - \psi_0| \le \Omega t`,
+:math:`\Omega = \max(|\omega|, |\omega_{prev}|)`, so
+:math:`|v|\Omega T_s^2 s^2/2` from the Euler segment (and the turn :math:`|v\omega|
+T_s^2/2` more, linearly, from an ``exact`` or ``rk4`` prediction's chord). A brake
+command at the next sample (the fallback, unchecked) then takes the robot at most
+:math:`c(|v|)` from where the sample left it: the bound adds that coast to
+:math:`\alpha`, so an accepted input leaves room to brake, and the induction of the
+safety argument holds again. In all (:func:`path_deviation` with ``response``):
+
+.. math::
+
+    \alpha = |v|\Omega T_s^2/2 + c(\Delta) + c(|v|) \;(+\ \text{noise, prediction}),
+    \qquad \beta = |\Delta| T_s - |v|\Omega T_s^2/2 .
+
+The rows keep :func:`model_margin`, here the bend's and the full-speed coast's
+:math:`2(v_{\max}\omega_{\max}T_s^2/2 + c(v_{\max}))` (0.238 m for the nominal
+physical robot at the paper's bounds), not the lag of a change of command, which only
+two commands define; the centralized check takes the bound itself rather than its linear
+majorant (the lag grows at the rate of the change near :math:`s = 0` and is a fraction of
+that by :math:`s = 1`; :func:`sqpmpc.kernels.pair_paths.pairs_keep_ramp_distance` with no
+ramp), and a first input the check refuses for its change is tried again at a half and
+a quarter of that change before the fallbacks
+(:meth:`sqpmpc.control.pipeline.ControllerPipeline.verify`, counter ``eased_inputs``).
+:class:`Plant` moves such a robot with the slowest response the spec allows.
 """
 
 from __future__ import annotations
@@ -145,11 +190,19 @@ class PlantSpec:
         added to the applied input.
     seed
         Seed of the noise (an integer >= 0).
+    response
+        ``(delay, acceleration)``, or ``None`` (default): the paper's robot, whose
+        velocities change at once. With it the plant's speed follows a change of the
+        commanded speed late, never beyond the command: it holds for at most ``delay`` s
+        (>= 0), then moves towards the command at ``acceleration`` m/s^2 (> 0) or faster
+        (module notes, "A plant that lags"). Only with ``model = "exact"`` (a plant that
+        lags moves continuously) and for robots without acceleration bounds.
     """
 
     model: str = "euler"
     input_noise: tuple[float, float] = (0.0, 0.0)
     seed: int = 0
+    response: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.model not in PLANT_MODELS:
@@ -166,6 +219,34 @@ class PlantSpec:
                 or not 0 <= self.seed < 2**63):
             raise ProblemError(f"seed: expected an integer in [0, 2^63), found {self.seed!r}")
         object.__setattr__(self, "seed", int(self.seed))
+        if self.response is not None:
+            r = self.response
+            if (not isinstance(r, list | tuple | np.ndarray) or len(r) != 2
+                    or any(isinstance(x, bool) or not isinstance(x, int | float | np.floating)
+                           or not math.isfinite(x) for x in r) or r[0] < 0 or r[1] <= 0):
+                raise ProblemError("response: expected an array of 2 finite numbers [delay >= 0 "
+                                   f"(s), acceleration > 0 (m/s^2)], found {r!r}")
+            if self.model != "exact":
+                raise ProblemError(f"response: a plant that lags moves continuously: declare "
+                                   f"model = \"exact\" with it (found {self.model!r})")
+            object.__setattr__(self, "response", (float(r[0]), float(r[1])))
+
+    def speed_lag(self, change: np.ndarray | float) -> np.ndarray:
+        r""":math:`c(\Delta) = |\Delta| \tau + \Delta^2 / (2a)`: the most the plant's path can
+        run ahead of or lag behind that of a speed that changes at once by ``change``
+        (:math:`\Delta`, m/s), m (``response`` :math:`(\tau, a)`; 0 without it)."""
+        d = np.abs(np.asarray(change, dtype=float))
+        if self.response is None:
+            return np.zeros_like(d)
+        delay, accel = self.response
+        return d * delay + d * d / (2.0 * accel)
+
+    def settling_time(self, change: float) -> float:
+        """The longest the plant's speed takes to reach a command ``change`` m/s away, s
+        (``delay + |change| / acceleration``; 0 without ``response``)."""
+        if self.response is None:
+            return 0.0
+        return self.response[0] + abs(float(change)) / self.response[1]
 
     @property
     def noisy(self) -> bool:
@@ -178,8 +259,12 @@ class PlantSpec:
         return NOISE_TRUNCATION * np.asarray(self.input_noise)
 
     def to_dict(self) -> dict[str, object]:
-        """The ``[plant]`` table."""
-        return {"model": self.model, "input_noise": list(self.input_noise), "seed": self.seed}
+        """The ``[plant]`` table (``response`` only when declared)."""
+        out: dict[str, object] = {"model": self.model, "input_noise": list(self.input_noise),
+                                  "seed": self.seed}
+        if self.response is not None:
+            out["response"] = list(self.response)
+        return out
 
 
 class Plant:
@@ -214,6 +299,11 @@ class Plant:
             np.asarray(acceleration_bounds[1], dtype=float))
         #: ``(n, 2)`` the robots' velocities ``(v, omega)`` (with acceleration bounds)
         self.velocities = np.zeros((self.n_robots, 2))
+        if spec.response is not None and self.acceleration_bounds is not None:
+            raise ProblemError("[plant] response: for the paper's robot only; robots with "
+                               "acceleration bounds ramp their velocities (CONTRACT 1c)")
+        #: ``(n,)`` the speeds of a plant that lags (``spec.response``), zero at the start
+        self.speeds = np.zeros(self.n_robots)
 
     @property
     def has_velocities(self) -> bool:
@@ -265,6 +355,8 @@ class Plant:
         >>> x, applied = plant.step(x, out.inputs)  # doctest: +SKIP
         """
         applied = self.applied_inputs(inputs)
+        if self.spec.response is not None:
+            return self._lagging_step(np.asarray(states, dtype=float), applied), applied
         if not self.has_velocities:
             return discrete_dynamics(states, applied, self.sample_time, self.spec.model), applied
         lower, upper = self.acceleration_bounds
@@ -274,6 +366,42 @@ class Plant:
         nxt = acceleration_dynamics(full, accel, h, self.spec.model)
         self.velocities = nxt[:, 3:5].copy()
         return nxt[:, :3], self.velocities.copy()
+
+
+    def _lagging_step(self, states: np.ndarray, applied: np.ndarray) -> np.ndarray:
+        """One sample of a plant that lags (``spec.response``): the speed held for the delay,
+        then moved towards the command at the acceleration (the slowest response the spec
+        allows), the yaw rate at once; exact arcs over :data:`LAG_SUBSTEPS` pieces, each
+        at its mean speed."""
+        delay, accel = self.spec.response
+        h, pieces = self.sample_time, LAG_SUBSTEPS
+        v0, target = self.speeds, applied[:, 0]
+        ramp = np.abs(target - v0) / accel          # how long the speed moves
+        direction = np.sign(target - v0)
+
+        def travelled(t: float) -> np.ndarray:     # the distance covered by time t
+            moving = np.clip(t - delay, 0.0, ramp)
+            after = np.maximum(t - delay - ramp, 0.0)
+            return v0 * np.minimum(t, delay) + v0 * moving + direction * accel * moving**2 / 2 \
+                + target * after
+
+        x = states[:, :3].copy()
+        dt = h / pieces
+        before = travelled(0.0)
+        for j in range(1, pieces + 1):
+            now = travelled(j * dt)
+            x = discrete_dynamics(x, np.stack(((now - before) / dt, applied[:, 1]), axis=1),
+                                  dt, "exact")
+            before = now
+        self.speeds = np.where(h >= delay + ramp, target,
+                               v0 + direction * accel * np.clip(h - delay, 0.0, ramp))
+        return x
+
+
+#: Pieces of a sample :class:`Plant` integrates a plant that lags over (exact arcs, each at
+#: the piece's mean speed: off the true integral by under 0.01 mm per sample at the paper's
+#: bounds and 4 m/s^2).
+LAG_SUBSTEPS = 50
 
 
 def ramp_accelerations(target: np.ndarray, start: np.ndarray, duration: float,
@@ -291,7 +419,9 @@ def _simpson_error(speed: np.ndarray, rate: np.ndarray, h: float) -> np.ndarray:
 
 
 def path_deviation(inputs: np.ndarray, sample_time: float, prediction: str, plant: str,
-                   noise_bound: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   noise_bound: np.ndarray | None = None,
+                   response: PlantSpec | None = None,
+                   previous: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     r"""Coefficients :math:`(\alpha, \beta)` of the path-deviation bound (module notes).
 
     Parameters
@@ -304,6 +434,13 @@ def path_deviation(inputs: np.ndarray, sample_time: float, prediction: str, plan
         The controller's discretization and the plant model.
     noise_bound
         :math:`(W_v, W_\omega)`, the hard bound of the input noise (default none).
+    response
+        The ``[plant]`` spec when it declares a ``response`` (a plant that lags, module
+        notes): the bound then also covers the lag after the change from ``previous``
+        and the coast of the brake that may follow the sample; ``None`` otherwise.
+    previous
+        The commands ``(..., 2)`` of the sample before (the plant's velocities when this
+        one starts; with ``response`` only, default ``inputs``: no change).
 
     Returns
     -------
@@ -318,6 +455,9 @@ def path_deviation(inputs: np.ndarray, sample_time: float, prediction: str, plan
     h = float(sample_time)
     v, w = np.abs(u[..., 0]), np.abs(u[..., 1])
     W = np.zeros(2) if noise_bound is None else np.asarray(noise_bound, dtype=float)
+    if response is not None and response.response is not None:
+        return _lagging_deviation(u, h, prediction, response, W,
+                                  u if previous is None else np.asarray(previous, dtype=float))
     speed = v + W[0]
     turn = v * w * h * h / 2.0  # |v w| Ts^2 / 2: Euler vs exact end point, or arc vs chord
     zero = np.zeros_like(v)
@@ -342,6 +482,27 @@ def path_deviation(inputs: np.ndarray, sample_time: float, prediction: str, plan
         else:  # a chord: the end point moves by at most noise_alpha (+ RK4's error twice)
             alpha = alpha + noise_alpha + 2.0 * _simpson_error(speed, w + W[1], h) * (
                 plant == "rk4")
+    return alpha, beta
+
+
+def _lagging_deviation(u: np.ndarray, h: float, prediction: str, spec: PlantSpec,
+                       W: np.ndarray, previous: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r""":func:`path_deviation` of a plant that lags (``spec.response``; module notes, "A plant
+    that lags"): :math:`(\alpha, \beta)` of the bend, the noise, the lag after the change
+    from ``previous``, the coast of a brake after the sample and the prediction's end point."""
+    v, w = np.abs(u[..., 0]), np.abs(u[..., 1])
+    speed = v + W[0]
+    rate = np.maximum(w, np.abs(previous[..., 1])) + W[1]  # the yaw rate within the sample
+    bend = speed * rate * h * h / 2.0      # |psi(t) - psi_0| <= rate t: off the heading's line
+    change = np.abs(u[..., 0] - previous[..., 0]) + 2.0 * W[0]
+    lag = spec.speed_lag(change)           # <= min(change t, lag): lag s + change Ts s (1 - s)
+    coast = spec.speed_lag(speed)          # the brake that may follow: at most this far
+    alpha = bend + W[0] * h + lag + coast
+    beta = change * h - bend
+    if prediction != "euler":  # the predicted end point is off the Euler one by the turn
+        alpha = alpha + v * w * h * h / 2.0
+        if prediction == "rk4":
+            alpha = alpha + _simpson_error(v, w, h)
     return alpha, beta
 
 
@@ -370,10 +531,13 @@ def model_margin(input_lower: np.ndarray, input_upper: np.ndarray, sample_time: 
     the bound grows with :math:`|v|` and :math:`|\omega|`); 0 when the plant
     moves exactly as predicted. E.g. Euler controller on an exact plant, or
     exact on exact: :math:`v_{\max}\omega_{\max}T_s^2` (0.118 m for the paper's
-    bounds at :math:`T_s` = 0.5 s). With ``acceleration_bounds`` (robots with
-    velocity states) the largest growth of :func:`acceleration_path_deviation`
-    over the velocity and acceleration boxes (the checks of these robots take the bound
-    itself, :func:`largest_deviation`; the rows keep the linear majorant, module notes).
+    bounds at :math:`T_s` = 0.5 s). A plant that lags (``plant.response``) adds the
+    coast of a brake from full speed, :math:`c(v_{\max})` per robot, but not the lag of a
+    change of command (two commands' property: the checks take it). With
+    ``acceleration_bounds`` (robots with velocity states) the largest growth of
+    :func:`acceleration_path_deviation` over the velocity and acceleration boxes (the
+    checks of these robots take the bound itself, :func:`largest_deviation`; the rows keep
+    the linear majorant, module notes).
     """
     lo, hi = np.asarray(input_lower, dtype=float), np.asarray(input_upper, dtype=float)
     if acceleration_bounds is not None:
@@ -382,7 +546,7 @@ def model_margin(input_lower: np.ndarray, input_upper: np.ndarray, sample_time: 
         return float(2.0 * linear_growth(alpha, beta).max())
     corners = np.array([[a, b] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])])
     alpha, beta = path_deviation(corners, sample_time, prediction, plant.model,
-                                 plant.noise_bound)
+                                 plant.noise_bound, plant if plant.response else None)
     return float(2.0 * linear_growth(alpha, beta).max())
 
 

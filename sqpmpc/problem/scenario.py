@@ -254,6 +254,7 @@ class Scenario:
         if not isinstance(self.plant, PlantSpec):
             raise ScenarioError(self.source, "plant", f"expected a PlantSpec ([plant] table), "
                                 f"found {_describe(self.plant)}")
+        self._check_response()
         if not isinstance(self.polygons, list | tuple):
             raise ScenarioError(self.source, "polygons", "expected polygon obstacles, found "
                                 f"{_describe(self.polygons)}")
@@ -266,6 +267,24 @@ class Scenario:
         if self.roadmap is not None and not isinstance(self.roadmap, GridSpec):
             raise ScenarioError(self.source, "roadmap", "expected a GridSpec ([roadmap] table), "
                                 f"found {_describe(self.roadmap)}")
+
+    def _check_response(self) -> None:
+        """A plant that lags (``[plant] response``): the paper's robot, whose speed settles
+        within a sample from any command to any other (the checks take the command of the
+        sample before as the speed a sample starts with)."""
+        if self.plant.response is None:
+            return
+        if self.bounds.dynamic_limits:
+            raise ScenarioError(self.source, "plant.response", "for the paper's robot only: "
+                                "robots with acceleration bounds ramp their velocities "
+                                "(CONTRACT 1c)")
+        lo, hi = self.bounds.input_lower()[0], self.bounds.input_upper()[0]
+        settle = self.plant.settling_time(hi - lo)
+        if settle > self.sample_time:
+            raise ScenarioError(self.source, "plant.response",
+                                f"the speed settles in up to {settle:.3g} s (delay + "
+                                f"(v_max - v_min) / acceleration), longer than the sample time "
+                                f"{self.sample_time:g} s: declare acceleration bounds instead")
 
     def _check_obstacles(self) -> None:
         xy = self.initial_states()[:, :2]

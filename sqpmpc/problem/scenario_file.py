@@ -53,7 +53,7 @@ POLYGON_KEYS = ("points",)
 """The keys of an ``[[obstacles]]`` table of a polygon (CONTRACT 1d)."""
 
 
-PLANT_KEYS = ("model", "input_noise", "seed")
+PLANT_KEYS = ("model", "input_noise", "seed", "response")
 """The keys of the ``[plant]`` table."""
 
 

@@ -2,8 +2,8 @@
 settings, one solve's result and the interior-point reference solve.
 
 Every backend (:mod:`sqpmpc.qp.osqp_backend`, :mod:`sqpmpc.qp.piqp`,
-:mod:`sqpmpc.qp.daqp`) implements :class:`QPBackend`: one ``solve`` on the
-values of the fixed pattern, told what changed since its last solve.
+:mod:`sqpmpc.qp.daqp`, :mod:`sqpmpc.qp.active_set`) implements :class:`QPBackend`: one
+``solve`` on the values of the fixed pattern, told what changed since its last solve.
 :func:`make_backend` builds one by name, importing its module only then.
 The two policies around a backend (the OSQP-to-PIQP hand-over and the
 interior-point rescue) are in :mod:`sqpmpc.qp.policies`.
@@ -33,7 +33,7 @@ __all__ = [
 
 
 #: QP backends of :class:`SparseQP`.
-QP_SOLVERS = ("osqp", "piqp", "piqp-multistage", "daqp", "osqp+piqp")
+QP_SOLVERS = ("osqp", "piqp", "piqp-multistage", "daqp", "osqp+piqp", "active-set")
 
 
 #: ``"osqp+piqp"``: OSQP iterations before a QP is handed to PIQP.
@@ -192,18 +192,20 @@ BACKENDS: dict[str, tuple[str, str]] = {
     "piqp": ("sqpmpc.qp.piqp", "PIQPBackend"),
     "piqp-multistage": ("sqpmpc.qp.piqp", "PIQPBackend"),
     "daqp": ("sqpmpc.qp.daqp", "DAQPBackend"),
+    "active-set": ("sqpmpc.qp.active_set", "ActiveSetBackend"),
 }
 
 
 def make_backend(name: str, layout: QPLayout, settings: OSQPSettings) -> QPBackend:
     """The backend ``name`` (:data:`BACKENDS`) for ``layout``: OSQP with ``settings``,
     PIQP with its tolerances and :data:`PIQP_MAX_ITER` (``"piqp-multistage"``: in stage
-    order, with PIQP's multistage KKT solver), DAQP as is."""
+    order, with PIQP's multistage KKT solver), DAQP as is, the active-set method with
+    ``settings`` (its tolerance, and its PIQP fallback's)."""
     if name not in BACKENDS:
         raise ProblemError(f"QP backend must be one of {tuple(BACKENDS)}, got {name!r}")
     module, cls = BACKENDS[name]
     backend = getattr(importlib.import_module(module), cls)
-    if name == "osqp":
+    if name in ("osqp", "active-set"):
         return backend(layout, settings)
     if name in ("piqp", "piqp-multistage"):
         return backend(layout, settings.eps_abs, settings.eps_rel, PIQP_MAX_ITER,

@@ -12,7 +12,7 @@ compiled kernels of the OCP write whole blocks through the views
 :meth:`SparseQP.matrix_entries` and :meth:`SparseQP.row_bounds` hand out by
 name, then say so with :meth:`SparseQP.mark_changed`. :meth:`SparseQP.solve`
 hands the backend (:class:`~sqpmpc.qp.backend.QPBackend`, chosen by name:
-OSQP, PIQP or DAQP) only what changed, then applies the policies of
+OSQP, PIQP, DAQP or the active-set method) only what changed, then applies the policies of
 :mod:`sqpmpc.qp.policies` (hand-over, rescue) to a QP it left unsolved. A
 change of vectors alone never triggers a re-factorization.
 """
@@ -63,7 +63,10 @@ class SparseQP:
     by DAQP (:mod:`sqpmpc.qp.daqp`, dense, hot-started from the previous
     active set), with ``"osqp+piqp"`` by OSQP capped at
     :data:`HANDOVER_ITERATIONS` iterations and PIQP for what it leaves
-    (:class:`~sqpmpc.qp.policies.HandOver`). The rescue of ``settings``
+    (:class:`~sqpmpc.qp.policies.HandOver`), with ``"active-set"`` by the
+    primal-dual active-set method (:mod:`sqpmpc.qp.active_set`, warm-started, one
+    KKT factorization when the working set is right) and PIQP for the QPs it
+    leaves. The rescue of ``settings``
     (:class:`~sqpmpc.qp.policies.Rescue`) applies to all, the tolerances to PIQP.
 
     Parameters
@@ -73,7 +76,8 @@ class SparseQP:
     settings
         OSQP settings (tolerances and rescue also for PIQP).
     solver
-        ``"osqp"`` (default), ``"piqp"``, ``"daqp"`` or ``"osqp+piqp"``.
+        ``"osqp"`` (default), ``"piqp"``, ``"piqp-multistage"``, ``"daqp"``,
+        ``"osqp+piqp"`` or ``"active-set"``.
 
     Attributes
     ----------

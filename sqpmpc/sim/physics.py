@@ -44,10 +44,20 @@ ideal plant). A physical robot also moves on arcs: declare ``[plant] model =
 segment misses up to :math:`v\omega T_s^2/2` (0.059 m at the paper's bounds).
 With both the nominal robot stays within 1.2 mm of the tube
 (``tube_excursion`` of :meth:`PhysicalSimulation.physics_metrics`).
+
+What the controllers are told (:func:`physical_plant`): the robots move on arcs
+(``[plant] model = "exact"``, whatever the scenario declares), and the paper's robot's
+speed lags its commands (``[plant] response`` of :meth:`PhysicalRobot.response`,
+:mod:`sqpmpc.problem.plant`, "A plant that lags"). Without them the paper's robots
+head-on overlapped up to 122 mm: the checks took the Euler segments (each robot ended a
+sample 4 cm off its segment) and a stop at once (a robot coasts 45 mm from 0.6 m/s).
+With them the paper's robots stay within 0.3 mm of the checked tubes and keep their
+distance at every physics step (``tests/test_physics.py``, with every QP solver).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -63,11 +73,13 @@ from sqpmpc.sim.record import RunRecord
 from sqpmpc.sim.simulation import ClosedLoopSimulation, Scheme, SimulationOptions
 from sqpmpc.sim.tube import tube_excursion
 
-__all__ = ["OVERLAP_TOLERANCE", "PhysicalRobot", "PhysicalSimulation", "PhysicsFleet",
-           "fleet_xml", "load_mujoco", "simulate_physical"]
+__all__ = ["CASTER_MASS", "OVERLAP_TOLERANCE", "PhysicalRobot", "PhysicalSimulation",
+           "PhysicsFleet", "fleet_xml", "load_mujoco", "physical_plant", "simulate_physical"]
 
 #: Clearance below which a physics step counts as an overlap, m (the QP's 1 mm margin).
 OVERLAP_TOLERANCE = 1e-3
+#: Mass of each of a robot's two caster spheres, kg.
+CASTER_MASS = 0.01
 
 
 def load_mujoco() -> Any:
@@ -150,6 +162,29 @@ class PhysicalRobot:
             raise ProblemError(f"PhysicalRobot.track_fraction: expected a number in (0, 1) (the "
                                f"wheels inside the footprint), got {self.track_fraction!r}")
 
+    def response(self) -> tuple[float, float]:
+        r"""How the paper's robot's speed follows a command on this robot (the driver holds
+        the wheel speeds): ``(delay, acceleration)`` of :attr:`PlantSpec.response
+        <sqpmpc.problem.plant.PlantSpec>`, from the parameters.
+
+        Each wheel's speed follows its set point through two first-order lags, the set-point
+        filter (``actuator_time_constant``) and the servo, :math:`J/k_v` with
+        :math:`J = m_e r^2/2` the robot's effective mass :math:`m_e` (chassis, wheels,
+        casters and the wheels' and motors' rotating inertia reflected to the floor,
+        :math:`2(J_w + J_a)/r^2`) shared by the two wheels; the lag of two first-order lags
+        in series is the sum of their time constants: ``delay``. While the torque is at its
+        limit the robot's speed changes at :math:`2\tau_{\max}/(r m_e)`: ``acceleration``
+        (4.07 m/s^2 for the nominal robot, as measured by ``benchmarks/physical.py``), which
+        takes the wheels gripping (friction 1 holds 9.8 m/s^2). ``tests/test_physics.py``
+        checks the resulting bound against the robot's paths after steps between the
+        corners of the paper's input box.
+        """
+        r = self.wheel_radius
+        rotating = 2.0 * (self.wheel_armature + 0.5 * self.wheel_mass * r * r) / (r * r)
+        mass = self.mass + 2.0 * self.wheel_mass + 2.0 * CASTER_MASS + rotating
+        servo = 0.5 * mass * r * r / self.servo_gain
+        return (self.actuator_time_constant + servo, 2.0 * self.wheel_torque / (r * mass))
+
     def substeps(self, sample_time: float) -> int:
         """Physics steps per controller sample (``sample_time`` must be a multiple)."""
         n = round(sample_time / self.physics_step)
@@ -187,9 +222,10 @@ def fleet_xml(scenario: Scenario, robot: PhysicalRobot) -> str:
             f'<geom name="{name}_chassis" type="cylinder" size="{radius!r} 0.03" '
             f'pos="0.02 0 0.01" mass="{robot.mass!r}" contype="0" conaffinity="0"/>',
             f'<geom name="{name}_caster" type="sphere" size="{caster!r}" '
-            f'pos="{reach!r} 0 {caster - r!r}" mass="0.01" condim="1" priority="1"/>',
+            f'pos="{reach!r} 0 {caster - r!r}" mass="{CASTER_MASS!r}" condim="1" priority="1"/>',
             f'<geom name="{name}_skid" type="sphere" size="{caster!r}" '
-            f'pos="{-reach!r} 0 {caster - r + 0.001!r}" mass="0.01" condim="1" priority="1"/>',
+            f'pos="{-reach!r} 0 {caster - r + 0.001!r}" mass="{CASTER_MASS!r}" condim="1" '
+            'priority="1"/>',
         ]
         for side, sign in (("left", 1.0), ("right", -1.0)):
             parts += [
@@ -373,10 +409,9 @@ class PhysicalSimulation(ClosedLoopSimulation):
     """:class:`~sqpmpc.sim.simulation.ClosedLoopSimulation` on a :class:`PhysicsFleet`.
 
     The controllers, plan exchange and record are the in-process loop's; only the
-    plant differs. The scenario's ``[plant]`` section is the controller's model
-    of the robot (its margins); the robots move by the physics, on arcs: declare
-    ``model = "exact"`` (module notes; :meth:`tube_excursion` measures what the
-    checks missed).
+    plant differs. The controllers take the ``[plant]`` of :func:`physical_plant` (the
+    robots move on arcs; the paper's robot lags), which :attr:`scenario` holds
+    (module notes; :meth:`tube_excursion` measures what the checks missed).
 
     Parameters
     ----------
@@ -397,7 +432,8 @@ class PhysicalSimulation(ClosedLoopSimulation):
                  settings: SolverSettings | None = None,
                  options: SimulationOptions | None = None,
                  robot: PhysicalRobot | None = None) -> None:
-        super().__init__(scenario, scheme, settings, options)
+        robot = robot or PhysicalRobot()
+        super().__init__(physical_plant(scenario, robot), scheme, settings, options)
         self.fleet = PhysicsFleet(self.scenario, robot)
         self.plant = self.fleet
         self.states[0] = self.fleet.poses()
@@ -441,6 +477,28 @@ class PhysicalSimulation(ClosedLoopSimulation):
         rec.extra.update(self.physics_metrics())
         rec.extra["plant_discretization"] = "mujoco"
         return rec
+
+
+def physical_plant(scenario: Scenario, robot: PhysicalRobot) -> Scenario:
+    r"""The scenario with the ``[plant]`` the physics plant's robots are: what the
+    controllers' margins and checks take (:mod:`sqpmpc.problem.plant`).
+
+    - ``model = "exact"`` whatever was declared: a physical robot moves continuously, on
+      arcs when it turns. Under the Euler (or RK4) plant the controllers take the robots
+      to move on the predicted straight segments and keep no margin for the arcs: the
+      paper's robots head-on ended a sample 71 mm inside each other's distance, each
+      4 cm off its Euler segment, where the check had accepted 3.5 mm of clearance.
+    - for the paper's robot (no acceleration bounds) ``response =``
+      :meth:`PhysicalRobot.response`: its speed cannot change at once, it coasts (45 mm
+      from 0.6 m/s) and lags a change of command; the checks take both, so the brake that
+      follows an accepted input (which the paper's robot takes to stop at once) is safe.
+      Head-on, a robot braking from full speed coasted 22 mm into the other's distance
+      after the check had accepted the 33 mm left. Robots with acceleration bounds ramp
+      as their model predicts (:meth:`PhysicsFleet.ramp`) and keep their own bound.
+    """
+    response = None if scenario.bounds.dynamic_limits else robot.response()
+    plant = dataclasses.replace(scenario.plant, model="exact", response=response)
+    return scenario if plant == scenario.plant else scenario.with_changes(plant=plant)
 
 
 def simulate_physical(scenario: Scenario, scheme: Scheme,

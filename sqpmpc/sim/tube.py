@@ -56,8 +56,10 @@ def tube_excursion(path: np.ndarray, states: np.ndarray, horizons: np.ndarray,
         alpha, beta = acceleration_path_deviation(
             velocities, (commands - velocities) / h, h, prediction, plant.model,
             plant.noise_bound)
-    else:
-        alpha, beta = path_deviation(commands, h, prediction, plant.model, plant.noise_bound)
+    else:  # a plant that lags: from the commands of the samples before (at rest at first)
+        previous = np.concatenate((np.zeros_like(commands[:1]), commands[:-1]), axis=0)
+        alpha, beta = path_deviation(commands, h, prediction, plant.model, plant.noise_bound,
+                                     plant if plant.response else None, previous)
     steps = path.shape[1]
     s = (np.arange(1, steps + 1) / steps)[None, :, None]               # (1, S, 1)
     seg = (1.0 - s)[..., None] * states[:-1, None, :, :2] + s[..., None] * horizons[:, None, :,
