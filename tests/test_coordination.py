@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components, shortest_path
+from shapely.geometry import LineString, Point
 
 from sqpmpc.coordination.fleet import fleet_plan, replan_from_positions, turn_per_step
 from sqpmpc.coordination.mapf import PlanningError, distance_tables, plan_paths
@@ -156,6 +157,56 @@ def test_a_formation_gets_a_grid_through_its_points_and_a_circle_the_finest() ->
     np.testing.assert_allclose(step, 0.5, atol=1e-9)
     swap = fleet_plan(antipodal_swap(8), 0.15 + 0.001, 0.3 + 0.001)
     assert swap.roadmap.spacing == pytest.approx(0.301 + 2 * 0.3 / 4)
+
+
+def _aisle(goal_gap: float, rows: tuple[float, ...] = (2.4,)
+           ) -> tuple[list[PolygonObstacle], np.ndarray, np.ndarray]:
+    """Two 8 m shelves 1.6 m apart (the aisle's middle at y = 2.4); eight goals ``goal_gap``
+    apart on each of ``rows`` (every other row shifted by half a gap); the robots start in
+    a column 2 m beyond the shelves' end."""
+    shelves = [PolygonObstacle(((-4.0, y0), (4.0, y0), (4.0, y0 + 0.8), (-4.0, y0 + 0.8)))
+               for y0 in (0.8, 3.2)]
+    goals = np.concatenate([np.column_stack((goal_gap * (np.arange(8) - 3.5 + 0.5 * (k % 2)),
+                                             np.full(8, y))) for k, y in enumerate(rows)])
+    starts = np.column_stack((np.full(len(goals), 6.0), 0.5 * np.arange(len(goals)) - 2.0))
+    return shelves, starts, goals
+
+
+def test_an_open_space_roadmap_keeps_the_tube_around_its_grid_clear() -> None:
+    """Without a declared grid, every grid vertex and grid edge is farther than the clearance
+    plus the reach from the obstacles: a robot within the reach of its way keeps the
+    clearance (the warehouse family's robot pinned at a shelf's corner, stuck for 80 s)."""
+    shelves, starts, goals = _aisle(0.8)
+    clearance = 0.151
+    roadmap = build_roadmap(shelves, (), None, starts, goals, np.ones(len(goals), dtype=bool),
+                            clearance, 0.302, 0.3, diagonal=True)
+    ends = set(roadmap.starts.tolist()) | set(roadmap.goals.tolist())
+    grid = [v for v in range(roadmap.size) if v not in ends]
+    assert len(grid) > 100
+    shapes = [shelf.shape for shelf in shelves]
+    room = clearance + roadmap.reach - 1e-9
+    for v in grid:
+        assert min(s.distance(Point(roadmap.positions[v])) for s in shapes) >= room
+        for u in roadmap.neighbours(v):
+            if int(u) in ends:
+                continue
+            line = LineString([roadmap.positions[v], roadmap.positions[u]])
+            assert min(s.distance(line) for s in shapes) >= room
+
+
+def test_goals_crowding_an_aisle_are_bridged_to_the_rest_of_the_roadmap() -> None:
+    """Goals off the grid remove the grid vertices nearer than h around them: two rows of
+    goals in an aisle leave parts of it no grid vertex, and their rings do not reach each
+    other (without the bridges 2 robots here were cut off from their goals, as 5 were on
+    the warehouse family's 32-robot seed 0). The roadmap joins the parts by their shortest
+    free segments: every robot's start is joined to its goal, and the fleet is planned."""
+    shelves, starts, goals = _aisle(1.0, (2.2, 2.6))
+    roadmap = build_roadmap(shelves, (), None, starts, goals, np.ones(len(goals), dtype=bool),
+                            0.151, 0.302, 0.3, diagonal=True)
+    _, label = connected_components(roadmap.adjacency(), directed=False)
+    assert np.array_equal(label[roadmap.starts], label[roadmap.goals])
+    configs = plan_paths(roadmap, roadmap.starts, roadmap.goals)
+    check_plan(_edges(roadmap), configs, roadmap.starts, roadmap.goals, roadmap.corners())
 
 
 def test_a_cell_no_wider_than_the_kept_distance_is_refused() -> None:

@@ -11,7 +11,23 @@ point), any other one replaces the grid vertices nearer than :math:`h` and joins
 every vertex within :math:`\sqrt{5/2}\, h` that it sees with clearance (the
 farthest its nearest kept grid vertex can be: from the centre of a cell, whose
 corners it removed), else the nearest vertex it sees; points nearer than
-:math:`h` to each other are one vertex.
+:math:`h` to each other are one vertex. Where that leaves a robot's start and goal in
+two components of the graph (off-grid goals crowding an aisle remove the grid vertices
+between them, and their rings may not reach each other), the smaller component is
+joined to the rest by its shortest segment free at the footprint, until every robot's
+start and goal are joined or no free segment is left (a *bridge*: each one joins two
+components, so there are fewer bridges than components).
+
+**The tube keeps the clearance.** A robot is anywhere within :math:`\rho` of its way
+(its reach, below), and its motion rounds corners within :math:`\rho`
+(:mod:`sqpmpc.coordination.motion`). Without a declared grid the grid's vertices and
+edges therefore keep :math:`c + \rho` from the obstacles and :math:`\rho` inside the
+``[bounds]`` box, so that the whole tube keeps :math:`c`: with :math:`c` alone a
+robot's way along a shelf kept 3 cm to spare, its corner arc 1 cm, and the robot,
+pressed into the obstacle row at the shelf's corner and heading into it, stood for the
+rest of the run (warehouse family, 8 robots, seed 1). A declared grid's reach is at
+most :math:`h/2 - c` (below), so its free cells' centres and the segments between them
+keep :math:`c + \rho` already.
 
 Why this graph
 --------------
@@ -65,7 +81,8 @@ as in their benchmark.
 
 Completeness assumption (stated, not checked beyond the graph): a corridor is
 passable when the grid has a line of vertices in it, i.e. when it is at least
-:math:`2c` wide and holds a grid row or column; for maps drawn on the grid
+:math:`2(c + \rho)` wide (without a declared grid; :math:`1.5 d` plus twice the margin,
+0.45 m for robots of 0.3 m) and holds a grid row or column; for maps drawn on the grid
 (MovingAI maps at cell :math:`h`, free cells whose centres keep :math:`c`)
 every free cell is a vertex, so every corridor of free cells is passable.
 """
@@ -80,6 +97,7 @@ import numpy as np
 import shapely
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 from shapely.geometry import Point
 from shapely.ops import unary_union
 
@@ -332,8 +350,15 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
             high = np.where(np.isfinite(bounds[1]), bounds[1], high)
     best: Roadmap | None = None
     best_score = -1
+    tubes: dict[float, shapely.Geometry | None] = {}
     for h, reach, origin in grids:
-        candidate = _roadmap_at(inflated, footprint, low, high, h, origin, reach, starts,
+        if grid is None:  # the grid's vertices and edges keep the clearance over their tube
+            if reach not in tubes:
+                tubes[reach] = _inflated(polygons, circles, clearance + reach)
+            free, box = tubes[reach], (low + reach, high - reach)
+        else:  # a declared cell's reach is at most h/2 - c: its tube keeps the clearance
+            free, box = inflated, (low, high)
+        candidate = _roadmap_at(free, footprint, box[0], box[1], h, origin, reach, starts,
                                 goals, has_goal, diagonal)
         score = _joined(candidate, has_goal)
         if score > best_score:
@@ -463,13 +488,11 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
         if extra:
             pairs.append(np.asarray(extra, dtype=np.int64))
     edges = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
-    edges = np.unique(np.sort(edges, axis=1), axis=0) if edges.size else edges
-    size = positions.shape[0]
-    adjacency = csr_matrix((np.ones(2 * edges.shape[0]),
-                            (np.concatenate((edges[:, 0], edges[:, 1])),
-                             np.concatenate((edges[:, 1], edges[:, 0])))), shape=(size, size))
-    adjacency.sort_indices()
     vertex = np.where(where >= 0, number[np.maximum(where, 0)], base - 1 - where)
+    ends_v = vertex.reshape(2, -1).T  # (planned, 2): each planned robot's start and goal
+    edges = _bridged(positions, edges, ends_v, footprint)
+    edges = np.unique(np.sort(edges, axis=1), axis=0) if edges.size else edges
+    adjacency = _adjacency(edges, positions.shape[0])
     n = has_goal.size
     start_v = np.full(n, -1, dtype=np.int64)
     goal_v = np.full(n, -1, dtype=np.int64)
@@ -480,6 +503,59 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
         diagonals = _diagonals(shape, keep, points, inflated, number)
     return Roadmap(positions, adjacency.indptr.astype(np.int64),
                    adjacency.indices.astype(np.int64), h, reach, start_v, goal_v, diagonals)
+
+
+def _adjacency(edges: np.ndarray, size: int) -> csr_matrix:
+    """The symmetric ``(size, size)`` adjacency of ``(E, 2)`` edges, indices sorted."""
+    adjacency = csr_matrix((np.ones(2 * edges.shape[0]),
+                            (np.concatenate((edges[:, 0], edges[:, 1])),
+                             np.concatenate((edges[:, 1], edges[:, 0])))), shape=(size, size))
+    adjacency.sort_indices()
+    return adjacency
+
+
+def _bridged(positions: np.ndarray, edges: np.ndarray, ends: np.ndarray,
+             footprint: shapely.Geometry | None) -> np.ndarray:
+    """``edges`` plus the bridges that join each robot's start to its goal where the graph
+    leaves them apart and the free space does not: while some robot's ``ends`` row
+    (start, goal vertex) lies in two components, the smaller of the two is joined to
+    the rest of the graph by its shortest segment that the footprint leaves free (off-grid
+    starts and goals crowded in an aisle remove the grid vertices between them, and
+    their rings may not reach each other). Each bridge joins two components, so there
+    are fewer bridges than components; none where no free segment exists (the planner
+    then names the robot)."""
+    size = positions.shape[0]
+    edges = edges.reshape(-1, 2)
+    for _ in range(size):
+        _, label = connected_components(_adjacency(edges, size), directed=False)
+        apart = ends[label[ends[:, 0]] != label[ends[:, 1]]]
+        if apart.size == 0:
+            return edges
+        counts = np.bincount(label)
+        a, b = label[apart[0]]
+        part = a if counts[a] <= counts[b] else b
+        inside = np.flatnonzero(label == part)
+        outside = np.flatnonzero(label != part)
+        tree = cKDTree(positions[outside])
+        bridge = None
+        k = 8
+        while bridge is None:
+            k = min(2 * k, outside.size)
+            gaps, near = tree.query(positions[inside], k=k)
+            gaps, near = gaps.reshape(inside.size, -1), near.reshape(inside.size, -1)
+            order = np.argsort(gaps, axis=None)
+            i, o = np.unravel_index(order, gaps.shape)
+            free = _free_segments(positions[inside[i]], positions[outside[near[i, o]]],
+                                  footprint)
+            if free.any():
+                j = int(np.argmax(free))
+                bridge = (int(inside[i[j]]), int(outside[near[i[j], o[j]]]))
+            elif k == outside.size:
+                break
+        if bridge is None:
+            return edges
+        edges = np.concatenate((edges, np.asarray([bridge], dtype=np.int64)))
+    return edges
 
 
 def _diagonals(shape: tuple[int, int], keep: np.ndarray, points: np.ndarray,
