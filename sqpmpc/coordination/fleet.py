@@ -135,13 +135,19 @@ def _cached(scenario: Scenario, clearance: float, separation: float) -> FleetPla
 def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.ndarray,
           has_goal: np.ndarray, clearance: float, separation: float,
           start_vertices: np.ndarray | None, roadmap: Roadmap | None = None,
-          headings: np.ndarray | None = None) -> FleetPlan:
+          headings: np.ndarray | None = None, method: str = "auto") -> FleetPlan:
     t0 = time.process_time()
     if roadmap is None:
-        roadmap = build_roadmap(
-            scenario.polygons, scenario.obstacles, scenario_box(scenario), starts, goals,
-            has_goal, clearance, separation, float(scenario.diameters().max()),
-            scenario.roadmap, diagonal=scenario.roadmap is None)
+        arguments = (scenario.polygons, scenario.obstacles, scenario_box(scenario), starts,
+                     goals, has_goal, clearance, separation, float(scenario.diameters().max()),
+                     scenario.roadmap)
+        roadmap = build_roadmap(*arguments, diagonal=scenario.roadmap is None)
+        if scenario.roadmap is None:  # the tube's roadmap where prioritized planning solves it
+            try:
+                return _plan(scenario, robots, starts, goals, has_goal, clearance, separation,
+                             start_vertices, roadmap, headings, method="prioritized")
+            except PlanningError:
+                roadmap = build_roadmap(*arguments, diagonal=True, tube=False)
     s = roadmap.starts[robots] if start_vertices is None else start_vertices
     g = roadmap.goals[robots]
     names = [f"robot {scenario.robots[i].id}" for i in robots]
@@ -158,7 +164,8 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
     # where it is kept (dense formations) its diagonals did not shorten it
     for step in ((turn_step, 0.0) if turn_step > 0.0 else (0.0,)):
         used, configs = _plan_on(roadmap if step == turn_step else replace(
-            roadmap, diagonals=np.zeros((0, 4), dtype=np.int64)), s, g, names, step, headings)
+            roadmap, diagonals=np.zeros((0, 4), dtype=np.int64)), s, g, names, step, headings,
+            method)
         schedule = Schedule.from_plan(configs, used.corners())
         end = float(schedule.predicted_arrivals(used.positions, facing, speed, rate).max())
         candidates.append((end, len(candidates), used, configs, schedule))
@@ -175,15 +182,16 @@ def _speeds(scenario: Scenario) -> tuple[float, float]:
 
 
 def _plan_on(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, names: list[str],
-             turn_step: float, headings: np.ndarray | None) -> tuple[Roadmap, np.ndarray]:
+             turn_step: float, headings: np.ndarray | None, method: str = "auto"
+             ) -> tuple[Roadmap, np.ndarray]:
     """The plan on ``roadmap`` and the roadmap it uses: with and without the diagonals, the
     plan of fewer steps (its dependency chains are shorter; diagonals shorten crossings
     and lengthen dense formations). The 4-connected plan first (prioritized, else
-    LaCAM's); over the diagonals prioritized planning then seeks only a plan of fewer
-    steps."""
+    LaCAM's; ``method`` as :func:`~sqpmpc.coordination.mapf.plan_paths` takes it); over the
+    diagonals prioritized planning then seeks only a plan of fewer steps."""
     square = replace(roadmap, diagonals=np.zeros((0, 4), dtype=np.int64))
     configs = plan_paths(square, starts, goals, seed=0, names=names, turn_step=turn_step,
-                         headings=headings)
+                         headings=headings, method=method)
     if roadmap.diagonals.size:
         try:
             return roadmap, plan_paths(

@@ -26,12 +26,13 @@ edges therefore keep :math:`c + \rho` from the obstacles and :math:`\rho` inside
 ``[bounds]`` box, so that the whole tube keeps :math:`c`: with :math:`c` alone a
 robot's way along a shelf kept 3 cm to spare, its corner arc 1 cm, and the robot,
 pressed into the obstacle row at the shelf's corner and heading into it, stood for the
-rest of the run (warehouse family, 8 robots, seed 1). Only where no grid with the tube
-joins every robot's start to its goal are the same grids tried with :math:`c` alone (a
-thinner roadmap: warehouse family, 64 robots, seeds 1 and 2, whose tube roadmaps the
-planner did not solve in 90 s), and then the one that joins the most is bridged. A
-declared grid's reach is at most :math:`h/2 - c` (below), so its free cells' centres and
-the segments between them keep :math:`c + \rho` already.
+rest of the run (warehouse family, 8 robots, seed 1). The narrower free space can make
+the plan much harder to find (warehouse family, 64 robots, seeds 1 and 2: LaCAM ran over
+90 s on their tube roadmaps), so the fleet (:mod:`sqpmpc.coordination.fleet`) takes the
+tube roadmap where prioritized planning solves it and otherwise the thinner roadmap whose
+vertices and edges keep :math:`c` alone (``tube=False``). A declared grid's reach is at
+most :math:`h/2 - c` (below), so its free cells' centres and the segments between them
+keep :math:`c + \rho` already.
 
 Why this graph
 --------------
@@ -282,7 +283,7 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
                   bounds: tuple[np.ndarray, np.ndarray] | None, starts: np.ndarray,
                   goals: np.ndarray, has_goal: np.ndarray, clearance: float,
                   separation: float, diameter: float, grid: GridSpec | None = None,
-                  diagonal: bool = False) -> Roadmap:
+                  diagonal: bool = False, tube: bool = True) -> Roadmap:
     """The roadmap of a static map for robots keeping ``clearance`` from obstacles and
     ``separation`` between them (module docstring).
 
@@ -307,6 +308,9 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
     diagonal
         Whether the diagonals of grid squares whose four vertices are free grid vertices
         (and whose diagonal keeps the clearance) are edges too (:attr:`Roadmap.diagonals`).
+    tube
+        Without a declared grid: whether the grid's vertices and edges keep the clearance
+        plus the reach (the tube, module docstring) or the clearance alone.
 
     Raises
     ------
@@ -355,14 +359,15 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
     best: Roadmap | None = None
     best_score = -1
     chosen: tuple = ()
-    # without a declared grid, every grid first with its tube keeping the clearance, then
-    # (a map too narrow for the tube: a thinner roadmap) with its vertices and edges only
+    # without a declared grid the grid's vertices and edges keep the clearance over their
+    # tube (module docstring), unless ``tube`` is off (a thinner roadmap)
     tries: list[tuple] = []
-    if grid is None:
+    if grid is None and tube:
         tubes = {reach: _inflated(polygons, circles, clearance + reach) for _, reach, _ in grids}
         tries += [(tubes[reach], (low + reach, high - reach), h, reach, origin)
                   for h, reach, origin in grids]
-    tries += [(inflated, (low, high), h, reach, origin) for h, reach, origin in grids]
+    else:
+        tries += [(inflated, (low, high), h, reach, origin) for h, reach, origin in grids]
     for free, box, h, reach, origin in tries:
         arguments = (free, footprint, box[0], box[1], h, origin, reach, starts, goals,
                      has_goal, diagonal)
