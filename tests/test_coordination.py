@@ -209,6 +209,60 @@ def test_goals_crowding_an_aisle_are_bridged_to_the_rest_of_the_roadmap() -> Non
     check_plan(_edges(roadmap), configs, roadmap.starts, roadmap.goals, roadmap.corners())
 
 
+NARROW = """
+name = "narrow"
+t_end = 60.0
+sample_time = 0.5
+horizon = 8
+[weights]
+Q = [1.0, 1.0]
+R = [0.5, 0.5]
+[bounds]
+v = [-0.6, 0.6]
+omega = [-0.7853981633974483, 0.7853981633974483]
+x = [-3.5, 3.5]
+y = [-2.0, 2.0]
+[[robots]]
+id = 1
+initial_state = [-3.0, 0.0, 0.0]
+diameter = 0.3
+reference = { type = "point", position = [3.0, 0.0] }
+[[robots]]
+id = 2
+initial_state = [3.0, 0.7, 3.14]
+diameter = 0.3
+reference = { type = "point", position = [-3.0, 0.7] }
+[[obstacles]]
+points = [[-1.0, 0.2], [1.0, 0.2], [1.0, 3.0], [-1.0, 3.0]]
+[[obstacles]]
+points = [[-1.0, -0.2], [1.0, -0.2], [1.0, -3.0], [-1.0, -3.0]]
+"""
+
+
+def test_a_corridor_too_narrow_for_the_tube_is_passed_keeping_the_clearance() -> None:
+    """A 0.4 m corridor for robots of 0.3 m (clearance 0.151 m): wider than 2 c, narrower than
+    2 (c + rho) = 0.452 m. No grid vertex of the tube's roadmap is in it, yet the robots
+    swap sides through it (bridged or on the thinner roadmap), and every edge of the
+    roadmap keeps the clearance from the walls."""
+    sc = parse_scenario_text(NARROW.encode(), "narrow.toml")
+    clearance, separation = 0.151, 0.302
+    plan = fleet_plan(sc, clearance, separation)
+    roadmap = plan.roadmap
+    check_plan(_edges(roadmap), plan.configs, roadmap.starts, roadmap.goals, roadmap.corners())
+    walls = [polygon.shape for polygon in sc.polygons]
+    for v, u in _edges(roadmap):
+        line = LineString([roadmap.positions[v], roadmap.positions[u]])
+        assert min(wall.distance(line) for wall in walls) >= clearance - 1e-9
+    x = roadmap.positions[plan.configs, 0]  # (steps, robots)
+    assert np.all(np.sign(x[0]) == -np.sign(x[-1]))
+    tube = build_roadmap(sc.polygons, (), (np.array([-3.5, -2.0]), np.array([3.5, 2.0])),
+                         sc.initial_states()[:, :2], sc.reference_positions(0.0),
+                         np.ones(2, dtype=bool), clearance, separation, 0.3, diagonal=True)
+    starts_goals = set(tube.starts.tolist()) | set(tube.goals.tolist())
+    assert not any(abs(tube.positions[v, 0]) < 1.0 for v in range(tube.size)
+                   if v not in starts_goals)
+
+
 def test_a_cell_no_wider_than_the_kept_distance_is_refused() -> None:
     sc = mapf_scenario(MAP, 2, cell=0.5, diameter=0.3)
     with pytest.raises(ProblemError, match="not wider than the distance the robots keep"):

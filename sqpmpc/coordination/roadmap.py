@@ -15,7 +15,8 @@ corners it removed), else the nearest vertex it sees; points nearer than
 start to its goal (off-grid goals crowding an aisle remove the grid vertices between
 them, and their rings may not reach each other), the one that joins the most is
 *bridged*: the smaller of a robot's two components is joined to the rest by its
-shortest segment free at the footprint, until every robot's start and goal are joined
+shortest segment that keeps the clearance :math:`c` (not the tube: a bridge is where the
+map leaves no room for it), until every robot's start and goal are joined
 or no free segment is left (each bridge joins two components, so there are fewer
 bridges than components).
 
@@ -379,7 +380,7 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
             break
     assert best is not None  # at least one origin
     if best_score < int(has_goal.sum()):  # the grid that joins the most, bridged
-        best = _roadmap_at(*chosen, bridge=True)
+        best = _roadmap_at(*chosen, bridge=True, clear=inflated)
     return best
 
 
@@ -468,7 +469,8 @@ def on_one_lattice(starts: np.ndarray, goals: np.ndarray, separation: float,
 def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry | None,
                 low: np.ndarray, high: np.ndarray, h: float, origin: np.ndarray,
                 reach: float, starts: np.ndarray, goals: np.ndarray, has_goal: np.ndarray,
-                diagonal: bool = False, bridge: bool = False) -> Roadmap:
+                diagonal: bool = False, bridge: bool = False,
+                clear: shapely.Geometry | None = None) -> Roadmap:
     points, shape, _ = _grid(low, high, h, origin)
     keep = _free_points(points, inflated, low, high)
     planned = np.flatnonzero(has_goal)
@@ -504,8 +506,8 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
     edges = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
     vertex = np.where(where >= 0, number[np.maximum(where, 0)], base - 1 - where)
     ends_v = vertex.reshape(2, -1).T  # (planned, 2): each planned robot's start and goal
-    if bridge:
-        edges = _bridged(positions, edges, ends_v, footprint)
+    if bridge:  # bridges free at the clearance (``clear``: the map inflated by it)
+        edges = _bridged(positions, edges, ends_v, clear)
     edges = np.unique(np.sort(edges, axis=1), axis=0) if edges.size else edges
     adjacency = _adjacency(edges, positions.shape[0])
     n = has_goal.size
@@ -530,15 +532,15 @@ def _adjacency(edges: np.ndarray, size: int) -> csr_matrix:
 
 
 def _bridged(positions: np.ndarray, edges: np.ndarray, ends: np.ndarray,
-             footprint: shapely.Geometry | None) -> np.ndarray:
+             clear: shapely.Geometry | None) -> np.ndarray:
     """``edges`` plus the bridges that join each robot's start to its goal where the graph
     leaves them apart and the free space does not: while some robot's ``ends`` row
     (start, goal vertex) lies in two components, the smaller of the two is joined to
-    the rest of the graph by its shortest segment that the footprint leaves free (off-grid
-    starts and goals crowded in an aisle remove the grid vertices between them, and
-    their rings may not reach each other). Each bridge joins two components, so there
-    are fewer bridges than components; none where no free segment exists (the planner
-    then names the robot)."""
+    the rest of the graph by its shortest segment that ``clear`` (the map inflated by the
+    clearance) leaves free (off-grid starts and goals crowded in an aisle remove the grid
+    vertices between them, and their rings may not reach each other). Each bridge joins
+    two components, so there are fewer bridges than components; none where no free
+    segment exists (the planner then names the robot)."""
     size = positions.shape[0]
     edges = edges.reshape(-1, 2)
     for _ in range(size):
@@ -560,8 +562,7 @@ def _bridged(positions: np.ndarray, edges: np.ndarray, ends: np.ndarray,
             gaps, near = gaps.reshape(inside.size, -1), near.reshape(inside.size, -1)
             order = np.argsort(gaps, axis=None)
             i, o = np.unravel_index(order, gaps.shape)
-            free = _free_segments(positions[inside[i]], positions[outside[near[i, o]]],
-                                  footprint)
+            free = _free_segments(positions[inside[i]], positions[outside[near[i, o]]], clear)
             if free.any():
                 j = int(np.argmax(free))
                 bridge = (int(inside[i[j]]), int(outside[near[i[j], o[j]]]))
