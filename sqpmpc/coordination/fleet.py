@@ -144,8 +144,9 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
         roadmap = build_roadmap(*arguments, diagonal=scenario.roadmap is None)
         if scenario.roadmap is None:  # the tube's roadmap where prioritized planning solves it
             try:
-                return _plan(scenario, robots, starts, goals, has_goal, clearance, separation,
+                plan = _plan(scenario, robots, starts, goals, has_goal, clearance, separation,
                              start_vertices, roadmap, headings, method="prioritized")
+                return replace(plan, seconds=time.process_time() - t0)
             except PlanningError:
                 roadmap = build_roadmap(*arguments, diagonal=True, tube=False)
     s = roadmap.starts[robots] if start_vertices is None else start_vertices
