@@ -207,6 +207,16 @@ def test_goals_crowding_an_aisle_are_bridged_to_the_rest_of_the_roadmap() -> Non
     assert np.array_equal(label[roadmap.starts], label[roadmap.goals])
     configs = plan_paths(roadmap, roadmap.starts, roadmap.goals)
     check_plan(_edges(roadmap), configs, roadmap.starts, roadmap.goals, roadmap.corners())
+    # one more robot whose goal is walled in: passed over, the others still bridged
+    box = [PolygonObstacle(((x0, y0), (x0 + w, y0), (x0 + w, y0 + t), (x0, y0 + t)))
+           for x0, y0, w, t in ((8.0, -4.0, 2.0, 0.2), (8.0, -2.2, 2.0, 0.2),
+                                (8.0, -3.8, 0.2, 1.6), (9.8, -3.8, 0.2, 1.6))]
+    roadmap = build_roadmap(shelves + box, (), None, np.vstack(([[9.0, 5.0]], starts)),
+                            np.vstack(([[9.0, -3.0]], goals)), np.ones(len(goals) + 1, dtype=bool),
+                            0.151, 0.302, 0.3, diagonal=True)
+    _, label = connected_components(roadmap.adjacency(), directed=False)
+    joined = label[roadmap.starts] == label[roadmap.goals]
+    assert not joined[0] and joined[1:].all()
 
 
 NARROW = """

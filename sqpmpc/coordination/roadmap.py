@@ -539,17 +539,19 @@ def _bridged(positions: np.ndarray, edges: np.ndarray, ends: np.ndarray,
     the rest of the graph by its shortest segment that ``clear`` (the map inflated by the
     clearance) leaves free (off-grid starts and goals crowded in an aisle remove the grid
     vertices between them, and their rings may not reach each other). Each bridge joins
-    two components, so there are fewer bridges than components; none where no free
-    segment exists (the planner then names the robot)."""
+    two components, so there are fewer bridges than components; a robot whose component
+    no free segment leaves is passed over (the planner then names it)."""
     size = positions.shape[0]
     edges = edges.reshape(-1, 2)
-    for _ in range(size):
+    failed: set[int] = set()  # the robots whose components no free segment joins
+    for _ in range(size + ends.shape[0]):  # each pass adds a bridge or a failed robot
         _, label = connected_components(_adjacency(edges, size), directed=False)
-        apart = ends[label[ends[:, 0]] != label[ends[:, 1]]]
-        if apart.size == 0:
+        apart = [r for r in np.flatnonzero(label[ends[:, 0]] != label[ends[:, 1]])
+                 if r not in failed]
+        if not apart:
             return edges
         counts = np.bincount(label)
-        a, b = label[apart[0]]
+        a, b = label[ends[apart[0]]]
         part = a if counts[a] <= counts[b] else b
         inside = np.flatnonzero(label == part)
         outside = np.flatnonzero(label != part)
@@ -569,7 +571,8 @@ def _bridged(positions: np.ndarray, edges: np.ndarray, ends: np.ndarray,
             elif k == outside.size:
                 break
         if bridge is None:
-            return edges
+            failed.add(int(apart[0]))
+            continue
         edges = np.concatenate((edges, np.asarray([bridge], dtype=np.int64)))
     return edges
 
