@@ -168,7 +168,7 @@ def test_ros2_robots_arrive_without_collision_and_a_lost_odometry_stops_its_robo
 
 ACCEL_SCENARIO = """
 name = "ros2-accel"
-t_end = 20.0
+t_end = 30.0
 sample_time = 0.5
 horizon = 8
 
@@ -197,7 +197,9 @@ reference = { type = "point", position = [-1.2, -0.7] }
 # lanes 1.4 m apart: more than the distance the limits' margins keep (0.3 + 0.49 m for the
 # check, 0.04 m more for the QP), so each robot's run is its own: in a crossing, the
 # paper's decentralized scheme (no liveness rule) can leave a robot standing for good
-# beside the other's goal
+# beside the other's goal. t_end leaves room for a loaded machine: with the suite beside a
+# 256-robot run (2 cores), robot 2 came to rest 0.057 m from its goal at 18.8 s of 20 (the
+# robots were 0.4-0.7 m away at 15 s); the run's length is not what this test is about
 
 
 def test_ros2_robots_with_acceleration_limits_ramp_within_them_and_arrive(tmp_path):
