@@ -61,6 +61,7 @@ from sqpmpc.kernels.kkt import (
 )
 from sqpmpc.qp.backend import ALL_CHANGED, BackendSolution, Changes, OSQPSettings, make_backend
 from sqpmpc.qp.layout import QPLayout
+from sqpmpc.qp.piqp import stages
 
 __all__ = ["ACTIVE_SET_MAX_ITER", "ActiveSetBackend", "ActiveSetSettings", "kkt_order"]
 
@@ -95,22 +96,13 @@ def kkt_order(layout: QPLayout) -> np.ndarray:
     """The KKT system's unknowns (``n_var`` variables, then ``n_con`` multipliers) in stage
     order: position ``k`` holds unknown ``order[k]``.
 
-    Primary key the stage (a variable's stage as in :func:`sqpmpc.qp.piqp.stage_order`, a
+    Primary key the stage (a variable's stage as in :func:`sqpmpc.qp.piqp.stages`, a
     row's the smallest stage of its variables), then within a stage: rows that bound or
     couple that stage's variables, slacks, inputs, states, and last the dynamics and
     initial-state rows.
     """
     L = layout
-    N = L.horizon
-    stage = np.full(L.n_var, -1, dtype=np.int64)
-    stage[L.state_index] = np.arange(N + 1)[None, :, None]
-    stage[L.input_index] = np.arange(N)[None, :, None]
-    stage[L.slack_internal_index] = np.arange(2, N + 1)[None, :]
-    stage[L.slack_external_index] = np.arange(2, N + 1)[None, None, :]
-    if np.any(stage < 0):
-        raise SolverError("internal error: a QP variable without a stage")
-    row_stage = np.full(L.n_con, N + 1, dtype=np.int64)
-    np.minimum.at(row_stage, L.A_rows, stage[L.A_cols])
+    stage, row_stage = stages(L)
     var_kind = np.full(L.n_var, 1, dtype=np.int64)  # slacks
     var_kind[L.input_index] = 2
     var_kind[L.state_index] = 3

@@ -50,7 +50,7 @@ from sqpmpc.kernels.ocp import split_rows
 from sqpmpc.qp.backend import BackendSolution, Changes
 from sqpmpc.qp.layout import QPLayout
 
-__all__ = ["PIQPBackend", "stage_order"]
+__all__ = ["PIQPBackend", "stage_order", "stages"]
 
 _INFINITY = 1e30
 _ROW, _EQUALITY, _BOUND = 0, 1, 2
@@ -172,8 +172,8 @@ class PIQPBackend:
                                float(info.primal_res), float(info.dual_res))
 
 
-def stage_order(layout: QPLayout) -> tuple[np.ndarray, np.ndarray]:
-    """The layout's variables in stage order and the stage of every row.
+def stages(layout: QPLayout) -> tuple[np.ndarray, np.ndarray]:
+    """The stage of every variable and of every row of the layout.
 
     Stage ``k`` (0..N) holds every own robot's state of stage ``k``, its input
     of stage ``k`` (k < N) and the slacks of the collision rows on stage ``k``.
@@ -183,8 +183,7 @@ def stage_order(layout: QPLayout) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     tuple[np.ndarray, np.ndarray]
-        ``order (n_var,)``: position ``i`` holds the layout's variable
-        ``order[i]``; ``row_stage (n_con,)``.
+        ``stage (n_var,)`` and ``row_stage (n_con,)``.
     """
     L = layout
     N = L.horizon
@@ -196,10 +195,22 @@ def stage_order(layout: QPLayout) -> tuple[np.ndarray, np.ndarray]:
     stage[L.slack_external_index] = np.arange(2, N + 1)[None, None, :]
     if np.any(stage < 0):
         raise SolverError("internal error: a QP variable without a stage")
-    order = np.argsort(stage, kind="stable")
     row_stage = np.full(L.n_con, N + 1, dtype=np.int64)
     np.minimum.at(row_stage, L.A_rows, stage[L.A_cols])
-    return order, row_stage
+    return stage, row_stage
+
+
+def stage_order(layout: QPLayout) -> tuple[np.ndarray, np.ndarray]:
+    """The layout's variables in stage order (:func:`stages`) and the stage of every row.
+
+    Returns
+    -------
+    tuple[np.ndarray, np.ndarray]
+        ``order (n_var,)``: position ``i`` holds the layout's variable
+        ``order[i]``; ``row_stage (n_con,)``.
+    """
+    stage, row_stage = stages(layout)
+    return np.argsort(stage, kind="stable"), row_stage
 
 
 def _permuted_upper(layout: QPLayout, position: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
