@@ -45,6 +45,82 @@ def test_the_ways_of_a_swap_meet_in_one_ring_at_the_centre() -> None:
     assert np.hypot(*centres[0]) < 0.05
 
 
+def _zones_by_counting_all(positions: np.ndarray, goals: np.ndarray
+                           ) -> tuple[int, np.ndarray, np.ndarray]:
+    """The greedy of ``ring_zones`` as its docstring states it, every meeting point counted
+    against every other (O(m^2) per zone)."""
+    n = positions.shape[0]
+    travelling = np.hypot(*(goals - positions).T) > RULE.goal_distance
+    d = goals - positions
+    u = d / np.maximum(np.hypot(*d.T), 1e-300)[:, None]
+    length = np.hypot(*d.T)
+    points, pairs = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not (travelling[i] and travelling[j]) or u[i] @ u[j] > math.cos(RULE.along):
+                continue
+            cross = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
+            r = positions[j] - positions[i]
+            if abs(cross) < 0.05:
+                if abs(r[0] * u[i, 1] - r[1] * u[i, 0]) > RULE.ring_cluster or r @ u[i] <= 0:
+                    continue
+                a = 0.5 * math.hypot(*r)
+                if a > length[i] or a > length[j]:
+                    continue
+                points.append(0.5 * (positions[i] + positions[j]))
+            else:
+                a = (r[0] * u[j, 1] - r[1] * u[j, 0]) / cross
+                b = (r[0] * u[i, 1] - r[1] * u[i, 0]) / cross
+                if a <= 0 or b <= 0 or a > length[i] or b > length[j] or abs(a - b) > \
+                        RULE.ring_window:
+                    continue
+                points.append(positions[i] + a * u[i])
+            pairs.append((i, j))
+    pts = np.array(points).reshape(-1, 2)
+    used = np.zeros(len(pts), dtype=bool)
+    zone_of = np.full(n, -1)
+    centres = []
+    while not used.all():
+        near = (np.hypot(*(pts[:, None] - pts[None]).transpose(2, 0, 1)) <= RULE.ring_cluster)
+        counts = (near & ~used[None]).sum(axis=1) * ~used
+        best = int(np.argmax(counts))  # the first of the largest
+        chosen = np.flatnonzero(near[best] & ~used)
+        used[chosen] = True
+        members = sorted({r for q in chosen for r in pairs[q] if zone_of[r] < 0})
+        resultant = math.hypot(*u[members].sum(axis=0)) if members else 0.0
+        if len(members) < RULE.ring_crowd or resultant > 0.5 * len(members):
+            continue
+        zone_of[members] = len(centres)
+        centres.append(pts[chosen].mean(axis=0))
+        used |= np.array([zone_of[i] >= 0 or zone_of[j] >= 0 for i, j in pairs], dtype=bool)
+    return len(centres), zone_of, np.array(centres).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_ring_zones_are_those_of_counting_every_meeting_point(seed: int) -> None:
+    """The binned search finds the zones the plain greedy finds: swaps, crossings and
+    streams, dense and sparse (many ties of equal counts)."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(6, 60))
+    if seed % 3 == 0:  # a swap, some robots moved
+        starts = _circle(n, 3.0 * math.sqrt(n / 6.0)) + rng.uniform(-0.3, 0.3, (n, 2))
+        goals = -starts + rng.uniform(-0.3, 0.3, (n, 2))
+    elif seed % 3 == 1:  # random crossings
+        side = 6.0 * math.sqrt(n / 6.0)
+        starts, goals = rng.uniform(-side / 2, side / 2, (2, n, 2))
+    else:  # two swaps side by side and a stream
+        k = n // 3
+        stream = np.column_stack((rng.uniform(-8, 8, n - 2 * k), np.full(n - 2 * k, -6.0)))
+        starts = np.vstack([_circle(k, 3.0) - [5.0, 0.0], _circle(k, 3.0) + [5.0, 0.0], stream])
+        goals = np.vstack([-_circle(k, 3.0) - [5.0, 0.0], -_circle(k, 3.0) + [5.0, 0.0],
+                           starts[2 * k:] + [0.0, 12.0]])
+    count, zone_of, centres = _zones(starts, goals)
+    want_count, want_zone_of, want_centres = _zones_by_counting_all(starts, goals)
+    assert count == want_count
+    np.testing.assert_array_equal(zone_of, want_zone_of)
+    np.testing.assert_allclose(centres, want_centres, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("case", ["one head-on with a group", "formation", "three", "far apart"])
 def test_no_ring_where_the_ways_do_not_meet_from_all_sides(case: str) -> None:
     if case == "one head-on with a group":  # 1 robot east, 4 west on its line: no ring

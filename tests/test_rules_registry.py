@@ -26,6 +26,7 @@ from sqpmpc.rules.registry import (
     select_rules,
     set_rule_parameters,
 )
+from sqpmpc.rules.roundabout import Roundabout, crowd_without_room, find_rings, ring_min_radius
 from sqpmpc.sim.simulation import simulate
 
 
@@ -70,6 +71,30 @@ def test_coordination_is_the_default_where_the_roadmap_is_exact() -> None:
     assert not roadmap_is_exact(grid.with_changes(obstacles=(moving,)))
     assert roadmap_is_exact(grid.with_changes(obstacles=(Obstacle(position=(0.0, 5.0),
                                                                   diameter=0.4),)))
+
+
+def test_coordination_is_the_default_where_a_crowd_has_no_room_for_its_ring() -> None:
+    """A swap's ring needs members x ring_spacing of circumference; from about 115 robots
+    on the swap's circle it has less (the ring is cut to its members' starts): the rules
+    have no motion that passes the crowd, and coordination is on."""
+    rule = Roundabout()
+    for n, crowded in ((64, False), (110, False), (120, True), (256, True)):
+        swap = antipodal_swap(n)
+        kept = float(swap.required_distances().max())
+        rings = find_rings(rule, swap.initial_states()[:, :2], swap.reference_positions(0.0),
+                           kept, ring_min_radius(rule, swap, kept), swap)
+        assert rings.centres.shape[0] == 1 and np.all(rings.zone_of == 0)
+        assert bool(rings.radii[0] < rings.wanted[0]) is crowded
+        assert crowd_without_room(swap) is crowded
+        assert (default_names(swap) == ["coordination"]) is crowded
+    # wider spacing asked of the ring: a smaller crowd has no room already
+    assert crowd_without_room(antipodal_swap(64), Roundabout(ring_spacing=1.5))
+    # timed references are not planned: the rules, crowded or not
+    big = antipodal_swap(256)
+    timed = big.with_changes(robots=tuple(
+        type(r)(id=r.id, initial_state=r.initial_state, diameter=r.diameter,
+                reference=load_scenario("paper-s2").robots[0].reference) for r in big.robots))
+    assert not crowd_without_room(timed) and default_names(timed) == default_names()
 
 
 def test_selection() -> None:

@@ -27,7 +27,7 @@ from sqpmpc.rules.liveness import (
     TouchingPairs,
     TurnLimit,
 )
-from sqpmpc.rules.roundabout import Roundabout
+from sqpmpc.rules.roundabout import Roundabout, crowd_without_room
 from sqpmpc.rules.routes import RouteFollowing
 
 if TYPE_CHECKING:
@@ -57,9 +57,10 @@ RULES: dict[str, type[Rule]] = {
                 Roundabout, Detour, Parking, StallRepair, GearCycle)
 }
 
-#: Registered rules that are off unless named (``--rules``) or the roadmap is exact
-#: (:func:`default_names`): in open space the roadmap coordination is opt-in until it
-#: brings every robot home as fast as the rules do (docs/coordination.md).
+#: Registered rules that are off unless named (``--rules``), the roadmap is exact or a
+#: crowd has no room for the roundabout's ring (:func:`default_names`): in open space the
+#: roadmap coordination is opt-in until it brings every robot home as fast as the rules
+#: do (docs/coordination.md).
 OPT_IN: tuple[str, ...] = ("coordination",)
 
 #: The safety rows: always on, not rules (see :mod:`sqpmpc.ocp.collision_rows`).
@@ -80,11 +81,22 @@ def rule_names() -> list[str]:
 
 def default_names(scenario: Scenario | None = None) -> list[str]:
     """Names of the rules on by default, in order: the ``coordination`` rule alone for a
-    scenario whose roadmap is exact (:func:`roadmap_is_exact`); for any other (and without
-    a scenario) every built-in rule but :data:`OPT_IN`."""
-    if scenario is not None and roadmap_is_exact(scenario):
+    scenario whose roadmap is exact (:func:`roadmap_is_exact`) or whose robots crowd
+    where the roundabout has no room to pass them
+    (:func:`sqpmpc.rules.roundabout.crowd_without_room`, goals at rest); for any other
+    (and without a scenario) every built-in rule but :data:`OPT_IN`."""
+    if scenario is not None and (roadmap_is_exact(scenario) or (
+            _plannable(scenario) and crowd_without_room(scenario))):
         return ["coordination"]
     return [name for name in RULES if name not in OPT_IN]
+
+
+def _plannable(scenario: Scenario) -> bool:
+    """A fleet whose robots all have goals at rest among obstacles that do not move: what
+    the roadmap plans."""
+    return (scenario.n_robots >= 2
+            and all(ob.velocity == (0.0, 0.0) for ob in scenario.obstacles)
+            and all(isinstance(r.reference, PointReference) for r in scenario.robots))
 
 
 def roadmap_is_exact(scenario: Scenario) -> bool:
@@ -98,9 +110,7 @@ def roadmap_is_exact(scenario: Scenario) -> bool:
     roadmap would only bend a straight way."""
     if scenario.roadmap is not None:
         return True
-    if scenario.n_robots < 2 or any(ob.velocity != (0.0, 0.0) for ob in scenario.obstacles):
-        return False
-    if not all(isinstance(r.reference, PointReference) for r in scenario.robots):
+    if not _plannable(scenario):
         return False
     return on_one_lattice(scenario.initial_states()[:, :2], scenario.reference_positions(0.0),
                           float(scenario.required_distances().max(initial=0.0)),

@@ -103,6 +103,22 @@ packed eight robots on a ring they could not follow at full speed (swap-8
 once changed a 64-robot crossing enough that another robot was left standing
 against a pillar elsewhere: hence the dropped zones without room.
 
+**A crowd without room.** A ring spaces its members ``ring_spacing`` apart only
+when the room around its centre allows the radius :math:`m\,s/2\pi`; an antipodal
+swap's ring outgrows the swap's own circle from about 115 robots (its radius grows
+with :math:`m`, the circle with :math:`\sqrt{m}`), and the ring cut to the circle
+packed 256 robots 0.47 m apart on a ring they could not follow: 209/256 home, 258
+brake fallbacks. The rules have no other motion that passes such a crowd, so
+:func:`crowd_without_room` (the rings of the start, with the rule's own spacing:
+no new threshold) makes the roadmap coordination the default for such scenarios
+(:func:`sqpmpc.rules.registry.default_names`): 256/256 home.
+
+The zones are found in about :math:`O(m \log m)` for :math:`m` meeting points
+(:func:`sqpmpc.kernels.rings.ring_zones`: the same zones as counting every point
+against every other, which cost 7.6 s per robot at the first sample of a
+256-robot swap, 1.3-2.3 ms now; 66-86 ms and 1.2-1.5 ms for 256 random crossings;
+checked against that plain count in ``tests/test_rule_roundabout_rings.py``).
+
 The rule only changes references: every collision row, the hard stage 1 and
 the verification of the first input are untouched, so it chooses among safe
 motions like the other rules.
@@ -113,6 +129,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -120,6 +137,7 @@ import numpy as np
 from sqpmpc.errors import ProblemError
 from sqpmpc.kernels.rings import ring_busy, ring_path, ring_zones, segment_distance
 from sqpmpc.kernels.rules import roundabout_directions
+from sqpmpc.problem.references import PointReference
 from sqpmpc.rules.base import (
     Contribution,
     Rule,
@@ -130,7 +148,11 @@ from sqpmpc.rules.base import (
     read_only,
 )
 
-__all__ = ["Roundabout", "roundabout_directions"]
+__all__ = ["Rings", "Roundabout", "crowd_without_room", "find_rings", "ring_min_radius",
+           "roundabout_directions"]
+
+if TYPE_CHECKING:
+    from sqpmpc.problem.scenario import Scenario
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -154,10 +176,7 @@ class _RoundaboutInstance(RuleInstance):
         self.centres = np.zeros((n, 2))
         self.radii = np.zeros(n)
         self.zones_ready = False
-        bounds = context.scenario.bounds
-        turn = min(abs(bounds.input_lower()[1]), abs(bounds.input_upper()[1]))
-        self.min_radius = max(2.0 * float(self.required.max()),
-                              step / context.sample_time / max(turn, 1e-9))
+        self.min_radius = ring_min_radius(rule, context.scenario, float(self.required.max()))
         self.references_changed()
         self._no_headings = read_only(np.zeros(n))
 
@@ -169,30 +188,15 @@ class _RoundaboutInstance(RuleInstance):
 
     def _find_rings(self, positions: np.ndarray) -> None:
         """The rings of the straight ways from ``positions`` to the goals at rest."""
-        r, sc = self.rule, self.context.scenario
+        sc = self.context.scenario
         self.zones_ready = True
-        self.zone_of[:] = -1
-        goals = self.rest_goals
-        travelling = np.isfinite(goals[:, 0]) & (np.hypot(*(np.nan_to_num(goals) - positions).T)
-                                                 > r.goal_distance)
-        if sc.polygons or np.count_nonzero(travelling) < r.ring_crowd:
-            return  # walls and shelves: the routes know the map, a ring does not
-        zones = ring_zones(np.array(positions, dtype=float), goals, travelling,
-                           r.ring_window, self._cos_along, r.ring_cluster, r.ring_crowd, 0.5,
-                           self.zone_of, self.centres)
-        kept = float(self.required.max())
-        for z in range(zones):
-            members = np.flatnonzero(self.zone_of == z)
-            c = self.centres[z]
-            radius = max(self.min_radius, members.size * r.ring_spacing / (2.0 * np.pi))
-            room = min(np.hypot(*(positions[members] - c).T).min(),
-                       np.hypot(*(goals[members] - c).T).min()) - kept
-            for o in sc.obstacles:  # a pillar in the ring: no ring
-                room = min(room, float(np.hypot(*(np.asarray(o.position) - c)))
-                           - 0.5 * o.diameter - kept)
-            self.radii[z] = min(radius, room)
-            if room < self.min_radius:  # no room for a ring a robot can follow
-                self.zone_of[members] = -1
+        rings = find_rings(self.rule, positions, self.rest_goals, float(self.required.max()),
+                           self.min_radius, sc)
+        zones = rings.centres.shape[0]
+        followable = np.append(rings.radii >= self.min_radius, False)  # index -1: none
+        self.zone_of[:] = np.where(followable[rings.zone_of], rings.zone_of, -1)
+        self.centres[:zones] = rings.centres
+        self.radii[:zones] = rings.radii
 
     def _ring_references(self, view: SampleView) -> np.ndarray | None:
         """References around the rings of the own robots that have one now (``None``: none)."""
@@ -246,6 +250,96 @@ class _RoundaboutInstance(RuleInstance):
             self.counts["roundabout_samples"] += 1
             out[k] = view.own_states[k, :2] + self.offsets[:, None] * self.directions[k]
         return Contribution(references=out)
+
+
+@dataclass(frozen=True)
+class Rings:
+    """The rings of one snapshot (:func:`find_rings`).
+
+    Attributes
+    ----------
+    zone_of
+        ``(n,)`` each robot's zone, ``-1`` for none.
+    centres
+        ``(z, 2)`` the zones' centres.
+    radii
+        ``(z,)`` the rings' radii: the wanted radius, cut to the room the zone has.
+    wanted
+        ``(z,)`` the radius that spaces the zone's members ``ring_spacing`` apart
+        (at least the smallest radius a robot can follow).
+    """
+
+    zone_of: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    wanted: np.ndarray
+
+
+def ring_min_radius(rule: Roundabout, scenario: Scenario, kept: float) -> float:
+    r"""The smallest ring a robot can follow: :math:`\max(2 d, v_\text{ref}/\omega_\max)`,
+    ``kept`` (:math:`d`) the largest distance the rows keep, m."""
+    bounds = scenario.bounds
+    speed = rule.speed_fraction * float(max(abs(bounds.input_lower()[0]),
+                                            abs(bounds.input_upper()[0])))
+    turn = min(abs(bounds.input_lower()[1]), abs(bounds.input_upper()[1]))
+    return max(2.0 * kept, speed / max(turn, 1e-9))
+
+
+def find_rings(rule: Roundabout, positions: np.ndarray, goals: np.ndarray, kept: float,
+               min_radius: float, scenario: Scenario) -> Rings:
+    """The rings of the straight ways from ``positions (n, 2)`` to ``goals (n, 2)`` (NaN:
+    none at rest): the zones of :func:`sqpmpc.kernels.rings.ring_zones`, each with the
+    radius ``max(min_radius, members ring_spacing / 2 pi)`` cut to its room (its
+    distance to its members' starts and goals and to the pillars, less ``kept``). A
+    zone whose room is below ``min_radius`` has no ring a robot can follow (the rule
+    leaves it out); none in a map with walls (the routes know them, a ring does not).
+    """
+    r = rule
+    n = positions.shape[0]
+    zone_of = np.full(n, -1, dtype=np.int64)
+    centres = np.zeros((n, 2))
+    travelling = np.isfinite(goals[:, 0]) & (np.hypot(*(np.nan_to_num(goals) - positions).T)
+                                             > r.goal_distance)
+    zones = 0
+    if not scenario.polygons and np.count_nonzero(travelling) >= r.ring_crowd:
+        zones = ring_zones(np.array(positions, dtype=float), goals, travelling, r.ring_window,
+                           math.cos(r.along), r.ring_cluster, r.ring_crowd, 0.5, zone_of,
+                           centres)
+    radii, wanted = np.zeros(zones), np.zeros(zones)
+    for z in range(zones):
+        members = np.flatnonzero(zone_of == z)
+        c = centres[z]
+        wanted[z] = max(min_radius, members.size * r.ring_spacing / (2.0 * np.pi))
+        room = min(np.hypot(*(positions[members] - c).T).min(),
+                   np.hypot(*(goals[members] - c).T).min()) - kept
+        for o in scenario.obstacles:  # a pillar in the ring: no ring
+            room = min(room, float(np.hypot(*(np.asarray(o.position) - c)))
+                       - 0.5 * o.diameter - kept)
+        radii[z] = min(wanted[z], room)
+    return Rings(zone_of, centres[:zones].copy(), radii, wanted)
+
+
+def crowd_without_room(scenario: Scenario, rule: Roundabout | None = None) -> bool:
+    """Whether, at the start, a crowd of robots meets where its ring cannot space them.
+
+    The roundabout passes a crowd whose straight ways cross together by sending its
+    members around a ring ``ring_spacing`` apart; a ring cut by the room around it
+    (its members' own starts and goals, pillars) to a radius a robot can still follow
+    but below that spacing packs the crowd closer than the rule's own spacing, and the
+    rules then have no motion that passes it (a 256-robot antipodal swap: a ring of
+    19.3 m for the 28.5 m its robots need, 209/256 home). ``rule``: the roundabout's
+    parameters (its defaults when ``None``); the rows' distance is the scenario's
+    required distance.
+    """
+    rule = rule or Roundabout()
+    if scenario.polygons or not all(isinstance(r.reference, PointReference)
+                                    for r in scenario.robots):
+        return False
+    kept = float(scenario.required_distances().max(initial=0.0))
+    min_radius = ring_min_radius(rule, scenario, kept)
+    rings = find_rings(rule, scenario.initial_states()[:, :2],
+                       scenario.reference_positions(0.0), kept, min_radius, scenario)
+    return bool(np.any((rings.radii >= min_radius) & (rings.radii < rings.wanted)))
 
 
 @dataclass(frozen=True)
