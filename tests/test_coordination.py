@@ -13,7 +13,7 @@ from shapely.geometry import LineString, Point
 
 from sqpmpc.coordination.fleet import fleet_plan, replan_from_positions, turn_per_step
 from sqpmpc.coordination.mapf import PlanningError, distance_tables, plan_paths
-from sqpmpc.coordination.roadmap import build_roadmap
+from sqpmpc.coordination.roadmap import build_roadmap, drawn_grid
 from sqpmpc.coordination.schedule import Execution, Schedule
 from sqpmpc.errors import ProblemError, ScenarioError
 from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid
@@ -778,3 +778,104 @@ def test_a_departed_robot_is_planned_standing_and_a_goal_it_holds_moves_next_to_
     back = replan_from_positions(new, sc, where)
     assert back.base is None and back.roadmap.neighbours(vertex).size > 0
     assert np.allclose(back.roadmap.positions[back.configs[-1, row4]], goals[4])
+
+
+def _permitted_everywhere(execution: Execution) -> np.ndarray:
+    """:meth:`Execution.permitted_all` as its docstring states it, every dependency
+    applied one by one."""
+    s = execution.schedule
+    out = s.lengths - 1
+    for e in range(s.dep_owner.size):
+        owner = s.dep_owner[e]
+        if s.dep_index[e] > execution.progress[owner] and \
+                execution.progress[s.dep_robot[e]] < s.dep_need[e]:
+            out[owner] = min(out[owner], s.dep_index[e] - 1)
+    return out
+
+
+def _clear_by_all_pairs(execution: Execution, now: np.ndarray) -> np.ndarray:
+    """:meth:`Execution.clear_all` as its docstring states it, every robot against every
+    other (the dense form it had)."""
+    s, roadmap = execution.schedule, execution.roadmap
+    points = roadmap.positions[s.paths]
+    out = _permitted_everywhere(execution)
+    rows = np.flatnonzero(out > execution.progress)
+    nxt = points[rows, execution.progress[rows] + 1]
+    gap = np.hypot(*(now[None, :, :] - nxt[:, None, :]).transpose(2, 0, 1))
+    gap[np.arange(rows.size), execution.robots[rows]] = np.inf
+    held = rows[gap.min(axis=1) < 0.5 * roadmap.spacing]
+    out[held] = execution.progress[held]
+    free = np.setdiff1d(rows, held)
+    if free.size < 2:
+        return out
+    sep = roadmap.spacing - 2.0 * roadmap.reach
+    a = now[execution.robots[free]]
+    d = points[free, execution.progress[free] + 1] - a
+    v0 = points[free, execution.progress[free]]
+    inway = np.zeros((free.size, free.size), dtype=bool)
+    for r in range(free.size):
+        for j in range(free.size):
+            if r == j:
+                continue
+            f = np.clip((a[j] - a[r]) @ d[r] / max(d[r] @ d[r], 1e-12), 0.0, 1.0)
+            edge = d[j] + a[j] - v0[j]
+            g = np.clip((a[j] - v0[j]) @ edge / max(edge @ edge, 1e-12), 0.0, 1.0)
+            off = np.hypot(*(a[j] - v0[j] - g * edge)) > roadmap.reach
+            inway[r, j] = off and np.hypot(*(a[j] - a[r] - f * d[r])) < sep
+    for e in range(s.dep_owner.size):  # the robot it follows onto its next vertex
+        o, t = s.dep_owner[e], s.dep_robot[e]
+        if o in free and t in free and s.dep_index[e] == execution.progress[o] + 1:
+            inway[np.flatnonzero(free == o)[0], np.flatnonzero(free == t)[0]] = False
+    waits = inway & ~inway.T
+    _, label = connected_components(waits, directed=True, connection="strong")
+    wait = free[waits.any(axis=1) & ~(np.bincount(label)[label] > 1)]
+    out[wait] = execution.progress[wait]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_holds_and_waits_are_those_of_checking_every_pair(seed: int) -> None:
+    """The holds and waits of a swap's execution, found near each robot (a k-d tree),
+    are those of checking every pair of robots, with robots scattered around their
+    paths (some pushed off, some on another's next vertex)."""
+    rng = np.random.default_rng(seed)
+    sc = antipodal_swap(16)
+    plan = fleet_plan(sc, 0.2, 0.321)
+    n = plan.schedule.size
+    execution = Execution(plan.schedule, plan.roadmap, plan.robots, window=3)
+    waits_seen = holds_seen = 0
+    for _ in range(30):
+        top = plan.schedule.lengths - 1
+        execution.progress[:] = np.minimum(execution.progress + rng.integers(0, 2, n), top)
+        at = plan.roadmap.positions[plan.schedule.paths[np.arange(n), execution.progress]]
+        now = at + rng.normal(0.0, plan.roadmap.spacing * 0.4, (n, 2))
+        want = _clear_by_all_pairs(execution, now)
+        np.testing.assert_array_equal(execution.permitted_all(),
+                                      _permitted_everywhere(execution))
+        np.testing.assert_array_equal(execution.clear_all(now), want)
+        free = want > execution.progress
+        held = (execution.permitted_all() > execution.progress) & ~free
+        holds_seen += int(held.sum())
+        waits_seen += int(free.sum())
+    assert holds_seen > 0 and waits_seen > 0  # robots held or waiting, and robots free
+
+
+def test_the_grid_a_map_was_drawn_on_is_read_from_its_walls() -> None:
+    """Axis-aligned walls with their corners on one lattice: the coarsest subdivision of
+    it that holds the robots (cell >= s + d/2), centred in the cells; none for slanted
+    walls or a drawing finer than the robots."""
+    sc = mapf_scenario(MAP, 6, scen_path=SCEN, cell=0.5, diameter=0.3)
+    grid = drawn_grid(sc.polygons, 0.321, 0.3)
+    assert grid is not None and grid.cell == 0.5
+    offset = (np.asarray(grid.origin) - np.asarray(sc.roadmap.origin)) / 0.5
+    np.testing.assert_allclose(offset, np.round(offset), atol=1e-9)
+    box = PolygonObstacle(((0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (0.0, 1.0)))
+    one = drawn_grid([box], 0.3, 0.3)  # lattice 1 m: cells of 0.5 m (>= 0.45)
+    assert one is not None and one.cell == 0.5 and one.origin == (0.25, 0.25)
+    assert drawn_grid([box], 0.6, 0.6) is not None and drawn_grid([box], 0.6, 0.6).cell == 1.0
+    assert drawn_grid([box], 0.8, 0.6) is None  # 1 m cannot be cut into cells >= 1.1 m
+    slanted = PolygonObstacle(((0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (0.5, 1.0)))
+    assert drawn_grid([box, slanted], 0.3, 0.3) is None
+    fine = PolygonObstacle(((0.0, 0.0), (0.05, 0.0), (0.05, 1.0), (0.0, 1.0)))
+    assert drawn_grid([box, fine], 0.3, 0.3) is None  # a 5 cm drawing: no cell holds them
+    assert drawn_grid([], 0.3, 0.3) is None

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sqpmpc.coordination.mapf import PlanningError, plan_paths
-from sqpmpc.coordination.roadmap import Roadmap, build_roadmap
+from sqpmpc.coordination.roadmap import Roadmap, build_roadmap, drawn_grid
 from sqpmpc.coordination.schedule import Schedule
 from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.routes import scenario_box
@@ -138,11 +138,13 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
           headings: np.ndarray | None = None, method: str = "auto") -> FleetPlan:
     t0 = time.process_time()
     if roadmap is None:
+        diameter = float(scenario.diameters().max())
+        # the declared grid, else the one the walls were drawn on (roadmap.drawn_grid)
+        grid = scenario.roadmap or drawn_grid(scenario.polygons, separation, diameter)
         arguments = (scenario.polygons, scenario.obstacles, scenario_box(scenario), starts,
-                     goals, has_goal, clearance, separation, float(scenario.diameters().max()),
-                     scenario.roadmap)
-        roadmap = build_roadmap(*arguments, diagonal=scenario.roadmap is None)
-        if scenario.roadmap is None:  # the tube's roadmap where prioritized planning solves it
+                     goals, has_goal, clearance, separation, diameter, grid)
+        roadmap = build_roadmap(*arguments, diagonal=grid is None)
+        if grid is None:  # the tube's roadmap where prioritized planning solves it
             try:
                 plan = _plan(scenario, robots, starts, goals, has_goal, clearance, separation,
                              start_vertices, roadmap, headings, method="prioritized")

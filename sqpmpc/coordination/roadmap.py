@@ -85,6 +85,20 @@ on antipodal swaps of 16 and 64 robots 26 and 56 steps instead of 30 and 64, on
 grid formations the 4-connected plans are shorter. MovingAI maps stay 4-connected,
 as in their benchmark.
 
+Maps drawn on a grid
+--------------------
+A map need not declare the grid it was drawn on: when every wall is an
+axis-aligned polygon whose corners lie on one square lattice, the free space is a
+union of the lattice's cells, and of those of every subdivision of it. :func:`drawn_grid` takes the
+coarsest subdivision whose cell is at least :math:`s + d_{\max}/2` (the finest
+grid a roadmap takes without one) and uses it as a declared grid: the cells'
+centres are the vertices, so a corridor :math:`k` cells wide holds :math:`k`
+lines of vertices, the one-cell corridor's at its centre. A hand-drawn maze of
+0.5 m corridors (the test maze's walls without its ``[roadmap]``) gets its own
+0.5 m cells: with the grid fitted to the robots' points instead (0.47 m, off
+the corridors' centres) LaCAM searched without end, and the liveness rules
+brought 0 of 6 robots home.
+
 Completeness assumption (stated, not checked beyond the graph): a corridor is
 passable when the grid has a line of vertices in it, i.e. when it is at least
 :math:`2(c + \rho)` wide (without a declared grid; :math:`1.5 d` plus twice the margin,
@@ -112,7 +126,7 @@ from sqpmpc.problem.grid import GridSpec, grid_edges
 from sqpmpc.problem.obstacles import Obstacle
 from sqpmpc.problem.polygons import PolygonObstacle
 
-__all__ = ["Roadmap", "build_roadmap", "on_one_lattice"]
+__all__ = ["Roadmap", "build_roadmap", "drawn_grid", "on_one_lattice"]
 
 _OFFSETS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
 _FIT_MAX_POINTS = 1024  # a grid is fitted to at most this many starts and goals (k^2 pairs)
@@ -432,6 +446,54 @@ def _fitted_grid(points: np.ndarray, h_min: float, separation: float, closest: f
     if count <= _aligned(points, h_min, 0.5 * (h_min - separation))[0]:
         return None
     return h, reach, origin
+
+
+def drawn_grid(polygons: Sequence[PolygonObstacle], separation: float, diameter: float
+               ) -> GridSpec | None:
+    r"""The grid a map was drawn on, read from its walls (module docstring, "Maps drawn on
+    a grid"), or ``None``.
+
+    The lattice spacing :math:`L` is the greatest common divisor (to 1 micrometre) of
+    the offsets between the polygons' corner coordinates, along both axes (the
+    ``[bounds]`` box of the robots' centres is left out: it is the map's edge moved in
+    by a radius); the cell is :math:`L / \lfloor L / h_{\min} \rfloor` with
+    :math:`h_{\min} = s + d/2`, its centres offset by half a cell from a corner.
+
+    Parameters
+    ----------
+    polygons
+        The static walls; ``None`` is returned without any, or when an edge is not
+        axis-aligned.
+    separation, diameter
+        :math:`s` and :math:`d`, m.
+
+    Returns
+    -------
+    GridSpec or None
+        ``None`` also when :math:`L < h_{\min}` (a finer drawing, e.g. an occupancy
+        grid's pixels: no cell of it holds the robots).
+    """
+    if not polygons:
+        return None
+    micro = []
+    for polygon in polygons:
+        corners = np.asarray(polygon.points, dtype=float)
+        edges = np.roll(corners, -1, axis=0) - corners
+        if np.any((np.abs(edges[:, 0]) > 1e-9) & (np.abs(edges[:, 1]) > 1e-9)):
+            return None  # a slanted wall: not drawn on a lattice
+        micro.append(corners)
+    coordinates = np.concatenate(micro)
+    x, y = coordinates[:, 0], coordinates[:, 1]
+    steps = np.concatenate((x - x[0], y - y[0])) * 1e6
+    whole = np.round(steps)
+    if np.any(np.abs(steps - whole) > 1e-3):  # not on a micrometre lattice
+        return None
+    lattice = float(np.gcd.reduce(np.abs(whole).astype(np.int64))) * 1e-6
+    h_min = separation + 0.5 * diameter
+    if lattice < h_min:  # also 0: one point, no offset
+        return None
+    cell = lattice / math.floor(lattice / h_min + 1e-9)
+    return GridSpec(cell, (float(x[0]) + 0.5 * cell, float(y[0]) + 0.5 * cell))
 
 
 def on_one_lattice(starts: np.ndarray, goals: np.ndarray, separation: float,

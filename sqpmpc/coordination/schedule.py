@@ -48,8 +48,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from sqpmpc.coordination.roadmap import Roadmap
+from sqpmpc.kernels.execution import permitted
 
 __all__ = ["Execution", "Schedule"]
 
@@ -229,6 +231,21 @@ class Execution:
         self.window = max(int(window), 1)
         self._points = roadmap.positions[schedule.paths]  # (n, L, 2)
         self._last = schedule.lengths - 1
+        # the dependencies sorted by owner, then vertex (permitted_all: kernels.execution)
+        order = np.lexsort((schedule.dep_index, schedule.dep_owner))
+        owner = schedule.dep_owner[order]
+        self._dep_index = np.ascontiguousarray(schedule.dep_index[order], dtype=np.int64)
+        self._dep_robot = np.ascontiguousarray(schedule.dep_robot[order], dtype=np.int64)
+        self._dep_need = np.ascontiguousarray(schedule.dep_need[order], dtype=np.int64)
+        self._key_base = int(schedule.lengths.max(initial=0)) + 2  # (owner, vertex) as one
+        self._dep_key = owner.astype(np.int64) * self._key_base + self._dep_index
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]]) if owner.size else \
+            np.zeros(0, dtype=np.int64)
+        self._owners = np.ascontiguousarray(owner[starts], dtype=np.int64)
+        self._starts = starts.astype(np.int64)
+        self._ends = np.append(starts[1:], owner.size).astype(np.int64)
+        self._pointer = self._starts.copy()
+        self._seen = self.progress.copy()  # the progress the pointers were moved for
 
     def advance(self, positions: np.ndarray) -> np.ndarray:
         """Count progress from the measured ``positions (N, 2)`` of all robots (scenario
@@ -286,11 +303,12 @@ class Execution:
 
     def permitted_all(self) -> np.ndarray:
         """``(n,)`` the last path index every robot may head for now."""
-        s = self.schedule
-        out = self._last.copy()
-        unmet = (s.dep_index > self.progress[s.dep_owner]) & (
-            self.progress[s.dep_robot] < s.dep_need)
-        np.minimum.at(out, s.dep_owner[unmet], s.dep_index[unmet] - 1)
+        if np.any(self.progress < self._seen):  # a progress went down (resume): afresh
+            self._pointer[:] = self._starts
+        self._seen[:] = self.progress
+        out = np.empty_like(self._last)
+        permitted(self.progress, self._last, self._owners, self._ends, self._dep_index,
+                  self._dep_robot, self._dep_need, self._pointer, out)
         return out
 
     def clear_all(self, positions: np.ndarray) -> np.ndarray:
@@ -321,9 +339,11 @@ class Execution:
         if rows.size == 0 or now.shape[0] < 2:
             return out
         nxt = self._points[rows, self.progress[rows] + 1]  # (q, 2)
-        gap = np.hypot(now[None, :, 0] - nxt[:, None, 0], now[None, :, 1] - nxt[:, None, 1])
-        gap[np.arange(rows.size), self.robots[rows]] = np.inf  # not the robot itself
-        held = rows[gap.min(axis=1) < 0.5 * self.roadmap.spacing]
+        # the nearest robot to each next vertex, and the one after it (one is the robot
+        # itself when it is the nearest): O(q log N), not all the pairs
+        dist, who = cKDTree(now).query(nxt, k=2)
+        gap = np.where(who[:, 0] == self.robots[rows], dist[:, 1], dist[:, 0])
+        held = rows[gap < 0.5 * self.roadmap.spacing]
         out[held] = self.progress[held]
         free = np.setdiff1d(rows, held)
         if free.size >= 2:
@@ -341,14 +361,9 @@ class Execution:
         only where it closes no cycle of waiting (strongly connected components), so one
         robot of every chain is free. Returns a boolean mask over ``free``."""
         sep = self.roadmap.spacing - 2.0 * self.roadmap.reach
+        q = free.size
         a = now[self.robots[free]]  # (q, 2) where they are
         d = self._points[free, self.progress[free] + 1] - a  # their ways
-        dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-        rel = a[None, :, :] - a[:, None, :]  # (q, q, 2): robot j from robot r
-        f = np.clip(np.einsum("rjk,rk->rj", rel, d) / dd[:, None], 0.0, 1.0)
-        near = rel - f[:, :, None] * d[:, None, :]
-        inway = np.hypot(near[..., 0], near[..., 1]) < sep  # inway[r, j]: j on r's way
-        np.fill_diagonal(inway, False)
         # only a robot pushed off its path (farther than the reach from the edge it is on)
         # stands in a way the plan did not give it; one on its path is where the plan's
         # order has it
@@ -357,20 +372,48 @@ class Execution:
         length = np.maximum(np.einsum("ij,ij->i", edge, edge), 1e-12)
         g = np.clip(np.einsum("ij,ij->i", a - v0, edge) / length, 0.0, 1.0)
         off = np.hypot(*(a - v0 - g[:, None] * edge).T) > self.roadmap.reach
-        inway &= off[None, :]
-        if not inway.any():
-            return np.zeros(free.size, dtype=bool)
-        s = self.schedule
-        index = np.full(s.size, -1)
-        index[free] = np.arange(free.size)
-        # the robots each one follows onto its next vertex
-        e = np.flatnonzero((index[s.dep_owner] >= 0) & (index[s.dep_robot] >= 0))
-        e = e[s.dep_index[e] == self.progress[s.dep_owner[e]] + 1]
-        inway[index[s.dep_owner[e]], index[s.dep_robot[e]]] = False
-        waits = inway & ~inway.T
-        _, label = connected_components(csr_matrix(waits), directed=True, connection="strong")
+        if not off.any():
+            return np.zeros(q, dtype=bool)
+        # a robot j on r's way is within |d_r| + sep of r: only such pairs are looked at
+        reach = float(np.sqrt(np.einsum("ij,ij->i", d, d).max())) + sep
+        pairs = cKDTree(a).query_pairs(reach, output_type="ndarray")
+        if pairs.size == 0:
+            return np.zeros(q, dtype=bool)
+        r, j = np.concatenate((pairs, pairs[:, ::-1])).T  # both orders: is j on r's way?
+        keep = off[j]
+        r, j = r[keep], j[keep]
+        dr = d[r]
+        dd = np.maximum(np.einsum("ij,ij->i", dr, dr), 1e-12)
+        rel = a[j] - a[r]
+        f = np.clip(np.einsum("ij,ij->i", rel, dr) / dd, 0.0, 1.0)
+        near = rel - f[:, None] * dr
+        inway = np.hypot(near[:, 0], near[:, 1]) < sep  # j on r's way
+        r, j = r[inway], j[inway]
+        if r.size == 0:
+            return np.zeros(q, dtype=bool)
+        index = np.full(self.schedule.size, -1)
+        index[free] = np.arange(q)
+        # the robots each one follows onto its next vertex: its dependencies on that
+        # vertex, one run of the dependencies sorted by (owner, vertex)
+        want = free * self._key_base + self.progress[free] + 1
+        lo = np.searchsorted(self._dep_key, want, "left")
+        count = np.searchsorted(self._dep_key, want, "right") - lo
+        rows = np.repeat(np.arange(q), count)
+        deps = np.arange(rows.size) - np.repeat(np.cumsum(count) - count, count) \
+            + np.repeat(lo, count)
+        followed = index[self._dep_robot[deps]]
+        key = r * q + j
+        follows = rows[followed >= 0] * q + followed[followed >= 0]
+        stay = ~np.isin(key, follows)
+        r, j, key = r[stay], j[stay], key[stay]
+        waits = ~np.isin(j * q + r, key)  # j on r's way, r not on j's
+        r, j = r[waits], j[waits]
+        graph = csr_matrix((np.ones(r.size), (r, j)), shape=(q, q))
+        _, label = connected_components(graph, directed=True, connection="strong")
         cyclic = np.bincount(label)[label] > 1
-        return waits.any(axis=1) & ~cyclic
+        waiting = np.zeros(q, dtype=bool)
+        waiting[r] = True
+        return waiting & ~cyclic
 
     def path_points(self, robot: int, first: int, last: int) -> np.ndarray:
         """``(last - first + 1, 2)`` the positions of robot ``robot``'s path vertices

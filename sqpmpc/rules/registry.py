@@ -12,7 +12,7 @@ import dataclasses
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from sqpmpc.coordination.roadmap import on_one_lattice
+from sqpmpc.coordination.roadmap import drawn_grid, on_one_lattice
 from sqpmpc.errors import ProblemError
 from sqpmpc.problem.references import PointReference
 from sqpmpc.rules.base import Rule
@@ -102,19 +102,28 @@ def _plannable(scenario: Scenario) -> bool:
 def roadmap_is_exact(scenario: Scenario) -> bool:
     """Whether the scenario's robots move on a roadmap whose vertices are their own starts
     and goals: it declares the grid (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`:
-    ``sqpmpc generate mapf``), or it is a fleet (two robots or more), every robot has a
-    goal at rest (a ``point`` reference), no obstacle moves (the roadmap is of the static
-    free space) and the starts and goals lie on one grid fitted to them
-    (:func:`sqpmpc.coordination.roadmap.on_one_lattice`: grid formations, a room's
-    doorway places). One robot's start and goal always lie on some grid: for it the
-    roadmap would only bend a straight way."""
+    ``sqpmpc generate mapf``), or it is a fleet (two robots or more) whose robots all have
+    goals at rest (``point`` references) among obstacles that do not move (the roadmap is
+    of the static free space) and
+
+    - its walls are drawn on a grid that holds the robots
+      (:func:`sqpmpc.coordination.roadmap.drawn_grid`: axis-aligned polygons, their
+      corners on one lattice; a maze drawn by hand), or
+    - its starts and goals lie on one grid fitted to them
+      (:func:`sqpmpc.coordination.roadmap.on_one_lattice`: grid formations, a room's
+      doorway places). One robot's start and goal always lie on some grid: for it the
+      roadmap would only bend a straight way.
+    """
     if scenario.roadmap is not None:
         return True
     if not _plannable(scenario):
         return False
+    separation = float(scenario.required_distances().max(initial=0.0))
+    diameter = float(scenario.diameters().max())
+    if drawn_grid(scenario.polygons, separation, diameter) is not None:
+        return True
     return on_one_lattice(scenario.initial_states()[:, :2], scenario.reference_positions(0.0),
-                          float(scenario.required_distances().max(initial=0.0)),
-                          float(scenario.diameters().max()))
+                          separation, diameter)
 
 
 def default_rules(scenario: Scenario | None = None) -> tuple[Rule, ...]:
