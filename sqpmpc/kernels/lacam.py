@@ -82,9 +82,10 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 @_jit
 def _hash(config: np.ndarray) -> np.uint64:
-    """64-bit FNV-1a of a configuration's vertices (each folded in as one word), then
-    MurmurHash3's finalizer, so that the low bits (the table's slot) depend on every bit
-    of every vertex."""
+    r"""The hash of a configuration: 64-bit FNV-1a over its vertices, each one word,
+    :math:`h \leftarrow (h \oplus v_r)\, p \bmod 2^{64}`, then MurmurHash3's finalizer
+    (:math:`h \leftarrow h \oplus (h \gg 33)`, times a constant, again), so that the low
+    bits (the table's slot) depend on every bit of every vertex."""
     h = _FNV_OFFSET
     for r in range(config.size):
         h = (h ^ np.uint64(config[r])) * _FNV_PRIME
