@@ -30,9 +30,10 @@ pressed into the obstacle row at the shelf's corner and heading into it, stood f
 rest of the run (warehouse family, 8 robots, seed 1). The narrower free space can make
 the plan much harder to find (warehouse family, 64 robots, seeds 1 and 2: LaCAM ran over
 90 s on their tube roadmaps in pure Python; compiled, with the swap technique, it plans the
-tube roadmaps of seeds 0-5 in 0.004-0.02 s), so the fleet (:mod:`sqpmpc.coordination.fleet`) takes the
-tube roadmap where prioritized planning solves it and otherwise the thinner roadmap whose
-vertices and edges keep :math:`c` alone (``tube=False``). A declared grid's reach is at
+tube roadmaps of seeds 0-5 in 0.004-0.02 s), so the fleet
+(:mod:`sqpmpc.coordination.fleet`) takes the tube roadmap where prioritized planning
+solves it and otherwise the thinner roadmap whose vertices and edges keep :math:`c` alone
+(``tube=False``). A declared grid's reach is at
 most :math:`h/2 - c` (below), so its free cells' centres and the segments between them
 keep :math:`c + \rho` already.
 
