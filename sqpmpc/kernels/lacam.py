@@ -56,8 +56,8 @@ leaves, if nobody claims it and the pull closes no rotation; the pair so walks b
 the branch, where the ordinary rule lets them pass.
 
 Every ``after[v] = r`` written has ``nxt[r] = v`` until the step ends (a robot that fails
-overwrites the claim of its caller on its own vertex, whose caller moves on), so the
-claims are cleared through ``nxt``.
+overwrites the claim of its caller on its own vertex, whose caller moves on; a pull writes
+both), so the claims are cleared through ``nxt``.
 """
 
 from __future__ import annotations
