@@ -39,8 +39,17 @@ next constraint is handed to PIBT (Okumura et al., *Priority Inheritance with
 Backtracking*, AIJ 2022), which completes it to a successor configuration: each
 robot in priority order takes its best free neighbour by distance to its goal,
 asking a robot standing there to move first (priority inheritance) and trying its
-next choice when that one cannot. A configuration met before is not expanded
-again (its node goes back on the stack).
+next choice when that one cannot. Where two robots must pass each other in a
+corridor (no branch to step aside into before they would meet, one on either
+side of a branch behind) PIBT alone pushes back and forth for ever: with the *swap
+technique* of LaCAM2 (Okumura, *Improving LaCAM for Scalable Eventually Optimal
+Multi-Agent Pathfinding*, IJCAI 2023) the robot steps back first, away from its
+goal, and pulls the other one onto the vertex it leaves, until the branch lets
+them pass. A configuration met before is not expanded again (its node goes back on
+the stack). The search is compiled
+(:func:`sqpmpc.kernels.lacam.lacam_search`, whose module docstring has the details:
+configurations in arrays, found again by a hash table; constraints a tree of
+robot-vertex pairs; PIBT's recursion on an explicit stack).
 
 On a roadmap with diagonals (:attr:`~sqpmpc.coordination.roadmap.Roadmap.diagonals`)
 prioritized planning may move along them: a diagonal move from :math:`t` to
@@ -51,20 +60,24 @@ the move. LaCAM plans on the 4-connected grid only.
 
 **Completeness** (LaCAM's theorem 1): the constraints of a node enumerate, over
 the visits, every assignment of next vertices to the robots, so every
-configuration reachable in one step is eventually generated from every visited
-node; the search is a depth-first search of the finite graph of configurations,
-which therefore reaches the goal configuration whenever it is reachable and ends
-otherwise, so together with the prioritized attempt the planner is complete.
+configuration reachable in one step (no vertex or swap conflict, no rotation: a
+completion with one is dropped) is eventually generated from every visited node
+(whatever PIBT's policy, the swap technique included: a constraint that fixes every
+robot leaves it nothing to choose); the search is a depth-first search of the finite
+graph of configurations, which therefore reaches the goal configuration whenever it is
+reachable and ends otherwise, so together with the prioritized attempt the planner is
+complete.
 Among equally near vertices PIBT goes straight on (a unicycle turns at corners,
-not on lines). ``max_nodes`` bounds the work; a search stopped by it raises
-:class:`PlanningError` (never a partial plan). In practice PIBT alone finds the
-plan on the first descent (it reaches every goal on biconnected graphs), and the
-search only backtracks in narrow places.
+not on lines), except when it steps back to swap. ``max_nodes`` bounds the work; a
+search stopped by it raises :class:`PlanningError` (never a partial plan). In practice
+PIBT finds the plan on the first descent or nearly (the warehouse family with 64
+robots, seed 0, where prioritized planning fails: 111 search nodes, 0.02 s; without
+the swap technique 200,000 nodes found none), and the search only backtracks in narrow
+places.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -72,6 +85,7 @@ from scipy.sparse import csr_matrix
 
 from sqpmpc.coordination.roadmap import Roadmap
 from sqpmpc.errors import ProblemError
+from sqpmpc.kernels.lacam import EXHAUSTED, OVER_BUDGET, lacam_search
 from sqpmpc.kernels.mapf import (
     FIELDS,
     FOUND,
@@ -119,124 +133,6 @@ def _graph(roadmap: Roadmap, diagonal: bool) -> csr_matrix:
     out = (adjacency + extra).tocsr()
     out.sort_indices()
     return out
-
-
-@dataclass
-class _Low:
-    """A constraint: robots ``who`` told to go to ``where`` next."""
-
-    who: tuple[int, ...] = ()
-    where: tuple[int, ...] = ()
-
-
-@dataclass
-class _High:
-    """A search node: a configuration, its parent, the robots' order and its constraints."""
-
-    config: tuple[int, ...]
-    parent: _High | None
-    order: list[int]
-    priorities: list[float]
-    tree: deque[_Low] = field(default_factory=deque)
-
-
-class _PIBT:
-    """PIBT's one-step configuration generator over a fixed roadmap."""
-
-    def __init__(self, neighbours: list[list[int]], dist: list[list[float]],
-                 rng: np.random.Generator, size: int, straight: dict[tuple[int, int], int]
-                 ) -> None:
-        self.neighbours = neighbours
-        self.dist = dist
-        self.straight = straight
-        self.previous: tuple[int, ...] = ()
-        self.rng = rng
-        self.occupied_now: list[int] = [-1] * size
-        self.occupied_next: list[int] = [-1] * size
-
-    def step(self, config: tuple[int, ...], order: list[int], low: _Low,
-             previous: tuple[int, ...]) -> list[int] | None:
-        """The successor of ``config`` (reached from ``previous``) under ``low``."""
-        self.previous = previous
-        n = len(config)
-        nxt = [-1] * n
-        now, after = self.occupied_now, self.occupied_next
-        for i, v in enumerate(config):
-            now[v] = i
-        touched: list[int] = []
-        ok = True
-        for i, v in zip(low.who, low.where, strict=True):
-            if after[v] >= 0:  # vertex conflict among the constraints
-                ok = False
-                break
-            j = now[v]
-            if j >= 0 and j != i and nxt[j] == config[i]:  # swap conflict
-                ok = False
-                break
-            after[v] = i
-            touched.append(v)
-            nxt[i] = v
-        if ok:
-            for i in order:
-                if nxt[i] < 0 and not self._pibt(i, config, nxt, touched):
-                    ok = False
-                    break
-        if ok:  # the constraints' robots too: nobody follows round a cycle
-            ok = not any(self._closes_cycle(i, now[nxt[i]], nxt) for i in range(n)
-                         if now[nxt[i]] >= 0 and now[nxt[i]] != i)
-        for v in touched:
-            after[v] = -1
-        for v in config:
-            now[v] = -1
-        return nxt if ok else None
-
-    def _closes_cycle(self, i: int, k: int, nxt: list[int]) -> bool:
-        """Whether robot ``i`` moving to robot ``k``'s vertex closes a rotation: ``k`` moves
-        to a vertex whose robot moves on, and so on, round to ``i``'s own vertex. A
-        rotation is a valid MAPF step, but its robots could only move at once; executed
-        one after the other (:mod:`sqpmpc.coordination.schedule`) each would wait for the
-        next."""
-        now, j = self.occupied_now, k
-        for _ in range(len(nxt)):
-            if nxt[j] < 0:
-                return False
-            o = now[nxt[j]]
-            if o < 0 or o == j:
-                return False
-            if o == i:
-                return True
-            j = o
-        return False
-
-    def _pibt(self, i: int, config: tuple[int, ...], nxt: list[int], touched: list[int]
-              ) -> bool:
-        here = config[i]
-        d = self.dist[i]
-        candidates = [*self.neighbours[here], here]
-        # best first by distance to the goal; among equals straight on (a unicycle turns at
-        # a corner, not on a line), then a fixed per-robot shuffle
-        self.rng.shuffle(candidates)
-        ahead = self.straight.get((self.previous[i], here), -1)
-        candidates.sort(key=lambda u: (d[u], u != ahead))
-        now, after = self.occupied_now, self.occupied_next
-        for u in candidates:
-            if after[u] >= 0:
-                continue
-            k = now[u]
-            if k >= 0 and k != i and (nxt[k] == here or self._closes_cycle(i, k, nxt)):
-                continue  # k comes here (a swap) or round to here (a rotation)
-            after[u] = i
-            touched.append(u)
-            nxt[i] = u
-            if k < 0 or k == i:
-                return True
-            if nxt[k] < 0 and not self._pibt(k, config, nxt, touched):
-                continue
-            return True
-        after[here] = i
-        touched.append(here)
-        nxt[i] = here
-        return False
 
 
 def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed: int = 0,
@@ -330,61 +226,31 @@ def plan_paths(roadmap: Roadmap, starts: np.ndarray, goals: np.ndarray, *, seed:
                                 f"{n} robots (in {n + 1} orders at most)")
         if diagonal:  # LaCAM's distances: on the grid alone
             table = distance_tables(roadmap, goals)
-    dist = [row.tolist() for row in np.where(np.isfinite(table), table, 1e18)]
-    return _lacam(roadmap, roadmap.neighbour_lists(), dist, starts, goals, seed, max_nodes)
+    return _lacam(roadmap, table, starts, goals, seed, max_nodes)
 
 
-def _lacam(roadmap: Roadmap, neighbours: list[list[int]], dist: list[list[float]],
-           starts: np.ndarray, goals: np.ndarray, seed: int, max_nodes: int) -> np.ndarray:
-    """LaCAM with PIBT (module docstring) within ``max_nodes`` search nodes, on the
-    4-connected grid."""
+def _lacam(roadmap: Roadmap, table: np.ndarray, starts: np.ndarray, goals: np.ndarray,
+           seed: int, max_nodes: int) -> np.ndarray:
+    """LaCAM with PIBT (module docstring; compiled, :func:`sqpmpc.kernels.lacam.lacam_search`)
+    within ``max_nodes`` search nodes, on the 4-connected grid; ``table`` the ``(n, V)``
+    hop distances to the goals on it."""
     n = starts.size
-    rng = np.random.default_rng(seed)
-    pibt = _PIBT(neighbours, dist, rng, roadmap.size, straight_on(roadmap))
-    goal = tuple(goals.tolist())
-    start = tuple(starts.tolist())
-    priorities = [dist[i][start[i]] / (roadmap.size + 1.0) for i in range(n)]
-    root = _High(start, None, _order(priorities), priorities)
-    root.tree.append(_Low())
-    stack: list[_High] = [root]
-    explored: dict[tuple[int, ...], _High] = {start: root}
-    nodes = 0
-    while stack:
-        node = stack[-1]
-        if node.config == goal:
-            return _backtrack(node)
-        if not node.tree:
-            stack.pop()
-            continue
-        low = node.tree.popleft()
-        depth = len(low.who)
-        if depth < n:  # the next robot's choices extend this constraint
-            i = node.order[depth]
-            here = node.config[i]
-            choices = [*neighbours[here], here]
-            rng.shuffle(choices)
-            for v in choices:
-                node.tree.append(_Low((*low.who, i), (*low.where, v)))
-        nxt = pibt.step(node.config, node.order, low,
-                        node.config if node.parent is None else node.parent.config)
-        if nxt is None:
-            continue
-        config = tuple(nxt)
-        if config in explored:
-            stack.append(explored[config])
-            continue
-        nodes += 1
-        if nodes > max_nodes:
-            raise PlanningError(f"roadmap: no conflict-free plan for {n} robots within "
-                                f"{max_nodes} search nodes")
-        prio = [p + 1.0 if c != g else p - int(p) for p, c, g in
-                zip(node.priorities, config, goal, strict=True)]
-        child = _High(config, node, _order(prio), prio)
-        child.tree.append(_Low())
-        explored[config] = child
-        stack.append(child)
-    raise PlanningError(f"roadmap: the goals of the {n} robots cannot be reached together "
-                        "(every configuration reachable from the starts was explored)")
+    ptr, idx = roadmap.indptr.astype(np.int64), roadmap.indices.astype(np.int64)
+    straight = np.empty(idx.size, dtype=np.int64)
+    pos = roadmap.positions
+    straight_moves(ptr, idx, np.ascontiguousarray(pos[:, 0], dtype=float),
+                   np.ascontiguousarray(pos[:, 1], dtype=float), straight)
+    dist = np.where(np.isfinite(table), table, roadmap.size + 1).astype(np.int64)
+    # copies: contiguous and writable, the types the kernel is warmed up for
+    status, _, plan = lacam_search(ptr, idx, straight, dist, np.array(starts, dtype=np.int64),
+                                   np.array(goals, dtype=np.int64), int(seed), int(max_nodes))
+    if status == OVER_BUDGET:
+        raise PlanningError(f"roadmap: no conflict-free plan for {n} robots within "
+                            f"{max_nodes} search nodes")
+    if status == EXHAUSTED:
+        raise PlanningError(f"roadmap: the goals of the {n} robots cannot be reached together "
+                            "(every configuration reachable from the starts was explored)")
+    return plan
 
 
 @dataclass
@@ -612,16 +478,3 @@ def straight_on(roadmap: Roadmap, diagonal: bool = False) -> dict[tuple[int, int
     e = edge[chosen]
     return dict(zip(zip(u[e].tolist(), v[e].tolist(), strict=True), w[chosen].tolist(),
                     strict=True))
-
-
-def _order(priorities: list[float]) -> list[int]:
-    return sorted(range(len(priorities)), key=lambda i: -priorities[i])
-
-
-def _backtrack(node: _High) -> np.ndarray:
-    configs = []
-    walk: _High | None = node
-    while walk is not None:
-        configs.append(walk.config)
-        walk = walk.parent
-    return np.asarray(configs[::-1], dtype=np.int64)

@@ -13,6 +13,7 @@ from sqpmpc.kernels import collision as ck
 from sqpmpc.kernels.acceleration import warm_up_acceleration
 from sqpmpc.kernels.execution import warm_up_execution
 from sqpmpc.kernels.kkt import warm_up_kkt
+from sqpmpc.kernels.lacam import warm_up_lacam
 from sqpmpc.kernels.mapf import warm_up_mapf
 from sqpmpc.kernels.ocp import (
     all_finite,
@@ -129,6 +130,7 @@ def warm_up() -> float:
     warm_up_rings()
     warm_up_mapf()
     warm_up_execution()
+    warm_up_lacam()
     warm_up_kkt()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))
     square = np.array([[[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]])
