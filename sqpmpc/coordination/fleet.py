@@ -144,10 +144,10 @@ def _plan(scenario: Scenario, robots: np.ndarray, starts: np.ndarray, goals: np.
         arguments = (scenario.polygons, scenario.obstacles, scenario_box(scenario), starts,
                      goals, has_goal, clearance, separation, diameter, grid)
         roadmap = build_roadmap(*arguments, diagonal=grid is None)
-        if grid is None:  # the tube's roadmap wherever it has a plan (roadmap docstring)
+        if grid is None:  # the tube's roadmap where prioritized planning solves it
             try:
                 plan = _plan(scenario, robots, starts, goals, has_goal, clearance, separation,
-                             start_vertices, roadmap, headings, method=method)
+                             start_vertices, roadmap, headings, method="prioritized")
                 return replace(plan, seconds=time.process_time() - t0)
             except PlanningError:
                 roadmap = build_roadmap(*arguments, diagonal=True, tube=False)

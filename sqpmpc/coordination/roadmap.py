@@ -31,10 +31,12 @@ rest of the run (warehouse family, 8 robots, seed 1). The narrower free space ca
 the plan harder to find (warehouse family, 64 robots, seeds 1 and 2: LaCAM ran over
 90 s on their tube roadmaps in pure Python; compiled, with the swap technique, it plans the
 tube roadmaps of seeds 0-5 in 0.004-0.02 s), so the fleet
-(:mod:`sqpmpc.coordination.fleet`) takes the tube roadmap wherever a plan exists on it
-(prioritized planning, else LaCAM, which is complete) and otherwise the thinner roadmap
-whose vertices and edges keep :math:`c` alone (``tube=False``: a corridor narrower than
-the tube, whose robots would be cut off on it). A declared grid's reach is at
+(:mod:`sqpmpc.coordination.fleet`) takes the tube roadmap where prioritized planning
+solves it and otherwise the thinner roadmap whose vertices and edges keep :math:`c` alone
+(``tube=False``), prioritized planning and then LaCAM on it. LaCAM on the tube first
+would find a plan there too, but a longer one (warehouse family, 64 robots, seed 5: 174
+steps, against 47 on the thinner roadmap by prioritized planning).
+A declared grid's reach is at
 most :math:`h/2 - c` (below), so its free cells' centres and the segments between them
 keep :math:`c + \rho` already.
 
