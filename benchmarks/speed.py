@@ -22,10 +22,11 @@ Parts, each measured in thread CPU time (``time.thread_time``), never wall time:
    and between samples), and the stages whose unshadowed pieces within reach
    outnumbered the slots (*overflows*: a row raised, no piece dropped).
 3. **Fleets** -- antipodal swaps of 16, 64 and 256 robots (decentralized) in one
-   process, **with the liveness rules off** (``--rules none``: the roundabout
-   rule's ring search dominated the first sample of large fleets, and the rules
-   are being replaced): per-robot CPU per sample (median over the samples after
-   the first), the first sample, and the process's peak RSS after each size.
+   process, **with the liveness rules off** (``--rules none``: the engine's own
+   scaling): per-robot CPU per sample (median over the samples after the first),
+   the first sample, and the process's peak RSS after each size; then the same
+   swaps with each scenario's default rules (the ten rules; coordination for
+   swap-256, whose crowd the roundabout has no room for).
 4. **Profile** -- cProfile of a paper-s2 decentralized closed loop: where a
    sample's CPU goes (the QP solver against the Python pipeline).
    **Split** -- without a profiler: the controller step's CPU against its QP
@@ -187,9 +188,11 @@ def _polygon_rows(controller: object) -> object | None:
 
 
 # ---------------------------------------------------------------------------- fleets
-def fleets(sizes: tuple[int, ...], samples: int) -> list[dict[str, float]]:
-    """Swaps of ``sizes`` robots, rules off, ``samples`` samples each, in this process."""
-    settings = SolverSettings(rules=select_rules(["none"]))
+def fleets(sizes: tuple[int, ...], samples: int, default_rules: bool = False
+           ) -> list[dict[str, float]]:
+    """Swaps of ``sizes`` robots, rules off (or, ``default_rules``, the scenario's default
+    rules, as ``sqpmpc run`` takes them), ``samples`` samples each, in this process."""
+    settings = None if default_rules else SolverSettings(rules=select_rules(["none"]))
     rows = []
     for n in sizes:
         t0 = time.process_time()
@@ -200,7 +203,9 @@ def fleets(sizes: tuple[int, ...], samples: int) -> list[dict[str, float]]:
         per_robot = sim.cpu_times[:samples].mean(axis=1)
         rows.append({"robots": n, "build_s": build, "median": _ms(np.median(per_robot[1:])),
                      "p99": _ms(np.percentile(per_robot[1:], 99)), "first": _ms(per_robot[0]),
-                     "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
+                     "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                     "rules": ("coordination" if [r.name for r in sim.settings.rules]
+                               == ["coordination"] else "the ten rules")})
         del sim
         gc.collect()
     return rows
@@ -350,7 +355,7 @@ def _verdicts(acados: list, paper_rows: list | None, split_rows: list | None = N
 def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
            prof: tuple | None, acados: str | None, command: str, wall: float,
            paper_rows: list | None = None, verdicts: list[str] | None = None,
-           split_rows: list | None = None) -> str:
+           split_rows: list | None = None, default_fleet_rows: list | None = None) -> str:
     """The markdown page."""
     info = machine_info()
     lines = ["# Speed and scale", "", f"Reproduce: `{command}` (module docstring of "
@@ -415,6 +420,23 @@ def render(tail: list | None, maze_rows: dict | None, fleet_rows: list | None,
                   f"{'met' if hi['rss_mb'] <= 600 else 'NOT met'}); first sample "
                   f"{hi['first'] / hi['median']:.1f} x the median at {hi['robots']} (target "
                   f"<= 3: {'met' if hi['first'] <= 3 * hi['median'] else 'NOT met'}).", ""]
+    if default_fleet_rows:
+        lo, hi = default_fleet_rows[0], default_fleet_rows[-1]
+        lines += ["## Fleets with the default rules (as `sqpmpc run` takes them)", "",
+                  "The same swaps with each scenario's default rules: the ten liveness rules, "
+                  "or the roadmap coordination alone where the roundabout has no room for "
+                  "the crowd (`crowd_without_room`: swap-256). The coordination's execution "
+                  "(its holds and waits, the motion along the plan) costs more per sample "
+                  "than the rules; measured, not a target.", "",
+                  "| robots | rules | build s | per-robot CPU median / p99 ms | first sample "
+                  "ms per robot | first / median |", "|---|---|---|---|---|---|"]
+        for r in default_fleet_rows:
+            lines.append(f"| {r['robots']} | {r['rules']} | {r['build_s']:.2f} | "
+                         f"{r['median']:.3f} / {r['p99']:.3f} | {r['first']:.3f} | "
+                         f"{r['first'] / r['median']:.1f} |")
+        lines += ["", f"Per-robot median {hi['robots']} / {lo['robots']}: "
+                  f"{hi['median'] / lo['median']:.2f}; first sample "
+                  f"{hi['first'] / hi['median']:.1f} x the median at {hi['robots']}.", ""]
     if prof:
         per, top = prof
         lines += ["## Profile: paper-s2 decentralized (cProfile on thread time)", "",
@@ -478,6 +500,8 @@ def main(argv: list[str] | None = None) -> int:
     tail = qp_tail(40, 40.0 if q else 150.0) if "tail" in parts else None
     maze_rows = maze(40.0 if q else 80.0) if "maze" in parts else None
     fleet_rows = fleets((16, 64, 256), 8 if q else 20) if "fleets" in parts else None
+    default_fleet_rows = (fleets((16, 64, 256), 8 if q else 20, default_rules=True)
+                          if "fleets" in parts else None)
     prof = profile(30.0 if q else 100.0) if "profile" in parts else None
     split_rows = split(30.0 if q else 100.0) if "split" in parts else None
     paper_rows = paper() if "paper" in parts else None
@@ -501,7 +525,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.speed " + " ".join(argv if argv is not None
                                                         else sys.argv[1:])
     text = render(tail, maze_rows, fleet_rows, prof, acados, command.strip(),
-                  time.perf_counter() - started, paper_rows, verdicts, split_rows)
+                  time.perf_counter() - started, paper_rows, verdicts, split_rows,
+                  default_fleet_rows)
     publish(text, None if args.no_write else DOC_PATH)
     return 0
 

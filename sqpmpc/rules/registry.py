@@ -28,7 +28,7 @@ from sqpmpc.rules.liveness import (
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout, crowd_without_room
-from sqpmpc.rules.routes import RouteFollowing
+from sqpmpc.rules.routes import RouteFollowing, no_route
 
 if TYPE_CHECKING:
     from sqpmpc.problem.scenario import Scenario
@@ -81,12 +81,13 @@ def rule_names() -> list[str]:
 
 def default_names(scenario: Scenario | None = None) -> list[str]:
     """Names of the rules on by default, in order: the ``coordination`` rule alone for a
-    scenario whose roadmap is exact (:func:`roadmap_is_exact`) or whose robots crowd
-    where the roundabout has no room to pass them
-    (:func:`sqpmpc.rules.roundabout.crowd_without_room`, goals at rest); for any other
-    (and without a scenario) every built-in rule but :data:`OPT_IN`."""
+    scenario whose roadmap is exact (:func:`roadmap_is_exact`), or with goals at rest
+    where the rules have no way through: robots crowding where the roundabout has no
+    room to pass them (:func:`sqpmpc.rules.roundabout.crowd_without_room`) or a robot
+    with no route on the route rule's map (:func:`sqpmpc.rules.routes.no_route`); for any
+    other (and without a scenario) every built-in rule but :data:`OPT_IN`."""
     if scenario is not None and (roadmap_is_exact(scenario) or (
-            _plannable(scenario) and crowd_without_room(scenario))):
+            _plannable(scenario) and (crowd_without_room(scenario) or no_route(scenario)))):
         return ["coordination"]
     return [name for name in RULES if name not in OPT_IN]
 

@@ -51,7 +51,7 @@ from sqpmpc.rules.base import (
     check_positive,
 )
 
-__all__ = ["RouteFollowing", "road_map"]
+__all__ = ["RouteFollowing", "no_route", "road_map"]
 
 
 @functools.lru_cache(maxsize=16)
@@ -211,6 +211,35 @@ class _RouteInstance(RuleInstance):
             out[k] = pts
             self.counts["route_samples"] += 1
         return None if out is None else Contribution(references=out)
+
+
+def no_route(scenario: object, rule: RouteFollowing | None = None) -> list[int]:
+    """The robots with a goal at rest that have no route to it from their start on the
+    route rule's own map (the static map inflated by the robot's radius plus the rule's
+    ``margin``): the rules have no way to bring them home (a maze of 0.49 m corridors
+    for robots of 0.3 m: the inflation closes every corridor, no robot arrives), and the
+    roadmap coordination, whose roadmap keeps the rows' clearance alone, is their
+    default (:func:`sqpmpc.rules.registry.default_names`). Empty without a static map.
+
+    Parameters
+    ----------
+    scenario
+        The scenario (:class:`sqpmpc.problem.scenario.Scenario`).
+    rule
+        The route rule's parameters (its defaults when ``None``).
+    """
+    rule = rule or RouteFollowing()
+    sc = scenario
+    if not (sc.polygons or any(not o.moving for o in sc.obstacles)):  # type: ignore[attr-defined]
+        return []
+    starts = sc.initial_states()[:, :2]  # type: ignore[attr-defined]
+    out = []
+    for i, robot in enumerate(sc.robots):  # type: ignore[attr-defined]
+        if isinstance(robot.reference, PointReference):
+            road = road_map(sc, 0.5 * robot.diameter, rule.margin)
+            if road.route(starts[i], np.asarray(robot.reference.goal, dtype=float)) is None:
+                out.append(i)
+    return out
 
 
 @dataclass(frozen=True)
