@@ -56,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from sqpmpc.problem.goals import ARRIVAL_TOLERANCE
 from sqpmpc.problem.paths import obstacle_clearances, plant_paths, segment_distances
 from sqpmpc.problem.references import PointReference
 from sqpmpc.problem.routes import route_lengths
@@ -70,8 +71,6 @@ log = logging.getLogger(__name__)
 
 COLLISION_TOLERANCE = 1e-6
 """A (sample, pair) is a collision when its clearance is below ``-COLLISION_TOLERANCE``."""
-ARRIVAL_TOLERANCE = 0.05
-"""A robot arrived when its final position error is at most this, m (contract section 3)."""
 BOUND_TOLERANCE = 1e-9
 """An input or position violates its bound when outside it by more than this."""
 

@@ -14,7 +14,11 @@ import numpy as np
 
 from sqpmpc.problem.scenario import Scenario
 
-__all__ = ["unreachable_goals"]
+__all__ = ["ARRIVAL_TOLERANCE", "unreachable_goals"]
+
+ARRIVAL_TOLERANCE = 0.05
+"""A robot has arrived when its final position error is at most this, m (the contract's
+``arrived``, section 3; :mod:`sqpmpc.io.metrics` reports it)."""
 
 
 def unreachable_goals(scenario: Scenario) -> list[str]:

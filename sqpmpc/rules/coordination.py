@@ -74,6 +74,7 @@ from sqpmpc.coordination.fleet import FleetPlan, fleet_plan, replan, replan_from
 from sqpmpc.coordination.mapf import PlanningError
 from sqpmpc.coordination.motion import path_motion
 from sqpmpc.coordination.schedule import Execution
+from sqpmpc.problem.goals import ARRIVAL_TOLERANCE
 from sqpmpc.problem.references import PointReference
 from sqpmpc.rules.base import Contribution, Rule, RuleContext, RuleInstance, SampleView
 
@@ -119,6 +120,8 @@ class _Instance(RuleInstance):
         self._accel = None if bounds.acceleration is None else float(
             min(-bounds.acceleration[0], bounds.acceleration[1]))
         self._window = window
+        # the distance to its goal within which a robot's own NMPC finishes its approach
+        self._arrive = min(0.5 * plan.roadmap.reach, 0.5 * ARRIVAL_TOLERANCE)
         # a stall: no robot's progress for the time the slowest free robot takes to reach
         # its next vertex from rest within the reach of its own: a half-turn in place, the
         # edge and the reach at v_max, speeding up and slowing down, and the horizon the
@@ -218,9 +221,12 @@ class _Instance(RuleInstance):
             if k <= p:  # at the end of its open path: its progress vertex, or its goal
                 end = plan.goals[row] if p >= last else execution.path_points(row, p, p)[0]
                 gap = math.hypot(end[0] - here[0], end[1] - here[1])
-                # at a vertex it waits within the reach; its goal it closes to half of it,
-                # where the NMPC's own final approach takes over
-                if gap <= (0.5 * reach if p >= last else reach):
+                # at a vertex it waits within the reach; its goal it closes to half the
+                # reach or half the arrival tolerance, the nearer, where the NMPC's own
+                # final approach takes over (from farther, a goal beside the robot left
+                # it standing: a point reference at v = 0 asks for no turn; warehouse
+                # family, 4 robots, seed 22: 0.054 m from its goal from 20 s to the end)
+                if gap <= (self._arrive if p >= last else reach):
                     out[m] = end
                     if p >= last:
                         continue
