@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,9 +12,7 @@ from sqpmpc.errors import ProblemError
 from sqpmpc.io.metrics import compute_metrics
 from sqpmpc.problem.fleets import antipodal_swap, grid_to_grid
 from sqpmpc.problem.grid import GridSpec
-from sqpmpc.problem.movingai import mapf_scenario
 from sqpmpc.problem.obstacles import Obstacle
-from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.scenario_file import load_scenario
 from sqpmpc.rules.base import Rule
 from sqpmpc.rules.registry import (
@@ -30,10 +27,7 @@ from sqpmpc.rules.registry import (
     set_rule_parameters,
 )
 from sqpmpc.rules.roundabout import Roundabout, crowd_without_room, find_rings, ring_min_radius
-from sqpmpc.rules.routes import no_route
 from sqpmpc.sim.simulation import simulate
-
-DATA = Path(__file__).parent / "data"
 
 
 @dataclass(frozen=True)
@@ -101,27 +95,6 @@ def test_coordination_is_the_default_where_a_crowd_has_no_room_for_its_ring() ->
         type(r)(id=r.id, initial_state=r.initial_state, diameter=r.diameter,
                 reference=load_scenario("paper-s2").robots[0].reference) for r in big.robots))
     assert not crowd_without_room(timed) and default_names(timed) == default_names()
-
-
-def test_coordination_is_the_default_where_the_route_rule_has_no_route() -> None:
-    """A maze of 0.49 m corridors whose walls are on no lattice (the test maze's walls
-    grown by 12.3 mm on two sides): the route rule's map (radius plus its margin) closes
-    every corridor, so no robot has a route and the rules have no way through
-    (measured: 0 of 6 home with them); the warehouse's aisles leave every robot one."""
-    maze = mapf_scenario(DATA / "maze-12-8.map", 6, scen_path=DATA / "maze-12-8.scen",
-                         cell=0.5, diameter=0.3)
-    grown = []
-    for polygon in maze.polygons:
-        corners = np.asarray(polygon.points)
-        grown.append(PolygonObstacle(tuple(map(tuple, corners + np.where(
-            corners > corners.mean(axis=0), 0.0123, 0.0)))))
-    off = maze.with_changes(roadmap=None, polygons=tuple(grown))
-    assert not roadmap_is_exact(off)  # no lattice in its walls, no grid declared
-    assert no_route(off) == list(range(6))
-    assert default_names(off) == ["coordination"]
-    assert no_route(load_scenario("warehouse")) == []
-    assert "route" in default_names(load_scenario("warehouse"))
-    assert no_route(antipodal_swap(8)) == []  # no static map: nothing to route around
 
 
 def test_selection() -> None:

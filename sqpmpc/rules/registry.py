@@ -12,7 +12,7 @@ import dataclasses
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from sqpmpc.coordination.roadmap import drawn_grid, on_one_lattice
+from sqpmpc.coordination.roadmap import on_one_lattice
 from sqpmpc.errors import ProblemError
 from sqpmpc.problem.references import PointReference
 from sqpmpc.rules.base import Rule
@@ -28,7 +28,7 @@ from sqpmpc.rules.liveness import (
     TurnLimit,
 )
 from sqpmpc.rules.roundabout import Roundabout, crowd_without_room
-from sqpmpc.rules.routes import RouteFollowing, no_route
+from sqpmpc.rules.routes import RouteFollowing
 
 if TYPE_CHECKING:
     from sqpmpc.problem.scenario import Scenario
@@ -81,13 +81,12 @@ def rule_names() -> list[str]:
 
 def default_names(scenario: Scenario | None = None) -> list[str]:
     """Names of the rules on by default, in order: the ``coordination`` rule alone for a
-    scenario whose roadmap is exact (:func:`roadmap_is_exact`), or with goals at rest
-    where the rules have no way through: robots crowding where the roundabout has no
-    room to pass them (:func:`sqpmpc.rules.roundabout.crowd_without_room`) or a robot
-    with no route on the route rule's map (:func:`sqpmpc.rules.routes.no_route`); for any
-    other (and without a scenario) every built-in rule but :data:`OPT_IN`."""
+    scenario whose roadmap is exact (:func:`roadmap_is_exact`) or whose robots crowd
+    where the roundabout has no room to pass them
+    (:func:`sqpmpc.rules.roundabout.crowd_without_room`, goals at rest); for any other
+    (and without a scenario) every built-in rule but :data:`OPT_IN`."""
     if scenario is not None and (roadmap_is_exact(scenario) or (
-            _plannable(scenario) and (crowd_without_room(scenario) or no_route(scenario)))):
+            _plannable(scenario) and crowd_without_room(scenario))):
         return ["coordination"]
     return [name for name in RULES if name not in OPT_IN]
 
@@ -105,26 +104,20 @@ def roadmap_is_exact(scenario: Scenario) -> bool:
     and goals: it declares the grid (``[roadmap]``, :class:`sqpmpc.problem.grid.GridSpec`:
     ``sqpmpc generate mapf``), or it is a fleet (two robots or more) whose robots all have
     goals at rest (``point`` references) among obstacles that do not move (the roadmap is
-    of the static free space) and
-
-    - its walls are drawn on a grid that holds the robots
-      (:func:`sqpmpc.coordination.roadmap.drawn_grid`: axis-aligned polygons, their
-      corners on one lattice; a maze drawn by hand), or
-    - its starts and goals lie on one grid fitted to them
-      (:func:`sqpmpc.coordination.roadmap.on_one_lattice`: grid formations, a room's
-      doorway places). One robot's start and goal always lie on some grid: for it the
-      roadmap would only bend a straight way.
+    of the static free space) and whose starts and goals lie on one grid fitted to them
+    (:func:`sqpmpc.coordination.roadmap.on_one_lattice`: grid formations, a room's doorway
+    places). One robot's start and goal always lie on some grid: for it the roadmap would
+    only bend a straight way. Walls drawn on a grid
+    (:func:`sqpmpc.coordination.roadmap.drawn_grid`) give the roadmap its cells once
+    coordination is on, but do not turn it on (docs/coordination.md).
     """
     if scenario.roadmap is not None:
         return True
     if not _plannable(scenario):
         return False
-    separation = float(scenario.required_distances().max(initial=0.0))
-    diameter = float(scenario.diameters().max())
-    if drawn_grid(scenario.polygons, separation, diameter) is not None:
-        return True
     return on_one_lattice(scenario.initial_states()[:, :2], scenario.reference_positions(0.0),
-                          separation, diameter)
+                          float(scenario.required_distances().max(initial=0.0)),
+                          float(scenario.diameters().max()))
 
 
 def default_rules(scenario: Scenario | None = None) -> tuple[Rule, ...]:

@@ -36,6 +36,7 @@ route only chooses where the robot heads.
 from __future__ import annotations
 
 import functools
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,7 +52,9 @@ from sqpmpc.rules.base import (
     check_positive,
 )
 
-__all__ = ["RouteFollowing", "no_route", "road_map"]
+__all__ = ["RouteFollowing", "road_map"]
+
+_LOG = logging.getLogger(__name__)
 
 
 @functools.lru_cache(maxsize=16)
@@ -113,6 +116,7 @@ class _RouteInstance(RuleInstance):
                 self.maps.append(road_map(sc, 0.5 * robot.diameter, self.rule.margin))
                 self.goals.append(np.asarray(ref.goal, dtype=float))
             self.tracking.append(None)
+        self._told: set[int] = set()  # robots whose missing route was logged
         #: whether some own robot has a map and a goal (else the hook has nothing to do)
         self.routed = any(road is not None for road in self.maps)
         self.idle = not self.routed
@@ -123,6 +127,16 @@ class _RouteInstance(RuleInstance):
         if route is None:
             self.counts["routes_missing"] += 1
             self.tracking[k] = None
+            robot = int(self.context.own[k])
+            if robot not in self._told:  # once per robot: what would plan its way
+                self._told.add(robot)
+                _LOG.warning(
+                    "route: robot id %s has no route to its goal keeping %.3g m beyond its "
+                    "radius from the static map (a corridor narrower than %.3g m is closed "
+                    "to it); the roadmap coordination (--rules coordination) plans through "
+                    "corridors down to the diameter plus the rows' margins",
+                    self.context.scenario.robots[robot].id, self.rule.margin,
+                    float(self.context.scenario.robots[robot].diameter) + 2 * self.rule.margin)
             return
         self.tracking[k] = _Tracking(route, t, 0.0, 0.0, t)
 
@@ -211,35 +225,6 @@ class _RouteInstance(RuleInstance):
             out[k] = pts
             self.counts["route_samples"] += 1
         return None if out is None else Contribution(references=out)
-
-
-def no_route(scenario: object, rule: RouteFollowing | None = None) -> list[int]:
-    """The robots with a goal at rest that have no route to it from their start on the
-    route rule's own map (the static map inflated by the robot's radius plus the rule's
-    ``margin``): the rules have no way to bring them home (a maze of 0.49 m corridors
-    for robots of 0.3 m: the inflation closes every corridor, no robot arrives), and the
-    roadmap coordination, whose roadmap keeps the rows' clearance alone, is their
-    default (:func:`sqpmpc.rules.registry.default_names`). Empty without a static map.
-
-    Parameters
-    ----------
-    scenario
-        The scenario (:class:`sqpmpc.problem.scenario.Scenario`).
-    rule
-        The route rule's parameters (its defaults when ``None``).
-    """
-    rule = rule or RouteFollowing()
-    sc = scenario
-    if not (sc.polygons or any(not o.moving for o in sc.obstacles)):  # type: ignore[attr-defined]
-        return []
-    starts = sc.initial_states()[:, :2]  # type: ignore[attr-defined]
-    out = []
-    for i, robot in enumerate(sc.robots):  # type: ignore[attr-defined]
-        if isinstance(robot.reference, PointReference):
-            road = road_map(sc, 0.5 * robot.diameter, rule.margin)
-            if road.route(starts[i], np.asarray(robot.reference.goal, dtype=float)) is None:
-                out.append(i)
-    return out
 
 
 @dataclass(frozen=True)
