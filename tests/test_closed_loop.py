@@ -240,3 +240,17 @@ def test_other_qp_backends_closed_loops_are_safe_and_arrive(scheme: str, solver:
     assert m["input_bound_violations"] == 0
     assert m["max_final_position_error"] <= 0.05
     _assert_counters_consistent(m, sc, scheme)
+
+
+@pytest.mark.parametrize("scheme", ["decentralized", "centralized"])
+def test_rti_one_qp_path_gives_the_loops_closed_loop(scheme) -> None:
+    """RTI's usual sample (one QP, no KKT check) takes a shorter path through
+    :meth:`~sqpmpc.ocp.iteration.MultipleShootingSQP.solve`; with a KKT threshold that
+    every sample meets, the general loop runs the same QP and keeps the same iterate
+    (it only relinearizes once more to measure the residual): the closed loops are equal
+    bitwise."""
+    scenario = load_scenario("paper-s2").with_changes(t_end=4.0)
+    short = simulate(scenario, scheme, SolverSettings())
+    loop = simulate(scenario, scheme, SolverSettings(rti_kkt_threshold=1e300))
+    np.testing.assert_array_equal(short.states, loop.states)
+    np.testing.assert_array_equal(short.inputs, loop.inputs)

@@ -255,6 +255,27 @@ def test_direct_osqp_calls_equal_the_public_wrapper(m, pairs, E, pos) -> None:
         warm = (a.x + 0.01, a.y)
 
 
+def test_direct_osqp_results_are_not_overwritten_by_the_next_solve() -> None:
+    """The fast path takes OSQP's compiled object's arguments by position and its solution
+    arrays without a copy of its own (they are new at every access): a result kept stays
+    as it was when the same backend solves again (the iterate and the fallback plan are
+    kept across samples)."""
+    layout = QPLayout(2, N, np.array([(0, 1)], dtype=np.int64), 1, True)
+    qp = SparseQP(layout)
+    rng = np.random.default_rng(7)
+    apply(qp, random_data(rng, 2, [(0, 1)], 1, layout.n_var))
+    first = qp.solve()
+    assert not qp.use_osqp_wrapper  # the hot path
+    kept_x, kept_y = first.x.copy(), first.y.copy()
+    apply(qp, random_data(rng, 2, [(0, 1)], 1, layout.n_var))
+    second = qp.solve(first.x, first.y)
+    assert first.success and second.success
+    assert not np.shares_memory(first.x, second.x) and not np.shares_memory(first.y, second.y)
+    np.testing.assert_array_equal(first.x, kept_x)
+    np.testing.assert_array_equal(first.y, kept_y)
+    assert not np.array_equal(second.x, kept_x)
+
+
 def test_matrix_free_products_equal_the_csc_matrix() -> None:
     layout = QPLayout(3, N, np.array([(0, 1), (1, 2)]), 2, True)
     rng = np.random.default_rng(11)

@@ -168,6 +168,11 @@ class DecentralizedController(ControllerPipeline):
 
     def first_input_safe(self, states: np.ndarray, next_state: np.ndarray,
                          inputs: np.ndarray) -> bool:
+        if not self._deviates:  # the paper's unicycle, moving as predicted: no deviation
+            return (self.collisions.first_stage_safe(next_state[0, :2])
+                    and (self.obstacle_rows is None
+                         or self.obstacles_safe(states, next_state, np.zeros(inputs.shape[0])))
+                    and (not self._bounded or self.in_position_bounds(next_state[:, :2])))
         alpha, beta = self.path_deviation(inputs)
         if not self.collisions.first_stage_safe(next_state[0, :2], alpha=float(alpha[0]),
                                                 beta=float(beta[0])):
@@ -280,7 +285,7 @@ class DecentralizedController(ControllerPipeline):
         self.classify(sample, states, plans, previous_states, plan_ages)
         d = self.slot_data
         self.collisions.set_age_margins(d.age_margins, self._aged)
-        self.collisions.set_sample(states[self.index, :2], states[d.index, :2],
+        self.collisions.set_sample(states[self.index, :2], states[:, :2].take(d.index, axis=0),
                                    d.own_predictions, d.predictions, d.kinds)
 
     def select_neighbours(self, states: np.ndarray) -> None:

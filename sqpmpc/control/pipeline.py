@@ -228,12 +228,9 @@ class ControllerPipeline:
         self.predict_neighbours(sample, states, plans or {}, previous_states, plan_ages)
         # 3. shift the previous solution (kept as the fallback plan), x0 in stage 0
         engine = self.engine
-        shifted = None
-        if engine.has_solution:
-            engine.shift()
-            shifted = engine.inputs()
-        engine.start_sample(own)
-        engine.clear_motion()  # a rule's motions hold for their sample only
+        # the shifted inputs kept (the fallback plan); a rule's motions hold for their
+        # sample only
+        shifted = engine.begin_sample(own)
         # 4. rules shape the references, then the linearization point; their view's arrays:
         # the references made read-only, read-only views of the others (for this sample)
         raw = self.reference(t)
@@ -379,10 +376,11 @@ class ControllerPipeline:
                 finite = all_finite(plan_u.ravel())
                 plan_x = engine.rollout(own, plan_u) if finite else None
             # stage 1 of the rollout is exactly the next state of the first input
-            if finite and self.first_input_safe(own, plan_x[:, 1], plan_u[:, 0]) and (
+            first = plan_u[:, 0]
+            if finite and self.first_input_safe(own, plan_x[:, 1], first) and (
                     self._unicycle or self._brakes_safely(plan_x[:, 1])):
                 if self._unicycle:
-                    return ControlOutput(plan_u[:, 0].copy(), plan_x, plan_u, None, report,
+                    return ControlOutput(first.copy(), plan_x, plan_u, None, report,
                                          time.perf_counter() - t0)
                 return self._output(plan_x, plan_u, None, report, t0)
             if finite and self._response is not None:
@@ -463,9 +461,10 @@ class ControllerPipeline:
             c["fallbacks"] += 1
             c["shifted_plan_fallbacks" if out.fallback == "shifted-plan"
               else "brake_fallbacks"] += 1
-        c["qp_rescues"] = self.engine.qp.rescue_count
-        if self.engine.qp.solver_name == "osqp+piqp":
-            c["qp_handovers"] = self.engine.qp.handover_count
+        qp = self.engine.qp
+        c["qp_rescues"] = qp.rescue_count
+        if qp.solver_name == "osqp+piqp":
+            c["qp_handovers"] = qp.handover_count
         for rows in self._rows.values():
             c["stage_one_overrides"] += rows.stage_one_overrides
         self._applied_before = self._applied

@@ -257,17 +257,20 @@ class PlanBook:
         """Keep a neighbour's plan for shared rows of later samples (the first of a sample
         wins, as in the services' plan store)."""
         held = self.neighbours.get(robot_id)
+        key = plan.sample
         if held is None:
             held = self.neighbours[robot_id] = {}
-        key = plan.sample
-        if key in held:
+            floor = key
+        elif key in held:
             return
+        else:
+            floor = self._floors[robot_id]
+            if key < floor:
+                floor = key
         held[key] = plan
-        floors = self._floors
-        floor = min(floors.get(robot_id, key), key)
         if len(held) > self.horizon + 2:
             floor = _drop_before(held, floor, sample - self.horizon - 1)
-        floors[robot_id] = floor
+        self._floors[robot_id] = floor
 
     def neighbour_plan(self, plans: Mapping[int, object], robot_id: int, sample: int,
                        newest: PlanMessage | None) -> PlanMessage | None:
@@ -309,7 +312,7 @@ class PlanBook:
         seen, hold = self.seen, self.hold
         report: dict[int, int] = {}
         aged, late_count = False, 0
-        margins[:] = 0.0
+        margins.fill(0.0)
         for e, jid in neighbours:
             plan = plans.get(jid)
             if plan is not None:
@@ -338,8 +341,11 @@ def _drop_before(held: dict[int, object], floor: int, threshold: int) -> int:
     below ``floor``; returns the new floor. Integer samples close to the floor (the usual
     case: one sample per step) are looked up, others scanned."""
     if type(floor) is int and type(threshold) is int and threshold - floor <= len(held):
-        for old in range(floor, threshold):
-            held.pop(old, None)
+        if threshold == floor + 1:  # the usual case: one sample per step
+            held.pop(floor, None)
+        else:
+            for old in range(floor, threshold):
+                held.pop(old, None)
     else:
         for old in [s for s in held if s < threshold]:
             del held[old]

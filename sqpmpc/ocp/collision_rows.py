@@ -456,28 +456,30 @@ class ExternalCollisionModel:
         neighbour's reach, along the whole path, or standing still.
         """
         p = position
-        x0, y0 = float(self.current_self[0]), float(self.current_self[1])
-        normals, rhs = self.check_normals, self.check_rhs
-        if self._any_shared and self.recovery >= 0.0:
-            inside = self._inside
-            if inside_pairs(self.current_self, self.current_others, self._shared_mask,
-                            self.safe_distance, inside):
+        x0, y0 = self.current_self.tolist()
+        x1, y1 = float(p[0]), float(p[1])
+        if self._any_shared:
+            normals, rhs = self.check_normals, self.check_rhs
+            if self.recovery >= 0.0 and inside_pairs(self.current_self, self.current_others,
+                                                     self._shared_mask, self.safe_distance,
+                                                     self._inside):
+                inside = self._inside
                 # overlap-recovery: no closer to the mid-line than now
                 if not halfplanes_hold_path(
                         np.ascontiguousarray(normals[inside]), rhs[inside], x0, y0,
-                        float(p[0]), float(p[1]), 0.0, 0.0, self.recovery):
+                        x1, y1, 0.0, 0.0, self.recovery):
                     return False
                 normals = np.ascontiguousarray(normals[~inside])
                 rhs = rhs[~inside]
-        if self._any_shared and not halfplanes_hold_path(
-                normals, rhs, x0, y0, float(p[0]), float(p[1]), alpha, beta, tolerance):
-            return False
+            if not halfplanes_hold_path(normals, rhs, x0, y0, x1, y1, alpha, beta, tolerance):
+                return False
         if self._any_obstacle:
             obst = self.kind == OBSTACLE
             d = p - self.obstacles[obst, 0, :2]
             if (np.hypot(d[:, 0], d[:, 1]) < self.safe_distance[obst] - tolerance).any():
                 return False
-        x1, y1 = float(p[0]), float(p[1])
+        if not (self._any_missing or self.unslotted.shape[0]):
+            return True
         moved = math.hypot(x1 - x0, y1 - y0) > 1e-12
         growth = alpha + max(beta, 0.0)
         if self._any_missing and moved:

@@ -227,7 +227,7 @@ class MultipleShootingSQP:
             return
         L = self.layout
         if self.kernels is not None:
-            z, y = np.empty_like(self.z), np.empty_like(self.y)
+            z, y = np.empty(self.z.shape), np.empty(self.y.shape)  # float64, as the iterate
             self.kernels.shift(self.z, self.y, self._shift_z, self._shift_y, L.n_robots, L.horizon,
                           self._block, self.sample_time, z, y)
             self.z, self.y = z, y
@@ -248,6 +248,21 @@ class MultipleShootingSQP:
         if self._velocity_rows:
             self.qp.update_velocity_bounds(*self.model.velocity_bounds(
                 initial_states, self.layout.horizon, self.sample_time))
+
+    def begin_sample(self, initial_states: np.ndarray) -> np.ndarray | None:
+        """A sample's start in one call (the pipeline's hot path): :meth:`shift`, the shifted
+        inputs ``(m, N, nu)`` kept (``None`` without a previous iterate), then
+        :meth:`start_sample` from ``initial_states`` and :meth:`clear_motion`; returns the
+        shifted inputs."""
+        shifted = None
+        if self.z is not None:
+            self.shift()
+            shifted = self.z[self.layout.input_index]
+        self.start_sample(initial_states)
+        self._dynamics_point = None
+        if self._motion:
+            self.clear_motion()
+        return shifted
 
     def guess_speeds(self) -> np.ndarray:
         """Speeds ``(m, N)`` of stages 0..N-1 of the current iterate, a read-only view (the
@@ -451,15 +466,16 @@ class MultipleShootingSQP:
             (the first always runs); default: ``settings.time_budget`` from now.
         started
             :meth:`start_sample` was called with ``initial_states`` (only the guess's
-            speeds changed since): not called again.
+            speeds changed since): not called again, and ``initial_states`` were found
+            finite by the caller (the pipeline's measurement): not checked again.
         """
         t_start = time.perf_counter()
         s, L = self.settings, self.layout
         if deadline is None and s.time_budget is not None:
             deadline = t_start + s.time_budget
         initial_states = np.asarray(initial_states, float)
-        if initial_states.shape != (L.n_robots, self.model.nx) or not all_finite(
-                initial_states.ravel()):
+        if initial_states.shape != (L.n_robots, self.model.nx) or not (
+                started or all_finite(initial_states.ravel())):
             raise ProblemError(
                 f"initial_states must be finite with shape ({L.n_robots}, {self.model.nx}), "
                 f"got {initial_states.shape}"
@@ -479,6 +495,8 @@ class MultipleShootingSQP:
         self.merit_weight = 1.0
         z, y = self.z, self.y  # never written in place: iterates are new arrays
         motion, self._dynamics_point = self._dynamics_point, None  # this sample's first QP
+        if not sqp and max_iterations == 1 and s.rti_kkt_threshold is None:
+            return self._rti_step(z, y, initial_states, internal, external, motion, t_start)
         assembly = qp_time = osqp_time = 0.0
         kkt = float("nan")
         converged = False
@@ -533,6 +551,23 @@ class MultipleShootingSQP:
         self.samples += 1
         return IterationReport(True, iterations, kkt, converged, status, assembly, qp_time,
                                osqp_time, time.perf_counter() - t_start, qp_iters, last)
+
+    def _rti_step(self, z: np.ndarray, y: np.ndarray, initial_states: np.ndarray,
+                  internal: CollisionRows | None, external: CollisionRows | None,
+                  motion: np.ndarray | None, t_start: float) -> IterationReport:
+        """RTI's usual sample, one QP without KKT checks: what the loop of :meth:`solve`
+        does for one iteration (same iterate, same report), in fewer steps."""
+        t0 = time.perf_counter()
+        self.y = y
+        self._linearize(z, initial_states, internal, external, motion)
+        assembly = time.perf_counter() - t0
+        res = self.qp.solve(z, y)
+        self.samples += 1
+        if res.success:
+            self.z, self.y = res.x, res.y
+        return IterationReport(bool(res.success), 1, float("nan"), False, res.status, assembly,
+                               res.wall_time, res.solve_time, time.perf_counter() - t_start,
+                               res.iterations, res)
 
     def engaged_robots(self, y: np.ndarray, tolerance: float = 1e-4) -> np.ndarray:
         """Own robots with an active collision row (``|y_i| > tolerance``), ``(m,)`` bool."""

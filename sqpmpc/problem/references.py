@@ -358,6 +358,7 @@ class ReferenceSet:
         self._others = [i for i in range(m) if i not in harmonic and i not in points]
         self._harmonic = slice(None) if len(harmonic) == m else np.array(harmonic, dtype=np.int64)
         self._n_harmonic = len(harmonic)
+        self._all_harmonic = len(harmonic) == m
         # per robot (column vectors): omega, then c, s, k of x and of y
         coeffs = np.array([(r.omega,) + r.x + r.y for r in self.references
                            if isinstance(r, HarmonicReference)]).reshape(-1, 7)
@@ -371,10 +372,11 @@ class ReferenceSet:
     def positions(self, times: np.ndarray) -> np.ndarray:
         """Positions ``(m, T, 2)`` of every reference at ``times (T,)``, m."""
         times = _as_time(times)
-        out = np.empty((len(self.references),) + times.shape + (2,))
-        if self._n_harmonic == len(self.references) and times.ndim == 1:
-            harmonic_positions(self._coeff_table, times, out)  # hot path: one kernel
+        if self._all_harmonic and times.ndim == 1:  # hot path: one kernel
+            out = np.empty((self._n_harmonic, times.shape[0], 2))
+            harmonic_positions(self._coeff_table, times, out)
             return out
+        out = np.empty((len(self.references),) + times.shape + (2,))
         if self._n_harmonic:
             omega, cx, sx, kx, cy, sy, ky = self._coeffs
             wt = omega * times

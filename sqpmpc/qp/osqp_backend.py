@@ -5,12 +5,17 @@ compiled solver object that ``osqp.OSQP`` wraps, making the same calls the
 wrapper makes (infinite bounds clipped to ``OSQP_INFTY`` as it does) but
 without its per-call bookkeeping for derivatives and its result namespaces:
 about 30 us less per QP (measured: paper-s2 decentralized, 0.30 -> 0.275 ms
-per robot and sample). The results are bitwise the same (tested). Setting
+per robot and sample). Its update methods get their arguments by position (the
+order read from their signatures once) and its solution arrays, which it copies
+out of the solver at every access, are not copied again. The results are
+bitwise the same (tested). Setting
 ``use_osqp_wrapper = True``, or an OSQP build whose wrapper lacks that object,
 uses the public ``osqp.OSQP`` methods instead.
 """
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import osqp
@@ -58,6 +63,7 @@ class OSQPBackend:
         self.use_osqp_wrapper = False
         self.solver: osqp.OSQP | None = None
         self._core: object | None = None
+        self._fresh = False  # the compiled object's solution arrays are new copies
         self._lower = np.zeros(layout.n_con)  # the bounds clipped to OSQP's infinity
         self._upper = np.zeros(layout.n_con)
 
@@ -71,7 +77,9 @@ class OSQPBackend:
                               lower.copy(), upper.copy(), **self.settings.to_osqp())
             self.setup_count += 1
             core = getattr(self.solver, "_solver", None)
-            self._core = core if all(hasattr(core, a) for a in _CORE_METHODS) else None
+            self._core = core if all(hasattr(core, a) for a in _CORE_METHODS) and (
+                _positional(core)) else None
+            self._fresh = self._core is not None and _copies_solution(self._core)
         else:
             kwargs: dict[str, np.ndarray] = {}
             if changed.vectors:
@@ -96,14 +104,16 @@ class OSQPBackend:
                 self._push(P_values, q, A_values, lower, upper, changed)
                 core = None if self.use_osqp_wrapper else self._core
             else:  # the hot path: what changed straight to the compiled solver
+                # (positional arguments, in the order of its signatures: q, l, u and
+                # P_x, P_i, A_x, A_i)
                 if changed.vectors:
                     clip_bounds(lower, upper, _OSQP_INFINITY, self._lower, self._upper)
-                    core.update_data_vec(q=q, l=self._lower, u=self._upper)
+                    core.update_data_vec(q, self._lower, self._upper)
                 if changed.P or changed.A:
                     L = self.layout
                     core.update_data_mat(
-                        P_x=P_values[L.P_order_inverse] if changed.P else None, P_i=None,
-                        A_x=A_values[L.A_order_inverse] if changed.A else None, A_i=None)
+                        P_values[L.P_order_inverse] if changed.P else None, None,
+                        A_values[L.A_order_inverse] if changed.A else None, None)
             if core is not None:
                 if warm_x is not None or warm_y is not None:
                     core.warm_start(warm_x, warm_y)
@@ -122,9 +132,32 @@ class OSQPBackend:
             raise KeyboardInterrupt
         solved = status == _SOLVED_EXACTLY or (
             self.settings.accept_inaccurate and status in _SOLVED)
+        x, y = solution.x, solution.y
+        if core is None or not self._fresh:
+            x, y = np.array(x, dtype=float, copy=True), np.array(y, dtype=float, copy=True)
         return BackendSolution(
-            np.array(solution.x, dtype=float, copy=True),
-            np.array(solution.y, dtype=float, copy=True), bool(solved), str(info.status),
+            x, y, bool(solved), str(info.status),
             int(info.iter), float(info.solve_time), float(info.obj_val), float(info.prim_res),
             float(info.dual_res), status == _TIME_LIMIT,
             {"polish_status": float(info.status_polish), "rho_updates": float(info.rho_updates)})
+
+
+def _positional(core: object) -> bool:
+    """Whether the compiled object's update methods take their arguments in the order the
+    hot path passes them (``q, l, u``; ``P_x, P_i, A_x, A_i``: read from their signatures)."""
+    vec = getattr(core.update_data_vec, "__doc__", None) or ""
+    mat = getattr(core.update_data_mat, "__doc__", None) or ""
+    return bool(re.search(r"update_data_vec\(self[^,]*, q\b[^,]*, l\b[^,]*, u\b", vec)
+                and re.search(r"update_data_mat\(self[^,]*, P_x\b[^,]*, P_i\b[^,]*, A_x\b"
+                              r"[^,]*, A_i\b", mat))
+
+
+def _copies_solution(core: object) -> bool:
+    """Whether OSQP's compiled solver object hands out its solution as new float64 arrays
+    that own their data at every access (its ``solution`` copies ``x`` and ``y`` out of
+    the solver), so that the backend need not copy them again."""
+    first, second = core.solution, core.solution
+    arrays = (first.x, first.y, second.x, second.y)
+    return all(type(a) is np.ndarray and a.dtype == np.float64 and a.flags.owndata
+               for a in arrays) and not (np.shares_memory(arrays[0], arrays[2])
+                                         or np.shares_memory(arrays[1], arrays[3]))
