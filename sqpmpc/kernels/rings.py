@@ -282,11 +282,10 @@ def ring_zones(positions: np.ndarray, goals: np.ndarray, travelling: np.ndarray,
         seen_list[:seen_count] = np.sort(seen_list[:seen_count])  # summed in robot order
         for e in range(seen_count):
             i = seen_list[e]
-            if True:
-                dx, dy = goals[i, 0] - positions[i, 0], goals[i, 1] - positions[i, 1]
-                length = math.hypot(dx, dy)
-                ux += dx / length
-                uy += dy / length
+            dx, dy = goals[i, 0] - positions[i, 0], goals[i, 1] - positions[i, 1]
+            length = math.hypot(dx, dy)
+            ux += dx / length
+            uy += dy / length
         if members < min_members or math.hypot(ux, uy) > max_resultant * members:
             for e in range(seen_count):
                 seen[seen_list[e]] = False
