@@ -480,15 +480,14 @@ def drawn_grid(polygons: Sequence[PolygonObstacle], separation: float, diameter:
     """
     if not polygons:
         return None
-    micro = []
+    every = []
     for polygon in polygons:
         corners = np.asarray(polygon.points, dtype=float)
         edges = np.roll(corners, -1, axis=0) - corners
         if np.any((np.abs(edges[:, 0]) > 1e-9) & (np.abs(edges[:, 1]) > 1e-9)):
             return None  # a slanted wall: not drawn on a lattice
-        micro.append(corners)
-    coordinates = np.concatenate(micro)
-    x, y = coordinates[:, 0], coordinates[:, 1]
+        every.append(corners)
+    x, y = np.concatenate(every).T
     steps = np.concatenate((x - x[0], y - y[0])) * 1e6
     whole = np.round(steps)
     if np.any(np.abs(steps - whole) > 1e-3):  # not on a micrometre lattice

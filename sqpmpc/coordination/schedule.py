@@ -363,12 +363,13 @@ class Execution:
         sep = self.roadmap.spacing - 2.0 * self.roadmap.reach
         q = free.size
         a = now[self.robots[free]]  # (q, 2) where they are
-        d = self._points[free, self.progress[free] + 1] - a  # their ways
+        nxt = self._points[free, self.progress[free] + 1]
+        d = nxt - a  # their ways
         # only a robot pushed off its path (farther than the reach from the edge it is on)
         # stands in a way the plan did not give it; one on its path is where the plan's
         # order has it
         v0 = self._points[free, self.progress[free]]
-        edge = self._points[free, self.progress[free] + 1] - v0
+        edge = nxt - v0
         length = np.maximum(np.einsum("ij,ij->i", edge, edge), 1e-12)
         g = np.clip(np.einsum("ij,ij->i", a - v0, edge) / length, 0.0, 1.0)
         off = np.hypot(*(a - v0 - g[:, None] * edge).T) > self.roadmap.reach

@@ -189,6 +189,21 @@ def _blocked(u: int, pusher_at: int, ptr: np.ndarray, idx: np.ndarray, now: np.n
 
 
 @_inline
+def _ways_on(ahead: int, back: int, ptr: np.ndarray, idx: np.ndarray, now: np.ndarray,
+             goals: np.ndarray) -> tuple[int, int]:
+    """The ways on from ``ahead`` (coming from ``back``) that are not blocked, and the last
+    of them (``-1``: none): one step of a walk along a corridor."""
+    ways = 0
+    on = -1
+    for e in range(ptr[ahead], ptr[ahead + 1]):
+        u = idx[e]
+        if not _blocked(u, back, ptr, idx, now, goals):
+            ways += 1
+            on = u
+    return ways, on
+
+
+@_inline
 def _swap_required(pusher: int, puller: int, pusher_at: int, puller_at: int,
                    ptr: np.ndarray, idx: np.ndarray, dist: np.ndarray, now: np.ndarray,
                    goals: np.ndarray) -> bool:
@@ -198,13 +213,7 @@ def _swap_required(pusher: int, puller: int, pusher_at: int, puller_at: int,
     would pass the puller, and each is then nearer its goal on the other's side."""
     back, ahead = pusher_at, puller_at
     while dist[pusher, ahead] < dist[pusher, back]:
-        ways = 0
-        on = -1
-        for e in range(ptr[ahead], ptr[ahead + 1]):
-            u = idx[e]
-            if not _blocked(u, back, ptr, idx, now, goals):
-                ways += 1
-                on = u
+        ways, on = _ways_on(ahead, back, ptr, idx, now, goals)
         if ways >= 2:  # a branch: the puller can step aside there
             return False
         if ways == 0:
@@ -221,13 +230,7 @@ def _swap_possible(pusher_at: int, puller_at: int, ptr: np.ndarray, idx: np.ndar
     where the two robots can pass each other."""
     back, ahead = pusher_at, puller_at
     while ahead != pusher_at:  # round a loop: no
-        ways = 0
-        on = -1
-        for e in range(ptr[ahead], ptr[ahead + 1]):
-            u = idx[e]
-            if not _blocked(u, back, ptr, idx, now, goals):
-                ways += 1
-                on = u
+        ways, on = _ways_on(ahead, back, ptr, idx, now, goals)
         if ways >= 2:
             return True
         if ways == 0:

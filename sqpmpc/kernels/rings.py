@@ -221,16 +221,8 @@ def ring_zones(positions: np.ndarray, goals: np.ndarray, travelling: np.ndarray,
                     continue
                 if bound[c] == best_count and k > best:
                     break  # this cell holds no earlier point that ties
-                count = 0
-                for s in range(25):
-                    a = around[c, s]
-                    if a < 0:
-                        break
-                    for t in range(head[a], first[a + 1]):
-                        q = order[t]
-                        if not used[q] and math.hypot(points[q, 0] - points[k, 0],
-                                                      points[q, 1] - points[k, 1]) <= cluster:
-                            count += 1
+                count = _within(k, c, points, cluster, around, head, first, order, used,
+                                near)
                 if count > best_count or (count == best_count and k < best):
                     best, best_count = k, count
         for e in range(examined):  # back on the heap (their keys may drop below)
@@ -240,18 +232,9 @@ def ring_zones(positions: np.ndarray, goals: np.ndarray, travelling: np.ndarray,
                                   _cell_key(c, bound, head, order, unused, m), c)
         if best < 0:
             return zones
-        found = 0  # the unused points within cluster of the best
-        cb = cell_of[best]
-        for s in range(25):
-            a = around[cb, s]
-            if a < 0:
-                break
-            for t in range(head[a], first[a + 1]):
-                q = order[t]
-                if not used[q] and math.hypot(points[q, 0] - points[best, 0],
-                                              points[q, 1] - points[best, 1]) <= cluster:
-                    near[found] = q
-                    found += 1
+        # the unused points within cluster of the best
+        found = _within(best, cell_of[best], points, cluster, around, head, first, order,
+                        used, near)
         if 16 * found > m:  # in pair order (the centre's sum as counted one by one)
             for e in range(found):
                 take[near[e]] = True
@@ -303,6 +286,26 @@ def ring_zones(positions: np.ndarray, goals: np.ndarray, travelling: np.ndarray,
         _use(near, found, cell_of, around, order, used, unused, bound, head, first, dropped,
              touched)
         zones += 1
+
+
+@_jit
+def _within(k: int, c: int, points: np.ndarray, cluster: float, around: np.ndarray,
+            head: np.ndarray, first: np.ndarray, order: np.ndarray, used: np.ndarray,
+            out: np.ndarray) -> int:
+    """The unused points within ``cluster`` of point ``k`` (in cell ``c``: they are in the
+    5 x 5 cells around it) into ``out``; their number."""
+    found = 0
+    for s in range(25):
+        a = around[c, s]
+        if a < 0:
+            break
+        for t in range(head[a], first[a + 1]):
+            q = order[t]
+            if not used[q] and math.hypot(points[q, 0] - points[k, 0],
+                                          points[q, 1] - points[k, 1]) <= cluster:
+                out[found] = q
+                found += 1
+    return found
 
 
 @_jit

@@ -131,7 +131,6 @@ import numbers
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from sqpmpc.errors import ProblemError
@@ -154,7 +153,6 @@ __all__ = ["Rings", "Roundabout", "crowd_without_room", "find_rings", "ring_min_
 if TYPE_CHECKING:
     from sqpmpc.problem.scenario import Scenario
 
-_jit = numba.njit(cache=True, nogil=True)
 
 
 class _RoundaboutInstance(RuleInstance):
@@ -173,8 +171,7 @@ class _RoundaboutInstance(RuleInstance):
         self.step = step
         n = context.scenario.n_robots
         self.zone_of = np.full(n, -1, dtype=np.int64)
-        self.centres = np.zeros((n, 2))
-        self.radii = np.zeros(n)
+        self.centres, self.radii = np.zeros((0, 2)), np.zeros(0)  # of the zones
         self.zones_ready = False
         self.min_radius = ring_min_radius(rule, context.scenario, float(self.required.max()))
         self.references_changed()
@@ -192,11 +189,9 @@ class _RoundaboutInstance(RuleInstance):
         self.zones_ready = True
         rings = find_rings(self.rule, positions, self.rest_goals, float(self.required.max()),
                            self.min_radius, sc)
-        zones = rings.centres.shape[0]
         followable = np.append(rings.radii >= self.min_radius, False)  # index -1: none
         self.zone_of[:] = np.where(followable[rings.zone_of], rings.zone_of, -1)
-        self.centres[:zones] = rings.centres
-        self.radii[:zones] = rings.radii
+        self.centres, self.radii = rings.centres, rings.radii
 
     def _ring_references(self, view: SampleView) -> np.ndarray | None:
         """References around the rings of the own robots that have one now (``None``: none)."""
