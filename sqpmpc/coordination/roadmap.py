@@ -123,8 +123,8 @@ import shapely
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from shapely.geometry import Point
-from shapely.ops import unary_union
+from shapely.geometry import Point, box
+from shapely.ops import linemerge, unary_union
 
 from sqpmpc.errors import ProblemError
 from sqpmpc.problem.grid import GridSpec, grid_edges
@@ -391,7 +391,7 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
     for free, box, h, reach, origin in tries:
         arguments = (free, footprint, box[0], box[1], h, origin, reach, starts, goals,
                      has_goal, diagonal)
-        candidate = _roadmap_at(*arguments)
+        candidate = _roadmap_at(*arguments, lanes=grid is None)
         score = _joined(candidate, has_goal)
         if score > best_score:
             best, best_score, chosen = candidate, score, arguments
@@ -399,7 +399,7 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
             break
     assert best is not None  # at least one origin
     if best_score < int(has_goal.sum()):  # the grid that joins the most, bridged
-        best = _roadmap_at(*chosen, bridge=True, clear=inflated)
+        best = _roadmap_at(*chosen, bridge=True, clear=inflated, lanes=grid is None)
     return best
 
 
@@ -536,12 +536,20 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
                 low: np.ndarray, high: np.ndarray, h: float, origin: np.ndarray,
                 reach: float, starts: np.ndarray, goals: np.ndarray, has_goal: np.ndarray,
                 diagonal: bool = False, bridge: bool = False,
-                clear: shapely.Geometry | None = None) -> Roadmap:
+                clear: shapely.Geometry | None = None, lanes: bool = False) -> Roadmap:
     points, shape, _ = _grid(low, high, h, origin)
     keep = _free_points(points, inflated, low, high)
     planned = np.flatnonzero(has_goal)
     ends = np.concatenate((starts[planned], goals[planned]))
     where, keep, new = _attach(ends, reach, h, points, keep)
+    axis = None
+    junctions = np.zeros((0, 2))
+    if lanes and inflated is not None:  # the corridors no grid line passes (_lanes)
+        axis = _axis(box(*low, *high).difference(inflated), h)
+        junctions = _narrow_junctions(axis, ends[new].reshape(-1, 2), h)
+        if junctions.size:  # they replace the grid vertices within h
+            gone = cKDTree(junctions).query(points)[0] < h - 1e-9
+            keep &= ~gone
     edges = grid_edges(shape)
     edges = edges[keep[edges[:, 0]] & keep[edges[:, 1]]]
     edges = edges[_free_segments(points[edges[:, 0]], points[edges[:, 1]], inflated)]
@@ -569,6 +577,13 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
             extra += [(v, int(u)) for u in near[ok]]
         if extra:
             pairs.append(np.asarray(extra, dtype=np.int64))
+    if axis is not None:
+        if junctions.size:
+            positions = np.concatenate((positions, junctions))
+        extra_points, extra_edges = _lanes(positions, axis, inflated, h)
+        if extra_points.size or extra_edges.size:
+            positions = np.concatenate((positions, extra_points))
+            pairs.append(extra_edges)
     edges = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
     vertex = np.where(where >= 0, number[np.maximum(where, 0)], base - 1 - where)
     ends_v = vertex.reshape(2, -1).T  # (planned, 2): each planned robot's start and goal
@@ -586,6 +601,182 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
         diagonals = _diagonals(shape, keep, points, inflated, number)
     return Roadmap(positions, adjacency.indptr.astype(np.int64),
                    adjacency.indices.astype(np.int64), h, reach, start_v, goal_v, diagonals)
+
+
+def _medial_lines(free: shapely.Geometry, step: float) -> list[np.ndarray]:
+    """The medial axis of the region ``free`` as polylines ``(K, 2)``: the edges of the
+    Voronoi diagram of its boundary sampled every ``step`` that lie inside it, merged
+    into lines (the classical approximation; every point of it is as far as possible
+    from the boundary across the region's width)."""
+    boundary = shapely.segmentize(free.boundary, step)
+    points = shapely.multipoints(shapely.get_coordinates(boundary))
+    edges = shapely.get_parts(shapely.voronoi_polygons(points, only_edges=True))
+    if edges.size == 0:
+        return []
+    shapely.prepare(free)
+    inside = edges[shapely.contains(free, edges)]
+    if inside.size == 0:
+        return []
+    merged = linemerge(unary_union(inside))
+    return [shapely.get_coordinates(line) for line in shapely.get_parts(merged)]
+
+
+class _Axis:
+    """The medial axis of the free space as a fine graph (:func:`_axis`)."""
+
+    def __init__(self, nodes: np.ndarray, links: np.ndarray, junction: np.ndarray,
+                 narrow: np.ndarray) -> None:
+        self.nodes, self.links, self.junction, self.narrow = nodes, links, junction, narrow
+
+
+def _axis(free: shapely.Geometry, h: float) -> _Axis:
+    r"""The medial axis of ``free`` sampled every :math:`h/8` (:func:`_fine_axis`), with
+    which nodes are junctions and which are *narrow*: nearer than :math:`h/2` to the
+    boundary of ``free``, where a corridor's room is narrower than the grid's spacing and
+    a grid line may miss it."""
+    nodes, links, junction = _fine_axis(_medial_lines(free, 0.125 * h), 0.125 * h)
+    if nodes.shape[0] == 0:
+        return _Axis(nodes, links, junction, junction.copy())
+    room = shapely.distance(free.boundary, shapely.points(nodes))
+    return _Axis(nodes, links, junction, room < 0.5 * h)
+
+
+def _narrow_junctions(axis: _Axis, fixed: np.ndarray, h: float) -> np.ndarray:
+    r"""``(J, 2)`` the narrow junctions of ``axis`` taken as vertices: at least :math:`h`
+    from each other and from the ``fixed (F, 2)`` vertices (the robots' own points).
+    Where narrow corridors meet, only a vertex at the junction joins their lanes by
+    straight segments that keep the clearance (a segment between vertices on two of
+    them cuts the corner), so these are placed before the grid's (which they
+    replace within :math:`h`)."""
+    chosen: list[np.ndarray] = []
+    for k in np.flatnonzero(axis.junction & axis.narrow):
+        p = axis.nodes[k]
+        if fixed.size and float(np.hypot(*(fixed - p).T).min()) < h - 1e-9:
+            continue
+        if chosen and float(np.hypot(*(np.asarray(chosen) - p).T).min()) < h - 1e-9:
+            continue
+        chosen.append(p)
+    return np.asarray(chosen, dtype=float).reshape(-1, 2)
+
+
+def _lanes(positions: np.ndarray, axis: _Axis, inflated: shapely.Geometry, h: float
+           ) -> tuple[np.ndarray, np.ndarray]:
+    r"""Lane vertices along the corridors that no vertex of ``positions (V, 2)`` lies in,
+    and the edges that join them: new vertices ``(L, 2)`` and edges ``(E, 2)`` (indices
+    into ``positions`` followed by the new vertices), each touching a new vertex or a
+    narrow junction among ``positions`` (:func:`_narrow_junctions`).
+
+    The lanes follow the medial axis of the free space (the box less the map inflated
+    by the clearance): a corridor of any direction that leaves room for a robot has one
+    along its middle, the line farthest from both walls. The axis's nodes (every
+    :math:`h/8`) are taken as vertices in turn when they are at least :math:`h` from
+    every vertex so far (the grid's spacing, so the separation argument holds for every
+    two vertices); every node then lies within :math:`h` of a vertex. Each node stands
+    for the nearest vertex within :math:`h` that it sees with the clearance, and two
+    vertices whose nodes are neighbours on the axis are joined when the segment between
+    them keeps the clearance and no third vertex is nearer than :math:`h` to it (as on
+    the grid, a robot on an edge keeps the kept distance from robots on every other
+    vertex). In open space every node is within :math:`h` of a grid vertex and nothing
+    is added."""
+    nodes, links = axis.nodes, axis.links
+    if nodes.shape[0] == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2), dtype=np.int64)
+    base = positions.shape[0]
+    tree = cKDTree(positions) if base else None
+    new: list[int] = []
+    for k in range(nodes.shape[0]):
+        if tree is not None and tree.query(nodes[k])[0] < h - 1e-9:
+            continue
+        if new and float(np.hypot(*(nodes[new] - nodes[k]).T).min()) < h - 1e-9:
+            continue
+        new.append(k)
+    every = np.concatenate((positions.reshape(-1, 2), nodes[new]))
+    # each node's vertex: the nearest within h that it sees with the clearance
+    near = cKDTree(every).query_ball_point(nodes, h + 1e-9)
+    stand = np.full(nodes.shape[0], -1, dtype=np.int64)
+    for k, candidates in enumerate(near):
+        if not candidates:
+            continue
+        candidates = np.asarray(candidates, dtype=np.int64)
+        candidates = candidates[np.argsort(np.hypot(*(every[candidates] - nodes[k]).T))]
+        seen = _free_segments(np.repeat(nodes[k][None], candidates.size, axis=0),
+                              every[candidates], inflated)
+        if seen.any():
+            stand[k] = candidates[int(np.argmax(seen))]
+    a, b = stand[links[:, 0]], stand[links[:, 1]]
+    lane = np.zeros(every.shape[0], dtype=bool)
+    lane[base:] = True
+    junctions = np.flatnonzero(axis.junction & axis.narrow)
+    if junctions.size:  # the narrow junctions placed among positions
+        lane[stand[junctions][stand[junctions] >= 0]] = True
+    ok = (a >= 0) & (b >= 0) & (a != b)
+    ok[ok] &= lane[a[ok]] | lane[b[ok]]
+    pairs = np.column_stack((a, b))[ok]
+    if pairs.size == 0:
+        return every[base:], np.zeros((0, 2), dtype=np.int64)
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    pairs = pairs[_free_segments(every[pairs[:, 0]], every[pairs[:, 1]], inflated)]
+    keep = np.array([_clear_of_others(every, int(u), int(v), h) for u, v in pairs], dtype=bool)
+    return every[base:], pairs[keep].reshape(-1, 2).astype(np.int64)
+
+
+def _fine_axis(lines: list[np.ndarray], step: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The polylines ``lines`` as one graph of points at most ``step`` apart along them:
+    nodes ``(M, 2)``, links ``(E, 2)`` and which nodes are junctions (three lines or more
+    meet there) ``(M,)``. Lines meet where their ends coincide."""
+    index: dict[tuple[float, float], int] = {}
+    points: list[np.ndarray] = []
+    links: list[tuple[int, int]] = []
+    degree: dict[int, int] = {}
+
+    def end(p: np.ndarray) -> int:
+        key = (round(float(p[0]), 9), round(float(p[1]), 9))
+        if key not in index:
+            index[key] = len(points)
+            points.append(np.asarray(p, dtype=float))
+        return index[key]
+
+    for line in lines:
+        if line.shape[0] < 2:
+            continue
+        samples = _samples(line, step)
+        first, last = end(samples[0]), end(samples[-1])
+        degree[first] = degree.get(first, 0) + 1
+        degree[last] = degree.get(last, 0) + 1
+        previous = first
+        for p in samples[1:-1]:
+            points.append(p)
+            links.append((previous, len(points) - 1))
+            previous = len(points) - 1
+        links.append((previous, last))
+    nodes = np.asarray(points).reshape(-1, 2)
+    junction = np.zeros(nodes.shape[0], dtype=bool)
+    junction[[k for k, d in degree.items() if d >= 3]] = True
+    return nodes, np.asarray(links, dtype=np.int64).reshape(-1, 2), junction
+
+
+def _length(line: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(line, axis=0).T).sum()) if line.shape[0] > 1 else 0.0
+
+
+def _samples(line: np.ndarray, step: float) -> np.ndarray:
+    """Points of the polyline ``line (K, 2)`` evenly spaced along its length, at most
+    ``step`` apart, both ends included."""
+    arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(line, axis=0).T))))
+    at = np.linspace(0.0, arc[-1], max(1, math.ceil(arc[-1] / step)) + 1)
+    return np.column_stack((np.interp(at, arc, line[:, 0]), np.interp(at, arc, line[:, 1])))
+
+
+def _clear_of_others(points: np.ndarray, a: int, b: int, h: float) -> bool:
+    """Whether every point but ``a`` and ``b`` is at least ``h`` from the segment between
+    them."""
+    p, q = points[a], points[b]
+    d = q - p
+    f = np.clip((points - p) @ d / max(float(d @ d), 1e-18), 0.0, 1.0)
+    gap = np.hypot(*(points - p - f[:, None] * d).T)
+    gap[[a, b]] = np.inf
+    return bool(gap.min() >= h - 1e-9)
 
 
 def _adjacency(edges: np.ndarray, size: int) -> csr_matrix:
