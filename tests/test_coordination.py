@@ -21,6 +21,7 @@ from sqpmpc.problem.grid import GridSpec
 from sqpmpc.problem.movingai import blocked_rectangles, mapf_scenario, read_map, read_scen
 from sqpmpc.problem.polygons import PolygonObstacle
 from sqpmpc.problem.scenario_file import parse_scenario_text
+from tests.map_helpers import turned_maze
 
 DATA = Path(__file__).parent / "data"
 MAP, SCEN = DATA / "maze-12-8.map", DATA / "maze-12-8.scen"
@@ -271,6 +272,32 @@ def test_a_corridor_too_narrow_for_the_tube_is_passed_keeping_the_clearance() ->
     starts_goals = set(tube.starts.tolist()) | set(tube.goals.tolist())
     assert not any(abs(tube.positions[v, 0]) < 1.0 for v in range(tube.size)
                    if v not in starts_goals)
+
+
+@pytest.mark.parametrize("degrees", [17.0, 30.0, 45.0])
+def test_corridors_in_any_direction_get_lanes_along_their_middle(degrees: float) -> None:
+    """A maze of 0.5 m corridors turned off the axes: no grid line runs along them, yet
+    the roadmap joins every robot's start to its goal through them (lanes on the medial
+    axis), its vertices keep the grid's spacing, its edges the clearance, and every edge
+    but a robot's own point's keeps the spacing from every third vertex."""
+    sc = turned_maze("maze-12-8", 6, degrees)
+    clearance, separation = 0.191, 0.321  # what the rule passes for these robots
+    plan = fleet_plan(sc, clearance, separation)
+    roadmap = plan.roadmap
+    check_plan(_edges(roadmap), plan.configs, roadmap.starts, roadmap.goals, roadmap.corners())
+    p = roadmap.positions
+    gaps = np.hypot(*(p[:, None] - p[None]).transpose(2, 0, 1))
+    np.fill_diagonal(gaps, np.inf)
+    assert gaps.min() >= roadmap.spacing - 1e-9
+    walls = [polygon.shape for polygon in sc.polygons]
+    own = set(roadmap.starts.tolist()) | set(roadmap.goals.tolist())
+    for v, u in _edges(roadmap):
+        line = LineString([p[v], p[u]])
+        assert min(wall.distance(line) for wall in walls) >= clearance - 1e-9
+        if v in own or u in own:
+            continue
+        others = [w for w in range(roadmap.size) if w not in (v, u)]
+        assert min(line.distance(Point(p[w])) for w in others) >= roadmap.spacing - 1e-9
 
 
 def test_a_cell_no_wider_than_the_kept_distance_is_refused() -> None:
