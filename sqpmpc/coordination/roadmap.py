@@ -142,7 +142,8 @@ import shapely
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from shapely.geometry import Point, box
+from shapely.geometry import Point
+from shapely.geometry import box as rectangle
 from shapely.ops import linemerge, unary_union
 
 from sqpmpc.errors import ProblemError
@@ -564,7 +565,7 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
     axis = None
     junctions = np.zeros((0, 2))
     if lanes and inflated is not None:  # the corridors no grid line passes (_lanes)
-        axis = _axis(box(*low, *high).difference(inflated), h)
+        axis = _axis(rectangle(*low, *high).difference(inflated), h)
         junctions = _narrow_junctions(axis, ends[new].reshape(-1, 2), h)
         if junctions.size:  # they replace the grid vertices within h
             gone = cKDTree(junctions).query(points)[0] < h - 1e-9
