@@ -80,9 +80,9 @@ def test_a_maze_drawn_without_its_grid_gets_its_cells_and_every_robot_arrives() 
 def test_in_a_maze_turned_off_the_axes_every_robot_arrives(scheme: str) -> None:
     """The test maze turned by 30 degrees (its 0.5 m corridors in no axis's direction, no
     declared grid): coordination plans on lanes along the corridors' middles and every
-    robot arrives keeping every distance and bound (on the grid alone, fitted to the
-    robots' points, 0 of 6 arrived at 30 degrees: a start joined to its nearest vertex
-    along a corridor made edges that passed through other vertices)."""
+    robot arrives keeping every distance and bound (on the grid alone there was no plan:
+    no path of grid vertices joined robot 5's start to its goal; the ten rules bring 0
+    of 6 home)."""
     m, sim = _run(turned_maze("maze-12-8", 6, 30.0), scheme)
     assert m["collisions"] == 0 and m["intersample_collisions"] == 0
     assert m["obstacle_collisions"] == 0 and m["input_bound_violations"] == 0
