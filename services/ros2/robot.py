@@ -345,6 +345,7 @@ class Ros2Robot(StartUp, Node):
         # a standing plan at most every MIN_SPACING Ts (true: it stands from then on too)
         stamp = max(stamp, self._last_stamp + (MIN_SPACING * self.Ts if standing else 0.0))
         self._last_stamp = stamp
+        self.neighbours.sent(stamp, states, inputs)  # where it is: no neighbour stands there
         t = stamp - (self.epoch or 0.0)
         self.bus.put(encode(PlanMsg(self.robot_id, sample, t, stamp, states, inputs)),
                      "robot", self.robot_id, "plan")
