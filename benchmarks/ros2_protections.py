@@ -35,7 +35,7 @@ from tempfile import TemporaryDirectory
 from benchmarks.ros2 import log_counts
 from services.ros2 import demo
 
-__all__ = ["CASES", "SECTION", "main", "render"]
+__all__ = ["ATTACKED", "CASES", "SECTION", "main", "misses", "render"]
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "ros2.md"
@@ -49,6 +49,8 @@ CASES = {
     "kill": [*BASE, "--kill", "5:12:3"],
 }
 """Row name -> demo arguments."""
+ATTACKED = ("freeze", "herd", "flood")
+"""Rows whose forger holds robot 2's key (robot 2 left out of *honest*)."""
 
 
 SECTION = """<!-- protections -->
@@ -166,6 +168,12 @@ def run_case(name: str, folder: Path) -> dict:
         row.update(json.loads(check.read_text()))
     logs = folder / "logs"
     row["counts"] = log_counts(logs)
+    honest = Path(folder) / "honest-logs"  # the controllers but the attacked robot's
+    honest.mkdir(exist_ok=True)
+    for log in logs.glob("robot-*.log"):
+        if not (name in ATTACKED and log.name.startswith("robot-2.")):
+            (honest / log.name).write_bytes(log.read_bytes())
+    row["honest_counts"] = log_counts(honest)
     named: dict[str, int] = {}
     for log in logs.glob("robot-*.log"):
         for m in re.finditer(r"untrusted robot (\d+): (\d+) false plans",
@@ -180,21 +188,34 @@ def run_case(name: str, folder: Path) -> dict:
     return row
 
 
+def misses(row: dict) -> str:
+    """The honest controllers' missed deadlines: samples computed late (standing plan sent),
+    stopped late (no command by the instant) and skipped (overran), of all their instants;
+    ``-`` for a row measured before they were counted."""
+    c = row.get("honest_counts")
+    if c is None or "skipped_samples" not in c:
+        return "-"
+    missed = c.get("late_samples", 0) + c.get("stopped_late", 0) + c["skipped_samples"]
+    instants = c.get("samples", 0) + c["skipped_samples"]
+    return f"{missed}/{instants} ({100.0 * missed / max(instants, 1):.1f} %)"
+
+
 def render(rows: list[dict]) -> str:
     """The rows as a Markdown table."""
     head = ("| run | collisions | smallest clearance (certified), m | arrived | honest arrived "
             "| last arrival, s | command timeouts (robots stopped, s) | false plans refused "
             "| named untrusted (by controllers) | attacker sent | samples | stood still "
-            "| wall, s |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "| honest deadline misses | wall, s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     out = []
     for r in rows:
         if "robots" not in r:
-            out.append(f"| {r['name']} | failed (status {r['status']}) ||||||||||||")
+            out.append(f"| {r['name']} | failed (status {r['status']}) |||||||||||||")
             continue
         arrival = r.get("arrival_times", {})
         last = "-" if None in arrival.values() else f"{max(arrival.values()):.1f}"
         honest = {k: v for k, v in r["final_errors"].items()
-                  if not (r["name"].startswith(("freeze", "herd", "flood")) and k == "2")}
+                  if not (r["name"].startswith(ATTACKED) and k == "2")}
         ok = sum(e <= r["tolerance"] for e in honest.values())
         timeouts = sum(r.get("command_timeouts", {}).values())
         stood = sum(r.get("timed_out", {}).values())
@@ -208,7 +229,7 @@ def render(rows: list[dict]) -> str:
             f"({r['certified_clearance']:.3f}) | {r['arrived']}/{r['robots']} | "
             f"{ok}/{len(honest)} | {last} | {timeouts} ({stood:.1f}{lag}) | "
             f"{c.get('false_plans', 0)} | {named} | {sent} | {c.get('samples', 0)} | "
-            f"{c.get('brakes', 0)} | {r['wall']:.0f} |")
+            f"{c.get('brakes', 0)} | {misses(r)} | {r['wall']:.0f} |")
     return head + "\n".join(out) + "\n"
 
 
