@@ -276,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--from-json", type=Path, default=None, metavar="FILE",
                    help="render the rows a --json run wrote instead of running")
     p.add_argument("--date", default=None, help="with --from-json: when they ran")
+    p.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                   help="keep each run's folder (logs, check.json) under DIR")
     p.add_argument("--notes", type=Path, default=None, metavar="FILE",
                    help="Markdown to put after the table (what the rows showed)")
     args = p.parse_args(argv)
@@ -283,7 +285,8 @@ def main(argv: list[str] | None = None) -> int:
     began = args.date or time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     if args.from_json is not None:
         rows = json.loads(args.from_json.read_text())
-    with TemporaryDirectory(prefix="sqpmpc-ros2p-") as tmp:
+    with TemporaryDirectory(prefix="sqpmpc-ros2p-") as scratch:
+        tmp = scratch if args.keep is None else str(args.keep)
         for name in [] if args.from_json is not None else args.only or CASES:
             runs = args.repeat if name == "nominal" else 1
             for i in range(runs):

@@ -247,9 +247,9 @@ class Ros2Robot(StartUp, Node):
             first = msg.id not in self.neighbours.untrusted
             why = self.neighbours.add(msg, time.time())
             if why is not None and first:
-                log.warning("%s: robot %d is untrusted from now on: its plan is %s (kept "
-                            "at a sample's reach more, its false plans refused)", self.name,
-                            msg.id, why)
+                log.warning("%s: robot %d is untrusted from now on: its plan is %s (its "
+                            "refused plans never kept, a second claim kept out of too)",
+                            self.name, msg.id, why)
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         """A neighbour's controller came or went (the main thread, between samples): one
