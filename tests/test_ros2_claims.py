@@ -99,6 +99,13 @@ def test_claims_inside_this_robot_or_far_from_the_robots_recent_plans_are_refuse
     # branch from the plans before it
     turn = _plan(near.plans[2][-1].states[0], (0.6, 0.5), now + 0.05)
     assert near.add(turn, now) is not None and [len(c) for c in near.forks[2]] == [8]
+    # so does a move from 0.4 m off its last two arcs, within its older arcs' reach (a
+    # robot whose base did not do as its plans said, in a machine stall, goes on from
+    # where it truly is); standing there, it is refused (placed again by the reach later)
+    assert near.add(_plan(np.array([-0.6, 0.3, 0.0]), (0.0, 0.0), now + 0.3), now) is not None
+    assert len(near.forks[2]) == 1
+    jump = _plan(np.array([-0.6, 0.3, 0.0]), go, now + 0.3)
+    assert near.add(jump, now) is not None and len(near.forks[2]) == 2
 
 
 def test_a_forged_plan_stamped_at_the_robots_next_instant_does_not_hide_its_true_one():

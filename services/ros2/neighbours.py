@@ -29,13 +29,14 @@ the plan's stamp (two robots cannot stand in one place, and the true plans of a
 pair keep the distance at every instant, :meth:`path_is_safe`). A plan that
 contradicts the newest plans of a chain but follows the same chain without its
 plans of the last samples (its newest plan at most :data:`FORK_BASE` samples
-before) is kept as a fork: of two claims that cannot both be true, the neighbour
-may be on either, and the check keeps out of both. A neighbour whose plan breaks
+before; any plan within its reach for a moving plan) is kept as a fork: of two
+claims that cannot both be true, the neighbour may be on either, and the check
+keeps out of both. A neighbour whose plan breaks
 one of these is *untrusted* and named in the log; its refused plans are never
 kept nor used, and nothing is added for them: where it may be is what its kept
 claims and physics say (exact arcs, then its reach since). So a process holding
-a robot's key can place it only within :data:`FORK_BASE` samples' reach of where
-its plans put it (so a sample's reach beyond its last sample, ``v_max Ts`` plus
+a robot's key can make it stand only within :data:`FORK_BASE` samples' reach of
+where its plans put it (a sample's reach beyond its last sample, ``v_max Ts`` plus
 the tolerance), and in the attacks measured (``docs/ros2.md``) could not put it
 where it is not nor hide where it is. Its true plans are all kept: each follows
 the one before it, on the chain that holds that one (with the reach of any gap
@@ -86,10 +87,14 @@ the check's margin): odometry and command latency."""
 BOUND_SLACK = 0.01
 """An input may exceed its bounds by this fraction of their range (the QP's tolerance)."""
 FORK_BASE = 2.0
-"""A fork branches from a chain without its plans of the last samples only: the newest plan
-it keeps is stamped at most this many samples (plus the guard) before the fork's first plan
-(one lost plan between them; from an older one, a forged claim could stand anywhere within
-the reach of all that time, metres from the robot, and was kept: the freeze runs)."""
+"""A standing plan forks from a chain without its plans of the last samples only: the
+newest plan it keeps is stamped at most this many samples (plus the guard) before it (one
+lost plan between them; from an older one, a forged claim could stand anywhere within the
+reach of all that time, metres from the robot, and was kept: the freeze and herd runs). A
+moving plan may fork from any plan kept, within its reach since: a robot whose plans did
+not hold (its base drove on while its odometry was stale, a machine stall) moves on from
+where it truly is, and a standing one is placed again by its chain's reach within a
+sample."""
 OWN_PLANS = 8
 """This robot's own plans kept (the newest), to refute claims that put a neighbour inside
 it."""
@@ -247,8 +252,10 @@ class Neighbours:
               ) -> tuple[list[TimedPlan] | None, list[TimedPlan]]:
         """The longest chain ``msg`` follows that is one of ``chains`` without its newest
         plans, keeping one stamped at most :data:`FORK_BASE` samples (plus the guard)
-        before ``msg``; and the chain it is part of."""
-        oldest = msg.stamp - FORK_BASE * self.Ts - self.guard
+        before ``msg`` if ``msg`` stands (any, within its reach, if it moves); and the chain
+        it is part of."""
+        moving = bool(np.asarray(msg.inputs, dtype=float)[0].any())
+        oldest = -math.inf if moving else msg.stamp - FORK_BASE * self.Ts - self.guard
         for chain in chains:
             for i in range(len(chain) - 1, 0, -1):
                 if chain[i - 1].stamp < oldest:
