@@ -22,27 +22,28 @@ of this robot's clock, if it is the only moving plan of its sample, if every
 stage is reachable under the velocity bounds (inputs within them, no stage
 further than ``v_max Ts`` from the one before) and if it starts where the
 neighbour's own past plans put it: within the tolerance of its committed motion
-at some moment of the sample before its stamp (a robot may stop at any
-moment), and if it does not put the neighbour inside this robot: within its
-required distance less the tolerance of where this robot's own plans had it at
-the plan's stamp (two robots cannot stand in one place, and the true plans of a
-pair keep the distance at every instant, :meth:`path_is_safe`). A plan that
-contradicts the newest plans of a chain but follows the same chain without its
-plans of the last samples (its newest plan at most :data:`FORK_BASE` samples
-before; any plan within its reach for a moving plan) is kept as a fork: of two
-claims that cannot both be true, the neighbour may be on either, and the check
-keeps out of both. A neighbour whose plan breaks
-one of these is *untrusted* and named in the log; its refused plans are never
-kept nor used, and nothing is added for them: where it may be is what its kept
-claims and physics say (exact arcs, then its reach since). So a process holding
-a robot's key can make it stand only within :data:`FORK_BASE` samples' reach of
-where its plans put it (a sample's reach beyond its last sample, ``v_max Ts`` plus
-the tolerance), and in the attacks measured (``docs/ros2.md``) could not put it
-where it is not nor hide where it is. Its true plans are all kept: each follows
-the one before it, on the chain that holds that one (with the reach of any gap
-between them), or, when plans forged since were appended to that chain, that
-chain without them; a true plan is refused only if the two before it were both
-lost and a forged plan that follows the chain came in between, or if
+at some moment of the sample before its stamp (a robot may stop at any moment),
+and if it does not put the neighbour inside this robot: within its required
+distance less the tolerance of where this robot's own plans had it at the plan's
+stamp (two robots cannot stand in one place, and the true plans of a pair keep
+the distance at every instant, :meth:`path_is_safe`). A plan that contradicts
+the newest plans of a chain but follows the same chain without its plans of the
+last samples (its newest plan at most :data:`FORK_BASE` samples before; any plan
+within its reach for a moving plan) is kept as a fork: of two claims that cannot
+both be true, the neighbour may be on either, and the check keeps out of both. A
+neighbour whose plan breaks one of these is *untrusted* and named in the log;
+its refused plans are never kept nor used, and nothing is added for them: where
+it may be is what its kept claims and physics say (exact arcs, then its reach
+since). So a process holding a robot's key can make it stand only within
+:data:`FORK_BASE` samples' reach of where its plans put it (a sample's reach
+beyond its last sample, ``v_max Ts`` plus the tolerance), and in the attacks
+measured (``docs/ros2.md``) could not put it where it is not nor hide where it
+is. Its true plans are all kept: each follows the one before it, on the chain
+that holds that one (with the reach of any gap between them), or, when plans
+forged since were appended to that chain, that chain without them; a true plan
+is refused only if it stands and the two before it were both lost and a forged
+plan that follows the chain came in between, or its robot did not do as its
+plans said (the chain's reach places it again within a sample), or if
 :data:`MAX_FORKS` forks newer than its own crowd it out (not proved safe).
 
 A neighbour that left (its token disappeared) stands within a sample's reach of
