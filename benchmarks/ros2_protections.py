@@ -35,7 +35,7 @@ from tempfile import TemporaryDirectory
 from benchmarks.ros2 import log_counts
 from services.ros2 import demo
 
-__all__ = ["CASES", "SECTION", "main", "render"]
+__all__ = ["ATTACKED", "CASES", "SECTION", "main", "misses", "render"]
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "ros2.md"
@@ -49,6 +49,8 @@ CASES = {
     "kill": [*BASE, "--kill", "5:12:3"],
 }
 """Row name -> demo arguments."""
+ATTACKED = ("freeze", "herd", "flood")
+"""Rows whose forger holds robot 2's key (robot 2 left out of *honest*)."""
 
 
 SECTION = """<!-- protections -->
@@ -69,26 +71,64 @@ source timestamp within the timeout of the one before) is taken back and counted
 plan is kept only if its stamp is at least 0.2 Ts after the neighbour's previous plan and at
 most a sample (plus `--ros2-guard`) ahead of this robot's clock, if it is the only moving
 plan of its sample, if its inputs lie within the velocity bounds (1 % of the range for the
-QP's tolerance) and no stage is further than `v_max Ts` from the one before, and if it
-starts within `--plan-tolerance` (0.05 m) plus the check's margin of where the neighbour's
-kept plans put it at some moment of the sample before its stamp (a robot may stop at any
-moment). A plan that contradicts the newest plans but follows older ones is kept as a
-*fork*: of two claims that cannot both be true the neighbour may be on either, and the check
-keeps out of every claim (without forks, a key holder's claim that robot 2 had stopped at
-its start, consistent with its first plan, made every later plan of robot 2 look false:
-robot 2 was believed standing while it drove on, and a flood run (below, before forks) ended
-in a collision of robots 1 and 2, -0.069 m; forks and the 0.2 Ts spacing came after it). A
-robot whose plan fails or contradicts another is named in the log (`robot 2 is untrusted
-from now on: its plan ...`; at the end `untrusted robot 2: N false plans refused`) and, for
-ten samples after its last false plan, kept at a sample's reach `v_max Ts` more everywhere
-it may be; its refused plans are never used, its consistent ones still place it. A process
-holding a robot's key can therefore make its neighbours keep more room from it; in the
-attacks measured it could not put the robot where it is not nor hide where it is. Not
-proved: a key holder forging many physically consistent paths branching from the robot's
-true one could crowd the true one out (4 forks are kept per robot, the newest). Plant mode
-does the same with the plant's states (`services.plans.PlanStore`): a neighbour's plan must
-start at the plant's state of its sample, else it is refused, the controller predicts that
-neighbour from its states for that sample (the paper's fallback) and the robot is named.
+QP's tolerance) and no stage is further than `v_max Ts` from the one before, if it starts
+within `--plan-tolerance` (0.05 m) plus the check's margin of where the neighbour's kept
+plans put it at some moment of the sample before its stamp (a robot may stop at any moment),
+and if it does not put the neighbour inside this robot: a stage 0 nearer than the required
+distance less the tolerance to where this robot's own plans had it at that stamp is refused
+(two robots cannot stand in one place). A plan that contradicts the newest plans of a chain
+but follows the same chain without its newest plans is kept as a *fork* (a standing plan
+only if that keeps a plan stamped at most 2 Ts, plus the guard, before it: one lost plan
+between them; a moving one from any plan kept, within its reach): of two claims that cannot
+both be true the neighbour may be on either, and the check keeps out of every claim (without
+forks, a key holder's claim that robot 2 had stopped at its start, consistent with its first
+plan, made every later plan of robot 2 look false: robot 2 was believed standing while it
+drove on, and a flood run (below, before forks) ended in a collision of robots 1 and 2,
+-0.069 m; forks and the 0.2 Ts spacing came after it). A plan with the stamp of a kept one
+is a repeat only if it is the same plan or a stop where that one starts; any other is a
+second claim of that instant (a fork): a key holder knows a robot's next instant, and a
+forged plan stamped there that came first used to hide the robot's own. Every other plan is
+refused and never kept, and nothing is added for it: where a robot may be is what its kept
+claims say (exact arcs within each plan's first sample, its reach `v_max` times the time
+since after them), untrusted or not. A robot whose plan is refused or forks is named in the
+log (`robot 2 is untrusted from now on: its plan ...`; at the end `untrusted robot 2: N
+false plans refused`).
+
+*Why it is safe.* The check keeps out of every kept claim, so it needs only that the robot's
+true plans are kept. A true plan follows the true plan before it (it starts on that one's
+arc, or within the reach of a gap when plans were lost): if nothing was appended after that
+one, it continues its chain; if forged plans were appended since, it follows that chain
+without them, whose newest plan is the true one before (1 Ts back, 2 Ts with one plan lost
+between), and is kept as a fork (the chains searched are the kept one and every fork: a
+forged plan appended to the fork that holds the true path no longer makes the next true plan
+unplaceable). A moving plan may fork from any plan kept within its reach: a robot whose base
+did not do as its plans said (it drove on while its odometry was stale, in a machine stall:
+the `kill` row below, 0.3 m off its last arc) goes on from where it truly is; standing, it
+is placed again by its chain's reach within a sample. A true plan never puts its robot
+inside this one: whichever of the two decided last checked its whole arc against all the
+other may be doing at each instant (a stop anywhere on its arc included), so at the stamp
+the two are at least the required distance plus the margin apart, within the odometry's
+error (the tolerance). What is refused is therefore never a true plan, except a standing one
+when the two true plans before it were both lost and a forged plan that follows the chain
+came in between, or after its base did not do as its plans said (placed again within a
+sample, as above), or when four forks newer than the true one crowd it out (4 kept per
+robot, the newest; not proved safe, as before). The sample's reach `v_max Ts` that used to
+be added for ten samples after each false plan covered neither case (a robot moves that far
+in one sample) and nothing else (the kept claims place the robot); it is gone. *Before* (the
+`freeze`/`herd` rows of the first table), a fork could branch from any of the 16 plans kept
+(8 s), whose reach since is metres (up to 4.5 m): a forged plan standing where a neighbour
+would be, anywhere within it, was kept as a fork, the neighbour stood still (it kept out of
+its own next position) and the forger restated the claim at the same place every sample; and
+the 0.3 m more held for good, as the forger sent a false plan every sample. *Still open:* a
+key holder can still make a robot stand within a sample's reach of its plans of the last two
+samples, and, with moving plans, place it anywhere within the reach of its plans kept (as
+before), then keep such a fork alive by continuing it at up to `v_max` (a ghost of the robot
+walking where it likes): keeping out of it is safe, but a ghost standing on a corridor or a
+goal stops who needs it, as a robot standing there would; that the fleet is never stopped by
+such an adaptive attacker is not shown (not measured). Plant mode does the same with the
+plant's states (`services.plans.PlanStore`): a neighbour's plan must start at the plant's
+state of its sample, else it is refused, the controller predicts that neighbour from its
+states for that sample (the paper's fallback) and the robot is named.
 
 **Same protections in every mode.** Every service now defaults to `--priority auto`, raised
 when a real-time sample loop starts (never in lockstep), hand-started ones and `sqpmpc robot
@@ -166,6 +206,12 @@ def run_case(name: str, folder: Path) -> dict:
         row.update(json.loads(check.read_text()))
     logs = folder / "logs"
     row["counts"] = log_counts(logs)
+    honest = Path(folder) / "honest-logs"  # the controllers but the attacked robot's
+    honest.mkdir(exist_ok=True)
+    for log in logs.glob("robot-*.log"):
+        if not (name in ATTACKED and log.name.startswith("robot-2.")):
+            (honest / log.name).write_bytes(log.read_bytes())
+    row["honest_counts"] = log_counts(honest)
     named: dict[str, int] = {}
     for log in logs.glob("robot-*.log"):
         for m in re.finditer(r"untrusted robot (\d+): (\d+) false plans",
@@ -180,21 +226,34 @@ def run_case(name: str, folder: Path) -> dict:
     return row
 
 
+def misses(row: dict) -> str:
+    """The honest controllers' missed deadlines: samples computed late (standing plan sent),
+    stopped late (no command by the instant) and skipped (overran), of all their instants;
+    ``-`` for a row measured before they were counted."""
+    c = row.get("honest_counts")
+    if c is None or "skipped_samples" not in c:
+        return "-"
+    missed = c.get("late_samples", 0) + c.get("stopped_late", 0) + c["skipped_samples"]
+    instants = c.get("samples", 0) + c["skipped_samples"]
+    return f"{missed}/{instants} ({100.0 * missed / max(instants, 1):.1f} %)"
+
+
 def render(rows: list[dict]) -> str:
     """The rows as a Markdown table."""
     head = ("| run | collisions | smallest clearance (certified), m | arrived | honest arrived "
             "| last arrival, s | command timeouts (robots stopped, s) | false plans refused "
             "| named untrusted (by controllers) | attacker sent | samples | stood still "
-            "| wall, s |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "| honest deadline misses | wall, s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     out = []
     for r in rows:
         if "robots" not in r:
-            out.append(f"| {r['name']} | failed (status {r['status']}) ||||||||||||")
+            out.append(f"| {r['name']} | failed (status {r['status']}) |||||||||||||")
             continue
         arrival = r.get("arrival_times", {})
         last = "-" if None in arrival.values() else f"{max(arrival.values()):.1f}"
         honest = {k: v for k, v in r["final_errors"].items()
-                  if not (r["name"].startswith(("freeze", "herd", "flood")) and k == "2")}
+                  if not (r["name"].startswith(ATTACKED) and k == "2")}
         ok = sum(e <= r["tolerance"] for e in honest.values())
         timeouts = sum(r.get("command_timeouts", {}).values())
         stood = sum(r.get("timed_out", {}).values())
@@ -208,7 +267,7 @@ def render(rows: list[dict]) -> str:
             f"({r['certified_clearance']:.3f}) | {r['arrived']}/{r['robots']} | "
             f"{ok}/{len(honest)} | {last} | {timeouts} ({stood:.1f}{lag}) | "
             f"{c.get('false_plans', 0)} | {named} | {sent} | {c.get('samples', 0)} | "
-            f"{c.get('brakes', 0)} | {r['wall']:.0f} |")
+            f"{c.get('brakes', 0)} | {misses(r)} | {r['wall']:.0f} |")
     return head + "\n".join(out) + "\n"
 
 
@@ -223,6 +282,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--from-json", type=Path, default=None, metavar="FILE",
                    help="render the rows a --json run wrote instead of running")
     p.add_argument("--date", default=None, help="with --from-json: when they ran")
+    p.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                   help="keep each run's folder (logs, check.json) under DIR")
     p.add_argument("--notes", type=Path, default=None, metavar="FILE",
                    help="Markdown to put after the table (what the rows showed)")
     args = p.parse_args(argv)
@@ -230,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     began = args.date or time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     if args.from_json is not None:
         rows = json.loads(args.from_json.read_text())
-    with TemporaryDirectory(prefix="sqpmpc-ros2p-") as tmp:
+    with TemporaryDirectory(prefix="sqpmpc-ros2p-") as scratch:
+        tmp = scratch if args.keep is None else str(args.keep)
         for name in [] if args.from_json is not None else args.only or CASES:
             runs = args.repeat if name == "nominal" else 1
             for i in range(runs):

@@ -82,11 +82,15 @@ def test_the_check_keeps_out_of_all_a_neighbour_may_stop_on():
     # 0.35 m behind it: it may stop where it was 0.2 s ago, so following is refused
     assert not near.path_is_safe(np.array([-0.35, 0.0, 0.0]), go, now)
     assert near.path_is_safe(np.array([-0.35, 0.0, 0.0]), np.zeros(2), now)
-    # a plan from the future is refused (its robot untrusted), a copy ignored
+    # a plan from the future is refused (its robot untrusted), a copy ignored; another plan
+    # of the same instant is a second claim
     assert "ahead of this robot's clock" in near.add(
         PlanMsg(2, 5, 0.0, now + 10.0, states, np.zeros((8, 2))), now)
-    assert near.add(PlanMsg(2, 0, 0.0, now - 0.2, states, np.zeros((8, 2))), now) is None
+    assert near.add(PlanMsg(2, 0, 0.0, now - 0.2, states, np.tile([0.6, 0.0], (8, 1))),
+                    now) is None
     assert (near.received, near.untrusted) == (1, {2: 1})
+    assert near.add(PlanMsg(2, 0, 0.0, now - 0.2, states, np.zeros((8, 2))), now) is not None
+    assert near.untrusted == {2: 2}
 
 
 def test_the_controller_checks_as_the_robot_and_waits_for_plans_in_flight():

@@ -22,17 +22,29 @@ of this robot's clock, if it is the only moving plan of its sample, if every
 stage is reachable under the velocity bounds (inputs within them, no stage
 further than ``v_max Ts`` from the one before) and if it starts where the
 neighbour's own past plans put it: within the tolerance of its committed motion
-at some moment of the sample before its stamp (a robot may stop at any
-moment). A plan that contradicts the newest plans but follows older ones is
-kept as a fork: of two claims that cannot both be true, the neighbour may be on
-either, and the check keeps out of both. A neighbour whose plan breaks one of
-these is *untrusted*, named in the log, and held at a sample's reach
-``v_max Ts`` more everywhere it may be (for :data:`UNTRUSTED_SAMPLES` samples
-after its last false plan); its refused plans are never used. So a process
-holding a robot's key can make its neighbours keep more room from it, and in
-the attacks measured (``docs/ros2.md``) could not put it where it is not nor
-hide where it is; :data:`MAX_FORKS` bounds what is kept of many consistent
-forged paths, so their number could crowd out the true one (not proved safe).
+at some moment of the sample before its stamp (a robot may stop at any moment),
+and if it does not put the neighbour inside this robot: within its required
+distance less the tolerance of where this robot's own plans had it at the plan's
+stamp (two robots cannot stand in one place, and the true plans of a pair keep
+the distance at every instant, :meth:`path_is_safe`). A plan that contradicts
+the newest plans of a chain but follows the same chain without its plans of the
+last samples (its newest plan at most :data:`FORK_BASE` samples before; any plan
+within its reach for a moving plan) is kept as a fork: of two claims that cannot
+both be true, the neighbour may be on either, and the check keeps out of both. A
+neighbour whose plan breaks one of these is *untrusted* and named in the log;
+its refused plans are never kept nor used, and nothing is added for them: where
+it may be is what its kept claims and physics say (exact arcs, then its reach
+since). So a process holding a robot's key can make it stand only within
+:data:`FORK_BASE` samples' reach of where its plans put it (a sample's reach
+beyond its last sample, ``v_max Ts`` plus the tolerance), and in the attacks
+measured (``docs/ros2.md``) could not put it where it is not nor hide where it
+is. Its true plans are all kept: each follows the one before it, on the chain
+that holds that one (with the reach of any gap between them), or, when plans
+forged since were appended to that chain, that chain without them; a true plan
+is refused only if it stands and the two before it were both lost and a forged
+plan that follows the chain came in between, or its robot did not do as its
+plans said (the chain's reach places it again within a sample), or if
+:data:`MAX_FORKS` forks newer than its own crowd it out (not proved safe).
 
 A neighbour that left (its token disappeared) stands within a sample's reach of
 where its last plan put it (a base stops on its command timeout, 0.5 s at most
@@ -57,8 +69,8 @@ from sqpmpc.control.plans import PlanMessage
 from ..messages import PlanMsg
 from .timing import Estimate, TimedPlan, arcs, committed, neighbour_estimate
 
-__all__ = ["BOUND_SLACK", "CHECK_STEPS", "FAR", "FORK_SAMPLES", "KEPT_PLANS", "MAX_FORKS",
-           "MIN_SPACING", "PLAN_TOLERANCE", "UNTRUSTED_SAMPLES", "Neighbours"]
+__all__ = ["BOUND_SLACK", "CHECK_STEPS", "FAR", "FORK_BASE", "FORK_SAMPLES", "KEPT_PLANS",
+           "MAX_FORKS", "MIN_SPACING", "OWN_PLANS", "PLAN_TOLERANCE", "Neighbours"]
 
 FAR = 1.0e4
 """Where a neighbour never heard from is put (m): beyond every interaction radius."""
@@ -75,9 +87,18 @@ PLAN_TOLERANCE = 0.05
 the check's margin): odometry and command latency."""
 BOUND_SLACK = 0.01
 """An input may exceed its bounds by this fraction of their range (the QP's tolerance)."""
-UNTRUSTED_SAMPLES = 10
-"""An untrusted neighbour is kept at a sample's reach more for this many samples after its
-last false plan (named in the log for good)."""
+FORK_BASE = 2.0
+"""A standing plan forks from a chain without its plans of the last samples only: the
+newest plan it keeps is stamped at most this many samples (plus the guard) before it (one
+lost plan between them; from an older one, a forged claim could stand anywhere within the
+reach of all that time, metres from the robot, and was kept: the freeze and herd runs). A
+moving plan may fork from any plan kept, within its reach since: a robot whose plans did
+not hold (its base drove on while its odometry was stale, a machine stall) moves on from
+where it truly is, and a standing one is placed again by its chain's reach within a
+sample."""
+OWN_PLANS = 8
+"""This robot's own plans kept (the newest), to refute claims that put a neighbour inside
+it."""
 FORK_SAMPLES = 3
 """A fork (a chain of plans contradicting another) without a plan for this many samples
 is forgotten."""
@@ -146,7 +167,7 @@ class Neighbours:
         self.received = self.refused = 0
         self.untrusted: dict[int, int] = {}
         self.reasons: dict[int, str] = {}
-        self.last_false: dict[int, float] = {}
+        self.own: list[TimedPlan] = []
         self.forks: dict[int, list[list[TimedPlan]]] = {}
         self.tolerance = float(tolerance)
         if input_bounds is None:
@@ -159,6 +180,13 @@ class Neighbours:
         no closer than the robot is now (under acceleration limits the margin holds the
         braking distance, which a robot told to stop uses up)."""
 
+    def sent(self, stamp: float, states: np.ndarray, inputs: np.ndarray) -> None:
+        """This robot's own plan, as sent (stamp ``stamp``): where it is then, to refute a
+        neighbour's claim to stand inside it (:meth:`add`)."""
+        self.own = [*self.own[-(OWN_PLANS - 1):],
+                    TimedPlan(float(stamp), np.asarray(states, dtype=float),
+                              np.asarray(inputs, dtype=float))]
+
     def add(self, msg: PlanMsg, now: float) -> str | None:
         """Keep a neighbour's plan (validated by the node) if it passes the checks of the
         module notes; returns why it is a false claim or contradicts another (its robot
@@ -166,9 +194,13 @@ class Neighbours:
 
         A plan that continues the neighbour's kept plans (its chain) is appended to it.
         One that does not, but continues a fork (a chain that branched off, below) or
-        the chain without its newest plans, is kept as a fork: two claims that cannot
-        both be true, so the neighbour may be on either, and the check keeps out of both
-        (:meth:`path_is_safe`). One that continues nothing is refused.
+        a chain (the kept one or a fork) without its newest plans, those of the last
+        :data:`FORK_BASE` samples, is kept as a fork: two claims that cannot both be
+        true, so the neighbour may be on either, and the check keeps out of both
+        (:meth:`path_is_safe`). One that continues nothing is refused, not kept.
+        A plan with the stamp of a kept one is a repeat when it is the same plan or a
+        stop where that one starts (the check keeps out of all of that one's arc, a stop
+        anywhere on it included); any other is a second claim of that instant.
         """
         kept = self.plans.get(msg.id)
         if kept is None:
@@ -177,8 +209,9 @@ class Neighbours:
             self.refused += 1  # late, not false
             return None
         forks = self.forks.setdefault(msg.id, [])
-        if any(p.stamp == msg.stamp for c in (kept, *forks) for p in c):
-            return None  # a repeat, or a stop announced at the same instant (ignored)
+        if any(p.stamp == msg.stamp and self._covers(p, msg)
+               for c in (kept, *forks) for p in c):
+            return None  # a repeat, or a stop announced at the same instant where it was
         plan = TimedPlan(msg.stamp, msg.states, msg.inputs)
         why = self._implausible(msg, now)
         if why is None:
@@ -192,12 +225,11 @@ class Neighbours:
                 return None
             fork = next((c for c in forks if self._discontinuous(c, msg) is None), None)
             if fork is None:
-                base = next((kept[:i] for i in range(len(kept) - 1, 0, -1)
-                             if self._discontinuous(kept[:i], msg) is None), None)
+                base, chain = self._base(msg, [kept, *forks])
                 if base is not None:
                     fork = list(base)
                     forks.append(fork)
-                    why = f"contradicting its plan stamped {kept[len(base)].stamp:.3f} ({why})"
+                    why = f"contradicting its plan stamped {chain[len(base)].stamp:.3f} ({why})"
             if fork is not None:
                 fork.append(plan)
                 del fork[:-KEPT_PLANS]
@@ -205,8 +237,33 @@ class Neighbours:
                 self._prune(msg.id, now)
         self.untrusted[msg.id] = self.untrusted.get(msg.id, 0) + 1
         self.reasons.setdefault(msg.id, why)
-        self.last_false[msg.id] = now
         return why
+
+    def _covers(self, kept: TimedPlan, msg: PlanMsg) -> bool:
+        """Whether ``msg``, stamped as ``kept``, adds nothing to it: the same plan, or a stop
+        where ``kept`` starts."""
+        x, u = np.asarray(msg.states, dtype=float), np.asarray(msg.inputs, dtype=float)
+        if x.shape == kept.states.shape and u.shape == kept.inputs.shape \
+                and np.array_equal(x, kept.states) and np.array_equal(u, kept.inputs):
+            return True
+        return not u.any() and float(np.hypot(*(x[:, :2] - kept.states[0, :2]).T).max()) \
+            <= self.tolerance
+
+    def _base(self, msg: PlanMsg, chains: list[list[TimedPlan]]
+              ) -> tuple[list[TimedPlan] | None, list[TimedPlan]]:
+        """The longest chain ``msg`` follows that is one of ``chains`` without its newest
+        plans, keeping one stamped at most :data:`FORK_BASE` samples (plus the guard)
+        before ``msg`` if ``msg`` stands (any, within its reach, if it moves); and the chain
+        it is part of."""
+        moving = bool(np.asarray(msg.inputs, dtype=float)[0].any())
+        oldest = -math.inf if moving else msg.stamp - FORK_BASE * self.Ts - self.guard
+        for chain in chains:
+            for i in range(len(chain) - 1, 0, -1):
+                if chain[i - 1].stamp < oldest:
+                    break
+                if self._discontinuous(chain[:i], msg) is None:
+                    return chain[:i], chain
+        return None, chains[0]
 
     def _prune(self, robot_id: int, now: float) -> None:
         """Forget forks without a plan for :data:`FORK_SAMPLES` samples (at most
@@ -234,6 +291,13 @@ class Neighbours:
         step = float(np.hypot(*np.diff(x[:, :2], axis=0).T).max(initial=0.0))
         if step > self.v_max * self.Ts + self.tolerance:
             return f"a stage {step:.3f} m from the one before (beyond v_max Ts)"
+        own = self.own
+        if own and msg.stamp >= own[0].stamp:
+            at, r = committed(own, np.array([msg.stamp]), self.Ts, self.v_max, False)
+            gap = float(np.hypot(x[0, 0] - at[0, 0], x[0, 1] - at[0, 1]))
+            need = float(self.required[self.ids.index(msg.id)]) - self.tolerance
+            if r[0] == 0.0 and gap < need:  # where this robot is exactly, at that instant
+                return f"standing {gap:.3f} m from this robot (inside it)"
         return None
 
     def _discontinuous(self, kept: list[TimedPlan], msg: PlanMsg) -> str | None:
@@ -258,14 +322,6 @@ class Neighbours:
         if off > self.margin + self.tolerance:
             return f"starts {off:.3f} m from where its past plans put it"
         return None
-
-    def reach(self, robot_id: int, now: float) -> float:
-        """Added to everywhere neighbour ``robot_id`` may be at wall time ``now``, m: a
-        sample's reach while it is untrusted (a false plan within the last
-        :data:`UNTRUSTED_SAMPLES` samples), else 0."""
-        last = self.last_false.get(robot_id)
-        held = last is not None and now - last < UNTRUSTED_SAMPLES * self.Ts
-        return self.v_max * self.Ts if held else 0.0
 
     def left(self, robot_id: int, now: float) -> None:
         """Neighbour ``robot_id`` stopped (zero on shutdown): it stands where its plan had
@@ -324,7 +380,7 @@ class Neighbours:
             if not (t - self.Ts <= nxt < t and nxt - self.lead <= now + self.guard):
                 continue
             at, r = committed(kept, np.array([t]), self.Ts, self.v_max, False)
-            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - self.reach(rid, now) \
+            if math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] \
                     <= self.required[j] + reach:
                 return True
         return False
@@ -370,18 +426,17 @@ class Neighbours:
                 kept = self.plans[rid]
                 later = kept[-1].stamp + self.Ts - self.lead > now + self.guard
                 concurrent = not later
-                extra = self.reach(rid, now)
                 chains = [(kept, later), *((f, False) for f in self.forks.get(rid, ()))]
                 near = []  # the claims within reach of this sample (it may be on any)
                 for chain, hold in chains:
                     at, r = committed(chain, times[:1], self.Ts, self.v_max, hold)
-                    if (math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0] - extra
+                    if (math.hypot(own[0] - at[0, 0], own[1] - at[0, 1]) - r[0]
                             <= self.required[j] + slack + 4.0 * self.v_max * self.Ts):
                         near.append((chain, hold))  # (both stretches are shorter)
                 if not near:
                     continue
                 gap = np.min([self._stretch_gaps(c, path, times, h) for c, h in near],
-                             axis=0) - extra
+                             axis=0)
             else:
                 continue
             if self.keep_current:

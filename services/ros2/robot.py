@@ -178,7 +178,7 @@ class Ros2Robot(StartUp, Node):
         self.counts = {"samples": 0, "brakes": 0, "shifted_plans": 0, "phase_shifts": 0,
                        "late_samples": 0, "plan_waits": 0, "stopped_late": 0,
                        "stale_odometry": 0, "odometry_future": 0,
-                       "plan_network_lost": 0, "republished": 0}
+                       "plan_network_lost": 0, "republished": 0, "skipped_samples": 0}
         self.cmd_period = 1.0 / args.cmd_rate if args.cmd_rate > 0.0 else None
         """Period of the command stream (``--cmd-rate``), s; ``None``: once per sample."""
         self.odom_future = float(args.odom_future)
@@ -247,9 +247,9 @@ class Ros2Robot(StartUp, Node):
             first = msg.id not in self.neighbours.untrusted
             why = self.neighbours.add(msg, time.time())
             if why is not None and first:
-                log.warning("%s: robot %d is untrusted from now on: its plan is %s (kept "
-                            "at a sample's reach more, its false plans refused)", self.name,
-                            msg.id, why)
+                log.warning("%s: robot %d is untrusted from now on: its plan is %s (its "
+                            "refused plans never kept, a second claim kept out of too)",
+                            self.name, msg.id, why)
 
     def on_liveliness(self, name: str, alive: bool) -> None:
         """A neighbour's controller came or went (the main thread, between samples): one
@@ -345,6 +345,7 @@ class Ros2Robot(StartUp, Node):
         # a standing plan at most every MIN_SPACING Ts (true: it stands from then on too)
         stamp = max(stamp, self._last_stamp + (MIN_SPACING * self.Ts if standing else 0.0))
         self._last_stamp = stamp
+        self.neighbours.sent(stamp, states, inputs)  # where it is: no neighbour stands there
         t = stamp - (self.epoch or 0.0)
         self.bus.put(encode(PlanMsg(self.robot_id, sample, t, stamp, states, inputs)),
                      "robot", self.robot_id, "plan")
@@ -452,7 +453,9 @@ class Ros2Robot(StartUp, Node):
                         self._announce_shift(k - 1, T0 + (k - 1) * self.Ts)
                 behind = time.time() + self.lead - (T0 + k * self.Ts)
                 if behind > 0.0:  # overran: skip to the next instant still ahead
-                    k += math.ceil(behind / self.Ts)
+                    skipped = math.ceil(behind / self.Ts)
+                    self.counts["skipped_samples"] += skipped
+                    k += skipped
         finally:
             self._done = True
             self.stream.finish(time.time())  # zero, no repeat after it
