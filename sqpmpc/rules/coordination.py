@@ -262,10 +262,9 @@ class _Instance(RuleInstance):
                                  c.sample_time, c.horizon, self._back if reverse else self._speed,
                                  self._turn, self._accel,
                                  stop=halt, within=within, reverse=reverse,
-                                 turn_rate=None if rate is None else float(rate))
+                                 turn_rate=None if rate is None else float(rate),
+                                 out=(self._poses[m], self._velocities[m]))
             out[m] = motion.poses[1:, :2]
-            self._poses[m] = motion.poses
-            self._velocities[m] = motion.velocities
             self._tracked[m] = True
         if not self._tracked.any():
             return Contribution(references=out)
