@@ -112,6 +112,9 @@ class _Instance(RuleInstance):
         self.execution = Execution(plan.schedule, plan.roadmap, plan.robots, window)
         where = {int(r): k for k, r in enumerate(plan.robots)}
         self.rows = np.array([where.get(int(i), -1) for i in c.own], dtype=np.int64)
+        # the scheduled ones among them, and each one's place there (clear: its decision only)
+        self._scheduled = self.rows[self.rows >= 0]
+        self._slot = np.cumsum(self.rows >= 0) - 1
         bounds = c.scenario.bounds
         self._speed = float(bounds.v[1])
         self._reverse = float(bounds.v[0]) < 0.0
@@ -203,7 +206,7 @@ class _Instance(RuleInstance):
             self.counts["coordination_stalls"] += 1
             execution, plan = self._replan_from(plan, execution, view, "progress stopped")
             progress = execution.advance(view.positions)
-        permitted = execution.clear_all(view.positions)
+        permitted = execution.clear(view.positions, self._scheduled)
         out = np.array(view.references)
         self._tracked[:] = False
         reach = plan.roadmap.reach
@@ -213,7 +216,7 @@ class _Instance(RuleInstance):
                 continue
             p = int(progress[row])
             last = int(plan.schedule.lengths[row]) - 1
-            k = min(int(permitted[row]), last)
+            k = min(int(permitted[self._slot[m]]), last)
             if k <= p and p < last:
                 self.counts["coordination_holds"] += 1
             here = view.own_states[m]
