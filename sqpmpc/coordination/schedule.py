@@ -294,12 +294,10 @@ class Execution:
 
     def permitted_all(self) -> np.ndarray:
         """``(n,)`` the last path index every robot may head for now."""
-        if np.any(self.progress < self._seen):  # a progress went down (resume): afresh
-            self._pointer[:] = self._starts
-        self._seen[:] = self.progress
         out = np.empty_like(self._last)
         permitted(self.progress, self._last, self._owners, self._ends, self._dep_index,
-                  self._dep_robot, self._dep_need, self._pointer, out)
+                  self._dep_robot, self._dep_need, self._pointer, self._starts, self._seen,
+                  out)
         return out
 
     def clear_all(self, positions: np.ndarray) -> np.ndarray:
@@ -357,6 +355,10 @@ class Execution:
     def finished(self, robot: int) -> bool:
         """Whether robot ``robot`` has reached the end of its path."""
         return bool(self.progress[robot] >= self._last[robot])
+
+    def all_finished(self) -> bool:
+        """Whether every robot has reached the end of its path."""
+        return bool(np.all(self.progress >= self._last))
 
     def configuration(self) -> np.ndarray:
         """``(n,)`` every robot's progress vertex (distinct: module docstring)."""

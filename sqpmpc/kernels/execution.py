@@ -1,4 +1,4 @@
-r"""Compiled kernel of a schedule's execution (:class:`sqpmpc.coordination.schedule.Execution`).
+r"""Compiled kernels of a schedule's execution (:class:`sqpmpc.coordination.schedule.Execution`).
 
 A robot may head for its path vertex :math:`k` only when every dependency on it is
 met: :math:`\text{permitted}_i = \min(L_i - 1, \min\{k_e - 1 : e \text{ unmet}\})`
@@ -9,6 +9,13 @@ dependency once passed (:math:`k_e \le p_i`) or met (:math:`p_{r_e} \ge m_e`) st
 so: sorted by owner and vertex, each owner's first unmet dependency gives its
 minimum, and a pointer per owner moves past the others once, not at every sample
 (a 256-robot swap's plan has tens of thousands of dependencies).
+
+Every controller counts every robot's progress (:func:`advance`: a window of vertices
+per robot), but decides the holds and waits (:func:`clear`) only for its own robots:
+a robot's hold depends on the robots near its next vertex, its wait on the robots
+pushed off their paths onto its way and, for a cycle of waiting, on those they wait
+for in turn; the numpy form looked at every robot's (a k-d tree of all, a strongly
+connected components pass over the free ones).
 """
 
 from __future__ import annotations
@@ -26,7 +33,7 @@ _jit = numba.njit(cache=True, nogil=True)
 @_jit
 def permitted(progress: np.ndarray, last: np.ndarray, owners: np.ndarray, ends: np.ndarray,
               index: np.ndarray, robot: np.ndarray, need: np.ndarray, pointer: np.ndarray,
-              out: np.ndarray) -> None:
+              starts: np.ndarray, seen: np.ndarray, out: np.ndarray) -> None:
     """The last path index each robot may head for, into ``out (n,)``.
 
     Parameters
@@ -40,12 +47,19 @@ def permitted(progress: np.ndarray, last: np.ndarray, owners: np.ndarray, ends: 
     index, robot, need
         ``(D,)`` the sorted dependencies: vertex, the robot waited for, its progress
         needed.
-    pointer
-        ``(g,)`` each group's first dependency not yet passed or met (updated here;
-        reset to the groups' starts when a progress went down).
+    pointer, starts
+        ``(g,)`` each group's first dependency not yet passed or met (updated here) and
+        the group's start (where the pointers go back to when a progress went down).
+    seen
+        ``(n,)`` the progress the pointers were moved for (updated here).
     out
         ``(n,)`` output.
     """
+    for i in range(progress.size):
+        if progress[i] < seen[i]:  # a progress went down (a resume): afresh
+            pointer[:] = starts
+            break
+    seen[:] = progress
     out[:] = last
     for g in range(owners.size):
         o = owners[g]
@@ -160,22 +174,17 @@ def _follows(r: int, j: int, progress: np.ndarray, dep_key: np.ndarray,
 
 @_jit
 def _waits_for(r: int, j: int, now: np.ndarray, robots: np.ndarray, points: np.ndarray,
-               progress: np.ndarray, permit: np.ndarray, reach: float, sep: float,
+               progress: np.ndarray, permit: np.ndarray, off: np.ndarray, sep: float,
                half: float, dep_key: np.ndarray, dep_robot: np.ndarray, key_base: int,
-               state: np.ndarray, off: np.ndarray) -> bool:
-    """Whether free robot ``r`` gives way to robot ``j``: ``j`` is free, pushed off its
-    path and on ``r``'s way, not one ``r`` follows, and ``r`` is not on ``j``'s way in the
-    same sense (the edge ``r -> j`` of the waiting graph)."""
-    if j == r or permit[j] <= progress[j]:
-        return False
-    if off[j] == 0:
-        off[j] = 1 if _off(j, now, robots, points, progress, reach) else 2
-    if off[j] != 1 or not _in_way(r, j, now, robots, points, progress, sep) or \
+               state: np.ndarray) -> bool:
+    """Whether free robot ``r`` gives way to robot ``j`` (heading for its next vertex and
+    pushed off its path: ``off[j]``): ``j`` is free and on ``r``'s way, not one ``r``
+    follows, and ``r`` is not on ``j``'s way in the same sense (the edge ``r -> j`` of the
+    graph of waiting)."""
+    if j == r or not _in_way(r, j, now, robots, points, progress, sep) or \
             _follows(r, j, progress, dep_key, dep_robot, key_base):
         return False
-    if off[r] == 0:
-        off[r] = 1 if _off(r, now, robots, points, progress, reach) else 2
-    if off[r] == 1 and _in_way(j, r, now, robots, points, progress, sep) and \
+    if off[r] and _in_way(j, r, now, robots, points, progress, sep) and \
             not _follows(j, r, progress, dep_key, dep_robot, key_base):
         return False  # each on the other's way: neither gives way
     return _free(j, now, robots, points, progress, permit, half, state)
@@ -221,7 +230,9 @@ ho`.
     half = 0.5 * spacing
     sep = spacing - 2.0 * reach
     state = np.zeros(n, dtype=np.int8)
-    off = np.zeros(n, dtype=np.int8)
+    off = np.zeros(n, dtype=np.bool_)  # heading for its next vertex, pushed off its path
+    pushed = np.empty(n, dtype=np.int64)  # those robots (the only ones waited for)
+    count = -1  # not yet found
     seen = np.zeros(n, dtype=np.int64)  # the search a robot was last reached by (+1)
     stack = np.empty(n, dtype=np.int64)
     for k in range(rows.size):
@@ -232,11 +243,19 @@ ho`.
         if not _free(r, now, robots, points, progress, permit, half, state):
             out[k] = progress[r]  # held: another robot on its next vertex
             continue
+        if count < 0:
+            count = 0
+            for j in range(n):
+                if permit[j] > progress[j] and _off(j, now, robots, points, progress, reach):
+                    off[j] = True
+                    pushed[count] = j
+                    count += 1
         # gives way when it waits for a robot and no chain of waiting leads back to it
         size = 0
-        for j in range(n):
-            if _waits_for(r, j, now, robots, points, progress, permit, reach, sep, half,
-                          dep_key, dep_robot, key_base, state, off):
+        for c in range(count):
+            j = pushed[c]
+            if _waits_for(r, j, now, robots, points, progress, permit, off, sep, half,
+                          dep_key, dep_robot, key_base, state):
                 stack[size] = j
                 size += 1
                 seen[j] = k + 1
@@ -246,10 +265,11 @@ ho`.
         while size > 0 and not cyclic:
             size -= 1
             u = stack[size]
-            for j in range(n):
+            for c in range(count):
+                j = pushed[c]
                 if (j == r or seen[j] != k + 1) and _waits_for(
-                        u, j, now, robots, points, progress, permit, reach, sep, half,
-                        dep_key, dep_robot, key_base, state, off):
+                        u, j, now, robots, points, progress, permit, off, sep, half,
+                        dep_key, dep_robot, key_base, state):
                     if j == r:
                         cyclic = True
                         break
@@ -264,7 +284,8 @@ def warm_up_execution() -> None:
     """Compile or load the kernels with the array layouts the execution passes."""
     one = np.ones(2, dtype=np.int64)
     permitted(np.zeros(2, dtype=np.int64), one, np.zeros(1, dtype=np.int64), one[:1],
-              one[:1], one[:1], one[:1], np.zeros(1, dtype=np.int64), np.empty(2, np.int64))
+              one[:1], one[:1], one[:1], np.zeros(1, dtype=np.int64),
+              np.zeros(1, dtype=np.int64), np.zeros(2, dtype=np.int64), np.empty(2, np.int64))
     progress, robots = np.zeros(2, dtype=np.int64), np.arange(2)
     points = np.zeros((2, 3, 2))
     points[:, :, 0] = np.arange(3)

@@ -163,7 +163,7 @@ class _Instance(RuleInstance):
         """Whether no robot's progress has grown for the patience, robots not at their
         paths' ends (in samples, so that controllers that skipped one agree)."""
         total = int(progress.sum())
-        if total > self._total or all(execution.finished(r) for r in range(progress.size)):
+        if total > self._total or execution.all_finished():
             self._total, self._grew = max(total, self._total), sample
             return False
         return sample - self._grew >= self.patience
