@@ -290,6 +290,9 @@ def warm_up_execution() -> None:
     points = np.zeros((2, 3, 2))
     points[:, :, 0] = np.arange(3)
     now = np.array([[0.1, 0.0], [0.0, 1.0]])
-    advance(progress, one * 2, one * 2, points, now, robots, 2)
-    clear(now, robots, points, progress, one * 2, 1.0, 0.1, np.array([1, 4]), robots, 3,
-          robots, np.empty(2, dtype=np.int64))
+    frozen = now.copy()
+    frozen.flags.writeable = False  # the rules' sample view's positions
+    for positions in (now, frozen):
+        advance(progress, one * 2, one * 2, points, positions, robots, 2)
+        clear(positions, robots, points, progress, one * 2, 1.0, 0.1, np.array([1, 4]),
+              robots, 3, robots, np.empty(2, dtype=np.int64))
