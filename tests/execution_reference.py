@@ -13,7 +13,22 @@ from scipy.spatial import cKDTree
 
 from sqpmpc.coordination.schedule import Execution
 
-__all__ = ["advance", "clear_all"]
+__all__ = ["advance", "clear_all", "yield_way"]
+
+
+def _paths(execution: Execution) -> np.ndarray:
+    """``(n, L, 2)`` the positions of every robot's path vertices."""
+    return execution.roadmap.positions[execution.schedule.paths]
+
+
+def _dependencies(execution: Execution) -> tuple[int, np.ndarray, np.ndarray]:
+    """The dependencies sorted by owner, then vertex: the key base, each one's key
+    ``owner * base + vertex`` and the robot it waits for (as the execution sorts them)."""
+    s = execution.schedule
+    order = np.lexsort((s.dep_index, s.dep_owner))
+    base = int(s.lengths.max(initial=0)) + 2
+    key = s.dep_owner[order].astype(np.int64) * base + s.dep_index[order]
+    return base, key, s.dep_robot[order]
 
 
 def advance(self: Execution, positions: np.ndarray) -> np.ndarray:
@@ -22,11 +37,11 @@ def advance(self: Execution, positions: np.ndarray) -> np.ndarray:
     and the next ``window`` ones (ties: the later one); progress never decreases.
     Returns the progress ``(n,)`` (read it, do not write it)."""
     now = np.asarray(positions, dtype=float)[self.robots]
-    n, width = self._points.shape[:2]
+    n, width = _paths(self).shape[:2]
     ahead = self.progress[:, None] + np.arange(0, self.window + 1)[None, :]
-    valid = ahead <= self._last[:, None]
+    valid = ahead <= (self.schedule.lengths - 1)[:, None]
     ahead = np.minimum(ahead, width - 1)
-    pts = self._points[np.arange(n)[:, None], ahead]  # (n, W + 1, 2)
+    pts = _paths(self)[np.arange(n)[:, None], ahead]  # (n, W + 1, 2)
     valid &= ahead <= self.permitted_all()[:, None]  # never past what it may enter
     gap = np.where(valid, np.hypot(*(pts - now[:, None, :]).transpose(2, 0, 1)), np.inf)
     # the later of equally near vertices: argmin over the reversed window
@@ -51,7 +66,7 @@ def clear_all(self: Execution, positions: np.ndarray) -> np.ndarray:
     one to do so, so no cycle of waiting is added.
 
     Of the robots still free, one whose way to its next vertex another free robot
-    stands on gives way to it (:meth:`_yield_way`): two robots pushed off their paths
+    stands on gives way to it (:meth:`yield_way`): two robots pushed off their paths
     and pressed together at the kept distance, both free, each heading where the
     other's way goes, stood so to the end of a run (a grid formation of 64 robots,
     seed 0, on the plan without the turns' steps; re-planning from where they stood
@@ -61,7 +76,7 @@ def clear_all(self: Execution, positions: np.ndarray) -> np.ndarray:
     rows = np.flatnonzero(out > self.progress)
     if rows.size == 0 or now.shape[0] < 2:
         return out
-    nxt = self._points[rows, self.progress[rows] + 1]  # (q, 2)
+    nxt = _paths(self)[rows, self.progress[rows] + 1]  # (q, 2)
     # the nearest robot to each next vertex, and the one after it (one is the robot
     # itself when it is the nearest): O(q log N), not all the pairs
     dist, who = cKDTree(now).query(nxt, k=2)
@@ -70,11 +85,11 @@ def clear_all(self: Execution, positions: np.ndarray) -> np.ndarray:
     out[held] = self.progress[held]
     free = np.setdiff1d(rows, held)
     if free.size >= 2:
-        wait = free[_yield_way(self, now, free)]
+        wait = free[yield_way(self, now, free)]
         out[wait] = self.progress[wait]
     return out
 
-def _yield_way(self: Execution, now: np.ndarray, free: np.ndarray) -> np.ndarray:
+def yield_way(self: Execution, now: np.ndarray, free: np.ndarray) -> np.ndarray:
     r"""Which of the robots ``free (q,)`` (schedule indices, free to head for their next
     vertex) give way: a robot whose straight way from where it is (``now (N, 2)``, all
     robots) to its next vertex passes within the kept distance :math:`s = h - 2\rho`
@@ -86,12 +101,12 @@ def _yield_way(self: Execution, now: np.ndarray, free: np.ndarray) -> np.ndarray
     sep = self.roadmap.spacing - 2.0 * self.roadmap.reach
     q = free.size
     a = now[self.robots[free]]  # (q, 2) where they are
-    nxt = self._points[free, self.progress[free] + 1]
+    nxt = _paths(self)[free, self.progress[free] + 1]
     d = nxt - a  # their ways
     # only a robot pushed off its path (farther than the reach from the edge it is on)
     # stands in a way the plan did not give it; one on its path is where the plan's
     # order has it
-    v0 = self._points[free, self.progress[free]]
+    v0 = _paths(self)[free, self.progress[free]]
     edge = nxt - v0
     length = np.maximum(np.einsum("ij,ij->i", edge, edge), 1e-12)
     g = np.clip(np.einsum("ij,ij->i", a - v0, edge) / length, 0.0, 1.0)
@@ -119,13 +134,14 @@ def _yield_way(self: Execution, now: np.ndarray, free: np.ndarray) -> np.ndarray
     index[free] = np.arange(q)
     # the robots each one follows onto its next vertex: its dependencies on that
     # vertex, one run of the dependencies sorted by (owner, vertex)
-    want = free * self._key_base + self.progress[free] + 1
-    lo = np.searchsorted(self._dep_key, want, "left")
-    count = np.searchsorted(self._dep_key, want, "right") - lo
+    key_base, dep_key, dep_robot = _dependencies(self)
+    want = free * key_base + self.progress[free] + 1
+    lo = np.searchsorted(dep_key, want, "left")
+    count = np.searchsorted(dep_key, want, "right") - lo
     rows = np.repeat(np.arange(q), count)
     deps = np.arange(rows.size) - np.repeat(np.cumsum(count) - count, count) \
         + np.repeat(lo, count)
-    followed = index[self._dep_robot[deps]]
+    followed = index[dep_robot[deps]]
     key = r * q + j
     follows = rows[followed >= 0] * q + followed[followed >= 0]
     stay = ~np.isin(key, follows)

@@ -16,11 +16,11 @@ from tests import execution_reference as reference
 
 
 class _Counting:
-    """The reference's waits (:func:`reference._yield_way`), counted."""
+    """The reference's waits (:func:`reference.yield_way`), counted."""
 
     def __init__(self) -> None:
         self.waits = 0
-        self.inner = reference._yield_way
+        self.inner = reference.yield_way
 
     def __call__(self, execution: Execution, now: np.ndarray, free: np.ndarray) -> np.ndarray:
         mask = self.inner(execution, now, free)
@@ -32,7 +32,7 @@ class _Counting:
 def test_the_compiled_execution_is_the_numpy_one(robots: int, seeds: range,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     counting = _Counting()
-    monkeypatch.setattr(reference, "_yield_way", counting)
+    monkeypatch.setattr(reference, "yield_way", counting)
     plan = fleet_plan(antipodal_swap(robots), 0.2, 0.321)
     n = plan.schedule.size
     top = plan.schedule.lengths - 1
