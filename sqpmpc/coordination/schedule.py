@@ -46,12 +46,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from sqpmpc.coordination.roadmap import Roadmap
-from sqpmpc.kernels.execution import permitted
+from sqpmpc.kernels.execution import advance, clear, permitted
 
 __all__ = ["Execution", "Schedule"]
 
@@ -250,19 +247,13 @@ class Execution:
     def advance(self, positions: np.ndarray) -> np.ndarray:
         """Count progress from the measured ``positions (N, 2)`` of all robots (scenario
         order): a robot is at the path vertex nearest to it among its progress vertex
-        and the next ``window`` ones (ties: the later one); progress never decreases.
+        and the next ``window`` ones (ties: the later one), never past the last it may
+        enter; progress never decreases. Compiled:
+        :func:`sqpmpc.kernels.execution.advance`.
         Returns the progress ``(n,)`` (read it, do not write it)."""
-        now = np.asarray(positions, dtype=float)[self.robots]
-        n, width = self._points.shape[:2]
-        ahead = self.progress[:, None] + np.arange(0, self.window + 1)[None, :]
-        valid = ahead <= self._last[:, None]
-        ahead = np.minimum(ahead, width - 1)
-        pts = self._points[np.arange(n)[:, None], ahead]  # (n, W + 1, 2)
-        valid &= ahead <= self.permitted_all()[:, None]  # never past what it may enter
-        gap = np.where(valid, np.hypot(*(pts - now[:, None, :]).transpose(2, 0, 1)), np.inf)
-        # the later of equally near vertices: argmin over the reversed window
-        best = gap.shape[1] - 1 - np.argmin(gap[:, ::-1], axis=1)
-        np.maximum(self.progress, ahead[np.arange(n), best], out=self.progress)
+        now = np.ascontiguousarray(positions, dtype=float)
+        advance(self.progress, self._last, self.permitted_all(), self._points, now,
+                self.robots, self.window)
         return self.progress
 
     def resume(self, positions: np.ndarray) -> np.ndarray:
@@ -303,16 +294,14 @@ class Execution:
 
     def permitted_all(self) -> np.ndarray:
         """``(n,)`` the last path index every robot may head for now."""
-        if np.any(self.progress < self._seen):  # a progress went down (resume): afresh
-            self._pointer[:] = self._starts
-        self._seen[:] = self.progress
         out = np.empty_like(self._last)
         permitted(self.progress, self._last, self._owners, self._ends, self._dep_index,
-                  self._dep_robot, self._dep_need, self._pointer, out)
+                  self._dep_robot, self._dep_need, self._pointer, self._starts, self._seen,
+                  out)
         return out
 
     def clear_all(self, positions: np.ndarray) -> np.ndarray:
-        """``(n,)`` :meth:`permitted_all`, where a robot's next path vertex is also clear:
+        r"""``(n,)`` :meth:`permitted_all`, where a robot's next path vertex is also clear:
         a robot whose next vertex has another robot within half the spacing (the
         ``positions (N, 2)`` of all robots, scenario order) holds at its progress vertex.
 
@@ -328,93 +317,35 @@ class Execution:
         one to do so, so no cycle of waiting is added.
 
         Of the robots still free, one whose way to its next vertex another free robot
-        stands on gives way to it (:meth:`_yield_way`): two robots pushed off their paths
+        stands on gives way to it: two robots pushed off their paths
         and pressed together at the kept distance, both free, each heading where the
         other's way goes, stood so to the end of a run (a grid formation of 64 robots,
         seed 0, on the plan without the turns' steps; re-planning from where they stood
-        gave them the same ways). The one on the other's way is left to go first."""
-        out = self.permitted_all()
-        now = np.asarray(positions, dtype=float)
-        rows = np.flatnonzero(out > self.progress)
-        if rows.size == 0 or now.shape[0] < 2:
-            return out
-        nxt = self._points[rows, self.progress[rows] + 1]  # (q, 2)
-        # the nearest robot to each next vertex, and the one after it (one is the robot
-        # itself when it is the nearest): O(q log N), not all the pairs
-        dist, who = cKDTree(now).query(nxt, k=2)
-        gap = np.where(who[:, 0] == self.robots[rows], dist[:, 1], dist[:, 0])
-        held = rows[gap < 0.5 * self.roadmap.spacing]
-        out[held] = self.progress[held]
-        free = np.setdiff1d(rows, held)
-        if free.size >= 2:
-            wait = free[self._yield_way(now, free)]
-            out[wait] = self.progress[wait]
-        return out
+        gave them the same ways). The one on the other's way is left to go first.
 
-    def _yield_way(self, now: np.ndarray, free: np.ndarray) -> np.ndarray:
-        r"""Which of the robots ``free (q,)`` (schedule indices, free to head for their next
-        vertex) give way: a robot whose straight way from where it is (``now (N, 2)``, all
-        robots) to its next vertex passes within the kept distance :math:`s = h - 2\rho`
-        of another free robot pushed off its path (farther than :math:`\rho` from the edge
-        it is on), whose own way is clear of it and which is not one the plan
-        has on that vertex before it (that one it follows), holds. Such a wait is taken
-        only where it closes no cycle of waiting (strongly connected components), so one
-        robot of every chain is free. Returns a boolean mask over ``free``."""
-        sep = self.roadmap.spacing - 2.0 * self.roadmap.reach
-        q = free.size
-        a = now[self.robots[free]]  # (q, 2) where they are
-        nxt = self._points[free, self.progress[free] + 1]
-        d = nxt - a  # their ways
-        # only a robot pushed off its path (farther than the reach from the edge it is on)
-        # stands in a way the plan did not give it; one on its path is where the plan's
-        # order has it
-        v0 = self._points[free, self.progress[free]]
-        edge = nxt - v0
-        length = np.maximum(np.einsum("ij,ij->i", edge, edge), 1e-12)
-        g = np.clip(np.einsum("ij,ij->i", a - v0, edge) / length, 0.0, 1.0)
-        off = np.hypot(*(a - v0 - g[:, None] * edge).T) > self.roadmap.reach
-        if not off.any():
-            return np.zeros(q, dtype=bool)
-        # a robot j on r's way is within |d_r| + sep of r: only such pairs are looked at
-        reach = float(np.sqrt(np.einsum("ij,ij->i", d, d).max())) + sep
-        pairs = cKDTree(a).query_pairs(reach, output_type="ndarray")
-        if pairs.size == 0:
-            return np.zeros(q, dtype=bool)
-        r, j = np.concatenate((pairs, pairs[:, ::-1])).T  # both orders: is j on r's way?
-        keep = off[j]
-        r, j = r[keep], j[keep]
-        dr = d[r]
-        dd = np.maximum(np.einsum("ij,ij->i", dr, dr), 1e-12)
-        rel = a[j] - a[r]
-        f = np.clip(np.einsum("ij,ij->i", rel, dr) / dd, 0.0, 1.0)
-        near = rel - f[:, None] * dr
-        inway = np.hypot(near[:, 0], near[:, 1]) < sep  # j on r's way
-        r, j = r[inway], j[inway]
-        if r.size == 0:
-            return np.zeros(q, dtype=bool)
-        index = np.full(self.schedule.size, -1)
-        index[free] = np.arange(q)
-        # the robots each one follows onto its next vertex: its dependencies on that
-        # vertex, one run of the dependencies sorted by (owner, vertex)
-        want = free * self._key_base + self.progress[free] + 1
-        lo = np.searchsorted(self._dep_key, want, "left")
-        count = np.searchsorted(self._dep_key, want, "right") - lo
-        rows = np.repeat(np.arange(q), count)
-        deps = np.arange(rows.size) - np.repeat(np.cumsum(count) - count, count) \
-            + np.repeat(lo, count)
-        followed = index[self._dep_robot[deps]]
-        key = r * q + j
-        follows = rows[followed >= 0] * q + followed[followed >= 0]
-        stay = ~np.isin(key, follows)
-        r, j, key = r[stay], j[stay], key[stay]
-        waits = ~np.isin(j * q + r, key)  # j on r's way, r not on j's
-        r, j = r[waits], j[waits]
-        graph = csr_matrix((np.ones(r.size), (r, j)), shape=(q, q))
-        _, label = connected_components(graph, directed=True, connection="strong")
-        cyclic = np.bincount(label)[label] > 1
-        waiting = np.zeros(q, dtype=bool)
-        waiting[r] = True
-        return waiting & ~cyclic
+        Precisely, a free robot whose straight way from where it is to its next vertex passes
+        within the kept distance :math:`s = h - 2\rho` of another free robot pushed off its
+        path (farther than :math:`\rho` from the edge it is on), whose own way is clear of
+        it and which is not one the plan has on that vertex before it (that one it
+        follows), waits: the edge from it to that robot in the graph of waiting. Such a
+        wait is taken only where it closes no cycle of waiting, so one robot of every
+        chain is free. Compiled: :func:`sqpmpc.kernels.execution.clear`, which looks at
+        no more than the robots asked about (:meth:`clear`) depend on."""
+        return self.clear(positions, np.arange(self.schedule.size))
+
+    def clear(self, positions: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``(m,)`` :meth:`clear_all` for the robots ``rows (m,)`` (schedule indices) only:
+        a controller asks for its own robot's. The same decisions, looking at the robots
+        near its way and, for a cycle of waiting, those they wait for, not every robot's
+        next vertex (a controller of a 256-robot swap would otherwise check 256 robots'
+        every sample for its one)."""
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        out = np.empty(rows.size, dtype=np.int64)
+        clear(np.ascontiguousarray(positions, dtype=float), self.robots, self._points,
+              self.progress, self.permitted_all(), float(self.roadmap.spacing),
+              float(self.roadmap.reach), self._dep_key, self._dep_robot, self._key_base,
+              rows, out)
+        return out
 
     def path_points(self, robot: int, first: int, last: int) -> np.ndarray:
         """``(last - first + 1, 2)`` the positions of robot ``robot``'s path vertices
@@ -424,6 +355,10 @@ class Execution:
     def finished(self, robot: int) -> bool:
         """Whether robot ``robot`` has reached the end of its path."""
         return bool(self.progress[robot] >= self._last[robot])
+
+    def all_finished(self) -> bool:
+        """Whether every robot has reached the end of its path."""
+        return bool(np.all(self.progress >= self._last))
 
     def configuration(self) -> np.ndarray:
         """``(n,)`` every robot's progress vertex (distinct: module docstring)."""

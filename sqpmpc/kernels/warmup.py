@@ -15,6 +15,7 @@ from sqpmpc.kernels.execution import warm_up_execution
 from sqpmpc.kernels.kkt import warm_up_kkt
 from sqpmpc.kernels.lacam import warm_up_lacam
 from sqpmpc.kernels.mapf import warm_up_mapf
+from sqpmpc.kernels.motion import warm_up_motion
 from sqpmpc.kernels.ocp import (
     all_finite,
     clip_and_roll_out,
@@ -130,6 +131,7 @@ def warm_up() -> float:
     warm_up_rings()
     warm_up_mapf()
     warm_up_execution()
+    warm_up_motion()
     warm_up_lacam()
     warm_up_kkt()
     harmonic_positions(np.ones((2, 7)), np.zeros(3), np.empty((2, 3, 2)))

@@ -112,6 +112,9 @@ class _Instance(RuleInstance):
         self.execution = Execution(plan.schedule, plan.roadmap, plan.robots, window)
         where = {int(r): k for k, r in enumerate(plan.robots)}
         self.rows = np.array([where.get(int(i), -1) for i in c.own], dtype=np.int64)
+        # the scheduled ones among them, and each one's place there (clear: its decision only)
+        self._scheduled = self.rows[self.rows >= 0]
+        self._slot = np.cumsum(self.rows >= 0) - 1
         bounds = c.scenario.bounds
         self._speed = float(bounds.v[1])
         self._reverse = float(bounds.v[0]) < 0.0
@@ -160,7 +163,7 @@ class _Instance(RuleInstance):
         """Whether no robot's progress has grown for the patience, robots not at their
         paths' ends (in samples, so that controllers that skipped one agree)."""
         total = int(progress.sum())
-        if total > self._total or all(execution.finished(r) for r in range(progress.size)):
+        if total > self._total or execution.all_finished():
             self._total, self._grew = max(total, self._total), sample
             return False
         return sample - self._grew >= self.patience
@@ -203,7 +206,7 @@ class _Instance(RuleInstance):
             self.counts["coordination_stalls"] += 1
             execution, plan = self._replan_from(plan, execution, view, "progress stopped")
             progress = execution.advance(view.positions)
-        permitted = execution.clear_all(view.positions)
+        permitted = execution.clear(view.positions, self._scheduled)
         out = np.array(view.references)
         self._tracked[:] = False
         reach = plan.roadmap.reach
@@ -213,7 +216,7 @@ class _Instance(RuleInstance):
                 continue
             p = int(progress[row])
             last = int(plan.schedule.lengths[row]) - 1
-            k = min(int(permitted[row]), last)
+            k = min(int(permitted[self._slot[m]]), last)
             if k <= p and p < last:
                 self.counts["coordination_holds"] += 1
             here = view.own_states[m]
@@ -262,10 +265,9 @@ class _Instance(RuleInstance):
                                  c.sample_time, c.horizon, self._back if reverse else self._speed,
                                  self._turn, self._accel,
                                  stop=halt, within=within, reverse=reverse,
-                                 turn_rate=None if rate is None else float(rate))
+                                 turn_rate=None if rate is None else float(rate),
+                                 out=(self._poses[m], self._velocities[m]))
             out[m] = motion.poses[1:, :2]
-            self._poses[m] = motion.poses
-            self._velocities[m] = motion.velocities
             self._tracked[m] = True
         if not self._tracked.any():
             return Contribution(references=out)
