@@ -53,7 +53,7 @@ def _same_motion(*args: object, **kwargs: object) -> None:
 @pytest.mark.parametrize("seed", range(4))
 def test_the_compiled_motion_is_the_numpy_one_on_random_paths(seed: int) -> None:
     rng = np.random.default_rng(seed)
-    for trial in range(400):
+    for trial in range(150):
         points = _walk(rng, int(rng.integers(0, 8)))
         reach = REACHES[trial % len(REACHES)]
         _same_path(points, reach, 0.05)
