@@ -641,12 +641,16 @@ def _medial_lines(free: shapely.Geometry, step: float) -> list[np.ndarray]:
     return [shapely.get_coordinates(line) for line in shapely.get_parts(merged)]
 
 
+@dataclass(frozen=True, eq=False)
 class _Axis:
-    """The medial axis of the free space as a fine graph (:func:`_axis`)."""
+    """The medial axis of the free space as a fine graph (:func:`_axis`): nodes ``(M, 2)``,
+    links ``(E, 2)`` between them, and which nodes are junctions and which narrow
+    ``(M,)`` each."""
 
-    def __init__(self, nodes: np.ndarray, links: np.ndarray, junction: np.ndarray,
-                 narrow: np.ndarray) -> None:
-        self.nodes, self.links, self.junction, self.narrow = nodes, links, junction, narrow
+    nodes: np.ndarray
+    links: np.ndarray
+    junction: np.ndarray
+    narrow: np.ndarray
 
 
 def _axis(free: shapely.Geometry, h: float) -> _Axis:
