@@ -402,6 +402,7 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
     # without a declared grid the grid's vertices and edges keep the clearance over their
     # tube (module docstring), unless ``tube`` is off (a thinner roadmap)
     tries: list[tuple] = []
+    axes: dict[tuple, _Axis] = {}  # the medial axis of each free space tried (lanes)
     if grid is None and tube:
         tubes = {reach: _inflated(polygons, circles, clearance + reach) for _, reach, _ in grids}
         tries += [(tubes[reach], (low + reach, high - reach), h, reach, origin)
@@ -411,7 +412,7 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
     for free, box, h, reach, origin in tries:
         arguments = (free, footprint, box[0], box[1], h, origin, reach, starts, goals,
                      has_goal, diagonal)
-        candidate = _roadmap_at(*arguments, lanes=grid is None)
+        candidate = _roadmap_at(*arguments, lanes=grid is None, axes=axes)
         score = _joined(candidate, has_goal)
         if score > best_score:
             best, best_score, chosen = candidate, score, arguments
@@ -419,7 +420,8 @@ def build_roadmap(polygons: Sequence[PolygonObstacle], circles: Sequence[Obstacl
             break
     assert best is not None  # at least one origin
     if best_score < int(has_goal.sum()):  # the grid that joins the most, bridged
-        best = _roadmap_at(*chosen, bridge=True, clear=inflated, lanes=grid is None)
+        best = _roadmap_at(*chosen, bridge=True, clear=inflated, lanes=grid is None,
+                           axes=axes)
     return best
 
 
@@ -556,7 +558,8 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
                 low: np.ndarray, high: np.ndarray, h: float, origin: np.ndarray,
                 reach: float, starts: np.ndarray, goals: np.ndarray, has_goal: np.ndarray,
                 diagonal: bool = False, bridge: bool = False,
-                clear: shapely.Geometry | None = None, lanes: bool = False) -> Roadmap:
+                clear: shapely.Geometry | None = None, lanes: bool = False,
+                axes: dict[tuple, _Axis] | None = None) -> Roadmap:
     points, shape, _ = _grid(low, high, h, origin)
     keep = _free_points(points, inflated, low, high)
     planned = np.flatnonzero(has_goal)
@@ -565,7 +568,12 @@ def _roadmap_at(inflated: shapely.Geometry | None, footprint: shapely.Geometry |
     axis = None
     junctions = np.zeros((0, 2))
     if lanes and inflated is not None:  # the corridors no grid line passes (_lanes)
-        axis = _axis(rectangle(*low, *high).difference(inflated), h)
+        key = (id(inflated), *np.asarray(low).tolist(), *np.asarray(high).tolist(), h)
+        axis = None if axes is None else axes.get(key)
+        if axis is None:  # the same free space for every grid origin tried: once
+            axis = _axis(rectangle(*low, *high).difference(inflated), h)
+            if axes is not None:
+                axes[key] = axis
         junctions = _narrow_junctions(axis, ends[new].reshape(-1, 2), h)
         if junctions.size:  # they replace the grid vertices within h
             gone = cKDTree(junctions).query(points)[0] < h - 1e-9
