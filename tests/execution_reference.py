@@ -32,10 +32,7 @@ def _dependencies(execution: Execution) -> tuple[int, np.ndarray, np.ndarray]:
 
 
 def advance(self: Execution, positions: np.ndarray) -> np.ndarray:
-    """Count progress from the measured ``positions (N, 2)`` of all robots (scenario
-    order): a robot is at the path vertex nearest to it among its progress vertex
-    and the next ``window`` ones (ties: the later one); progress never decreases.
-    Returns the progress ``(n,)`` (read it, do not write it)."""
+    """The numpy :meth:`sqpmpc.coordination.schedule.Execution.advance`."""
     now = np.asarray(positions, dtype=float)[self.robots]
     n, width = _paths(self).shape[:2]
     ahead = self.progress[:, None] + np.arange(0, self.window + 1)[None, :]
@@ -50,27 +47,7 @@ def advance(self: Execution, positions: np.ndarray) -> np.ndarray:
     return self.progress
 
 def clear_all(self: Execution, positions: np.ndarray) -> np.ndarray:
-    """``(n,)`` :meth:`permitted_all`, where a robot's next path vertex is also clear:
-    a robot whose next vertex has another robot within half the spacing (the
-    ``positions (N, 2)`` of all robots, scenario order) holds at its progress vertex.
-
-    In the plan's order nobody is there: the robots before it on that vertex are
-    counted past it only once nearer to their next vertex, which on the roadmap's
-    edges is farther than half the spacing from it, and the robots after it wait
-    for it. A robot found there was pushed off its own path by the collision rows
-    (a grid formation of 64 robots: robot 42 pushed 0.58 m sideways, onto the next
-    vertex of robot 27, which came on towards it; both free, each in the other's
-    way to the end of the run). Heading for that vertex would pin the pushed robot
-    against the way back to its path; holding at its own vertex leaves it the room.
-    The hold waits only on a robot going back to its own path, which waits for no
-    one to do so, so no cycle of waiting is added.
-
-    Of the robots still free, one whose way to its next vertex another free robot
-    stands on gives way to it (:meth:`yield_way`): two robots pushed off their paths
-    and pressed together at the kept distance, both free, each heading where the
-    other's way goes, stood so to the end of a run (a grid formation of 64 robots,
-    seed 0, on the plan without the turns' steps; re-planning from where they stood
-    gave them the same ways). The one on the other's way is left to go first."""
+    """The numpy :meth:`sqpmpc.coordination.schedule.Execution.clear_all`."""
     out = self.permitted_all()
     now = np.asarray(positions, dtype=float)
     rows = np.flatnonzero(out > self.progress)
@@ -90,14 +67,8 @@ def clear_all(self: Execution, positions: np.ndarray) -> np.ndarray:
     return out
 
 def yield_way(self: Execution, now: np.ndarray, free: np.ndarray) -> np.ndarray:
-    r"""Which of the robots ``free (q,)`` (schedule indices, free to head for their next
-    vertex) give way: a robot whose straight way from where it is (``now (N, 2)``, all
-    robots) to its next vertex passes within the kept distance :math:`s = h - 2\rho`
-    of another free robot pushed off its path (farther than :math:`\rho` from the edge
-    it is on), whose own way is clear of it and which is not one the plan
-    has on that vertex before it (that one it follows), holds. Such a wait is taken
-    only where it closes no cycle of waiting (strongly connected components), so one
-    robot of every chain is free. Returns a boolean mask over ``free``."""
+    """The numpy :meth:`sqpmpc.coordination.schedule.Execution.yield_way`: a mask over
+    ``free``."""
     sep = self.roadmap.spacing - 2.0 * self.roadmap.reach
     q = free.size
     a = now[self.robots[free]]  # (q, 2) where they are

@@ -136,43 +136,7 @@ def path_motion(points: np.ndarray, pose: np.ndarray, speed: float, reach: float
                 sample_time: float, horizon: int, max_speed: float, max_turn_rate: float,
                 acceleration: float | None, stop: bool = True, within: int | None = None,
                 reverse: bool = False, turn_rate: float | None = None) -> Motion:
-    r"""The motion along ``points (K, 2)`` (``K >= 2``: the path from the vertex behind
-    the robot to the end of its open part) of a robot at ``pose (3,)`` moving at
-    ``speed`` (module docstring).
-
-    Parameters
-    ----------
-    points
-        The path's vertices; the robot is projected on its first segments.
-    pose
-        ``(x, y, psi)`` of the robot (``psi`` continuous: the motion's headings are on its
-        branch).
-    speed
-        The robot's forward speed, m/s (negative counts as standing).
-    reach
-        :math:`\rho`, m.
-    sample_time, horizon
-        :math:`T_s`, :math:`N`.
-    max_speed, max_turn_rate
-        :math:`v_{\max} > 0`, :math:`\omega_{\max} > 0`.
-    acceleration
-        :math:`a_{\max}` (``None``: the speed may change at once).
-    stop
-        Whether the robot stops at the path's end (else the path goes on beyond it).
-    within
-        The robot is projected on the path up to ``points[within]`` (default: the whole
-        path), the furthest of equally near points: a path that comes back over itself
-        (a plan's step back) is followed in its order.
-    reverse
-        Drive backwards (``speed`` is then the forward speed, negative when reversing):
-        the motion of the robot turned by a half-turn, its speeds negated.
-    turn_rate
-        The robot's present turn rate, rad/s, for a model with velocity states: with
-        ``speed`` it is then the motion's velocity at stage 0 (its velocities start where
-        the robot's are, so the accelerations of its first sample are the ones it needs);
-        ``None`` (a model whose inputs are the velocities): stage 0's velocity is the
-        motion's own over its first sample.
-    """
+    """The numpy :func:`sqpmpc.coordination.motion.path_motion` (its parameters)."""
     T, N = float(sample_time), int(horizon)
     v_max, w_max = float(max_speed), float(max_turn_rate)
     if reverse:  # backwards is forwards with the heading turned by a half-turn

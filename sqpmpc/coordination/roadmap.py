@@ -788,10 +788,6 @@ def _fine_axis(lines: list[np.ndarray], step: float
     return nodes, np.asarray(links, dtype=np.int64).reshape(-1, 2), junction
 
 
-def _length(line: np.ndarray) -> float:
-    return float(np.hypot(*np.diff(line, axis=0).T).sum()) if line.shape[0] > 1 else 0.0
-
-
 def _samples(line: np.ndarray, step: float) -> np.ndarray:
     """Points of the polyline ``line (K, 2)`` evenly spaced along its length, at most
     ``step`` apart, both ends included."""
