@@ -723,18 +723,19 @@ def _lanes(positions: np.ndarray, axis: _Axis, inflated: shapely.Geometry, h: fl
             continue
         new.append(k)
     every = np.concatenate((positions.reshape(-1, 2), nodes[new]))
-    # each node's vertex: the nearest within h that it sees with the clearance
+    # each node's vertex: the nearest within h that it sees with the clearance (every
+    # node's candidates in one query and one segment test)
     near = cKDTree(every).query_ball_point(nodes, h + 1e-9)
+    node = np.repeat(np.arange(nodes.shape[0]), [len(c) for c in near])
+    vertex = np.fromiter((v for c in near for v in c), dtype=np.int64, count=node.size)
+    gap = np.hypot(*(every[vertex] - nodes[node]).T)
+    order = np.lexsort((gap, node))  # by node, nearest first
+    node, vertex = node[order], vertex[order]
+    seen = _free_segments(nodes[node], every[vertex], inflated)
+    node, vertex = node[seen], vertex[seen]
+    first = np.r_[True, node[1:] != node[:-1]] if node.size else np.zeros(0, dtype=bool)
     stand = np.full(nodes.shape[0], -1, dtype=np.int64)
-    for k, candidates in enumerate(near):
-        if not candidates:
-            continue
-        candidates = np.asarray(candidates, dtype=np.int64)
-        candidates = candidates[np.argsort(np.hypot(*(every[candidates] - nodes[k]).T))]
-        seen = _free_segments(np.repeat(nodes[k][None], candidates.size, axis=0),
-                              every[candidates], inflated)
-        if seen.any():
-            stand[k] = candidates[int(np.argmax(seen))]
+    stand[node[first]] = vertex[first]
     a, b = stand[links[:, 0]], stand[links[:, 1]]
     lane = np.zeros(every.shape[0], dtype=bool)
     lane[base:] = True
